@@ -1,0 +1,1 @@
+"""Metrics (ATE/RPE, evo-compatible), the run harness, sweeps, gates, reports, CLI."""

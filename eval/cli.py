@@ -1,0 +1,127 @@
+"""The ``depotbench`` command line: thin entry points over the library.
+
+A user's mistake (``InputError``) prints one line and exits with code 2; any
+other exception is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from eval.alignment import Alignment
+from eval.comparison import Comparison, ComparisonOptions, compare
+from eval.metrics import DeltaUnit, Statistics
+from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
+from sim.errors import InputError
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+EXIT_INPUT_ERROR = 2
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _add_eval(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
+    p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
+    p.add_argument("estimate", type=Path, help="estimated trajectory (TUM format)")
+    p.add_argument("--align", choices=[a.value for a in Alignment], default="se3",
+                   help="Umeyama alignment of the estimate (default: se3)")
+    p.add_argument("--max-diff", type=float, default=DEFAULT_MAX_DIFF_S,
+                   help="association window in seconds (default: 0.02, TUM's)")
+    p.add_argument("--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps")
+    p.add_argument("--rpe-delta", type=_positive_float, default=1.0, help="RPE delta (default: 1)")
+    p.add_argument("--rpe-unit", choices=[u.value for u in DeltaUnit], default="frames",
+                   help="unit of the RPE delta (default: frames)")
+    p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(handler=_cmd_eval)
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    options = ComparisonOptions(
+        alignment=Alignment(args.align),
+        max_diff_s=args.max_diff,
+        offset_s=args.t_offset,
+        rpe_delta=args.rpe_delta,
+        rpe_unit=DeltaUnit(args.rpe_unit),
+        rpe_all_pairs=args.all_pairs,
+    )
+    result = compare(read_tum(args.reference), read_tum(args.estimate), options)
+    if args.json:
+        print(json.dumps(result.to_dict(), indent=2))
+    else:
+        print(format_comparison(result))
+    return 0
+
+
+def format_comparison(result: Comparison) -> str:
+    o = result.options
+    header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
+    header += f"{'count':>8}"
+
+    def row(label: str, s: Statistics) -> str:
+        values = (s.rmse, s.mean, s.median, s.std, s.min, s.max)
+        return f"{label:18}" + "".join(f"{v:11.6f}" for v in values) + f"{s.count:8d}"
+
+    delta = f"{o.rpe_delta:g} {o.rpe_unit.value}{', all pairs' if o.rpe_all_pairs else ''}"
+    return "\n".join(
+        [
+            f"reference {result.reference_name}  estimate {result.estimate_name}",
+            f"{result.pairs} associated pairs (window {o.max_diff_s} s), alignment {o.alignment.value}"
+            + (f" (scale {result.ate.transform.scale:.6f})" if o.alignment is Alignment.SIM3 else ""),
+            header,
+            row("ATE (m)", result.ate.statistics),
+            row(f"RPE trans (m)", result.rpe.translation),
+            row("RPE rot (deg)", result.rpe.rotation_deg),
+            f"RPE delta: {delta}",
+        ]
+    )
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="the quick-start job: evaluate the shipped example run")
+    p.set_defaults(handler=_cmd_demo)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    reference = read_tum(ASSETS / "examples" / "fr1_xyz_groundtruth.txt")
+    estimate = read_tum(ASSETS / "examples" / "fr1_xyz_rgbdslam.txt")
+    print("depotbench demo: RGBD-SLAM on TUM fr1/xyz against motion-capture ground truth\n")
+    for alignment in (Alignment.SE3, Alignment.SIM3):
+        print(format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment))))
+        print()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="depotbench",
+        description="Simulation-backed test bench for dynamic visual SLAM.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_demo(sub)
+    _add_eval(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.handler(args))
+    except (InputError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
+        print(f"depotbench {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

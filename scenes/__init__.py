@@ -1,0 +1,1 @@
+"""Scenario specs (YAML), their validation, the named scenario library and suites."""

@@ -1,0 +1,197 @@
+"""Pinhole intrinsics, the TUM defaults, and the ORB-SLAM2/3 settings file.
+
+The settings file is written so that ORB-SLAM2's and ORB-SLAM3's ``rgbd_tum``
+binaries run on a generated sequence as they run on a real TUM one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from sim.errors import SequenceFormatError
+
+TUM_DEPTH_SCALE = 5000.0
+"""Depth PNG units per metre (TUM RGB-D)."""
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole camera in the OpenCV convention (pixel centres at integers).
+
+    ``distortion`` holds OpenCV's (k1, k2, p1, p2, k3); generated sequences have
+    none, real TUM fr1/fr2 sequences do.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    depth_scale: float = TUM_DEPTH_SCALE
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy", "depth_scale"):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f"intrinsics {name} must be finite, got {value}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if self.depth_scale <= 0:
+            raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
+        if len(self.distortion) != 5:
+            raise ValueError("distortion must hold (k1, k2, p1, p2, k3)")
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @classmethod
+    def from_fovy(cls, fovy_deg: float, width: int, height: int) -> Intrinsics:
+        """Intrinsics of a MuJoCo camera: square pixels, centre at ((W-1)/2, (H-1)/2)."""
+        f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
+        return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
+
+    def fovy_deg(self) -> float:
+        """Vertical field of view that a MuJoCo camera needs to reproduce ``fy``."""
+        return math.degrees(2.0 * math.atan((self.height / 2.0) / self.fy))
+
+
+TUM_DEFAULT = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
+"""The ROS/Kinect default intrinsics used by TUM's tools and by generated sequences."""
+
+TUM_FREIBURG: dict[str, Intrinsics] = {
+    "freiburg1": Intrinsics(
+        517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    ),
+    "freiburg2": Intrinsics(
+        520.9, 521.0, 325.1, 249.7, 640, 480, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)
+    ),
+    "freiburg3": Intrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
+}
+"""Calibrated intrinsics of the TUM RGB-D sensors, as published with the benchmark."""
+
+
+def tum_intrinsics_for(folder: Path) -> Intrinsics:
+    """TUM's calibration for a folder named like ``rgbd_dataset_freiburg2_desk``.
+
+    Falls back to the ROS default, as TUM's own tools do for unknown sensors.
+    """
+    name = folder.resolve().name.lower()
+    for key, intrinsics in TUM_FREIBURG.items():
+        if key in name:
+            return intrinsics
+    return TUM_DEFAULT
+
+
+@dataclass(frozen=True)
+class OrbSlamSettings:
+    """Non-camera fields that ORB-SLAM2/3 require in an RGB-D settings file."""
+
+    fps: float = 30.0
+    baseline_times_fx: float = 40.0
+    close_depth_threshold: float = 40.0
+    n_features: int = 1000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    ini_th_fast: int = 20
+    min_th_fast: int = 7
+    viewer: dict[str, float] = field(
+        default_factory=lambda: {
+            "KeyFrameSize": 0.05,
+            "KeyFrameLineWidth": 1.0,
+            "GraphLineWidth": 0.9,
+            "PointSize": 2.0,
+            "CameraSize": 0.08,
+            "CameraLineWidth": 3.0,
+            "ViewpointX": 0.0,
+            "ViewpointY": -0.7,
+            "ViewpointZ": -1.8,
+            "ViewpointF": 500.0,
+        }
+    )
+
+
+def orbslam_yaml(intrinsics: Intrinsics, settings: OrbSlamSettings | None = None) -> str:
+    """The camera as an ORB-SLAM2/3 (old-format) RGB-D settings file."""
+    s = settings or OrbSlamSettings()
+    k1, k2, p1, p2, k3 = intrinsics.distortion
+    lines = [
+        "%YAML:1.0",
+        "# Written by depotbench. ORB-SLAM2/3 RGB-D settings (TUM style).",
+        'Camera.type: "PinHole"',
+        f"Camera.fx: {intrinsics.fx:.9g}",
+        f"Camera.fy: {intrinsics.fy:.9g}",
+        f"Camera.cx: {intrinsics.cx:.9g}",
+        f"Camera.cy: {intrinsics.cy:.9g}",
+        f"Camera.k1: {k1:.9g}",
+        f"Camera.k2: {k2:.9g}",
+        f"Camera.p1: {p1:.9g}",
+        f"Camera.p2: {p2:.9g}",
+        f"Camera.k3: {k3:.9g}",
+        f"Camera.width: {intrinsics.width}",
+        f"Camera.height: {intrinsics.height}",
+        f"Camera.fps: {s.fps:.9g}",
+        f"Camera.bf: {s.baseline_times_fx:.9g}",
+        "Camera.RGB: 1",
+        f"ThDepth: {s.close_depth_threshold:.9g}",
+        f"DepthMapFactor: {intrinsics.depth_scale:.9g}",
+        f"ORBextractor.nFeatures: {s.n_features}",
+        f"ORBextractor.scaleFactor: {s.scale_factor:.9g}",
+        f"ORBextractor.nLevels: {s.n_levels}",
+        f"ORBextractor.iniThFAST: {s.ini_th_fast}",
+        f"ORBextractor.minThFAST: {s.min_th_fast}",
+    ]
+    lines += [f"Viewer.{key}: {value:.9g}" for key, value in s.viewer.items()]
+    return "\n".join(lines) + "\n"
+
+
+_REQUIRED_KEYS = ("Camera.fx", "Camera.fy", "Camera.cx", "Camera.cy", "Camera.width",
+                  "Camera.height", "DepthMapFactor")
+
+
+def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
+    """Intrinsics and frame rate from an ORB-SLAM settings file (OpenCV YAML)."""
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {exc.msg}") from exc
+    try:
+        values: dict[str, float] = {}
+        for key in (*_REQUIRED_KEYS, "Camera.k1", "Camera.k2", "Camera.p1", "Camera.p2",
+                    "Camera.k3", "Camera.fps"):
+            node = storage.getNode(key)
+            if node.empty():
+                if key in _REQUIRED_KEYS:
+                    raise SequenceFormatError(path, None, f"missing key {key}")
+                continue
+            if not node.isReal() and not node.isInt():
+                raise SequenceFormatError(path, None, f"{key} must be a number")
+            values[key] = float(node.real())
+    finally:
+        storage.release()
+    try:
+        intrinsics = Intrinsics(
+            fx=values["Camera.fx"],
+            fy=values["Camera.fy"],
+            cx=values["Camera.cx"],
+            cy=values["Camera.cy"],
+            width=int(values["Camera.width"]),
+            height=int(values["Camera.height"]),
+            distortion=tuple(values.get(f"Camera.{k}", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")),
+            depth_scale=values["DepthMapFactor"],
+        )
+    except ValueError as exc:
+        raise SequenceFormatError(path, None, str(exc)) from exc
+    return intrinsics, values.get("Camera.fps", 30.0)

@@ -1,0 +1,24 @@
+"""Errors for bad input: each names the file and, where known, the line.
+
+``InputError`` marks a user's mistake (the CLI prints it in one line and exits
+with code 2); any other exception is a bug of ours and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class InputError(ValueError):
+    """Bad input from the user: a file, a field or an argument."""
+
+
+class SequenceFormatError(InputError):
+    """A folder or file breaks the sequence contract of design.md."""
+
+    def __init__(self, path: Path | str, line: int | None, problem: str) -> None:
+        self.path = Path(path)
+        self.line = line
+        self.problem = problem
+        where = f"{self.path}" if line is None else f"{self.path}:{line}"
+        super().__init__(f"{where}: {problem}")

@@ -1,0 +1,83 @@
+"""Per-object ground truth of one frame, as stored in ``gt/objects.jsonl``.
+
+Priors are plain strings here (``dynamic``, ``potential``, ``static``) so that
+the bottom layer of the import graph needs no detector types.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+PRIORS = ("dynamic", "potential", "static")
+
+
+@dataclass(frozen=True)
+class ObjectState:
+    """One instance in one frame.
+
+    ``box_xyxy`` is the visible box in pixel-edge coordinates: pixel (u, v)
+    covers [u, u+1) x [v, v+1), so a mask spanning columns 10..19 has
+    x0 = 10, x1 = 20. ``None`` when no pixel is visible.
+    """
+
+    instance_id: int
+    class_name: str
+    prior: str
+    position_m: tuple[float, float, float]
+    quat_xyzw: tuple[float, float, float, float]
+    linear_velocity_mps: tuple[float, float, float]
+    angular_velocity_radps: tuple[float, float, float]
+    moving: bool
+    box_xyxy: tuple[int, int, int, int] | None
+    visible_pixels: int
+
+    def __post_init__(self) -> None:
+        if not 0 < self.instance_id < 65536:
+            raise ValueError(f"instance_id must be in 1..65535, got {self.instance_id}")
+        if self.prior not in PRIORS:
+            raise ValueError(f"prior must be one of {PRIORS}, got {self.prior!r}")
+        for name in ("position_m", "quat_xyzw", "linear_velocity_mps", "angular_velocity_radps"):
+            if not all(math.isfinite(v) for v in getattr(self, name)):
+                raise ValueError(f"{name} of instance {self.instance_id} is not finite")
+        if self.visible_pixels < 0:
+            raise ValueError("visible_pixels must be >= 0")
+        if (self.box_xyxy is None) != (self.visible_pixels == 0):
+            raise ValueError("an instance has a box exactly when it has visible pixels")
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "id": self.instance_id,
+            "class": self.class_name,
+            "prior": self.prior,
+            "position_m": list(self.position_m),
+            "quat_xyzw": list(self.quat_xyzw),
+            "linear_velocity_mps": list(self.linear_velocity_mps),
+            "angular_velocity_radps": list(self.angular_velocity_radps),
+            "moving": self.moving,
+            "box_xyxy": None if self.box_xyxy is None else list(self.box_xyxy),
+            "visible_pixels": self.visible_pixels,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> ObjectState:
+        box = data["box_xyxy"]
+        return cls(
+            instance_id=int(data["id"]),
+            class_name=str(data["class"]),
+            prior=str(data["prior"]),
+            position_m=_triple(data["position_m"]),
+            quat_xyzw=tuple(float(v) for v in data["quat_xyzw"]),  # type: ignore[arg-type]
+            linear_velocity_mps=_triple(data["linear_velocity_mps"]),
+            angular_velocity_radps=_triple(data["angular_velocity_radps"]),
+            moving=bool(data["moving"]),
+            box_xyxy=None if box is None else tuple(int(v) for v in box),  # type: ignore[arg-type]
+            visible_pixels=int(data["visible_pixels"]),
+        )
+
+
+def _triple(values: list[float]) -> tuple[float, float, float]:
+    if len(values) != 3:
+        raise ValueError(f"expected 3 values, got {len(values)}")
+    return (float(values[0]), float(values[1]), float(values[2]))

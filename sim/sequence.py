@@ -1,0 +1,551 @@
+"""The sequence on disk: a TUM RGB-D folder plus exact ground truth (design.md).
+
+``Sequence.open`` reads a generated sequence or a real TUM RGB-D folder;
+``SequenceWriter`` writes one atomically. Neither imports MuJoCo or OpenGL.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sim.camera import Intrinsics, OrbSlamSettings, orbslam_yaml, read_orbslam_yaml
+from sim.camera import tum_intrinsics_for
+from sim.errors import SequenceFormatError
+from sim.ground_truth import ObjectState
+from sim.tum_files import (
+    FrameList,
+    PoseTable,
+    check_increasing,
+    parse_float,
+    read_frame_list,
+    read_pose_file,
+    read_rows,
+    write_frame_list,
+    write_pose_file,
+)
+
+FORMAT_VERSION = 1
+SUPPORTED_FORMAT_VERSIONS = (1,)
+ASSOCIATION_MAX_DIFF_S = 0.02
+"""Largest RGB/depth timestamp gap paired when a folder has no associations.txt (TUM)."""
+
+
+def timestamp_name(timestamp_s: float) -> str:
+    """The file stem of a frame: seconds with 6 decimals, as in TUM."""
+    return f"{timestamp_s:.6f}"
+
+
+def generator_version() -> str:
+    try:
+        return metadata.version("depotbench")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """Where one RGB-D frame lives, and which list line named it."""
+
+    timestamp_s: float
+    rgb_path: Path
+    depth_timestamp_s: float
+    depth_path: Path
+    list_path: Path
+    list_line: int
+
+
+@dataclass(frozen=True, eq=False)
+class Sequence:
+    """An opened sequence. Frames are decoded on demand and checked as they are."""
+
+    root: Path
+    intrinsics: Intrinsics
+    fps: float
+    frames: tuple[FrameRef, ...]
+    groundtruth: PoseTable | None
+    meta: dict[str, Any] | None
+
+    @property
+    def is_generated(self) -> bool:
+        """True for depotbench sequences, which carry ``meta.json`` and ``gt/``."""
+        return self.meta is not None
+
+    @property
+    def timestamps_s(self) -> np.ndarray:
+        return np.array([f.timestamp_s for f in self.frames])
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @classmethod
+    def open(
+        cls,
+        root: Path | str,
+        intrinsics: Intrinsics | None = None,
+        max_diff_s: float = ASSOCIATION_MAX_DIFF_S,
+    ) -> Sequence:
+        """Open and check a sequence folder.
+
+        Real TUM folders need no ``camera.yaml``: ``intrinsics`` is used if given,
+        else TUM's calibration chosen from the folder name (freiburg1/2/3).
+        """
+        root = Path(root)
+        if not root.is_dir():
+            raise SequenceFormatError(root, None, "is not a sequence folder (no such directory)")
+        meta = _read_meta(root / "meta.json")
+        camera_path = root / "camera.yaml"
+        fps = 30.0
+        if camera_path.exists():
+            file_intrinsics, fps = read_orbslam_yaml(camera_path)
+            intrinsics = intrinsics or file_intrinsics
+        elif meta is not None:
+            raise SequenceFormatError(camera_path, None, "file is missing (required with meta.json)")
+        else:
+            intrinsics = intrinsics or tum_intrinsics_for(root)
+        if meta is not None:
+            fps = float(meta.get("fps", fps))
+        frames = _read_frames(root, max_diff_s)
+        gt_path = root / "groundtruth.txt"
+        groundtruth = None
+        if gt_path.exists():
+            groundtruth = read_pose_file(gt_path, strict=True)
+        elif meta is not None:
+            raise SequenceFormatError(gt_path, None, "file is missing (required with meta.json)")
+        sequence = cls(root, intrinsics, fps, frames, groundtruth, meta)
+        if meta is not None:
+            sequence._check_generated()
+        return sequence
+
+    def _check_generated(self) -> None:
+        """Generated sequences have one ground-truth pose and gt record per frame."""
+        assert self.groundtruth is not None
+        gt_path = self.root / "groundtruth.txt"
+        if len(self.groundtruth.timestamps_s) != len(self.frames):
+            raise SequenceFormatError(
+                gt_path,
+                None,
+                f"holds {len(self.groundtruth.timestamps_s)} poses for {len(self.frames)} frames",
+            )
+        mismatch = np.flatnonzero(np.abs(self.groundtruth.timestamps_s - self.timestamps_s) > 1e-6)
+        if mismatch.size:
+            i = int(mismatch[0])
+            raise SequenceFormatError(
+                gt_path,
+                self.groundtruth.lines[i],
+                f"timestamp {self.groundtruth.timestamps_s[i]:.6f} differs from frame {i} "
+                f"({self.frames[i].timestamp_s:.6f})",
+            )
+        objects_path = self.root / "gt" / "objects.jsonl"
+        if not objects_path.exists():
+            raise SequenceFormatError(objects_path, None, "file is missing")
+        for frame in self.frames:
+            mask = self._instance_path(frame)
+            if not mask.exists():
+                raise SequenceFormatError(mask, None, "instance image is missing")
+
+    # -- frames ---------------------------------------------------------------
+
+    def rgb(self, index: int) -> np.ndarray:
+        """Frame ``index`` as 8-bit RGB, shape (H, W, 3)."""
+        frame = self.frames[index]
+        image = _read_png(frame.rgb_path, frame)
+        if image.dtype != np.uint8:
+            raise SequenceFormatError(frame.rgb_path, None, f"RGB must be 8-bit, got {image.dtype}")
+        if image.ndim == 2:
+            image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
+        elif image.shape[2] == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+        else:
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        self._check_size(frame.rgb_path, image)
+        return image
+
+    def depth_raw(self, index: int) -> np.ndarray:
+        """Frame ``index``'s depth PNG as stored: uint16, metres x depth_scale, 0 = none."""
+        frame = self.frames[index]
+        depth = _read_png(frame.depth_path, frame)
+        if depth.dtype != np.uint16 or depth.ndim != 2:
+            channels = 1 if depth.ndim == 2 else depth.shape[2]
+            raise SequenceFormatError(
+                frame.depth_path,
+                None,
+                f"depth must be a 16-bit single-channel PNG, got {depth.dtype} x{channels}",
+            )
+        self._check_size(frame.depth_path, depth)
+        return depth
+
+    def depth_m(self, index: int) -> np.ndarray:
+        """Frame ``index``'s z-depth in metres (float32), 0 where there is no reading."""
+        return self.depth_raw(index).astype(np.float32) / np.float32(self.intrinsics.depth_scale)
+
+    def world_from_camera(self, index: int) -> np.ndarray:
+        """True 4x4 pose of frame ``index`` (generated sequences: exact, same timestamp)."""
+        if self.groundtruth is None or not self.is_generated:
+            raise ValueError(f"{self.root}: per-frame ground truth needs a generated sequence")
+        return pose_matrix(self.groundtruth.positions_m[index], self.groundtruth.quats_xyzw[index])
+
+    # -- ground-truth extras ---------------------------------------------------
+
+    def _instance_path(self, frame: FrameRef) -> Path:
+        return self.root / "gt" / "instances" / f"{timestamp_name(frame.timestamp_s)}.png"
+
+    def instances(self, index: int) -> np.ndarray:
+        """Instance id per pixel (uint16, 0 = static world)."""
+        self._require_generated()
+        frame = self.frames[index]
+        path = self._instance_path(frame)
+        mask = _read_png(path, frame)
+        if mask.dtype != np.uint16 or mask.ndim != 2:
+            raise SequenceFormatError(path, None, "instance image must be a 16-bit single-channel PNG")
+        self._check_size(path, mask)
+        return mask
+
+    def objects(self) -> list[tuple[ObjectState, ...]]:
+        """Every frame's object states, read from ``gt/objects.jsonl``."""
+        self._require_generated()
+        path = self.root / "gt" / "objects.jsonl"
+        records: list[tuple[ObjectState, ...]] = []
+        with path.open(encoding="utf-8") as handle:
+            for line_number, line in enumerate(handle, start=1):
+                try:
+                    data = json.loads(line)
+                    states = tuple(ObjectState.from_json(o) for o in data["objects"])
+                    timestamp = float(data["timestamp"])
+                except (ValueError, KeyError, TypeError) as exc:
+                    raise SequenceFormatError(path, line_number, f"bad record: {exc}") from None
+                if line_number > len(self.frames):
+                    raise SequenceFormatError(path, line_number, "more records than frames")
+                expected = self.frames[line_number - 1].timestamp_s
+                if abs(timestamp - expected) > 1e-6:
+                    raise SequenceFormatError(
+                        path, line_number, f"timestamp {timestamp:.6f}, frame has {expected:.6f}"
+                    )
+                records.append(states)
+        if len(records) != len(self.frames):
+            raise SequenceFormatError(
+                path, None, f"holds {len(records)} records for {len(self.frames)} frames"
+            )
+        return records
+
+    def flow(self, index: int) -> np.ndarray | None:
+        """Exact optical flow (H, W, 2) to the next frame, if the sequence stores it."""
+        self._require_generated()
+        path = self.root / "gt" / "flow" / f"{timestamp_name(self.frames[index].timestamp_s)}.npz"
+        if not path.exists():
+            return None
+        with np.load(path) as data:
+            return data["flow"]
+
+    def verify(self) -> None:
+        """Decode every image, so a corrupt file is found before a long run."""
+        for i in range(len(self.frames)):
+            self.rgb(i)
+            self.depth_raw(i)
+            if self.is_generated:
+                self.instances(i)
+        if self.is_generated:
+            self.objects()
+
+    def _require_generated(self) -> None:
+        if not self.is_generated:
+            raise ValueError(f"{self.root}: not a generated sequence (no meta.json, no gt/)")
+
+    def _check_size(self, path: Path, image: np.ndarray) -> None:
+        height, width = image.shape[:2]
+        if (width, height) != (self.intrinsics.width, self.intrinsics.height):
+            raise SequenceFormatError(
+                path,
+                None,
+                f"image is {width}x{height}, the camera is "
+                f"{self.intrinsics.width}x{self.intrinsics.height}",
+            )
+
+
+def pose_matrix(position: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """4x4 rigid transform from a position and a (normalised) xyzw quaternion."""
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    pose[:3, 3] = position
+    return pose
+
+
+def _read_meta(path: Path) -> dict[str, Any] | None:
+    if not path.exists():
+        return None
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SequenceFormatError(path, getattr(exc, "lineno", None), f"not valid JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise SequenceFormatError(path, None, "must hold a JSON object")
+    version = meta.get("format_version")
+    if version not in SUPPORTED_FORMAT_VERSIONS:
+        raise SequenceFormatError(
+            path,
+            None,
+            f"format_version {version!r} is not supported (this reader knows "
+            f"{', '.join(map(str, SUPPORTED_FORMAT_VERSIONS))}); upgrade depotbench",
+        )
+    return meta
+
+
+def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
+    assoc_path = root / "associations.txt"
+    if assoc_path.exists():
+        rows = read_rows(assoc_path, 4)
+        if not rows:
+            raise SequenceFormatError(assoc_path, None, "lists no frames")
+        stamps = np.array([parse_float(assoc_path, r, 0, "timestamp") for r in rows])
+        check_increasing(assoc_path, stamps, [r.line for r in rows])
+        frames = [
+            FrameRef(
+                float(stamps[k]),
+                root / r.fields[1],
+                parse_float(assoc_path, r, 2, "timestamp"),
+                root / r.fields[3],
+                assoc_path,
+                r.line,
+            )
+            for k, r in enumerate(rows)
+        ]
+    else:
+        rgb = read_frame_list(root / "rgb.txt")
+        depth = read_frame_list(root / "depth.txt")
+        frames = [
+            FrameRef(
+                float(rgb.timestamps_s[i]),
+                root / rgb.filenames[i],
+                float(depth.timestamps_s[j]),
+                root / depth.filenames[j],
+                root / "rgb.txt",
+                rgb.lines[i],
+            )
+            for i, j in associate_lists(rgb, depth, max_diff_s)
+        ]
+        if not frames:
+            raise SequenceFormatError(
+                root / "depth.txt", None, f"no depth frame within {max_diff_s} s of any RGB frame"
+            )
+    for frame in frames:
+        for path in (frame.rgb_path, frame.depth_path):
+            if not path.is_file():
+                raise SequenceFormatError(
+                    frame.list_path, frame.list_line, f"frame file {path.relative_to(root)} is missing"
+                )
+    return tuple(frames)
+
+
+def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list[tuple[int, int]]:
+    """Pair RGB and depth frames as TUM's associate.py does.
+
+    All pairs closer than ``max_diff_s`` are taken greedily, closest first, each
+    frame used once; the result is sorted by RGB time.
+    """
+    a, b = rgb.timestamps_s, depth.timestamps_s
+    lo = np.searchsorted(b, a - max_diff_s, side="left")
+    hi = np.searchsorted(b, a + max_diff_s, side="right")
+    candidates = [
+        (abs(a[i] - b[j]), i, j) for i in range(len(a)) for j in range(lo[i], hi[i])
+        if abs(a[i] - b[j]) < max_diff_s
+    ]
+    candidates.sort()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs = []
+    for _, i, j in candidates:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    pairs.sort()
+    return pairs
+
+
+def _read_png(path: Path, frame: FrameRef) -> np.ndarray:
+    if not path.is_file():
+        raise SequenceFormatError(frame.list_path, frame.list_line, f"frame file {path} is missing")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise SequenceFormatError(path, None, "cannot be decoded as an image (corrupt or not PNG)")
+    return image
+
+
+# -- writer --------------------------------------------------------------------
+
+
+class SequenceWriter:
+    """Write a sequence into a temporary folder and rename it into place when complete.
+
+    Use as a context manager; an exception inside the block leaves nothing behind.
+    """
+
+    def __init__(
+        self,
+        root: Path | str,
+        intrinsics: Intrinsics,
+        *,
+        fps: float,
+        meta: dict[str, Any],
+        overwrite: bool = False,
+        png_compression: int = 1,
+        orbslam: OrbSlamSettings | None = None,
+    ) -> None:
+        self.root = Path(root)
+        self.intrinsics = intrinsics
+        self.fps = fps
+        self.meta = dict(meta)
+        self.overwrite = overwrite
+        self.png_params = [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+        self.orbslam = orbslam or OrbSlamSettings(fps=fps)
+        self._tmp: Path | None = None
+        self._timestamps: list[float] = []
+        self._positions: list[np.ndarray] = []
+        self._quats: list[np.ndarray] = []
+        self._objects: list[str] = []
+
+    def __enter__(self) -> SequenceWriter:
+        if self.root.exists() and not self.overwrite:
+            raise FileExistsError(f"{self.root}: already exists (pass overwrite to replace it)")
+        self.root.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = self.root.parent / f".{self.root.name}.partial-{uuid.uuid4().hex[:8]}"
+        for sub in ("rgb", "depth", "gt/instances"):
+            (self._tmp / sub).mkdir(parents=True)
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        assert self._tmp is not None
+        try:
+            if exc_type is None:
+                self._finish()
+        finally:
+            if self._tmp.exists():
+                shutil.rmtree(self._tmp)
+
+    def add_frame(
+        self,
+        timestamp_s: float,
+        rgb: np.ndarray,
+        depth_m: np.ndarray,
+        world_from_camera: np.ndarray,
+        instances: np.ndarray,
+        objects: tuple[ObjectState, ...] | list[ObjectState],
+        flow: np.ndarray | None = None,
+    ) -> None:
+        """Add one frame: RGB, metric z-depth, true camera pose (optical frame), ground truth."""
+        if self._tmp is None:
+            raise RuntimeError("SequenceWriter must be used as a context manager")
+        index = len(self._timestamps)
+        h, w = self.intrinsics.height, self.intrinsics.width
+        if self._timestamps and timestamp_s <= self._timestamps[-1]:
+            raise ValueError(f"frame {index}: timestamp {timestamp_s} does not increase")
+        if index and timestamp_name(timestamp_s) == timestamp_name(self._timestamps[-1]):
+            raise ValueError(f"frame {index}: timestamp {timestamp_s} collides at 6 decimals")
+        _check_array(f"frame {index} rgb", rgb, (h, w, 3), np.uint8)
+        _check_array(f"frame {index} depth_m", depth_m, (h, w), None)
+        _check_array(f"frame {index} instances", instances, (h, w), np.uint16)
+        pose = np.asarray(world_from_camera, dtype=np.float64)
+        _check_pose(f"frame {index} world_from_camera", pose)
+        name = timestamp_name(timestamp_s)
+        tmp = self._tmp
+        self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
+        self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
+        if flow is not None:
+            _check_array(f"frame {index} flow", flow, (h, w, 2), np.float32)
+            (tmp / "gt" / "flow").mkdir(exist_ok=True)
+            np.savez_compressed(tmp / "gt" / "flow" / f"{name}.npz", flow=flow)
+        self._timestamps.append(float(timestamp_s))
+        self._positions.append(pose[:3, 3].copy())
+        self._quats.append(Rotation.from_matrix(pose[:3, :3]).as_quat(canonical=True))
+        record = {"timestamp": name, "objects": [o.to_json() for o in objects]}
+        self._objects.append(json.dumps(record, separators=(",", ":")))
+
+    def _write_png(self, path: Path, image: np.ndarray) -> None:
+        if not cv2.imwrite(str(path), image, self.png_params):
+            raise OSError(f"{path}: could not write PNG")
+
+    def _finish(self) -> None:
+        assert self._tmp is not None
+        if not self._timestamps:
+            raise ValueError(f"{self.root}: a sequence needs at least one frame")
+        tmp = self._tmp
+        stamps = np.array(self._timestamps)
+        names = [timestamp_name(t) for t in stamps]
+        write_frame_list(tmp / "rgb.txt", "color images", stamps, [f"rgb/{n}.png" for n in names])
+        write_frame_list(tmp / "depth.txt", "depth maps", stamps, [f"depth/{n}.png" for n in names])
+        (tmp / "associations.txt").write_text(
+            "".join(f"{n} rgb/{n}.png {n} depth/{n}.png\n" for n in names), encoding="utf-8"
+        )
+        write_pose_file(
+            tmp / "groundtruth.txt",
+            stamps,
+            np.array(self._positions),
+            np.array(self._quats),
+            header="ground truth trajectory (world_from_camera, optical frame)",
+        )
+        (tmp / "camera.yaml").write_text(orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8")
+        (tmp / "gt" / "objects.jsonl").write_text("\n".join(self._objects) + "\n", encoding="utf-8")
+        meta = {
+            **self.meta,
+            "format_version": FORMAT_VERSION,
+            "generator": f"depotbench {generator_version()}",
+            "fps": self.fps,
+            "frames": len(stamps),
+            "image_size": [self.intrinsics.width, self.intrinsics.height],
+            "depth_scale": self.intrinsics.depth_scale,
+        }
+        (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        _replace_dir(tmp, self.root)
+
+
+def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
+    """Metric depth to TUM's uint16 PNG units; no reading (0) where out of range or invalid."""
+    scaled = np.rint(np.asarray(depth_m, dtype=np.float64) * depth_scale)
+    valid = np.isfinite(scaled) & (scaled > 0) & (scaled <= np.iinfo(np.uint16).max)
+    return np.where(valid, scaled, 0).astype(np.uint16)
+
+
+def _replace_dir(src: Path, dst: Path) -> None:
+    """Move a finished folder into place; an old one is removed only after the swap."""
+    old = None
+    if dst.exists():
+        old = dst.parent / f".{dst.name}.old-{uuid.uuid4().hex[:8]}"
+        os.replace(dst, old)
+    os.replace(src, dst)
+    if old is not None:
+        shutil.rmtree(old)
+
+
+def _check_array(what: str, array: np.ndarray, shape: tuple[int, ...], dtype: type | None) -> None:
+    if not isinstance(array, np.ndarray) or array.shape != shape:
+        got = getattr(array, "shape", type(array).__name__)
+        raise ValueError(f"{what}: expected shape {shape}, got {got}")
+    if dtype is not None and array.dtype != dtype:
+        raise ValueError(f"{what}: expected dtype {np.dtype(dtype)}, got {array.dtype}")
+
+
+def _check_pose(what: str, pose: np.ndarray) -> None:
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise ValueError(f"{what}: must be a finite 4x4 matrix")
+    rotation = pose[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6) or np.linalg.det(rotation) < 0:
+        raise ValueError(f"{what}: rotation block is not a proper rotation")
+    if not np.allclose(pose[3], [0, 0, 0, 1]):
+        raise ValueError(f"{what}: last row must be 0 0 0 1")
