@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 
-class Prior(str, Enum):
+class Prior(StrEnum):
     """How likely a class is to move (design.md, method 1)."""
 
     DYNAMIC = "dynamic"

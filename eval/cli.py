@@ -33,15 +33,31 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
     p.add_argument("estimate", type=Path, help="estimated trajectory (TUM format)")
-    p.add_argument("--align", choices=[a.value for a in Alignment], default="se3",
-                   help="Umeyama alignment of the estimate (default: se3)")
-    p.add_argument("--max-diff", type=float, default=DEFAULT_MAX_DIFF_S,
-                   help="association window in seconds (default: 0.02, TUM's)")
-    p.add_argument("--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps")
+    p.add_argument(
+        "--align",
+        choices=[a.value for a in Alignment],
+        default="se3",
+        help="Umeyama alignment of the estimate (default: se3)",
+    )
+    p.add_argument(
+        "--max-diff",
+        type=float,
+        default=DEFAULT_MAX_DIFF_S,
+        help="association window in seconds (default: 0.02, TUM's)",
+    )
+    p.add_argument(
+        "--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps"
+    )
     p.add_argument("--rpe-delta", type=_positive_float, default=1.0, help="RPE delta (default: 1)")
-    p.add_argument("--rpe-unit", choices=[u.value for u in DeltaUnit], default="frames",
-                   help="unit of the RPE delta (default: frames)")
-    p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
+    p.add_argument(
+        "--rpe-unit",
+        choices=[u.value for u in DeltaUnit],
+        default="frames",
+        help="unit of the RPE delta (default: frames)",
+    )
+    p.add_argument(
+        "--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones"
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(handler=_cmd_eval)
 
@@ -65,7 +81,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 def format_comparison(result: Comparison) -> str:
     o = result.options
-    header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
+    header = f"{'':18}" + "".join(
+        f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max")
+    )
     header += f"{'count':>8}"
 
     def row(label: str, s: Statistics) -> str:
@@ -76,11 +94,16 @@ def format_comparison(result: Comparison) -> str:
     return "\n".join(
         [
             f"reference {result.reference_name}  estimate {result.estimate_name}",
-            f"{result.pairs} associated pairs (window {o.max_diff_s} s), alignment {o.alignment.value}"
-            + (f" (scale {result.ate.transform.scale:.6f})" if o.alignment is Alignment.SIM3 else ""),
+            f"{result.pairs} associated pairs (window {o.max_diff_s} s), "
+            f"alignment {o.alignment.value}"
+            + (
+                f" (scale {result.ate.transform.scale:.6f})"
+                if o.alignment is Alignment.SIM3
+                else ""
+            ),
             header,
             row("ATE (m)", result.ate.statistics),
-            row(f"RPE trans (m)", result.rpe.translation),
+            row("RPE trans (m)", result.rpe.translation),
             row("RPE rot (deg)", result.rpe.rotation_deg),
             f"RPE delta: {delta}",
         ]
@@ -97,7 +120,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     estimate = read_tum(ASSETS / "examples" / "fr1_xyz_rgbdslam.txt")
     print("depotbench demo: RGBD-SLAM on TUM fr1/xyz against motion-capture ground truth\n")
     for alignment in (Alignment.SE3, Alignment.SIM3):
-        print(format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment))))
+        print(
+            format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment)))
+        )
         print()
     return 0
 

@@ -7,7 +7,7 @@ return frozen results; nothing is modified in place, so sweeps can reuse inputs.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -20,7 +20,7 @@ RPE_REL_DELTA_TOL = 0.1
 """All-pairs RPE in metres accepts a pair whose path length is delta +- this fraction (evo)."""
 
 
-class DeltaUnit(str, Enum):
+class DeltaUnit(StrEnum):
     FRAMES = "frames"
     METRES = "m"
 
@@ -66,13 +66,17 @@ class AteResult:
     transform: Similarity
 
 
-def ate(reference: Trajectory, estimate: Trajectory, alignment: Alignment = Alignment.SE3) -> AteResult:
+def ate(
+    reference: Trajectory, estimate: Trajectory, alignment: Alignment = Alignment.SE3
+) -> AteResult:
     """Translational ATE of associated trajectories (evo ``ape`` translation_part)."""
     if len(reference) != len(estimate):
         raise ValueError("ate needs associated trajectories of equal length")
     aligned, transform = align(estimate, reference, alignment)
     errors = np.linalg.norm(aligned.positions_m - reference.positions_m, axis=1)
-    return AteResult(Statistics.of(errors), errors, reference.timestamps_s.copy(), alignment, transform)
+    return AteResult(
+        Statistics.of(errors), errors, reference.timestamps_s.copy(), alignment, transform
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,7 +149,9 @@ def rpe(
             raise InputError(f"RPE delta in frames must be a whole number, got {delta}")
         pairs = pairs_by_frames(len(chooser), int(delta), all_pairs)
     else:
-        pairs = pairs_by_path(chooser.positions_m, float(delta), rel_delta_tol * float(delta), all_pairs)
+        pairs = pairs_by_path(
+            chooser.positions_m, float(delta), rel_delta_tol * float(delta), all_pairs
+        )
     if len(pairs) == 0:
         raise InputError(
             f"no pose pairs {delta} {unit.value} apart in {len(chooser)} poses; use a smaller delta"

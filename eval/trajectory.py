@@ -44,12 +44,19 @@ class Trajectory:
     def from_poses(cls, timestamps_s: np.ndarray, poses: np.ndarray, name: str = "") -> Trajectory:
         poses = np.asarray(poses, dtype=np.float64)
         return cls(
-            np.array(timestamps_s, dtype=np.float64), poses[:, :3, 3].copy(), poses[:, :3, :3].copy(), name
+            np.array(timestamps_s, dtype=np.float64),
+            poses[:, :3, 3].copy(),
+            poses[:, :3, :3].copy(),
+            name,
         )
 
     @classmethod
     def from_quaternions(
-        cls, timestamps_s: np.ndarray, positions_m: np.ndarray, quats_xyzw: np.ndarray, name: str = ""
+        cls,
+        timestamps_s: np.ndarray,
+        positions_m: np.ndarray,
+        quats_xyzw: np.ndarray,
+        name: str = "",
     ) -> Trajectory:
         """Quaternions are normalised (TUM files store few decimals)."""
         rotations = Rotation.from_quat(np.asarray(quats_xyzw, dtype=np.float64)).as_matrix()
@@ -75,7 +82,10 @@ class Trajectory:
     def subset(self, indices: np.ndarray | list[int]) -> Trajectory:
         idx = np.asarray(indices, dtype=int)
         return Trajectory(
-            self.timestamps_s[idx].copy(), self.positions_m[idx].copy(), self.rotations[idx].copy(), self.name
+            self.timestamps_s[idx].copy(),
+            self.positions_m[idx].copy(),
+            self.rotations[idx].copy(),
+            self.name,
         )
 
     def path_length_m(self) -> float:
@@ -86,7 +96,9 @@ def read_tum(path: Path | str) -> Trajectory:
     """Read a TUM trajectory file (``t tx ty tz qx qy qz qw``)."""
     path = Path(path)
     table = read_pose_file(path, strict=False)
-    return Trajectory.from_quaternions(table.timestamps_s, table.positions_m, table.quats_xyzw, path.name)
+    return Trajectory.from_quaternions(
+        table.timestamps_s, table.positions_m, table.quats_xyzw, path.name
+    )
 
 
 def write_tum(path: Path | str, trajectory: Trajectory, header: str = "trajectory") -> None:
@@ -137,7 +149,9 @@ def associate(
     estimate_longer = len(estimate) > len(reference)
     short, long = (reference, estimate) if estimate_longer else (estimate, reference)
     shift = offset_s if estimate_longer else -offset_s
-    idx_short, idx_long = matching_indices(short.timestamps_s, long.timestamps_s + shift, max_diff_s)
+    idx_short, idx_long = matching_indices(
+        short.timestamps_s, long.timestamps_s + shift, max_diff_s
+    )
     if len(idx_short) == 0:
         raise AssociationError(
             f"no timestamps of {reference.name or 'the reference'} and "

@@ -61,7 +61,9 @@ class Intrinsics:
     def from_fovy(cls, fovy_deg: float, width: int, height: int) -> Intrinsics:
         """Intrinsics of a MuJoCo camera: square pixels, centre at ((W-1)/2, (H-1)/2)."""
         f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-        return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
+        return cls(
+            fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height
+        )
 
     def fovy_deg(self) -> float:
         """Vertical field of view that a MuJoCo camera needs to reproduce ``fy``."""
@@ -157,8 +159,15 @@ def orbslam_yaml(intrinsics: Intrinsics, settings: OrbSlamSettings | None = None
     return "\n".join(lines) + "\n"
 
 
-_REQUIRED_KEYS = ("Camera.fx", "Camera.fy", "Camera.cx", "Camera.cy", "Camera.width",
-                  "Camera.height", "DepthMapFactor")
+_REQUIRED_KEYS = (
+    "Camera.fx",
+    "Camera.fy",
+    "Camera.cx",
+    "Camera.cy",
+    "Camera.width",
+    "Camera.height",
+    "DepthMapFactor",
+)
 
 
 def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
@@ -166,11 +175,20 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error as exc:
-        raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {exc.msg}") from exc
+        raise SequenceFormatError(
+            path, None, f"not a readable OpenCV YAML file: {exc.msg}"
+        ) from exc
     try:
         values: dict[str, float] = {}
-        for key in (*_REQUIRED_KEYS, "Camera.k1", "Camera.k2", "Camera.p1", "Camera.p2",
-                    "Camera.k3", "Camera.fps"):
+        for key in (
+            *_REQUIRED_KEYS,
+            "Camera.k1",
+            "Camera.k2",
+            "Camera.p1",
+            "Camera.p2",
+            "Camera.k3",
+            "Camera.fps",
+        ):
             node = storage.getNode(key)
             if node.empty():
                 if key in _REQUIRED_KEYS:
@@ -189,7 +207,9 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
             cy=values["Camera.cy"],
             width=int(values["Camera.width"]),
             height=int(values["Camera.height"]),
-            distortion=tuple(values.get(f"Camera.{k}", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")),
+            distortion=tuple(
+                values.get(f"Camera.{k}", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")
+            ),
             depth_scale=values["DepthMapFactor"],
         )
     except ValueError as exc:

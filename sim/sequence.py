@@ -20,8 +20,13 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.camera import Intrinsics, OrbSlamSettings, orbslam_yaml, read_orbslam_yaml
-from sim.camera import tum_intrinsics_for
+from sim.camera import (
+    Intrinsics,
+    OrbSlamSettings,
+    orbslam_yaml,
+    read_orbslam_yaml,
+    tum_intrinsics_for,
+)
 from sim.errors import SequenceFormatError
 from sim.ground_truth import ObjectState
 from sim.tum_files import (
@@ -111,7 +116,9 @@ class Sequence:
             file_intrinsics, fps = read_orbslam_yaml(camera_path)
             intrinsics = intrinsics or file_intrinsics
         elif meta is not None:
-            raise SequenceFormatError(camera_path, None, "file is missing (required with meta.json)")
+            raise SequenceFormatError(
+                camera_path, None, "file is missing (required with meta.json)"
+            )
         else:
             intrinsics = intrinsics or tum_intrinsics_for(root)
         if meta is not None:
@@ -208,7 +215,9 @@ class Sequence:
         path = self._instance_path(frame)
         mask = _read_png(path, frame)
         if mask.dtype != np.uint16 or mask.ndim != 2:
-            raise SequenceFormatError(path, None, "instance image must be a 16-bit single-channel PNG")
+            raise SequenceFormatError(
+                path, None, "instance image must be a 16-bit single-channel PNG"
+            )
         self._check_size(path, mask)
         return mask
 
@@ -287,7 +296,9 @@ def _read_meta(path: Path) -> dict[str, Any] | None:
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SequenceFormatError(path, getattr(exc, "lineno", None), f"not valid JSON: {exc}") from None
+        raise SequenceFormatError(
+            path, getattr(exc, "lineno", None), f"not valid JSON: {exc}"
+        ) from None
     if not isinstance(meta, dict):
         raise SequenceFormatError(path, None, "must hold a JSON object")
     version = meta.get("format_version")
@@ -342,7 +353,9 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
         for path in (frame.rgb_path, frame.depth_path):
             if not path.is_file():
                 raise SequenceFormatError(
-                    frame.list_path, frame.list_line, f"frame file {path.relative_to(root)} is missing"
+                    frame.list_path,
+                    frame.list_line,
+                    f"frame file {path.relative_to(root)} is missing",
                 )
     return tuple(frames)
 
@@ -357,7 +370,9 @@ def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list
     lo = np.searchsorted(b, a - max_diff_s, side="left")
     hi = np.searchsorted(b, a + max_diff_s, side="right")
     candidates = [
-        (abs(a[i] - b[j]), i, j) for i in range(len(a)) for j in range(lo[i], hi[i])
+        (abs(a[i] - b[j]), i, j)
+        for i in range(len(a))
+        for j in range(lo[i], hi[i])
         if abs(a[i] - b[j]) < max_diff_s
     ]
     candidates.sort()
@@ -465,7 +480,9 @@ class SequenceWriter:
         name = timestamp_name(timestamp_s)
         tmp = self._tmp
         self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
+        self._write_png(
+            tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale)
+        )
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
         if flow is not None:
             _check_array(f"frame {index} flow", flow, (h, w, 2), np.float32)
@@ -500,7 +517,9 @@ class SequenceWriter:
             np.array(self._quats),
             header="ground truth trajectory (world_from_camera, optical frame)",
         )
-        (tmp / "camera.yaml").write_text(orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8")
+        (tmp / "camera.yaml").write_text(
+            orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8"
+        )
         (tmp / "gt" / "objects.jsonl").write_text("\n".join(self._objects) + "\n", encoding="utf-8")
         meta = {
             **self.meta,
@@ -511,7 +530,9 @@ class SequenceWriter:
             "image_size": [self.intrinsics.width, self.intrinsics.height],
             "depth_scale": self.intrinsics.depth_scale,
         }
-        (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        (tmp / "meta.json").write_text(
+            json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8"
+        )
         _replace_dir(tmp, self.root)
 
 

@@ -88,7 +88,9 @@ def read_frame_list(path: Path) -> FrameList:
     return FrameList(stamps, tuple(r.fields[1] for r in rows), tuple(lines))
 
 
-def write_frame_list(path: Path, title: str, timestamps_s: np.ndarray, filenames: list[str]) -> None:
+def write_frame_list(
+    path: Path, title: str, timestamps_s: np.ndarray, filenames: list[str]
+) -> None:
     header = f"# {title}\n# file: 'depotbench'\n# timestamp filename\n"
     body = "".join(f"{t:.6f} {name}\n" for t, name in zip(timestamps_s, filenames, strict=True))
     path.write_text(header + body, encoding="utf-8")

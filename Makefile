@@ -1,0 +1,42 @@
+# depotbench: the two quick-start commands are `make demo` and `make test`.
+# Each sets everything up on a fresh machine (system GL library, virtualenv,
+# package) and then runs; re-running skips what is already done.
+
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+export MUJOCO_GL ?= egl
+
+.PHONY: demo test test-slow lint bench system-deps clean
+
+demo: $(VENV)/.installed
+	$(BIN)/depotbench demo
+
+test: $(VENV)/.installed
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q
+
+test-slow: $(VENV)/.installed
+	$(BIN)/python -m pytest -q -m slow
+
+lint: $(VENV)/.installed
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+# MuJoCo renders off-screen through EGL (Mesa on CPU machines).
+system-deps:
+	@if ldconfig -p | grep -q 'libEGL.so.1 '; then :; \
+	elif command -v apt-get >/dev/null; then \
+		echo "installing the EGL/Mesa libraries MuJoCo renders with"; \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libegl1 libgl1-mesa-dri libglx-mesa0 >/dev/null; \
+	else echo "error: libEGL.so.1 not found; install your distribution's libegl1 and Mesa DRI drivers" >&2; exit 1; fi
+
+$(VENV)/.installed: pyproject.toml | system-deps
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "depotbench needs Python >= 3.11"'
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $@
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

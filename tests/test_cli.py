@@ -1,0 +1,86 @@
+"""The command line as a user meets it: output, JSON, and one-line errors with exit 2."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from eval.cli import main
+from eval.trajectory import read_tum
+from tests.evo_reference import evo_ape, evo_rpe
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "assets" / "examples"
+GT = EXAMPLES / "fr1_xyz_groundtruth.txt"
+EST = EXAMPLES / "fr1_xyz_rgbdslam.txt"
+
+
+def test_demo_prints_the_reference_figure(capsys):
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    assert "786 associated pairs" in out
+    assert "0.013473" in out and "0.013394" in out
+
+
+def test_eval_json_matches_evo(capsys):
+    assert (
+        main(
+            [
+                "eval",
+                str(GT),
+                str(EST),
+                "--json",
+                "--rpe-delta",
+                "0.1",
+                "--rpe-unit",
+                "m",
+                "--align",
+                "sim3",
+            ]
+        )
+        == 0
+    )
+    report = json.loads(capsys.readouterr().out)
+    ref, est = read_tum(GT), read_tum(EST)
+    expected_ate = evo_ape(ref, est, "sim3")
+    expected_rpe = evo_rpe(ref, est, 0.1, "m", False, "trans", "sim3")
+    assert report["associated_pairs"] == 786
+    for key in ("rmse", "mean", "median", "std", "min", "max", "sse"):
+        assert report["ate_m"][key] == pytest.approx(expected_ate[key], rel=1e-6)
+        assert report["rpe_translation_m"][key] == pytest.approx(expected_rpe[key], rel=1e-6)
+
+
+def test_eval_table(capsys):
+    assert main(["eval", str(GT), str(EST), "--all-pairs", "--rpe-delta", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "ATE (m)" in out and "RPE rot (deg)" in out and "5 frames, all pairs" in out
+
+
+def test_bad_trajectory_line_is_named(tmp_path: Path, capsys):
+    bad = tmp_path / "est.txt"
+    bad.write_text("# header\n1.0 0 0 0 0 0 0 1\n2.0 0 0 nan 0 0 0 1\n")
+    assert main(["eval", str(GT), str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"depotbench eval: error: {bad}:3: pose holds NaN or infinity"
+
+
+def test_missing_file_and_no_overlap(tmp_path: Path, capsys):
+    assert main(["eval", str(GT), str(tmp_path / "none.txt")]) == 2
+    assert "none.txt: file is missing" in capsys.readouterr().err
+    shifted = tmp_path / "shifted.txt"
+    shifted.write_text("1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n")
+    assert main(["eval", str(GT), str(shifted)]) == 2
+    assert "no timestamps" in capsys.readouterr().err
+
+
+def test_console_script_and_module_entry_point():
+    exe = shutil.which("depotbench", path=str(Path(sys.executable).parent))
+    assert exe is not None, "the console script is not installed next to this Python"
+    result = subprocess.run([exe, "eval", str(GT), str(EST)], capture_output=True, text=True)
+    assert result.returncode == 0 and "0.013473" in result.stdout
+    result = subprocess.run([exe, "eval", str(GT)], capture_output=True, text=True)
+    assert result.returncode == 2 and "estimate" in result.stderr
