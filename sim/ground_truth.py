@@ -10,6 +10,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+from scipy import ndimage
+
 PRIORS = ("dynamic", "potential", "static")
 
 
@@ -81,3 +84,13 @@ def _triple(values: list[float]) -> tuple[float, float, float]:
     if len(values) != 3:
         raise ValueError(f"expected 3 values, got {len(values)}")
     return (float(values[0]), float(values[1]), float(values[2]))
+
+
+def boxes_and_counts(instances: np.ndarray, n_instances: int) -> tuple[list, np.ndarray]:
+    """Per instance id 1..n: visible box (pixel-edge xyxy) or None, and pixel count."""
+    counts = np.bincount(instances.ravel(), minlength=n_instances + 1)
+    slices = ndimage.find_objects(instances, max_label=n_instances)
+    boxes = []
+    for sl in slices:
+        boxes.append(None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop))
+    return boxes, counts

@@ -1,0 +1,509 @@
+"""Kinematic actors: walking people, a seated person, quadrupeds and a hopping bird.
+
+Each actor is a set of rigid parts; ``pose(t)`` gives every part's world pose.
+Legs use foot placement: a stance foot is pinned to its footprint on the path
+while the body passes over it, and the knee follows by two-link inverse
+kinematics. So feet do not slide, whatever the speed or the path's curvature.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.paths import Path
+
+FD_STEP_S = 1e-3
+"""Step of the central differences that give an actor's velocity."""
+
+SWING_TRAVEL = (0.15, 0.85)
+"""Fractions of the swing phase between which a foot moves forward."""
+
+
+@dataclass(frozen=True)
+class Part:
+    """One rigid piece (a mocap body with one geom). ``size`` is MuJoCo's geom size."""
+
+    name: str
+    shape: str
+    size: tuple[float, ...]
+    material: str
+
+
+def yaw_matrix(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues' rotation about a unit axis."""
+    k = np.asarray(axis, dtype=float)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+
+
+def frame_along(direction: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """Rotation whose z axis is ``direction`` and whose x axis leans to ``forward``."""
+    z = direction / np.linalg.norm(direction)
+    x = forward - np.dot(forward, z) * z
+    norm = np.linalg.norm(x)
+    if norm < 1e-6:
+        x = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.cross(z, [0.0, 1.0, 0.0])
+        norm = np.linalg.norm(x)
+    x = x / norm
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def two_link_knee(
+    hip: np.ndarray, ankle: np.ndarray, l1: float, l2: float, bend: np.ndarray
+) -> np.ndarray:
+    """Knee position for thigh ``l1`` and shin ``l2``, bending towards ``bend``."""
+    d_vec = ankle - hip
+    d = min(float(np.linalg.norm(d_vec)), l1 + l2 - 1e-6)
+    u = d_vec / max(np.linalg.norm(d_vec), 1e-9)
+    a = (l1**2 - l2**2 + d**2) / (2 * d)
+    h = math.sqrt(max(l1**2 - a**2, 0.0))
+    perp = bend - np.dot(bend, u) * u
+    perp /= max(np.linalg.norm(perp), 1e-9)
+    return hip + a * u + h * perp
+
+
+def smoothstep(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3 - 2 * x)
+
+
+@dataclass(frozen=True)
+class Leg:
+    hip_body: tuple[float, float, float]
+    """Hip in the body frame (x forward, y left, z up), relative to the root."""
+    thigh_m: float
+    shin_m: float
+    phase: float
+    knee_forward: bool = True
+
+
+class Gait:
+    """Foot placement along a path: where each foot is at time t."""
+
+    def __init__(
+        self, path: Path, speed: float, stride: float, duty: float, lift: float, start_s: float
+    ) -> None:
+        self.path, self.speed, self.stride, self.duty, self.lift = path, speed, stride, duty, lift
+        self.start_s = start_s
+
+    def arc(self, t: float) -> float:
+        return self.start_s + self.speed * t
+
+    def foot(self, leg: Leg, t: float, ground_z: float) -> tuple[np.ndarray, float, bool]:
+        """(position, heading, in_stance) of a foot at time t."""
+        if self.speed <= 0:
+            s = self.arc(t) + leg.hip_body[0]
+            return self._on_path(s, leg.hip_body[1], ground_z), float(self.path.heading(s)), True
+        c = (self.arc(t) - self.start_s) / self.stride - leg.phase
+        k = math.floor(c)
+        u = c - k
+
+        def plant(index: int) -> float:
+            return (
+                self.start_s + (index + self.duty / 2 + leg.phase) * self.stride + leg.hip_body[0]
+            )
+
+        if u < self.duty:
+            s = plant(k)
+            return self._on_path(s, leg.hip_body[1], ground_z), float(self.path.heading(s)), True
+        x = (u - self.duty) / (1 - self.duty)
+        # The foot lifts and lands vertically; it travels only in the middle of the swing.
+        w = smoothstep((x - SWING_TRAVEL[0]) / (SWING_TRAVEL[1] - SWING_TRAVEL[0]))
+        s = plant(k) + w * self.stride
+        position = self._on_path(s, leg.hip_body[1], ground_z)
+        position[2] += self.lift * math.sin(math.pi * x) ** 2
+        return position, float(self.path.heading(s)), False
+
+    def _on_path(self, s: float, lateral: float, z: float) -> np.ndarray:
+        p = self.path.point(s)
+        t = self.path.tangent(s)
+        normal = np.array([-t[1], t[0]])
+        xy = p + lateral * normal
+        return np.array([xy[0], xy[1], z])
+
+
+class Actor:
+    """Base: an instance made of parts, posed as a function of time."""
+
+    class_name = "object"
+    prior = "dynamic"
+    parts: list[Part]
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (P, 3) and rotations (P, 3, 3) of every part."""
+        raise NotImplementedError
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        positions, rotations = self.pose(t)
+        return positions[0], rotations[0]
+
+    def velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Linear (m/s) and angular (rad/s, world frame) velocity of the root."""
+        p0, r0 = self.root(t - FD_STEP_S)
+        p1, r1 = self.root(t + FD_STEP_S)
+        linear = (p1 - p0) / (2 * FD_STEP_S)
+        delta = r1 @ r0.T
+        angle = math.acos(min(1.0, max(-1.0, (np.trace(delta) - 1) / 2)))
+        if angle < 1e-12:
+            return linear, np.zeros(3)
+        axis = np.array(
+            [delta[2, 1] - delta[1, 2], delta[0, 2] - delta[2, 0], delta[1, 0] - delta[0, 1]]
+        )
+        axis /= 2 * math.sin(angle)
+        return linear, axis * angle / (2 * FD_STEP_S)
+
+
+class Walker(Actor):
+    """A person: pelvis, torso, head, arms, legs, feet; walks a path with swinging arms."""
+
+    class_name = "person"
+
+    def __init__(
+        self,
+        path: Path,
+        speed: float,
+        scale: float,
+        materials: dict[str, str],
+        start_s: float,
+        push: bool = False,
+    ) -> None:
+        self.scale = s = scale
+        self.push = push
+        self.l_thigh, self.l_shin, self.ankle_h = 0.45 * s, 0.45 * s, 0.08 * s
+        self.stride = float(np.clip(1.25 * s * math.sqrt(max(speed, 0.05) / 1.2), 0.4 * s, 1.5 * s))
+        duty = 0.62
+        reach = 0.985 * (self.l_thigh + self.l_shin)
+        offset = duty / 2 * self.stride
+        self.hip_z = min(0.9 * s, math.sqrt(reach**2 - offset**2) + self.ankle_h)
+        self.legs = [
+            Leg((0.0, 0.1 * s, 0.0), self.l_thigh, self.l_shin, 0.0),
+            Leg((0.0, -0.1 * s, 0.0), self.l_thigh, self.l_shin, 0.5),
+        ]
+        self.gait = Gait(path, speed, self.stride, duty, 0.1 * s, start_s)
+        shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
+        self.parts = [
+            Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
+            Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
+            Part("head", "sphere", (0.11 * s,), skin),
+            Part("upper_arm_l", "capsule", (0.05 * s, 0.14 * s), shirt),
+            Part("upper_arm_r", "capsule", (0.05 * s, 0.14 * s), shirt),
+            Part("forearm_l", "capsule", (0.04 * s, 0.14 * s), skin),
+            Part("forearm_r", "capsule", (0.04 * s, 0.14 * s), skin),
+            Part("thigh_l", "capsule", (0.07 * s, self.l_thigh / 2), pants),
+            Part("thigh_r", "capsule", (0.07 * s, self.l_thigh / 2), pants),
+            Part("shin_l", "capsule", (0.055 * s, self.l_shin / 2), pants),
+            Part("shin_r", "capsule", (0.055 * s, self.l_shin / 2), pants),
+            Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+            Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+        ]
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s = self.gait.arc(t)
+        xy = self.gait.path.point(s)
+        bob = 0.015 * self.scale * math.cos(4 * math.pi * (s - self.gait.start_s) / self.stride)
+        return np.array([xy[0], xy[1], self.hip_z + bob]), yaw_matrix(
+            float(self.gait.path.heading(s))
+        )
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s = self.scale
+        pelvis, body = self.root(t)
+        fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
+        positions, rotations = [pelvis], [body]
+        lean = axis_rotation(left, math.radians(4.0)) @ body
+        torso = pelvis + lean @ np.array([0.0, 0.0, 0.33 * s])
+        positions.append(torso)
+        rotations.append(lean)
+        positions.append(pelvis + lean @ np.array([0.0, 0.0, 0.72 * s]))
+        rotations.append(lean)
+        phase = 2 * math.pi * (self.gait.arc(t) - self.gait.start_s) / self.gait.stride
+        swing_amp = math.radians(25.0) * min(1.0, self.gait.speed / 1.2)
+        arms = {}
+        for side, sign in (("l", 1.0), ("r", -1.0)):
+            shoulder = pelvis + lean @ np.array([0.0, sign * 0.24 * s, 0.52 * s])
+            if self.push:
+                upper_angle, elbow = math.radians(75.0), math.radians(15.0)
+            else:
+                upper_angle = sign * swing_amp * math.sin(phase)
+                elbow = math.radians(15.0) + 0.5 * max(0.0, upper_angle)
+            down = axis_rotation(left, -upper_angle) @ (-up)
+            elbow_pos = shoulder + 0.3 * s * down
+            fore_dir = axis_rotation(left, -(upper_angle + elbow)) @ (-up)
+            hand = elbow_pos + 0.3 * s * fore_dir
+            arms[side] = (shoulder, elbow_pos, hand)
+        for side in ("l", "r"):
+            a, b, _ = arms[side]
+            positions.append((a + b) / 2)
+            rotations.append(frame_along(b - a, fwd))
+        for side in ("l", "r"):
+            _, b, c = arms[side]
+            positions.append((b + c) / 2)
+            rotations.append(frame_along(c - b, fwd))
+        legs = []
+        for leg in self.legs:
+            hip = pelvis + body @ np.array(leg.hip_body)
+            foot, heading, _ = self.gait.foot(leg, t, 0.0)
+            ankle = foot + np.array([0.0, 0.0, self.ankle_h])
+            knee = two_link_knee(hip, ankle, leg.thigh_m, leg.shin_m, fwd)
+            legs.append((hip, knee, ankle, foot, heading))
+        for hip, knee, _, _, _ in legs:
+            positions.append((hip + knee) / 2)
+            rotations.append(frame_along(hip - knee, fwd))
+        for _, knee, ankle, _, _ in legs:
+            positions.append((knee + ankle) / 2)
+            rotations.append(frame_along(knee - ankle, fwd))
+        for _, _, _, foot, heading in legs:
+            r = yaw_matrix(heading)
+            positions.append(foot + r @ np.array([0.05 * s, 0.0, 0.04 * s]))
+            rotations.append(r)
+        return np.array(positions), np.array(rotations)
+
+    def foot_parts(self) -> tuple[int, int]:
+        return (11, 12)
+
+
+class SittingPerson(Actor):
+    """A person seated at the desk: small torso sway, head turns, typing hands."""
+
+    class_name = "person"
+
+    def __init__(
+        self,
+        seat: tuple[float, float, float],
+        scale: float,
+        materials: dict[str, str],
+        rng: np.random.Generator,
+    ) -> None:
+        self.scale = s = scale
+        self.seat = seat
+        self.phases = rng.uniform(0, 2 * math.pi, 6)
+        self.rates = rng.uniform(0.6, 1.4, 6)
+        shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
+        self.parts = [
+            Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
+            Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
+            Part("head", "sphere", (0.11 * s,), skin),
+            Part("upper_arm_l", "capsule", (0.05 * s, 0.14 * s), shirt),
+            Part("upper_arm_r", "capsule", (0.05 * s, 0.14 * s), shirt),
+            Part("forearm_l", "capsule", (0.04 * s, 0.14 * s), skin),
+            Part("forearm_r", "capsule", (0.04 * s, 0.14 * s), skin),
+            Part("thigh_l", "capsule", (0.07 * s, 0.21 * s), pants),
+            Part("thigh_r", "capsule", (0.07 * s, 0.21 * s), pants),
+            Part("shin_l", "capsule", (0.055 * s, 0.2 * s), pants),
+            Part("shin_r", "capsule", (0.055 * s, 0.2 * s), pants),
+            Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+            Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+        ]
+
+    def _wave(self, k: int, t: float, amplitude: float) -> float:
+        return amplitude * math.sin(self.rates[k] * t + self.phases[k])
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        x, y, yaw = self.seat
+        return np.array([x, y, 0.56 * self.scale]), yaw_matrix(math.radians(yaw))
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s = self.scale
+        pelvis, body = self.root(t)
+        fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
+        sway = (
+            axis_rotation(left, math.radians(6.0) + self._wave(0, t, math.radians(4.0)))
+            @ axis_rotation(fwd, self._wave(1, t, math.radians(3.0)))
+            @ body
+        )
+        positions = [pelvis, pelvis + sway @ np.array([0.0, 0.0, 0.33 * s])]
+        head_turn = axis_rotation(sway[:, 2], self._wave(2, 0.7 * t, math.radians(30.0))) @ sway
+        positions.append(pelvis + sway @ np.array([0.0, 0.0, 0.72 * s]))
+        rotations = [body, sway, head_turn]
+        uppers, fores = [], []
+        for k, sign in ((3, 1.0), (4, -1.0)):
+            shoulder = pelvis + sway @ np.array([0.0, sign * 0.24 * s, 0.52 * s])
+            lift = math.radians(35.0) + self._wave(k, 2.5 * t, math.radians(8.0))
+            down = axis_rotation(left, -lift) @ (-sway[:, 2])
+            elbow = shoulder + 0.3 * s * down
+            fore = axis_rotation(left, -(lift + math.radians(55.0))) @ (-sway[:, 2])
+            hand = elbow + 0.3 * s * fore
+            uppers.append(((shoulder + elbow) / 2, frame_along(elbow - shoulder, fwd)))
+            fores.append(((elbow + hand) / 2, frame_along(hand - elbow, fwd)))
+        for p, r in uppers + fores:
+            positions.append(p)
+            rotations.append(r)
+        thighs, shins, feet = [], [], []
+        for sign in (1.0, -1.0):
+            hip = pelvis + body @ np.array([0.0, sign * 0.1 * s, -0.02 * s])
+            knee = hip + fwd * 0.42 * s
+            ankle = np.array([knee[0], knee[1], 0.08 * s]) + fwd * 0.05 * s
+            thighs.append(((hip + knee) / 2, frame_along(knee - hip, up)))
+            shins.append(((knee + ankle) / 2, frame_along(knee - ankle, fwd)))
+            feet.append((np.array([ankle[0], ankle[1], 0.04 * s]) + fwd * 0.05 * s, body))
+        for p, r in thighs + shins + feet:
+            positions.append(p)
+            rotations.append(r)
+        return np.array(positions), np.array(rotations)
+
+
+@dataclass(frozen=True)
+class QuadrupedBuild:
+    class_name: str
+    body_half: tuple[float, float, float]
+    leg_m: float
+    stride_m: float
+    coat: str
+
+
+QUADRUPEDS = {
+    "dog": QuadrupedBuild("dog", (0.32, 0.12, 0.12), 0.44, 0.75, "fur_dog"),
+    "cat": QuadrupedBuild("cat", (0.2, 0.07, 0.08), 0.24, 0.4, "fur_cat"),
+    "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig"),
+}
+
+
+class Quadruped(Actor):
+    """Dog, cat or pig: body, head, snout, tail and four two-segment legs; walk or trot."""
+
+    def __init__(self, build: QuadrupedBuild, path: Path, speed: float, start_s: float) -> None:
+        self.build = b = build
+        self.class_name = b.class_name
+        hx, hy, hz = b.body_half
+        half_leg = b.leg_m / 2
+        trot = speed > 0.9 * b.stride_m
+        duty = 0.55 if trot else 0.7
+        phases = (0.0, 0.5, 0.5, 0.0) if trot else (0.0, 0.5, 0.75, 0.25)
+        corners = (
+            (0.75 * hx, 0.7 * hy),
+            (0.75 * hx, -0.7 * hy),
+            (-0.75 * hx, 0.7 * hy),
+            (-0.75 * hx, -0.7 * hy),
+        )
+        self.legs = [
+            Leg((cx, cy, -0.5 * hz), half_leg, half_leg, ph, knee_forward=cx < 0)
+            for (cx, cy), ph in zip(corners, phases, strict=True)
+        ]
+        self.paw_r = 0.25 * hy
+        reach = 0.985 * b.leg_m
+        offset = duty / 2 * b.stride_m
+        self.hip_z = min(0.95 * b.leg_m, math.sqrt(reach**2 - offset**2)) + self.paw_r
+        self.gait = Gait(path, speed, b.stride_m, duty, 0.25 * b.leg_m, start_s)
+        coat = b.coat
+        self.parts = [
+            Part("body", "ellipsoid", (hx, hy, hz), coat),
+            Part("head", "ellipsoid", (0.45 * hy + 0.04, 0.8 * hy, 0.75 * hz), coat),
+            Part("snout", "capsule", (0.35 * hy, 0.3 * hy), coat),
+            Part(
+                "tail",
+                "capsule",
+                (0.15 * hy, 0.3 * hx if b.class_name != "pig" else 0.1 * hx),
+                coat,
+            ),
+        ]
+        for k in range(4):
+            self.parts.append(Part(f"upper_leg_{k}", "capsule", (0.3 * hy, half_leg / 2), coat))
+        for k in range(4):
+            self.parts.append(Part(f"lower_leg_{k}", "capsule", (self.paw_r, half_leg / 2), coat))
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s = self.gait.arc(t)
+        xy = self.gait.path.point(s)
+        bob = 0.01 * math.cos(4 * math.pi * (s - self.gait.start_s) / self.gait.stride)
+        return np.array(
+            [xy[0], xy[1], self.hip_z + 0.5 * self.build.body_half[2] + bob]
+        ), yaw_matrix(float(self.gait.path.heading(s)))
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        hx, hy, hz = self.build.body_half
+        centre, body = self.root(t)
+        fwd, up = body[:, 0], body[:, 2]
+        head = centre + body @ np.array([hx + 0.3 * hy, 0.0, 0.9 * hz])
+        snout = head + fwd * (0.9 * hy)
+        tail_dir = -fwd + 0.8 * up
+        tail_len = 2 * self.parts[3].size[1]
+        tail = centre - fwd * hx + tail_dir / np.linalg.norm(tail_dir) * (tail_len / 2 + 0.02)
+        positions = [centre, head, snout, tail]
+        rotations = [body, body, frame_along(fwd, up), frame_along(tail_dir, fwd)]
+        uppers, lowers = [], []
+        for leg in self.legs:
+            hip = centre + body @ np.array(leg.hip_body)
+            foot, _, _ = self.gait.foot(leg, t, self.paw_r)
+            bend = fwd if leg.knee_forward else -fwd
+            knee = two_link_knee(hip, foot, leg.thigh_m, leg.shin_m, bend)
+            uppers.append(((hip + knee) / 2, frame_along(hip - knee, fwd)))
+            lowers.append(((knee + foot) / 2, frame_along(knee - foot, fwd)))
+        for p, r in uppers + lowers:
+            positions.append(p)
+            rotations.append(r)
+        return np.array(positions), np.array(rotations)
+
+
+class Bird(Actor):
+    """A pigeon: hops along its path and now and then makes a short flight."""
+
+    class_name = "bird"
+    HOP_S, HOP_M, PAUSE_S = 0.3, 0.14, 0.2
+
+    def __init__(
+        self, path: Path, start_s: float, duration_s: float, rng: np.random.Generator
+    ) -> None:
+        self.path = path
+        events = []  # (t0, t1, s0, s1, height)
+        t, s = 0.0, start_s
+        while t < duration_s + 2.0:
+            if rng.uniform() < 0.12:
+                dist, dur, height = float(rng.uniform(1.5, 3.0)), float(rng.uniform(0.9, 1.4)), 0.9
+            else:
+                dist, dur, height = self.HOP_M, self.HOP_S, 0.05
+            events.append((t, t + dur, s, s + dist, height))
+            t += dur + self.PAUSE_S
+            s += dist
+        self.events = np.array(events)
+        self.parts = [
+            Part("body", "ellipsoid", (0.12, 0.06, 0.06), "fur_bird"),
+            Part("head", "sphere", (0.04,), "fur_bird"),
+            Part("beak", "capsule", (0.01, 0.015), "metal_orange"),
+            Part("wing_l", "box", (0.08, 0.1, 0.006), "fur_bird"),
+            Part("wing_r", "box", (0.08, 0.1, 0.006), "fur_bird"),
+            Part("leg_l", "capsule", (0.006, 0.02), "metal_orange"),
+            Part("leg_r", "capsule", (0.006, 0.02), "metal_orange"),
+        ]
+
+    def _state(self, t: float) -> tuple[float, float, float]:
+        """(arc position, height above standing, wing flap angle) at t."""
+        k = int(np.searchsorted(self.events[:, 0], t, side="right") - 1)
+        k = max(k, 0)
+        t0, t1, s0, s1, height = self.events[k]
+        if t >= t1:
+            return s1, 0.0, 0.0
+        u = (t - t0) / (t1 - t0)
+        w = smoothstep(u)
+        flying = height > 0.5
+        z = height * math.sin(math.pi * u) if not flying else height * math.sin(math.pi * w)
+        flap = math.radians(50.0) * math.sin(2 * math.pi * 8.0 * (t - t0)) if flying else 0.0
+        return s0 + (s1 - s0) * w, z, flap
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s, z, _ = self._state(t)
+        xy = self.path.point(s)
+        return np.array([xy[0], xy[1], 0.1 + z]), yaw_matrix(float(self.path.heading(s)))
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        _, _, flap = self._state(t)
+        centre, body = self.root(t)
+        fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
+        head = centre + fwd * 0.12 + up * 0.06
+        positions = [centre, head, head + fwd * 0.05]
+        rotations = [body, body, frame_along(fwd, up)]
+        for sign in (1.0, -1.0):
+            r = axis_rotation(fwd, sign * flap) @ body
+            positions.append(centre + sign * 0.06 * left + r @ np.array([0.0, sign * 0.08, 0.0]))
+            rotations.append(r)
+        for sign in (1.0, -1.0):
+            positions.append(centre + sign * 0.03 * left - up * 0.075)
+            rotations.append(body)
+        return np.array(positions), np.array(rotations)

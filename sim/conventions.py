@@ -1,0 +1,45 @@
+"""The one place that converts camera conventions.
+
+OpenCV/TUM optical frame: x right, y down, z forward. MuJoCo (OpenGL) camera
+frame: x right, y up, looking along -z. ``R_gl = R_cv @ GL_FROM_CV``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+GL_FROM_CV = np.diag([1.0, -1.0, -1.0])
+"""Right-multiplying a rotation by this flips between the optical and the OpenGL camera axes."""
+
+
+def gl_from_cv_rotation(world_from_cv: np.ndarray) -> np.ndarray:
+    return world_from_cv @ GL_FROM_CV
+
+
+def cv_from_gl_rotation(world_from_gl: np.ndarray) -> np.ndarray:
+    return world_from_gl @ GL_FROM_CV
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """``world_from_camera`` (4x4, optical frame) of a camera at ``eye`` looking at ``target``."""
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
+    z = np.asarray(target, dtype=float) - np.asarray(eye, dtype=float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def quat_wxyz(rotation: np.ndarray) -> np.ndarray:
+    """MuJoCo's quaternion order (w, x, y, z) of rotation matrices (..., 3, 3)."""
+    xyzw = Rotation.from_matrix(rotation).as_quat(canonical=True)
+    return np.roll(xyzw, 1, axis=-1)
+
+
+def matrix_from_wxyz(quat: np.ndarray) -> np.ndarray:
+    return Rotation.from_quat(np.roll(np.asarray(quat, dtype=float), -1, axis=-1)).as_matrix()

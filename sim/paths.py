@@ -1,0 +1,96 @@
+"""Smooth closed walking paths, parametrised by arc length, and their seeded generation."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.layout import Rect, is_free
+
+SAMPLE_SPACING_M = 0.05
+
+
+class Path:
+    """A closed, smoothed loop through waypoints; ``point(s)`` wraps around."""
+
+    def __init__(self, waypoints: np.ndarray, smoothing_m: float = 0.8) -> None:
+        pts = np.asarray(waypoints, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+            raise ValueError("a path needs at least two (x, y) waypoints")
+        loop = np.vstack([pts, pts[:1]])
+        dense = [loop[0]]
+        for a, b in zip(loop[:-1], loop[1:], strict=True):
+            n = max(1, int(np.ceil(np.linalg.norm(b - a) / SAMPLE_SPACING_M)))
+            dense += list(a + (b - a) * (np.arange(1, n + 1)[:, None] / n))
+        dense_arr = np.array(dense[:-1])
+        window = max(1, int(smoothing_m / SAMPLE_SPACING_M))
+        if len(dense_arr) > 2 * window + 1:
+            kernel = np.ones(2 * window + 1) / (2 * window + 1)
+            padded = np.vstack([dense_arr[-window:], dense_arr, dense_arr[:window]])
+            dense_arr = np.stack(
+                [np.convolve(padded[:, k], kernel, mode="valid") for k in (0, 1)], axis=1
+            )
+        closed = np.vstack([dense_arr, dense_arr[:1]])
+        self._points = closed
+        self._arc = np.concatenate(
+            [[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+        )
+        self.length = float(self._arc[-1])
+
+    def point(self, s: float | np.ndarray) -> np.ndarray:
+        s = np.mod(s, self.length)
+        return np.stack([np.interp(s, self._arc, self._points[:, k]) for k in (0, 1)], axis=-1)
+
+    def tangent(self, s: float | np.ndarray) -> np.ndarray:
+        d = self.point(np.asarray(s) + 0.02) - self.point(np.asarray(s) - 0.02)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def heading(self, s: float | np.ndarray) -> np.ndarray:
+        t = self.tangent(s)
+        return np.arctan2(t[..., 1], t[..., 0])
+
+
+def _segment_free(
+    a: np.ndarray, b: np.ndarray, obstacles: tuple[Rect, ...], margin: float, bounds: Rect
+) -> bool:
+    n = max(2, int(np.linalg.norm(b - a) / 0.1))
+    return all(is_free(a + (b - a) * k / n, obstacles, margin, bounds) for k in range(n + 1))
+
+
+def plan_loop(
+    rng: np.random.Generator,
+    region: Rect,
+    obstacles: tuple[Rect, ...],
+    bounds: Rect,
+    n_points: int,
+    margin: float = 0.45,
+    tries: int = 400,
+) -> np.ndarray:
+    """Waypoints of a loop inside ``region`` whose legs keep ``margin`` from every obstacle.
+
+    Points are ordered by angle about their centroid, so the loop does not cross itself
+    and, with a region in front of the camera, crosses the camera's view.
+    """
+    for _ in range(tries):
+        pts = []
+        for _ in range(40 * n_points):
+            p = np.array([rng.uniform(region[0], region[2]), rng.uniform(region[1], region[3])])
+            if is_free(p, obstacles, margin, bounds):
+                pts.append(p)
+            if len(pts) == n_points:
+                break
+        if len(pts) < n_points:
+            continue
+        arr = np.array(pts)
+        centre = arr.mean(axis=0)
+        arr = arr[np.argsort(np.arctan2(arr[:, 1] - centre[1], arr[:, 0] - centre[0]))]
+        if min(np.linalg.norm(np.roll(arr, -1, axis=0) - arr, axis=1)) < 0.8:
+            continue
+        if all(
+            _segment_free(a, b, obstacles, margin, bounds)
+            for a, b in zip(arr, np.roll(arr, -1, axis=0), strict=True)
+        ):
+            return arr
+    raise ValueError(
+        f"could not place a free walking loop in region {region}; "
+        "reduce floor_props or give waypoints"
+    )

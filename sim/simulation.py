@@ -1,0 +1,88 @@
+"""Advance a built world in time: kinematic actors and camera, physical chairs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.conventions import GL_FROM_CV, quat_wxyz
+from sim.mujoco_env import mujoco
+from sim.world import World
+
+
+@dataclass(frozen=True, eq=False)
+class Snapshot:
+    """Everything ground truth needs from one instant."""
+
+    time_s: float
+    world_from_camera: np.ndarray
+    body_positions: np.ndarray
+    body_rotations: np.ndarray
+    qvel: np.ndarray
+
+
+class Simulation:
+    def __init__(self, world: World) -> None:
+        self.world = world
+        self.model = world.model
+        self.data = mujoco.MjData(world.model)
+        self.time_s = 0.0
+        self._targets = self._kinematic_targets(0.0)
+        self._apply(*self._targets)
+        mujoco.mj_forward(self.model, self.data)
+
+    def _kinematic_targets(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Mocap positions and quaternions (wxyz) of every actor part and the camera at t."""
+        pos = self.data.mocap_pos.copy()
+        quat = self.data.mocap_quat.copy()
+        for actor, ids in zip(self.world.actors, self.world.actor_mocap, strict=True):
+            positions, rotations = actor.pose(t)
+            pos[ids] = positions
+            quat[ids] = quat_wxyz(rotations)
+        pose = self.world.rig.world_from_camera(t)
+        pos[self.world.camera_mocap] = pose[:3, 3]
+        quat[self.world.camera_mocap] = quat_wxyz(pose[:3, :3] @ GL_FROM_CV)
+        return pos, quat
+
+    def _apply(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        self.data.mocap_pos[:] = pos
+        self.data.mocap_quat[:] = quat
+
+    def advance_to(self, t: float) -> None:
+        """Move to time t. With chairs, physics runs in substeps while the kinematic
+        bodies move linearly between frames (so contacts see a continuous push)."""
+        target = self._kinematic_targets(t)
+        if self.world.chair_bodies:
+            start_pos, start_quat = self._targets
+            n = self.world.substeps
+            for k in range(1, n + 1):
+                a = k / n
+                q = (1 - a) * start_quat + a * np.where(
+                    np.sum(start_quat * target[1], axis=1, keepdims=True) < 0, -target[1], target[1]
+                )
+                self._apply(
+                    (1 - a) * start_pos + a * target[0],
+                    q / np.linalg.norm(q, axis=1, keepdims=True),
+                )
+                mujoco.mj_step(self.model, self.data)
+            self._apply(*target)
+        else:
+            self._apply(*target)
+            self.data.time = t
+        self._targets = target
+        self.time_s = t
+        mujoco.mj_forward(self.model, self.data)
+
+    def snapshot(self) -> Snapshot:
+        rotation = self.data.cam_xmat[self.world.camera_id].reshape(3, 3) @ GL_FROM_CV
+        pose = np.eye(4)
+        pose[:3, :3] = rotation
+        pose[:3, 3] = self.data.cam_xpos[self.world.camera_id]
+        return Snapshot(
+            self.time_s,
+            pose,
+            self.data.xpos.copy(),
+            self.data.xmat.reshape(-1, 3, 3).copy(),
+            self.data.qvel.copy(),
+        )

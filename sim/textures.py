@@ -1,0 +1,248 @@
+"""Seeded procedural textures: every surface gets structure that ORB can latch on.
+
+Real depots are full of print, wear and clutter; flat colours would starve the
+feature extractor and make every SLAM result meaningless. Each function draws
+from the ``numpy.random.Generator`` it is handed, nothing else.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+Colour = tuple[int, int, int]
+_LETTERS = "ABCDEFGHJKLMNPRSTUVWXYZ0123456789"
+
+
+def _noise(
+    rng: np.random.Generator, size: int, octaves: int = 4, amplitude: float = 40.0
+) -> np.ndarray:
+    """Multi-octave value noise in [-amplitude, amplitude] (float32, size x size)."""
+    total = np.zeros((size, size), np.float32)
+    weight = 1.0
+    for octave in range(octaves):
+        cells = 4 * 2**octave
+        grid = rng.uniform(-1, 1, (cells, cells)).astype(np.float32)
+        total += weight * cv2.resize(grid, (size, size), interpolation=cv2.INTER_CUBIC)
+        weight *= 0.55
+    return total * (amplitude / max(1e-6, float(np.abs(total).max())))
+
+
+def _base(rng: np.random.Generator, size: int, colour: Colour, grain: float = 30.0) -> np.ndarray:
+    image = np.empty((size, size, 3), np.float32)
+    image[:] = colour
+    image += _noise(rng, size, amplitude=grain)[:, :, None]
+    image += rng.normal(0, 6, (size, size, 1)).astype(np.float32)
+    return image
+
+
+def _finish(image: np.ndarray) -> np.ndarray:
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def _text(
+    rng: np.random.Generator, image: np.ndarray, n: int, colour: Colour, scale: float
+) -> None:
+    """Random stencil words drawn into ``image`` (float, drawn through a uint8 mask)."""
+    h, w = image.shape[:2]
+    if h < 12 or w < 12:
+        return
+    mask = np.zeros((h, w), np.uint8)
+    for _ in range(n):
+        word = "".join(rng.choice(list(_LETTERS), int(rng.integers(2, 7))))
+        org = (int(rng.integers(0, max(1, w - 20))), int(rng.integers(min(12, h - 1), h)))
+        cv2.putText(
+            mask,
+            word,
+            org,
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale * rng.uniform(0.6, 1.4),
+            255,
+            int(rng.integers(1, 3)),
+            cv2.LINE_AA,
+        )
+    alpha = (mask.astype(np.float32) / 255.0)[:, :, None]
+    image[:] = image * (1 - alpha) + np.array(colour, np.float32) * alpha
+
+
+def concrete(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """Worn floor: stains, cracks, painted lane marks and scuffs."""
+    image = _base(rng, size, (128, 126, 120), grain=35)
+    for _ in range(40):
+        centre = tuple(int(v) for v in rng.integers(0, size, 2))
+        axes = tuple(int(v) for v in rng.integers(4, 40, 2))
+        shade = float(rng.uniform(-45, 25))
+        cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, (shade + 120,) * 3, -1)
+    for _ in range(25):
+        p = rng.integers(0, size, 2)
+        q = p + rng.integers(-80, 80, 2)
+        cv2.line(
+            image, tuple(int(v) for v in p), tuple(int(v) for v in q), (60, 60, 58), 1, cv2.LINE_AA
+        )
+    if rng.uniform() < 0.7:
+        x = int(rng.integers(0, size - 30))
+        cv2.rectangle(image, (x, 0), (x + 14, size), (40, 190, 230), -1)
+    image += rng.normal(0, 8, image.shape).astype(np.float32)
+    return _finish(image)
+
+
+def wall(rng: np.random.Generator, size: int = 512) -> np.ndarray:
+    """Corrugated panels with bolts, signs and grime."""
+    colour = tuple(int(c) for c in rng.choice([(170, 175, 165), (150, 160, 175), (185, 170, 140)]))
+    image = _base(rng, size, colour, grain=25)
+    period = int(rng.integers(16, 28))
+    for x in range(0, size, period):
+        cv2.line(image, (x, 0), (x, size), tuple(c * 0.75 for c in colour), 2)
+    for y in range(24, size, 96):
+        for x in range(8, size, 48):
+            cv2.circle(image, (x, y), 3, (70, 70, 70), -1)
+    for _ in range(int(rng.integers(2, 5))):
+        x0, y0 = (int(v) for v in rng.integers(0, size - 120, 2))
+        w, h = (int(v) for v in rng.integers(50, 120, 2))
+        sign = tuple(
+            int(c)
+            for c in rng.choice([(200, 40, 30), (240, 200, 30), (30, 90, 170), (240, 240, 235)])
+        )
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), sign, -1)
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (20, 20, 20), 2)
+        _text(rng, image[y0 : y0 + h, x0 : x0 + w], 2, (15, 15, 15), 0.5)
+    image += _noise(rng, size, amplitude=20)[:, :, None]
+    return _finish(image)
+
+
+def crate(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Wooden planks with grain, nails and stencilled print."""
+    colour = tuple(int(c) for c in rng.choice([(160, 120, 75), (185, 150, 100), (140, 100, 60)]))
+    image = _base(rng, size, colour, grain=20)
+    plank = int(rng.integers(28, 52))
+    for y in range(0, size, plank):
+        cv2.line(image, (0, y), (size, y), (60, 40, 25), 2)
+        for _ in range(6):
+            yy = y + int(rng.integers(2, plank))
+            cv2.line(
+                image,
+                (0, yy),
+                (size, yy + int(rng.integers(-6, 6))),
+                tuple(c * 0.85 for c in colour),
+                1,
+            )
+        for x in (8, size - 8):
+            cv2.circle(image, (x, y + plank // 2), 2, (40, 40, 40), -1)
+    _text(rng, image, 3, (30, 30, 30), 0.9)
+    return _finish(image)
+
+
+def cardboard(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Boxes: tape, labels, barcodes, arrows."""
+    image = _base(rng, size, (175, 140, 95), grain=15)
+    cv2.rectangle(image, (size // 2 - 12, 0), (size // 2 + 12, size), (200, 180, 140), -1)
+    x0, y0 = (int(v) for v in rng.integers(10, size - 110, 2))
+    cv2.rectangle(image, (x0, y0), (x0 + 100, y0 + 70), (245, 245, 240), -1)
+    for k in range(30):
+        if rng.uniform() < 0.6:
+            x = x0 + 8 + 3 * k
+            cv2.line(image, (x, y0 + 35), (x, y0 + 64), (10, 10, 10), int(rng.integers(1, 3)))
+    _text(rng, image[y0 : y0 + 35, x0 : x0 + 100], 1, (10, 10, 10), 0.45)
+    _text(rng, image, 2, (40, 30, 25), 0.8)
+    return _finish(image)
+
+
+def sack(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Feed sacks: woven burlap with a printed brand."""
+    image = _base(
+        rng, size, tuple(int(c) for c in rng.choice([(200, 185, 150), (225, 220, 205)])), 15
+    )
+    yy, xx = np.mgrid[0:size, 0:size]
+    image += (12 * np.sin(xx * 1.6) * np.sin(yy * 1.6))[:, :, None].astype(np.float32)
+    centre = (size // 2, size // 2)
+    cv2.circle(image, centre, size // 5, tuple(int(c) for c in rng.integers(20, 200, 3)), 4)
+    _text(rng, image, 3, (int(rng.integers(10, 120)), 60, 30), 0.9)
+    return _finish(image)
+
+
+def metal(rng: np.random.Generator, size: int = 128, colour: Colour = (220, 110, 30)) -> np.ndarray:
+    """Painted steel (rack uprights and beams): chips, holes, labels."""
+    image = _base(rng, size, colour, grain=18)
+    for y in range(6, size, 14):
+        cv2.rectangle(image, (size // 2 - 3, y), (size // 2 + 3, y + 6), (25, 25, 25), -1)
+    for _ in range(20):
+        c = tuple(int(v) for v in rng.integers(0, size, 2))
+        cv2.circle(image, c, int(rng.integers(1, 4)), (150, 150, 150), -1)
+    return _finish(image)
+
+
+def wood(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Desk top and pallets: grain and knots."""
+    image = _base(rng, size, (150, 110, 70), grain=10)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    image += (18 * np.sin(yy / 3.0 + _noise(rng, size, amplitude=6.0)))[:, :, None]
+    for _ in range(4):
+        c = tuple(int(v) for v in rng.integers(0, size, 2))
+        cv2.ellipse(
+            image,
+            c,
+            (int(rng.integers(5, 14)), int(rng.integers(3, 7))),
+            0,
+            0,
+            360,
+            (80, 50, 30),
+            2,
+        )
+    return _finish(image)
+
+
+def screen(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """A monitor or laptop showing windows and text."""
+    image = np.full((size, size, 3), (30, 40, 60), np.float32)
+    for _ in range(5):
+        x0, y0 = (int(v) for v in rng.integers(0, size - 80, 2))
+        w, h = (int(v) for v in rng.integers(60, 150, 2))
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (235, 235, 235), -1)
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + 10), (70, 110, 200), -1)
+        _text(rng, image[y0 + 10 : y0 + h, x0 : x0 + w], 4, (20, 20, 20), 0.35)
+    return _finish(image)
+
+
+def cloth(rng: np.random.Generator, pattern: str, colour: Colour, size: int = 128) -> np.ndarray:
+    """Clothing: ``plain`` (with folds), ``stripes`` or ``plaid``."""
+    image = _base(rng, size, colour, grain=22)
+    accent = tuple(int(v) for v in rng.integers(20, 235, 3))
+    if pattern == "stripes":
+        period = int(rng.integers(10, 22))
+        for y in range(0, size, period):
+            cv2.rectangle(image, (0, y), (size, y + period // 2), accent, -1)
+    elif pattern == "plaid":
+        period = int(rng.integers(16, 30))
+        overlay = image.copy()
+        for v in range(0, size, period):
+            cv2.rectangle(overlay, (v, 0), (v + period // 3, size), accent, -1)
+            cv2.rectangle(overlay, (0, v), (size, v + period // 3), accent, -1)
+        image = 0.55 * image + 0.45 * overlay
+    elif pattern != "plain":
+        raise ValueError(f"unknown clothing pattern {pattern!r} (plain, stripes, plaid)")
+    image += _noise(rng, size, amplitude=18)[:, :, None]
+    return _finish(image)
+
+
+def fur(
+    rng: np.random.Generator, colour: Colour, size: int = 128, spots: bool = False
+) -> np.ndarray:
+    """Animal coats: strands and, optionally, patches."""
+    image = _base(rng, size, colour, grain=30)
+    for _ in range(300):
+        p = rng.integers(0, size, 2)
+        q = p + rng.integers(-5, 6, 2)
+        shade = tuple(c * float(rng.uniform(0.7, 1.2)) for c in colour)
+        cv2.line(image, tuple(int(v) for v in p), tuple(int(v) for v in q), shade, 1)
+    if spots:
+        for _ in range(6):
+            c = tuple(int(v) for v in rng.integers(0, size, 2))
+            cv2.circle(image, c, int(rng.integers(6, 18)), (40, 35, 30), -1)
+    return _finish(image)
+
+
+def skin(rng: np.random.Generator, size: int = 64) -> np.ndarray:
+    tone = tuple(
+        int(c) for c in rng.choice([(235, 195, 165), (200, 150, 110), (140, 95, 65), (95, 65, 45)])
+    )
+    return _finish(_base(rng, size, tone, grain=10))

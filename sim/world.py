@@ -1,0 +1,399 @@
+"""Build the MuJoCo world of a scenario through MjSpec: hall, props, actors, chairs, camera.
+
+Actors are kinematic: each part is a mocap body whose pose is set every physics
+step. Chairs are free bodies with mass and friction; they move only when an
+actor's part pushes them (contact bits: actors touch chairs, nothing else).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim import textures
+from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
+from sim.camera import Intrinsics
+from sim.camera_rig import CameraRig
+from sim.conventions import GL_FROM_CV, quat_wxyz
+from sim.layout import CENTRAL_AREA, Layout, Piece, StaticObject, plan_layout
+from sim.mujoco_env import mujoco
+from sim.paths import Path, plan_loop
+from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
+
+STATIC_BITS, CHAIR_BITS, ACTOR_BITS = (1, 1), (1, 3), (2, 0)
+"""(contype, conaffinity): actors collide with chairs only; chairs with everything."""
+
+CHAIR_MASS_KG = 6.0
+CHAIR_FRICTION = 0.5
+PHYSICS_STEP_S = 0.002
+
+DYNAMIC_PRIOR_CLASSES = {
+    "person": "dynamic",
+    "dog": "dynamic",
+    "cat": "dynamic",
+    "pig": "dynamic",
+    "bird": "dynamic",
+    "chair": "potential",
+}
+
+
+@dataclass(frozen=True)
+class InstanceInfo:
+    instance_id: int
+    class_name: str
+    prior: str
+    kind: str
+    """'actor', 'chair' or 'object' (never moves)."""
+    index: int
+    """Index into World.actors, World.chair_bodies or World.layout.objects."""
+
+
+@dataclass
+class World:
+    spec: ScenarioSpec
+    model: mujoco.MjModel
+    layout: Layout
+    intrinsics: Intrinsics
+    rig: CameraRig
+    actors: list[Actor]
+    actor_mocap: list[np.ndarray]
+    """Per actor, the mocap indices of its parts (in part order)."""
+    chair_bodies: list[int]
+    chair_qpos: list[int]
+    chair_qvel: list[int]
+    camera_mocap: int
+    camera_id: int
+    instances: list[InstanceInfo]
+    body_instance: np.ndarray
+    """Instance id of every body (0 = static world)."""
+    substeps: int
+    object_poses: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def classes(self) -> dict[str, str]:
+        return {i.class_name: i.prior for i in self.instances}
+
+
+def _material_images(
+    rng: np.random.Generator, clothing: list[tuple[str, str]]
+) -> dict[str, tuple[str, np.ndarray]]:
+    """Every material's texture: ('2d' | 'cube', image)."""
+    mats: dict[str, tuple[str, np.ndarray]] = {
+        "floor": ("2d", textures.concrete(rng)),
+        "ceiling": ("2d", textures.wall(rng, 256)),
+    }
+    for k in range(3):
+        mats[f"wall{k}"] = ("2d", textures.wall(rng))
+        mats[f"wood{k}"] = ("cube", textures.wood(rng))
+    for k in range(4):
+        mats[f"crate{k}"] = ("cube", textures.crate(rng))
+        mats[f"cardboard{k}"] = ("cube", textures.cardboard(rng))
+        mats[f"sack{k}"] = ("cube", textures.sack(rng))
+    mats["metal_blue"] = ("cube", textures.metal(rng, colour=(40, 70, 160)))
+    mats["metal_orange"] = ("cube", textures.metal(rng, colour=(230, 120, 30)))
+    mats["metal_grey"] = ("cube", textures.metal(rng, colour=(120, 120, 125)))
+    mats["screen0"] = ("cube", textures.screen(rng))
+    mats["screen1"] = ("cube", textures.screen(rng))
+    mats["lamp"] = ("cube", np.full((16, 16, 3), 250, np.uint8))
+    mats["fur_dog"] = ("cube", textures.fur(rng, (150, 105, 60), spots=True))
+    mats["fur_cat"] = ("cube", textures.fur(rng, (110, 110, 105)))
+    mats["fur_pig"] = ("cube", textures.fur(rng, (235, 170, 165)))
+    mats["fur_bird"] = ("cube", textures.fur(rng, (120, 125, 140)))
+    mats["chair"] = ("cube", textures.metal(rng, colour=(30, 30, 35)))
+    mats["chair_seat"] = ("cube", textures.cloth(rng, "plain", (40, 60, 120)))
+    for k, (pattern, _) in enumerate(clothing):
+        shirt = tuple(int(c) for c in rng.integers(30, 230, 3))
+        pants = tuple(int(c) for c in rng.choice([(40, 50, 90), (60, 60, 60), (120, 100, 70)]))
+        mats[f"shirt{k}"] = ("cube", textures.cloth(rng, pattern, shirt))
+        mats[f"pants{k}"] = ("cube", textures.cloth(rng, "plain", pants))
+        mats[f"skin{k}"] = ("cube", textures.skin(rng))
+        mats[f"shoes{k}"] = ("cube", textures.cloth(rng, "plain", (35, 30, 30)))
+    return mats
+
+
+def _add_materials(spec: mujoco.MjSpec, images: dict[str, tuple[str, np.ndarray]]) -> None:
+    for name, (kind, image) in images.items():
+        h, w = image.shape[:2]
+        if kind == "2d":
+            tex = spec.add_texture(
+                name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h, nchannel=3
+            )
+            tex.data = np.ascontiguousarray(image).tobytes()
+        else:
+            tex = spec.add_texture(
+                name=name, type=mujoco.mjtTexture.mjTEXTURE_CUBE, width=w, height=6 * h, nchannel=3
+            )
+            tex.data = np.ascontiguousarray(np.tile(image, (6, 1, 1))).tobytes()
+        mat = spec.add_material(name=name)
+        mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = name
+        mat.specular = 0.0
+        mat.shininess = 0.0
+        mat.reflectance = 0.0
+        if kind == "2d":
+            mat.texuniform = True
+            mat.texrepeat = [0.4, 0.4]
+        if name == "lamp":
+            mat.emission = 1.0
+
+
+def _piece_geom(body: mujoco.MjsBody, piece: Piece, bits: tuple[int, int]) -> None:
+    if piece.axes is not None:
+        quat = quat_wxyz(np.array(piece.axes, dtype=float).T)
+    else:
+        quat = [
+            math.cos(math.radians(piece.yaw_deg) / 2),
+            0,
+            0,
+            math.sin(math.radians(piece.yaw_deg) / 2),
+        ]
+    if piece.shape == "cylinder":
+        geom_type, size = (
+            mujoco.mjtGeom.mjGEOM_CYLINDER,
+            [piece.half_size[0], piece.half_size[2], 0],
+        )
+    else:
+        geom_type, size = mujoco.mjtGeom.mjGEOM_BOX, list(piece.half_size)
+    body.add_geom(
+        type=geom_type,
+        size=size,
+        pos=list(piece.center),
+        quat=list(quat),
+        material=piece.material,
+        contype=bits[0],
+        conaffinity=bits[1],
+    )
+
+
+_SHAPES = {
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+    "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+}
+
+
+def _make_actor(
+    spec: ActorSpec,
+    k: int,
+    layout: Layout,
+    chairs: tuple[ChairSpec, ...],
+    rng: np.random.Generator,
+    duration_s: float,
+) -> Actor:
+    materials = {m: f"{m}{k}" for m in ("shirt", "pants", "skin", "shoes")}
+    scale = spec.scale if spec.scale is not None else float(rng.uniform(0.9, 1.08))
+    bounds = (-layout.size[0] / 2, -layout.size[1] / 2, layout.size[0] / 2, layout.size[1] / 2)
+    if spec.kind == "sitting_person":
+        if layout.seat is None:
+            raise ValueError("a sitting_person needs a desk (layout.desk: true)")
+        return SittingPerson(layout.seat, scale, materials, rng)
+    if spec.kind == "chair_pusher":
+        if not chairs:
+            raise ValueError("a chair_pusher needs at least one chair")
+        cx, cy = chairs[k % len(chairs)].position_m
+        direction = np.array([1.0, 0.35]) / np.linalg.norm([1.0, 0.35])
+        waypoints = np.array([[cx, cy] - 1.6 * direction, [cx, cy] + 1.4 * direction])
+        path = Path(waypoints, smoothing_m=0.3)
+        return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True)
+    chair_rects = tuple(
+        (x - 0.45, y - 0.45, x + 0.45, y + 0.45) for x, y in (c.position_m for c in chairs)
+    )
+    obstacles = layout.obstacles + chair_rects
+    if spec.waypoints:
+        waypoints = np.array(spec.waypoints, dtype=float)
+    else:
+        n_points = 4 if spec.path == "loop" else 7
+        region = (
+            CENTRAL_AREA
+            if spec.path == "loop"
+            else (bounds[0] + 1.5, bounds[1] + 1.2, bounds[2] - 1.5, bounds[3] - 1.5)
+        )
+        waypoints = plan_loop(rng, region, obstacles, bounds, n_points)
+    path = Path(waypoints)
+    start = float(rng.uniform(0, path.length))
+    if spec.kind == "person":
+        return Walker(path, spec.speed_mps, scale, materials, start)
+    if spec.kind == "bird":
+        return Bird(path, start, duration_s, rng)
+    return Quadruped(QUADRUPEDS[spec.kind], path, spec.speed_mps, start)
+
+
+def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
+    yaw = math.radians(chair.yaw_deg)
+    body = spec.worldbody.add_body(
+        name=f"chair{k}",
+        pos=[*chair.position_m, 0.0],
+        quat=[math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)],
+    )
+    body.add_freejoint()
+    bits = CHAIR_BITS
+    parts = [
+        ((0.0, 0.0, 0.46), (0.22, 0.22, 0.03), "chair_seat"),
+        ((-0.2, 0.0, 0.72), (0.02, 0.2, 0.2), "chair_seat"),
+    ]
+    parts += [
+        ((sx * 0.19, sy * 0.19, 0.215), (0.02, 0.02, 0.215), "chair")
+        for sx in (-1, 1)
+        for sy in (-1, 1)
+    ]
+    volume = sum(8 * h[0] * h[1] * h[2] for _, h, _ in parts)
+    for pos, half, material in parts:
+        body.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            size=list(half),
+            pos=list(pos),
+            material=material,
+            contype=bits[0],
+            conaffinity=bits[1],
+            density=CHAIR_MASS_KG / volume,
+            friction=[CHAIR_FRICTION, 0.005, 0.0001],
+        )
+    return body
+
+
+def build_world(scenario: ScenarioSpec) -> World:
+    """Compile the scenario into a MuJoCo model; every random draw comes from its seed."""
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(scenario.seed).spawn(4)]
+    texture_rng, layout_rng, actor_rng, camera_rng = streams
+    intrinsics = Intrinsics.from_fovy(
+        2 * math.degrees(math.atan((scenario.height / 2) / scenario.focal_px)),
+        scenario.width,
+        scenario.height,
+    )
+    layout = plan_layout(scenario.layout, layout_rng)
+    duration = scenario.frames / scenario.fps
+    actors = [
+        _make_actor(a, k, layout, scenario.chairs, actor_rng, duration)
+        for k, a in enumerate(scenario.actors)
+    ]
+    clothing = [
+        (a.clothing or str(actor_rng.choice(["plain", "stripes", "plaid"])), a.kind)
+        for a in scenario.actors
+    ]
+
+    spec = mujoco.MjSpec()
+    spec.modelname = f"depot_{scenario.name}"
+    spec.option.timestep = 1.0 / (
+        scenario.fps * max(1, round(1.0 / (scenario.fps * PHYSICS_STEP_S)))
+    )
+    spec.visual.global_.offwidth = scenario.width
+    spec.visual.global_.offheight = scenario.height
+    spec.visual.quality.offsamples = 0
+    spec.visual.quality.shadowsize = 0
+    spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    spec.visual.headlight.diffuse = [0.0, 0.0, 0.0]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
+    spec.stat.extent = 10.0
+    spec.stat.center = [0.0, 0.0, 1.5]
+    spec.visual.map.znear = 0.005
+    spec.visual.map.zfar = 6.0
+    _add_materials(spec, _material_images(texture_rng, clothing))
+
+    world_body = spec.worldbody
+    for piece in layout.world:
+        _piece_geom(world_body, piece, STATIC_BITS)
+    if any(a.kind == "sitting_person" for a in scenario.actors) and layout.seat is not None:
+        x, y, _ = layout.seat
+        _piece_geom(world_body, Piece((x, y, 0.22), (0.2, 0.2, 0.22), "metal_grey"), STATIC_BITS)
+    intensity = scenario.light_intensity
+    for lx, ly, lz in layout.lights:
+        world_body.add_light(
+            pos=[lx, ly, lz],
+            dir=[0.2 * np.sign(lx), 0.1, -1.0],
+            castshadow=False,
+            diffuse=[intensity * 0.5] * 3,
+            specular=[0, 0, 0],
+            ambient=[0, 0, 0],
+        )
+    world_body.add_light(
+        pos=[0, 0, layout.height],
+        dir=[0.3, 0.5, -1.0],
+        castshadow=False,
+        diffuse=[intensity * 0.4] * 3,
+        specular=[0, 0, 0],
+    )
+    object_bodies = []
+    for k, obj in enumerate(layout.objects):
+        body = world_body.add_body(name=f"object{k}_{obj.class_name}")
+        for piece in obj.pieces:
+            _piece_geom(body, piece, STATIC_BITS)
+        object_bodies.append(body)
+    actor_bodies = []
+    for k, actor in enumerate(actors):
+        positions, rotations = actor.pose(0.0)
+        bodies = []
+        for j, part in enumerate(actor.parts):
+            body = world_body.add_body(
+                name=f"actor{k}_{part.name}",
+                mocap=True,
+                pos=list(positions[j]),
+                quat=list(quat_wxyz(rotations[j])),
+            )
+            size = list(part.size) + [0.0] * (3 - len(part.size))
+            body.add_geom(
+                type=_SHAPES[part.shape],
+                size=size,
+                material=part.material,
+                contype=ACTOR_BITS[0],
+                conaffinity=ACTOR_BITS[1],
+            )
+            bodies.append(body)
+        actor_bodies.append(bodies)
+    chair_bodies = [_add_chair(spec, chair, k) for k, chair in enumerate(scenario.chairs)]
+    rig = CameraRig(scenario.camera, camera_rng)
+    pose0 = rig.world_from_camera(0.0)
+    cam_body = world_body.add_body(
+        name="camera_rig",
+        mocap=True,
+        pos=list(pose0[:3, 3]),
+        quat=list(quat_wxyz(pose0[:3, :3] @ GL_FROM_CV)),
+    )
+    cam_body.add_camera(name="camera", fovy=intrinsics.fovy_deg())
+
+    model = spec.compile()
+    mocap_of = {int(b.id): int(model.body_mocapid[b.id]) for bodies in actor_bodies for b in bodies}
+    instances: list[InstanceInfo] = []
+    body_instance = np.zeros(model.nbody, dtype=np.uint16)
+    next_id = 1
+
+    def register(class_name: str, prior: str, kind: str, index: int, body_ids: list[int]) -> None:
+        nonlocal next_id
+        instances.append(InstanceInfo(next_id, class_name, prior, kind, index))
+        body_instance[body_ids] = next_id
+        next_id += 1
+
+    for k, (obj, body) in enumerate(zip(layout.objects, object_bodies, strict=True)):
+        register(obj.class_name, obj.prior, "object", k, [body.id])
+    for k, (actor, bodies) in enumerate(zip(actors, actor_bodies, strict=True)):
+        register(actor.class_name, actor.prior, "actor", k, [b.id for b in bodies])
+    for k, body in enumerate(chair_bodies):
+        register("chair", "potential", "chair", k, [body.id])
+    chair_ids = [int(b.id) for b in chair_bodies]
+    joint_of = {int(model.jnt_bodyid[j]): j for j in range(model.njnt)}
+    return World(
+        spec=scenario,
+        model=model,
+        layout=layout,
+        intrinsics=intrinsics,
+        rig=rig,
+        actors=actors,
+        actor_mocap=[
+            np.array([mocap_of[b.id] for b in bodies], dtype=int) for bodies in actor_bodies
+        ],
+        chair_bodies=chair_ids,
+        chair_qpos=[int(model.jnt_qposadr[joint_of[b]]) for b in chair_ids],
+        chair_qvel=[int(model.jnt_dofadr[joint_of[b]]) for b in chair_ids],
+        camera_mocap=int(model.body_mocapid[cam_body.id]),
+        camera_id=int(model.camera("camera").id),
+        instances=instances,
+        body_instance=body_instance,
+        substeps=max(1, round(1.0 / (scenario.fps * model.opt.timestep))),
+        object_poses=[_object_pose(obj) for obj in layout.objects],
+    )
+
+
+def _object_pose(obj: StaticObject) -> tuple[np.ndarray, np.ndarray]:
+    centre = np.mean([p.center for p in obj.pieces], axis=0)
+    return centre, np.array([0.0, 0.0, 0.0, 1.0])
