@@ -26,9 +26,10 @@ class FrameRenderer:
             self._gl.make_current()
         except Exception as exc:  # the GL backends raise many types; all mean the same to a user
             raise RenderingUnavailable(
-                f"MuJoCo could not open an off-screen OpenGL context ({type(exc).__name__}: {exc}). "
-                "Install the EGL and Mesa libraries (Debian/Ubuntu: apt-get install libegl1 "
-                "libgl1-mesa-dri, or `make system-deps`), or set MUJOCO_GL=osmesa with libosmesa6."
+                "MuJoCo could not open an off-screen OpenGL context "
+                f"({type(exc).__name__}: {exc}). Install the EGL and Mesa libraries "
+                "(Debian/Ubuntu: apt-get install libegl1 libgl1-mesa-dri, or `make system-deps`), "
+                "or set MUJOCO_GL=osmesa with libosmesa6."
             ) from exc
         self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom))
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
@@ -48,7 +49,7 @@ class FrameRenderer:
     def render(
         self, data: mujoco.MjData, camera_id: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RGB (H, W, 3) uint8, z-depth in metres (float32, 0 = nothing), geom id (int32, -1 = none)."""
+        """RGB (H, W, 3) uint8, z-depth in metres (float32, 0 = nothing), geom ids (-1 = none)."""
         self._gl.make_current()
         self._camera.fixedcamid = camera_id
         scene, flags = self._scene, self._scene.flags

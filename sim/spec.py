@@ -6,7 +6,8 @@ the hall centred on the origin with the default camera looking along +y.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 ACTOR_KINDS = ("person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird")
 PATH_MODES = ("loop", "random_walk", "seated")
@@ -109,3 +110,59 @@ def default_scenario(frames: int = 90, seed: int = 0) -> ScenarioSpec:
         chairs=(ChairSpec((1.6, 0.6), 30.0), ChairSpec((-2.2, 2.6), -20.0)),
         camera=CameraSpec(motion="xyz"),
     )
+
+
+_NESTED = {"layout": LayoutSpec, "camera": CameraSpec}
+
+
+def scenario_from_dict(data: dict, source: str = "spec") -> ScenarioSpec:
+    """A ScenarioSpec from plain data; unknown keys and bad values name the field.
+
+    The scenes package adds the full YAML schema, library and suites on top.
+    """
+    from sim.errors import InputError
+
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: must be a mapping of scenario fields")
+    known = {f.name for f in fields(ScenarioSpec)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise InputError(
+            f"{source}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}"
+        )
+    values = dict(data)
+    try:
+        for key, cls in _NESTED.items():
+            if key in values:
+                values[key] = cls(
+                    **{k: tuple(v) if isinstance(v, list) else v for k, v in values[key].items()}
+                )
+        if "actors" in values:
+            values["actors"] = tuple(
+                ActorSpec(
+                    **{k: tuple(map(tuple, v)) if k == "waypoints" else v for k, v in a.items()}
+                )
+                for a in values["actors"]
+            )
+        if "chairs" in values:
+            values["chairs"] = tuple(
+                ChairSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in c.items()})
+                for c in values["chairs"]
+            )
+        return ScenarioSpec(**values)
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise InputError(f"{source}: {exc}") from None
+
+
+def load_scenario(path: Path) -> ScenarioSpec:
+    import yaml
+
+    from sim.errors import InputError
+
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such scenario file") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from None
+    return scenario_from_dict(data, str(path))

@@ -79,6 +79,12 @@ def concrete(rng: np.random.Generator, size: int = 512) -> np.ndarray:
         cv2.line(
             image, tuple(int(v) for v in p), tuple(int(v) for v in q), (60, 60, 58), 1, cv2.LINE_AA
         )
+    for _ in range(160):  # chips and gravel: corners that stay visible at 5 m
+        c = rng.integers(0, size, 2)
+        shade = float(rng.choice([25.0, 215.0]))
+        r = int(rng.integers(3, 10))
+        poly = (c + rng.integers(-r, r + 1, (4, 2))).astype(np.int32)
+        cv2.fillPoly(image, [poly], (shade, shade, shade * 0.95))
     if rng.uniform() < 0.7:
         x = int(rng.integers(0, size - 30))
         cv2.rectangle(image, (x, 0), (x + 14, size), (40, 190, 230), -1)
@@ -106,6 +112,11 @@ def wall(rng: np.random.Generator, size: int = 512) -> np.ndarray:
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), sign, -1)
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (20, 20, 20), 2)
         _text(rng, image[y0 : y0 + h, x0 : x0 + w], 2, (15, 15, 15), 0.5)
+    for _ in range(60):  # stickers, patches and rivet plates
+        x0, y0 = (int(v) for v in rng.integers(0, size - 20, 2))
+        w, h = (int(v) for v in rng.integers(6, 20, 2))
+        shade = tuple(float(v) for v in rng.integers(0, 255, 3))
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), shade, -1)
     image += _noise(rng, size, amplitude=20)[:, :, None]
     return _finish(image)
 
@@ -193,20 +204,19 @@ def wood(rng: np.random.Generator, size: int = 256) -> np.ndarray:
 
 def screen(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     """A monitor or laptop showing windows and text."""
-    image = np.full((size, size, 3), (30, 40, 60), np.float32)
-    for _ in range(5):
+    image = np.full((size, size, 3), (40, 50, 70), np.float32)
+    for _ in range(3):
         x0, y0 = (int(v) for v in rng.integers(0, size - 80, 2))
-        w, h = (int(v) for v in rng.integers(60, 150, 2))
-        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (235, 235, 235), -1)
-        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + 10), (70, 110, 200), -1)
-        _text(rng, image[y0 + 10 : y0 + h, x0 : x0 + w], 4, (20, 20, 20), 0.35)
+        w, h = (int(v) for v in rng.integers(80, 170, 2))
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (95, 100, 110), -1)
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + 10), (60, 80, 120), -1)
     return _finish(image)
 
 
 def cloth(rng: np.random.Generator, pattern: str, colour: Colour, size: int = 128) -> np.ndarray:
     """Clothing: ``plain`` (with folds), ``stripes`` or ``plaid``."""
     image = _base(rng, size, colour, grain=22)
-    accent = tuple(int(v) for v in rng.integers(20, 235, 3))
+    accent = tuple(int(np.clip(c + rng.choice([-1, 1]) * 55, 0, 255)) for c in colour)
     if pattern == "stripes":
         period = int(rng.integers(10, 22))
         for y in range(0, size, period):

@@ -132,7 +132,7 @@ def _add_materials(spec: mujoco.MjSpec, images: dict[str, tuple[str, np.ndarray]
         mat.reflectance = 0.0
         if kind == "2d":
             mat.texuniform = True
-            mat.texrepeat = [0.4, 0.4]
+            mat.texrepeat = [1.0, 1.0] if name == "floor" else [0.5, 0.5]
         if name == "lamp":
             mat.emission = 1.0
 

@@ -1,0 +1,282 @@
+"""The simulator against physics and geometry: reprojection, masks, gait, contacts, features."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.ndimage import map_coordinates
+
+from sim.conventions import GL_FROM_CV, look_at
+from sim.sequence import Sequence
+from sim.simulation import Simulation
+from sim.spec import ActorSpec, CameraSpec, ChairSpec, ScenarioSpec, default_scenario
+from sim.world import build_world
+from tests.conftest import REPO
+
+pytestmark = pytest.mark.render
+
+
+def small(spec: ScenarioSpec, frames: int, scale: int = 4, **changes) -> ScenarioSpec:
+    """The same scene at 1/scale resolution (same field of view)."""
+    return dataclasses.replace(
+        spec,
+        frames=frames,
+        width=640 // scale,
+        height=480 // scale,
+        focal_px=525.0 / scale,
+        **changes,
+    )
+
+
+@pytest.fixture(scope="module")
+def walking(tmp_path_factory) -> Sequence:
+    from sim.generate import generate
+
+    out = tmp_path_factory.mktemp("sim") / "walking"
+    spec = small(default_scenario(), frames=8, scale=2, flow=True)
+    generate(spec, out, progress=False)
+    return Sequence.open(out)
+
+
+def test_camera_conventions_round_trip():
+    pose = look_at(np.array([1.0, -2.0, 1.5]), np.array([0.0, 1.0, 1.0]))
+    r = pose[:3, :3]
+    assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+    assert np.allclose((r @ GL_FROM_CV) @ GL_FROM_CV, r)
+    # The optical axis (z) points at the target, image y points down (world -z side).
+    direction = np.array([0.0, 1.0, 1.0]) - np.array([1.0, -2.0, 1.5])
+    assert np.allclose(r[:, 2], direction / np.linalg.norm(direction))
+    assert r[2, 1] < 0
+
+
+def test_ground_truth_pose_is_the_rigs_pose(walking: Sequence):
+    world = build_world(Sequence_spec(walking))
+    for i in range(len(walking)):
+        expected = world.rig.world_from_camera(i / 30.0)
+        np.testing.assert_allclose(walking.world_from_camera(i), expected, atol=2e-6)
+
+
+def Sequence_spec(seq: Sequence) -> ScenarioSpec:
+    from sim.spec import scenario_from_dict
+
+    return scenario_from_dict(seq.meta["scenario"])
+
+
+def bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return map_coordinates(image.astype(np.float64), [v, u], order=1, mode="nearest")
+
+
+def _reproject(seq: Sequence, i: int):
+    """Static-world pixels of frame i moved into frame i+1 with depth and true poses."""
+    k = seq.intrinsics
+    depth, inst = seq.depth_m(i), seq.instances(i)
+    v, u = np.nonzero((depth > 0) & (inst == 0))
+    z = depth[v, u].astype(np.float64)
+    pts = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=1)
+    w0, w1 = seq.world_from_camera(i), seq.world_from_camera(i + 1)
+    world = pts @ w0[:3, :3].T + w0[:3, 3]
+    cam1 = (world - w1[:3, 3]) @ w1[:3, :3]
+    u1 = k.fx * cam1[:, 0] / cam1[:, 2] + k.cx
+    v1 = k.fy * cam1[:, 1] / cam1[:, 2] + k.cy
+    return u, v, u1, v1, cam1[:, 2]
+
+
+def test_static_world_reprojects_with_true_poses(walking: Sequence):
+    for i in range(len(walking) - 1):
+        u, v, u1, v1, z1 = _reproject(walking, i)
+        ui, vi = np.rint(u1).astype(int), np.rint(v1).astype(int)
+        h, w = walking.intrinsics.height, walking.intrinsics.width
+        inside = (ui >= 1) & (ui < w - 1) & (vi >= 1) & (vi < h - 1)
+        depth1, inst1 = walking.depth_m(i + 1), walking.instances(i + 1)
+        ok = inside.copy()
+        ok[inside] = inst1[vi[inside], ui[inside]] == 0
+        # Rounding to the nearest pixel shifts depth on slanted surfaces: sample bilinearly.
+        sampled = bilinear(depth1, u1[ok], v1[ok])
+        residual = np.abs(sampled - z1[ok])
+        visible = residual < 0.05  # the rest is occluded in frame i+1 or at depth edges
+        assert visible.mean() > 0.9
+        assert np.median(residual[visible]) < 1e-3
+        grey0 = cv2.cvtColor(walking.rgb(i), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        grey1 = cv2.cvtColor(walking.rgb(i + 1), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        warped = bilinear(grey1, u1[ok], v1[ok])
+        photometric = np.abs(warped - grey0[v[ok], u[ok]])[visible]
+        # Control: a 2-pixel error in the warp shows how sensitive the check is.
+        shifted = np.abs(bilinear(grey1, u1[ok] + 2.0, v1[ok]) - grey0[v[ok], u[ok]])[visible]
+        assert np.median(photometric) < 3.0
+        assert np.median(photometric) < 0.3 * np.median(shifted)
+
+
+def test_flow_ground_truth_matches_reprojection_and_moving_instances(walking: Sequence):
+    for i in range(len(walking) - 1):
+        flow = walking.flow(i)
+        u, v, u1, v1, _ = _reproject(walking, i)
+        np.testing.assert_allclose(flow[v, u, 0], u1 - u, atol=1e-3)
+        np.testing.assert_allclose(flow[v, u, 1], v1 - v, atol=1e-3)
+        inst0, inst1 = walking.instances(i), walking.instances(i + 1)
+        grey0 = cv2.cvtColor(walking.rgb(i), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        grey1 = cv2.cvtColor(walking.rgb(i + 1), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        for obj in walking.objects()[i]:
+            if not (obj.moving and obj.visible_pixels > 200):
+                continue
+            vv, uu = np.nonzero(inst0 == obj.instance_id)
+            tu, tv = uu + flow[vv, uu, 0], vv + flow[vv, uu, 1]
+            h, w = inst1.shape
+            inside = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
+            same = (
+                inst1[np.rint(tv[inside]).astype(int), np.rint(tu[inside]).astype(int)]
+                == obj.instance_id
+            )
+            assert same.mean() > 0.85, obj
+            warped = bilinear(grey1, tu[inside], tv[inside])
+            assert np.median(np.abs(warped - grey0[vv[inside], uu[inside]])[same]) < 10.0
+
+
+def test_boxes_are_mask_extents_and_flags_follow_velocities(walking: Sequence):
+    objects = walking.objects()
+    for i in range(len(walking)):
+        inst = walking.instances(i)
+        for obj in objects[i]:
+            vv, uu = np.nonzero(inst == obj.instance_id)
+            assert obj.visible_pixels == len(vv)
+            if len(vv):
+                assert obj.box_xyxy == (uu.min(), vv.min(), uu.max() + 1, vv.max() + 1)
+            else:
+                assert obj.box_xyxy is None
+            speed = np.linalg.norm(obj.linear_velocity_mps)
+            if obj.class_name in ("dog",) or (obj.class_name == "person" and speed > 0.1):
+                assert obj.moving
+            if obj.prior == "potential" and obj.class_name != "chair":
+                assert not obj.moving and speed == 0.0
+            if obj.class_name == "chair":
+                assert obj.moving == (
+                    speed > 0.01 or np.linalg.norm(obj.angular_velocity_radps) > 0.05
+                )
+
+
+def test_walkers_do_not_slide_their_feet():
+    spec = ScenarioSpec(
+        frames=1,
+        actors=(
+            ActorSpec("person", speed_mps=1.3),
+            ActorSpec("person", speed_mps=0.7, path="random_walk"),
+        ),
+    )
+    world = build_world(spec)
+    sim = Simulation(world)
+    feet = [[world.model.body(f"actor{k}_foot_{s}").id for s in "lr"] for k in range(2)]
+    pelvis = [world.model.body(f"actor{k}_pelvis").id for k in range(2)]
+    half_height = [world.actors[k].parts[11].size[2] for k in range(2)]
+    positions = []
+    for frame in range(150):
+        sim.advance_to(frame / 30.0)
+        positions.append(sim.data.xpos.copy())
+    xpos = np.array(positions)
+    for k in range(2):
+        body_speed = np.linalg.norm(np.diff(xpos[:, pelvis[k], :2], axis=0), axis=1).mean() * 30
+        assert body_speed == pytest.approx(world.spec.actors[k].speed_mps, rel=0.05)
+        for foot in feet[k]:
+            bottom = xpos[:, foot, 2] - half_height[k]
+            contact = (bottom[:-1] < 1e-3) & (bottom[1:] < 1e-3)
+            speed = np.linalg.norm(np.diff(xpos[:, foot], axis=0), axis=1) * 30
+            assert contact.mean() > 0.4  # a real stance phase exists
+            assert speed[contact].max() < 0.05 * body_speed
+
+
+def test_pushed_chair_moves_untouched_chair_stays():
+    spec = ScenarioSpec(
+        frames=1,
+        actors=(ActorSpec("chair_pusher", speed_mps=0.9),),
+        chairs=(ChairSpec((1.0, 0.5), 0.0), ChairSpec((-2.5, 2.8), 30.0)),
+    )
+    world = build_world(spec)
+    sim = Simulation(world)
+    start = sim.data.xpos[world.chair_bodies].copy()
+    for frame in range(1, 120):
+        sim.advance_to(frame / 30.0)
+    moved = np.linalg.norm(sim.data.xpos[world.chair_bodies] - start, axis=1)
+    assert moved[0] > 0.05
+    assert moved[1] < 1e-3
+
+
+def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(
+        json.dumps(
+            {
+                "name": "tiny",
+                "seed": 7,
+                "frames": 3,
+                "width": 96,
+                "height": 72,
+                "focal_px": 78.75,
+                "flow": True,
+                "actors": [{"kind": "person"}, {"kind": "cat", "speed_mps": 0.6}],
+                "chairs": [{"position_m": [1.0, 0.5]}],
+                "camera": {"motion": "halfsphere"},
+            }
+        )
+    )
+    outs = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        result = subprocess.run(
+            [sys.executable, "-m", "eval.cli", "generate", str(spec), "-o", str(out)],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+        )
+        assert result.returncode == 0, result.stderr
+        outs.append(out)
+    files = sorted(p.relative_to(outs[0]) for p in outs[0].rglob("*") if p.is_file())
+    assert len(files) > 10
+    assert files == sorted(p.relative_to(outs[1]) for p in outs[1].rglob("*") if p.is_file())
+    for rel in files:
+        if rel.name == "meta.json":
+            continue
+        assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel
+    meta = [json.loads((o / "meta.json").read_text()) for o in outs]
+    assert meta[0] == meta[1]
+
+
+@pytest.mark.parametrize("motion", ["static", "rpy", "robot"])
+def test_camera_rigs_are_smooth(motion):
+    world = build_world(ScenarioSpec(frames=1, camera=CameraSpec(motion=motion)))
+    t = np.arange(0, 3, 1 / 30)
+    positions = np.array([world.rig.world_from_camera(x)[:3, 3] for x in t])
+    velocity = np.diff(positions, axis=0) * 30
+    assert np.abs(np.diff(velocity, axis=0)).max() * 30 < 5.0  # bounded acceleration: no jumps
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "known gap (issue 3): >= 500 ORB keypoints on every frame, but the densest 40x40 cell holds "
+        "up to 5.7 % of them (target 5 %) near the chair/rack corners; 37-53 % of frames pass"
+    ),
+)
+def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
+    from sim.generate import generate
+
+    out = generate(
+        dataclasses.replace(default_scenario(), frames=20), tmp_path / "seq", progress=False
+    )
+    seq = Sequence.open(out)
+    orb = cv2.ORB_create(nfeatures=1000)
+    good = 0
+    counts = []
+    for i in range(len(seq)):
+        keypoints = orb.detect(cv2.cvtColor(seq.rgb(i), cv2.COLOR_RGB2GRAY), None)
+        pts = np.array([k.pt for k in keypoints])
+        counts.append(len(keypoints))
+        cells = np.bincount((pts[:, 1] // 40).astype(int) * 16 + (pts[:, 0] // 40).astype(int))
+        if len(keypoints) >= 500 and cells.max() <= 0.05 * len(keypoints):
+            good += 1
+    assert min(counts) >= 500  # the count criterion holds today; the spread is the gap
+    assert good >= 0.95 * len(seq)
