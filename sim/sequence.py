@@ -10,6 +10,7 @@ import json
 import os
 import shutil
 import uuid
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -43,6 +44,7 @@ from sim.tum_files import (
 
 FORMAT_VERSION = 1
 SUPPORTED_FORMAT_VERSIONS = (1,)
+PNG_WRITER_THREADS = 2
 ASSOCIATION_MAX_DIFF_S = 0.02
 """Largest RGB/depth timestamp gap paired when a folder has no associations.txt (TUM)."""
 
@@ -422,7 +424,15 @@ class SequenceWriter:
         self.fps = fps
         self.meta = dict(meta)
         self.overwrite = overwrite
-        self.png_params = [cv2.IMWRITE_PNG_COMPRESSION, int(png_compression)]
+        # The SUB filter at level 1 encodes a third faster than libpng's adaptive default.
+        self.png_params = [
+            cv2.IMWRITE_PNG_COMPRESSION,
+            int(png_compression),
+            cv2.IMWRITE_PNG_FILTER,
+            cv2.IMWRITE_PNG_FILTER_SUB,
+        ]
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: list[Future[None]] = []
         self.orbslam = orbslam or OrbSlamSettings(fps=fps)
         self._tmp: Path | None = None
         self._timestamps: list[float] = []
@@ -437,6 +447,8 @@ class SequenceWriter:
         self._tmp = self.root.parent / f".{self.root.name}.partial-{uuid.uuid4().hex[:8]}"
         for sub in ("rgb", "depth", "gt/instances"):
             (self._tmp / sub).mkdir(parents=True)
+        # cv2.imwrite releases the GIL: encoding overlaps with rendering the next frame.
+        self._pool = ThreadPoolExecutor(max_workers=PNG_WRITER_THREADS)
         return self
 
     def __exit__(
@@ -445,8 +457,12 @@ class SequenceWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        assert self._tmp is not None
+        assert self._tmp is not None and self._pool is not None
         try:
+            self._pool.shutdown(wait=True)
+            for future in self._pending:
+                if exc_type is None:
+                    future.result()  # re-raises a failed write
             if exc_type is None:
                 self._finish()
         finally:
@@ -495,8 +511,9 @@ class SequenceWriter:
         self._objects.append(json.dumps(record, separators=(",", ":")))
 
     def _write_png(self, path: Path, image: np.ndarray) -> None:
-        if not cv2.imwrite(str(path), image, self.png_params):
-            raise OSError(f"{path}: could not write PNG")
+        assert self._pool is not None
+        self._pending = [f for f in self._pending if not f.done() or f.exception()]
+        self._pending.append(self._pool.submit(_imwrite, path, image.copy(), self.png_params))
 
     def _finish(self) -> None:
         assert self._tmp is not None
@@ -534,6 +551,11 @@ class SequenceWriter:
             json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8"
         )
         _replace_dir(tmp, self.root)
+
+
+def _imwrite(path: Path, image: np.ndarray, params: list[int]) -> None:
+    if not cv2.imwrite(str(path), image, params):
+        raise OSError(f"{path}: could not write PNG")
 
 
 def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:

@@ -19,9 +19,12 @@ GT = EXAMPLES / "fr1_xyz_groundtruth.txt"
 EST = EXAMPLES / "fr1_xyz_rgbdslam.txt"
 
 
-def test_demo_prints_the_reference_figure(capsys):
-    assert main(["demo"]) == 0
+@pytest.mark.render
+def test_demo_generates_previews_and_evaluates(capsys, tmp_path: Path):
+    assert main(["demo", "-o", str(tmp_path), "--frames", "3"]) == 0
     out = capsys.readouterr().out
+    assert (tmp_path / "preview.png").is_file()
+    assert (tmp_path / "sequence" / "associations.txt").is_file()
     assert "786 associated pairs" in out
     assert "0.013473" in out and "0.013394" in out
 

@@ -257,8 +257,8 @@ def test_camera_rigs_are_smooth(motion):
 @pytest.mark.xfail(
     strict=True,
     reason=(
-        "known gap (issue 3): >= 500 ORB keypoints on every frame, but the densest 40x40 cell holds "
-        "up to 5.7 % of them (target 5 %) near the chair/rack corners; 37-53 % of frames pass"
+        "known gap (issue 3): >= 500 ORB keypoints on every frame, but the densest 40x40 cell "
+        "holds up to 5.7 % of them (target 5 %) near chair/rack corners; 37-53 % of frames pass"
     ),
 )
 def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
