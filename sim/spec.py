@@ -83,7 +83,7 @@ class ScenarioSpec:
     actors: tuple[ActorSpec, ...] = ()
     chairs: tuple[ChairSpec, ...] = ()
     camera: CameraSpec = field(default_factory=CameraSpec)
-    light_intensity: float = 0.7
+    light_intensity: float = 0.9
     flow: bool = False
 
     def __post_init__(self) -> None:

@@ -79,15 +79,25 @@ def concrete(rng: np.random.Generator, size: int = 512) -> np.ndarray:
         cv2.line(
             image, tuple(int(v) for v in p), tuple(int(v) for v in q), (60, 60, 58), 1, cv2.LINE_AA
         )
-    for _ in range(160):  # chips and gravel: corners that stay visible at 5 m
+    for _ in range(450):  # chips and gravel: corners that stay visible at 5 m
         c = rng.integers(0, size, 2)
-        shade = float(rng.choice([25.0, 215.0]))
-        r = int(rng.integers(3, 10))
+        shade = float(rng.choice([20.0, 225.0]))
+        r = int(rng.integers(3, 8))
         poly = (c + rng.integers(-r, r + 1, (4, 2))).astype(np.int32)
         cv2.fillPoly(image, [poly], (shade, shade, shade * 0.95))
     if rng.uniform() < 0.7:
         x = int(rng.integers(0, size - 30))
         cv2.rectangle(image, (x, 0), (x + 14, size), (40, 190, 230), -1)
+    for _ in range(6):  # hazard tape: a row of corners wherever it lies
+        x0, y0 = (int(v) for v in rng.integers(0, size - 120, 2))
+        horizontal = rng.uniform() < 0.5
+        for k in range(0, 120, 12):
+            a = (x0 + k, y0) if horizontal else (x0, y0 + k)
+            b = (x0 + k + 6, y0 + 14) if horizontal else (x0 + 14, y0 + k + 6)
+            cv2.rectangle(image, a, b, (30, 30, 30), -1)
+            a2 = (a[0] + 6, a[1]) if horizontal else (a[0], a[1] + 6)
+            b2 = (b[0] + 6, b[1]) if horizontal else (b[0], b[1] + 6)
+            cv2.rectangle(image, a2, b2, (40, 200, 235), -1)
     image += rng.normal(0, 8, image.shape).astype(np.float32)
     return _finish(image)
 
@@ -175,7 +185,8 @@ def metal(rng: np.random.Generator, size: int = 128, colour: Colour = (220, 110,
     """Painted steel (rack uprights and beams): chips, holes, labels."""
     image = _base(rng, size, colour, grain=18)
     for y in range(6, size, 14):
-        cv2.rectangle(image, (size // 2 - 3, y), (size // 2 + 3, y + 6), (25, 25, 25), -1)
+        shade = tuple(0.6 * c for c in colour)
+        cv2.rectangle(image, (size // 2 - 3, y), (size // 2 + 3, y + 6), shade, -1)
     for _ in range(20):
         c = tuple(int(v) for v in rng.integers(0, size, 2))
         cv2.circle(image, c, int(rng.integers(1, 4)), (150, 150, 150), -1)

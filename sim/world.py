@@ -100,8 +100,8 @@ def _material_images(
     mats["fur_cat"] = ("cube", textures.fur(rng, (110, 110, 105)))
     mats["fur_pig"] = ("cube", textures.fur(rng, (235, 170, 165)))
     mats["fur_bird"] = ("cube", textures.fur(rng, (120, 125, 140)))
-    mats["chair"] = ("cube", textures.metal(rng, colour=(30, 30, 35)))
-    mats["chair_seat"] = ("cube", textures.cloth(rng, "plain", (40, 60, 120)))
+    mats["chair"] = ("cube", textures.metal(rng, colour=(120, 120, 128)))
+    mats["chair_seat"] = ("cube", textures.cloth(rng, "plain", (80, 100, 150)))
     for k, (pattern, _) in enumerate(clothing):
         shirt = tuple(int(c) for c in rng.integers(30, 230, 3))
         pants = tuple(int(c) for c in rng.choice([(40, 50, 90), (60, 60, 60), (120, 100, 70)]))
