@@ -10,13 +10,16 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing as mp
+import os
 import tempfile
 import time
 from pathlib import Path
 
 
-def _run(args: tuple[int, int, int, int, str]) -> float:
-    frames, width, height, seed, out = args
+def _run(args: tuple[int, int, int, int, str, int]) -> float:
+    frames, width, height, seed, out, gl_threads = args
+    if gl_threads:
+        os.environ["LP_NUM_THREADS"] = str(gl_threads)  # Mesa llvmpipe reads it at context creation
     from sim.generate import generate
     from sim.spec import default_scenario
 
@@ -42,13 +45,23 @@ def main() -> None:
     args = parser.parse_args()
     ctx = mp.get_context("spawn")
     with tempfile.TemporaryDirectory() as tmp:
-        jobs = [(args.frames, args.width, args.height, seed, f"{tmp}/s{seed}") for seed in range(3)]
+
+        def jobs(first: int, n: int, gl_threads: int) -> list:
+            return [
+                (args.frames, args.width, args.height, seed, f"{tmp}/s{seed}", gl_threads)
+                for seed in range(first, first + n)
+            ]
+
         with ctx.Pool(1) as pool:
-            single = pool.map(_run, jobs[:1])[0]
+            single = pool.map(_run, jobs(0, 1, 0))[0]
         with ctx.Pool(2) as pool:
             start = time.perf_counter()
-            rates = pool.map(_run, jobs[1:3])
+            rates = pool.map(_run, jobs(1, 2, 0))
             wall = time.perf_counter() - start
+        with ctx.Pool(2) as pool:
+            start = time.perf_counter()
+            rates_1t = pool.map(_run, jobs(3, 2, 1))
+            wall_1t = time.perf_counter() - start
     print(
         f"default scenario, {args.width}x{args.height}, {args.frames} frames, includes PNG writes"
     )
@@ -57,6 +70,10 @@ def main() -> None:
         f"2 processes: {rates[0]:6.1f} + {rates[1]:6.1f} = {sum(rates):6.1f} frames/s "
         f"(x{sum(rates) / single:.2f}; {2 * args.frames / wall:.1f} frames/s over the wall time, "
         "start-up included)"
+    )
+    print(
+        f"2 processes, 1 llvmpipe thread each: {sum(rates_1t):6.1f} frames/s "
+        f"(x{sum(rates_1t) / single:.2f}; {2 * args.frames / wall_1t:.1f} over the wall time)"
     )
 
 
