@@ -231,9 +231,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from sim.errors import EnvironmentProblem
+
     try:
         return int(args.handler(args))
-    except (InputError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
+    except (
+        InputError,
+        EnvironmentProblem,
+        FileNotFoundError,
+        FileExistsError,
+        IsADirectoryError,
+    ) as exc:
         print(f"depotbench {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
 

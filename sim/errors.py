@@ -22,3 +22,7 @@ class SequenceFormatError(InputError):
         self.problem = problem
         where = f"{self.path}" if line is None else f"{self.path}:{line}"
         super().__init__(f"{where}: {problem}")
+
+
+class EnvironmentProblem(RuntimeError):
+    """The machine lacks something the user can install (a GL library, say)."""

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.errors import EnvironmentProblem
 from sim.mujoco_env import mujoco
 
 
-class RenderingUnavailable(RuntimeError):
+class RenderingUnavailable(EnvironmentProblem):
     """No off-screen OpenGL context could be made."""
 
 

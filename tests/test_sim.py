@@ -273,3 +273,31 @@ def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
             good += 1
     assert min(counts) >= 500
     assert good >= 0.95 * len(seq)
+
+
+def test_missing_gl_gives_an_install_hint(tmp_path: Path):
+    """A GL context that cannot be made is reported in one line with the package to install."""
+    import os
+
+    env = {**os.environ, "MUJOCO_GL": "egl", "MUJOCO_EGL_DEVICE_ID": "99"}
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "eval.cli",
+            "generate",
+            "default",
+            "-o",
+            str(tmp_path / "out"),
+            "--frames",
+            "1",
+        ],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 2
+    assert "apt-get install libegl1 libgl1-mesa-dri" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []
