@@ -301,3 +301,33 @@ def test_missing_gl_gives_an_install_hint(tmp_path: Path):
     assert "apt-get install libegl1 libgl1-mesa-dri" in result.stderr
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(("kind", "speed"), [("dog", 1.3), ("cat", 0.5), ("pig", 0.7)])
+def test_quadrupeds_plant_their_paws(kind, speed):
+    spec = ScenarioSpec(frames=1, actors=(ActorSpec(kind, speed_mps=speed),))
+    world = build_world(spec)
+    actor = world.actors[0]
+    t = np.arange(0, 4, 1 / 30)  # the frame rate, as for people
+    poses = np.array([actor.pose(x)[0] for x in t])
+    lower = [i for i, p in enumerate(actor.parts) if p.name.startswith("lower_leg")]
+    body_speed = np.linalg.norm(np.diff(poses[:, 0, :2], axis=0), axis=1).mean() * 30
+    assert body_speed == pytest.approx(speed, rel=0.05)
+    for i in lower:
+        # The paw is the shin capsule's lower end: its centre minus half its length along its axis.
+        rotations = np.array([actor.pose(x)[1][i] for x in t])
+        paw = poses[:, i] - rotations[:, :, 2] * actor.parts[i].size[1]
+        height = paw[:, 2] - actor.paw_r
+        contact = (height[:-1] < 1e-3) & (height[1:] < 1e-3)
+        speed_paw = np.linalg.norm(np.diff(paw, axis=0), axis=1) * 30
+        assert contact.mean() > 0.3
+        assert speed_paw[contact].max() < 0.05 * body_speed
+
+
+def test_bird_hops_and_flies():
+    world = build_world(ScenarioSpec(frames=300, seed=3, actors=(ActorSpec("bird"),)))
+    bird = world.actors[0]
+    heights = np.array([bird.root(x)[0][2] for x in np.arange(0, 10, 1 / 30)]) - 0.1
+    assert heights.min() == pytest.approx(0.0, abs=1e-9)  # it stands on the floor between hops
+    assert (heights > 0.3).any()  # and it flies
+    assert ((heights > 0.005) & (heights < 0.06)).any()  # and it hops
