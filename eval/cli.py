@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -158,23 +159,64 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _add_generate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("generate", help="render one scenario into a TUM-format sequence folder")
-    p.add_argument("spec", help="'default' (the built-in scenario) or a scenario file (YAML/JSON)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="sequence folder to write")
+    p = sub.add_parser("generate", help="render a scenario or a whole suite into sequence folders")
+    p.add_argument(
+        "spec", help="'default', a library scenario name, a scenario file or a suite file"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="sequence folder (scenario) or folder of sequences (suite)",
+    )
     p.add_argument("--frames", type=int, help="number of frames (overrides the spec)")
     p.add_argument("--seed", type=int, help="random seed (overrides the spec)")
     p.add_argument("--flow", action="store_true", help="also write exact optical flow (gt/flow)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=max(1, os.cpu_count() or 1),
+        help="parallel worker processes for a suite (default: one per core)",
+    )
     p.set_defaults(handler=_cmd_generate)
+
+
+def _resolve_scenario(spec: str):
+    """A validated scenes.schema.Scenario from a library name or a file."""
+    from scenes import library
+    from scenes.schema import load_scenario
+
+    path = Path(spec)
+    if path.suffix in (".yaml", ".yml", ".json") or path.exists():
+        return load_scenario(path)
+    return library.get(spec)
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
     import dataclasses
 
+    from scenes.generation import run_suite
+    from scenes.schema import to_scenario
+    from scenes.suite import is_suite_file, load_suite
     from sim.generate import generate
-    from sim.spec import default_scenario, load_scenario
+    from sim.spec import default_scenario
 
-    scenario = default_scenario() if args.spec == "default" else load_scenario(Path(args.spec))
+    path = Path(args.spec)
+    if path.is_file() and is_suite_file(path):
+        if args.frames is not None or args.seed is not None:
+            raise InputError(
+                "--frames and --seed apply to one scenario; set them in the suite's overrides"
+            )
+        if args.workers < 1:
+            raise InputError(f"--workers must be >= 1, got {args.workers}")
+        index = run_suite(load_suite(path), path, args.output, args.workers)
+        print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
+        return 0
+    scenario = (
+        default_scenario() if args.spec == "default" else to_scenario(_resolve_scenario(args.spec))
+    )
     changes = {k: v for k, v in (("frames", args.frames), ("seed", args.seed)) if v is not None}
     if args.flow:
         changes["flow"] = True
@@ -184,6 +226,46 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         raise InputError(str(exc)) from None
     out = generate(scenario, args.output, overwrite=args.overwrite)
     print(f"wrote {scenario.frames} frames of '{scenario.name}' (seed {scenario.seed}) to {out}")
+    return 0
+
+
+def _add_validate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("validate", help="check a scenario or suite file (or a library name)")
+    p.add_argument("spec", help="a scenario file, a suite file, or a library scenario name")
+    p.set_defaults(handler=_cmd_validate)
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from scenes.suite import is_suite_file, load_suite, variations
+
+    path = Path(args.spec)
+    if path.is_file() and is_suite_file(path):
+        jobs = variations(load_suite(path), path)
+        frames = sum(sc.n_frames for _, _, sc in jobs)
+        print(f"ok: suite with {len(jobs)} sequences, {frames} frames in all")
+        return 0
+    scenario = _resolve_scenario(args.spec)
+    print(
+        f"ok: scenario '{scenario.name}', {scenario.n_frames} frames, "
+        f"{sum(a.count for a in scenario.actors)} actors, camera {scenario.camera.motion}"
+    )
+    return 0
+
+
+def _add_scenarios(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("scenarios", help="list the library's named scenarios")
+    p.add_argument(
+        "--tag", help="only scenarios with this tag (e.g. tum-like, depot, stress, smoke)"
+    )
+    p.set_defaults(handler=_cmd_scenarios)
+
+
+def _cmd_scenarios(args: argparse.Namespace) -> int:
+    from scenes import library
+
+    for name in library.names(args.tag):
+        scenario = library.get(name)
+        print(f"{name:22s} {','.join(scenario.tags):32s} {scenario.description}")
     return 0
 
 
@@ -224,6 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(sub)
     _add_eval(sub)
     _add_generate(sub)
+    _add_validate(sub)
+    _add_scenarios(sub)
     _add_preview(sub)
     return parser
 

@@ -62,9 +62,9 @@ class CameraRig:
             radius = float(np.linalg.norm(offset))
             azimuth = (
                 math.atan2(offset[1], offset[0])
-                + math.radians(3 * s.amplitude_deg) * self._wave(2, t)[0]
+                + math.radians(s.amplitude_deg) * self._wave(2, t)[0]
             )
-            elevation = math.asin(offset[2] / radius) + math.radians(1.5 * s.amplitude_deg) * (
+            elevation = math.asin(offset[2] / radius) + math.radians(0.5 * s.amplitude_deg) * (
                 0.5 + 0.5 * self._wave(2, t)[1]
             )
             eye = target + radius * np.array(

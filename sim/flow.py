@@ -19,6 +19,29 @@ def rigid_motions(
     return motion
 
 
+def flow_at(
+    u: np.ndarray,
+    v: np.ndarray,
+    z: np.ndarray,
+    bodies: np.ndarray,
+    intrinsics: Intrinsics,
+    world_from_cam0: np.ndarray,
+    world_from_cam1: np.ndarray,
+    body_motion: np.ndarray,
+) -> np.ndarray:
+    """Flow (N, 2) of pixels (u, v) with depth z on the given bodies, from frame t to t+1."""
+    k = intrinsics
+    z = z.astype(np.float64)
+    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=-1)
+    world = cam @ world_from_cam0[:3, :3].T + world_from_cam0[:3, 3]
+    m = body_motion[bodies]
+    moved = np.einsum("nij,nj->ni", m[:, :3, :3], world) + m[:, :3, 3]
+    cam1 = (moved - world_from_cam1[:3, 3]) @ world_from_cam1[:3, :3]
+    u1 = k.fx * cam1[:, 0] / cam1[:, 2] + k.cx
+    v1 = k.fy * cam1[:, 1] / cam1[:, 2] + k.cy
+    return np.stack([u1 - u, v1 - v], axis=-1)
+
+
 def exact_flow(
     depth_m: np.ndarray,
     body_ids: np.ndarray,
@@ -34,16 +57,16 @@ def exact_flow(
     """
     h, w = depth_m.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    z = depth_m.astype(np.float64)
-    x = (u - intrinsics.cx) / intrinsics.fx * z
-    y = (v - intrinsics.cy) / intrinsics.fy * z
-    cam_points = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    world = cam_points @ world_from_cam0[:3, :3].T + world_from_cam0[:3, 3]
-    m = body_motion[body_ids.ravel()]
-    moved = np.einsum("nij,nj->ni", m[:, :3, :3], world) + m[:, :3, 3]
-    cam1 = (moved - world_from_cam1[:3, 3]) @ world_from_cam1[:3, :3]
-    u1 = intrinsics.fx * cam1[:, 0] / cam1[:, 2] + intrinsics.cx
-    v1 = intrinsics.fy * cam1[:, 1] / cam1[:, 2] + intrinsics.cy
-    flow = np.stack([u1.reshape(h, w) - u, v1.reshape(h, w) - v], axis=-1).astype(np.float32)
-    flow[z <= 0] = np.nan
+    flow = flow_at(
+        u.ravel(),
+        v.ravel(),
+        depth_m.ravel(),
+        body_ids.ravel(),
+        intrinsics,
+        world_from_cam0,
+        world_from_cam1,
+        body_motion,
+    )
+    flow = flow.reshape(h, w, 2).astype(np.float32)
+    flow[depth_m <= 0] = np.nan
     return flow

@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from sim.flow import exact_flow, rigid_motions
+from sim.flow import exact_flow, flow_at, rigid_motions
 from sim.ground_truth import ObjectState, boxes_and_counts
 from sim.render import FrameRenderer
+from sim.sensor import SensorModel
 from sim.sequence import SequenceWriter
 from sim.simulation import Simulation, Snapshot
 from sim.spec import ScenarioSpec
-from sim.world import World, build_world
+from sim.world import World, build_world, scenario_streams
 
 MOVING_SPEED_MPS = 0.01
 """An instance is 'moving' when any of its parts moves faster than this."""
@@ -72,16 +74,53 @@ def object_states(
     return states
 
 
+@dataclass
+class DifficultyAccumulator:
+    """Per-frame figures that say how hard a sequence is for dynamic SLAM."""
+
+    dynamic_fraction: list[float] = field(default_factory=list)
+    flow_sum: float = 0.0
+    flow_pixels: int = 0
+    camera_speed: list[float] = field(default_factory=list)
+
+    def add(self, moving_mask: np.ndarray, moving_flow: np.ndarray, camera_speed: float) -> None:
+        self.dynamic_fraction.append(float(moving_mask.mean()))
+        magnitudes = np.linalg.norm(moving_flow, axis=1)
+        magnitudes = magnitudes[np.isfinite(magnitudes)]
+        self.flow_sum += float(magnitudes.sum())
+        self.flow_pixels += int(magnitudes.size)
+        self.camera_speed.append(camera_speed)
+
+    def summary(self) -> dict[str, float]:
+        fractions = np.array(self.dynamic_fraction)
+        return {
+            "dynamic_pixel_fraction_mean": round(float(fractions.mean()), 6),
+            "dynamic_pixel_fraction_max": round(float(fractions.max()), 6),
+            "frames_over_half_dynamic": round(float((fractions > 0.5).mean()), 6),
+            "dynamic_flow_px_mean": round(self.flow_sum / self.flow_pixels, 6)
+            if self.flow_pixels
+            else 0.0,
+            "camera_speed_mps_mean": round(float(np.mean(self.camera_speed)), 6),
+        }
+
+
 def generate(
-    scenario: ScenarioSpec, out: Path | str, *, overwrite: bool = False, progress: bool = True
+    scenario: ScenarioSpec,
+    out: Path | str,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    position: int = 0,
 ) -> Path:
     """Write ``scenario`` as a sequence folder at ``out`` (atomically)."""
     out = Path(out)
     world = build_world(scenario)
+    sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
     renderer = FrameRenderer(world.model, scenario.width, scenario.height)
     sim = Simulation(world)
     geom_body = world.model.geom_bodyid.astype(np.int64)
     geom_instance = world.body_instance[geom_body]
+    difficulty = DifficultyAccumulator()
     meta = {
         "scenario": dataclasses.asdict(scenario),
         "seed": scenario.seed,
@@ -100,6 +139,7 @@ def generate(
                 unit="frame",
                 disable=not progress,
                 leave=False,
+                position=position,
             )
             for k in frames:
                 rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
@@ -109,15 +149,34 @@ def generate(
                 instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(
                     np.uint16
                 )
+                bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
+                motion = rigid_motions(
+                    now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations
+                )
+                objects = object_states(world, now, nxt, instances)
+                moving_ids = [o.instance_id for o in objects if o.moving]
+                moving = np.isin(instances, moving_ids) & (depth > 0)
+                vv, uu = np.nonzero(moving)
+                moving_flow = flow_at(
+                    uu,
+                    vv,
+                    depth[vv, uu],
+                    bodies[vv, uu],
+                    world.intrinsics,
+                    now.world_from_camera,
+                    nxt.world_from_camera,
+                    motion,
+                )
+                difficulty.add(
+                    moving,
+                    moving_flow,
+                    float(
+                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3])
+                        / period
+                    ),
+                )
                 flow = None
-                if scenario.flow:
-                    bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
-                    motion = rigid_motions(
-                        now.body_positions,
-                        now.body_rotations,
-                        nxt.body_positions,
-                        nxt.body_rotations,
-                    )
+                if scenario.flow or sensor.needs_flow:
                     flow = exact_flow(
                         depth,
                         bodies,
@@ -126,16 +185,23 @@ def generate(
                         nxt.world_from_camera,
                         motion,
                     )
+                clean = None
+                if scenario.sensor.enabled:
+                    clean = depth
+                    rgb = sensor.rgb(rgb, flow, scenario.fps)
+                    depth = sensor.depth(depth)
                 writer.add_frame(
                     START_TIME_S + k * period,
                     rgb,
                     depth,
                     now.world_from_camera,
                     instances,
-                    object_states(world, now, nxt, instances),
-                    flow,
+                    objects,
+                    flow if scenario.flow else None,
+                    clean,
                 )
                 now = nxt
+            writer.meta["difficulty"] = difficulty.summary()
     finally:
         renderer.close()
     return out

@@ -49,8 +49,8 @@ class Layout:
     world: tuple[Piece, ...]
     objects: tuple[StaticObject, ...]
     obstacles: tuple[Rect, ...]
-    seat: tuple[float, float, float] | None
-    """(x, y, yaw_deg) where a seated person sits, facing the desk."""
+    seats: tuple[tuple[float, float, float], ...]
+    """(x, y, yaw_deg) where seated people sit, facing the desk."""
     lights: tuple[Vec3, ...]
 
 
@@ -233,13 +233,13 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
             a, b = (start, fixed - 0.5), (start + unit, fixed + 0.5)
             obstacles.append((a[0], a[1], b[0], b[1]) if along_x else (a[1], a[0], b[1], b[0]))
     objects: list[StaticObject] = []
-    seat = None
+    seats: tuple[tuple[float, float, float], ...] = ()
     if spec.desk:
         desk_objects, desk_rect = _desk(rng, 0.0, 1.6)
         objects += desk_objects
         obstacles.append(desk_rect)
-        seat = (0.0, 2.25, -90.0)
-        obstacles.append((-0.35, 1.95, 0.35, 2.6))
+        seats = ((-0.4, 2.25, -90.0), (0.45, 2.25, -90.0))
+        obstacles.append((-0.75, 1.95, 0.8, 2.6))
     placed = 0
     for _ in range(200 * max(1, spec.floor_props)):
         if placed >= spec.floor_props:
@@ -268,7 +268,9 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
     lights = tuple((x, y, h - 0.1) for x in (-sx / 2, sx / 2) for y in (-sy / 2, sy / 2))
     for lx, ly, lz in lights:
         world.append(Piece((lx, ly, lz + 0.05), (0.6, 0.15, 0.03), "lamp"))
-    return Layout((2 * sx, 2 * sy), h, tuple(world), tuple(objects), tuple(obstacles), seat, lights)
+    return Layout(
+        (2 * sx, 2 * sy), h, tuple(world), tuple(objects), tuple(obstacles), seats, lights
+    )
 
 
 def is_free(point: np.ndarray, obstacles: tuple[Rect, ...], margin: float, bounds: Rect) -> bool:

@@ -250,6 +250,16 @@ class Sequence:
             )
         return records
 
+    def clean_depth_m(self, index: int) -> np.ndarray:
+        """Noise-free depth (gt/depth) where a sensor model was applied, else the depth."""
+        self._require_generated()
+        frame = self.frames[index]
+        path = self.root / "gt" / "depth" / f"{timestamp_name(frame.timestamp_s)}.png"
+        if not path.exists():
+            return self.depth_m(index)
+        depth = _read_png(path, frame)
+        return depth.astype(np.float32) / np.float32(self.intrinsics.depth_scale)
+
     def flow(self, index: int) -> np.ndarray | None:
         """Exact optical flow (H, W, 2) to the next frame, if the sequence stores it."""
         self._require_generated()
@@ -478,8 +488,13 @@ class SequenceWriter:
         instances: np.ndarray,
         objects: tuple[ObjectState, ...] | list[ObjectState],
         flow: np.ndarray | None = None,
+        clean_depth_m: np.ndarray | None = None,
     ) -> None:
-        """Add one frame: RGB, metric z-depth, true camera pose (optical frame), ground truth."""
+        """Add one frame: RGB, metric z-depth, true camera pose (optical frame), ground truth.
+
+        ``clean_depth_m`` is the noise-free depth, kept under gt/depth when a sensor
+        model altered ``depth_m``.
+        """
         if self._tmp is None:
             raise RuntimeError("SequenceWriter must be used as a context manager")
         index = len(self._timestamps)
@@ -500,6 +515,13 @@ class SequenceWriter:
             tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale)
         )
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
+        if clean_depth_m is not None:
+            _check_array(f"frame {index} clean_depth_m", clean_depth_m, (h, w), None)
+            (tmp / "gt" / "depth").mkdir(exist_ok=True)
+            self._write_png(
+                tmp / "gt" / "depth" / f"{name}.png",
+                encode_depth(clean_depth_m, self.intrinsics.depth_scale),
+            )
         if flow is not None:
             _check_array(f"frame {index} flow", flow, (h, w, 2), np.float32)
             (tmp / "gt" / "flow").mkdir(exist_ok=True)

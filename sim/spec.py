@@ -6,8 +6,7 @@ the hall centred on the origin with the default camera looking along +y.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from pathlib import Path
+from dataclasses import dataclass, field
 
 ACTOR_KINDS = ("person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird")
 PATH_MODES = ("loop", "random_walk", "seated")
@@ -71,6 +70,23 @@ class CameraSpec:
 
 
 @dataclass(frozen=True)
+class SensorSpec:
+    """Post-render sensor effects; all off by default (a perfect sensor)."""
+
+    depth_noise: bool = False
+    disparity_quantisation: bool = False
+    depth_range_m: tuple[float, float] = (0.0, 13.0)
+    edge_dropout: float = 0.0
+    rgb_noise_sigma: float = 0.0
+    motion_blur_exposure_s: float = 0.0
+    exposure_variation: float = 0.0
+
+    @property
+    def enabled(self) -> bool:
+        return self != SensorSpec()
+
+
+@dataclass(frozen=True)
 class ScenarioSpec:
     name: str = "default"
     seed: int = 0
@@ -85,6 +101,9 @@ class ScenarioSpec:
     camera: CameraSpec = field(default_factory=CameraSpec)
     light_intensity: float = 0.9
     flow: bool = False
+    sensor: SensorSpec = field(default_factory=SensorSpec)
+    layout_seed: int | None = None
+    """Draw the layout from this seed instead of the scenario seed (suites vary actors only)."""
 
     def __post_init__(self) -> None:
         if self.frames < 1:
@@ -112,57 +131,20 @@ def default_scenario(frames: int = 90, seed: int = 0) -> ScenarioSpec:
     )
 
 
-_NESTED = {"layout": LayoutSpec, "camera": CameraSpec}
+def spec_from_dict(data: dict) -> ScenarioSpec:
+    """Rebuild a ScenarioSpec from its ``dataclasses.asdict`` form (as stored in meta.json)."""
 
+    def tuples(value):
+        return tuple(tuples(v) for v in value) if isinstance(value, list) else value
 
-def scenario_from_dict(data: dict, source: str = "spec") -> ScenarioSpec:
-    """A ScenarioSpec from plain data; unknown keys and bad values name the field.
-
-    The scenes package adds the full YAML schema, library and suites on top.
-    """
-    from sim.errors import InputError
-
-    if not isinstance(data, dict):
-        raise InputError(f"{source}: must be a mapping of scenario fields")
-    known = {f.name for f in fields(ScenarioSpec)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise InputError(
-            f"{source}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}"
-        )
-    values = dict(data)
-    try:
-        for key, cls in _NESTED.items():
-            if key in values:
-                values[key] = cls(
-                    **{k: tuple(v) if isinstance(v, list) else v for k, v in values[key].items()}
-                )
-        if "actors" in values:
-            values["actors"] = tuple(
-                ActorSpec(
-                    **{k: tuple(map(tuple, v)) if k == "waypoints" else v for k, v in a.items()}
-                )
-                for a in values["actors"]
-            )
-        if "chairs" in values:
-            values["chairs"] = tuple(
-                ChairSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in c.items()})
-                for c in values["chairs"]
-            )
-        return ScenarioSpec(**values)
-    except (TypeError, ValueError, AttributeError) as exc:
-        raise InputError(f"{source}: {exc}") from None
-
-
-def load_scenario(path: Path) -> ScenarioSpec:
-    import yaml
-
-    from sim.errors import InputError
-
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such scenario file") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from None
-    return scenario_from_dict(data, str(path))
+    values = {k: tuples(v) for k, v in data.items()}
+    values["layout"] = LayoutSpec(**{k: tuples(v) for k, v in data["layout"].items()})
+    values["camera"] = CameraSpec(**{k: tuples(v) for k, v in data["camera"].items()})
+    values["sensor"] = SensorSpec(**{k: tuples(v) for k, v in data.get("sensor", {}).items()})
+    values["actors"] = tuple(
+        ActorSpec(**{k: tuples(v) for k, v in a.items()}) for a in data["actors"]
+    )
+    values["chairs"] = tuple(
+        ChairSpec(**{k: tuples(v) for k, v in c.items()}) for c in data["chairs"]
+    )
+    return ScenarioSpec(**values)

@@ -181,14 +181,15 @@ def _make_actor(
     chairs: tuple[ChairSpec, ...],
     rng: np.random.Generator,
     duration_s: float,
+    seat_index: int,
 ) -> Actor:
     materials = {m: f"{m}{k}" for m in ("shirt", "pants", "skin", "shoes")}
     scale = spec.scale if spec.scale is not None else float(rng.uniform(0.9, 1.08))
     bounds = (-layout.size[0] / 2, -layout.size[1] / 2, layout.size[0] / 2, layout.size[1] / 2)
     if spec.kind == "sitting_person":
-        if layout.seat is None:
+        if not layout.seats:
             raise ValueError("a sitting_person needs a desk (layout.desk: true)")
-        return SittingPerson(layout.seat, scale, materials, rng)
+        return SittingPerson(layout.seats[seat_index % len(layout.seats)], scale, materials, rng)
     if spec.kind == "chair_pusher":
         if not chairs:
             raise ValueError("a chair_pusher needs at least one chair")
@@ -255,17 +256,19 @@ def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
 
 def build_world(scenario: ScenarioSpec) -> World:
     """Compile the scenario into a MuJoCo model; every random draw comes from its seed."""
-    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(scenario.seed).spawn(4)]
-    texture_rng, layout_rng, actor_rng, camera_rng = streams
+    texture_rng, layout_rng, actor_rng, camera_rng = scenario_streams(scenario.seed)[:4]
     intrinsics = Intrinsics.from_fovy(
         2 * math.degrees(math.atan((scenario.height / 2) / scenario.focal_px)),
         scenario.width,
         scenario.height,
     )
+    if scenario.layout_seed is not None:
+        layout_rng = np.random.default_rng(scenario.layout_seed)
     layout = plan_layout(scenario.layout, layout_rng)
     duration = scenario.frames / scenario.fps
+    seat_of = np.cumsum([a.kind == "sitting_person" for a in scenario.actors]) - 1
     actors = [
-        _make_actor(a, k, layout, scenario.chairs, actor_rng, duration)
+        _make_actor(a, k, layout, scenario.chairs, actor_rng, duration, int(seat_of[k]))
         for k, a in enumerate(scenario.actors)
     ]
     clothing = [
@@ -294,8 +297,8 @@ def build_world(scenario: ScenarioSpec) -> World:
     world_body = spec.worldbody
     for piece in layout.world:
         _piece_geom(world_body, piece, STATIC_BITS)
-    if any(a.kind == "sitting_person" for a in scenario.actors) and layout.seat is not None:
-        x, y, _ = layout.seat
+    n_seated = sum(a.kind == "sitting_person" for a in scenario.actors)
+    for x, y, _ in layout.seats[:n_seated]:
         _piece_geom(world_body, Piece((x, y, 0.22), (0.2, 0.2, 0.22), "metal_grey"), STATIC_BITS)
     intensity = scenario.light_intensity
     for lx, ly, lz in layout.lights:
@@ -392,6 +395,11 @@ def build_world(scenario: ScenarioSpec) -> World:
         substeps=max(1, round(1.0 / (scenario.fps * model.opt.timestep))),
         object_poses=[_object_pose(obj) for obj in layout.objects],
     )
+
+
+def scenario_streams(seed: int) -> list[np.random.Generator]:
+    """Independent streams: textures, layout, actors, camera, sensor (in that order)."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5)]
 
 
 def _object_pose(obj: StaticObject) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,305 @@
+"""The YAML scenario spec: validated at load, unknown keys refused, errors name the field.
+
+A scenario file describes what a user wants (counts, speed ranges, a camera
+motion, a sensor); ``to_scenario`` turns it, with its seed, into the simulator's
+exact ``sim.spec.ScenarioSpec``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from sim import spec as sim_spec
+from sim.errors import InputError
+
+MAX_FRAMES = 100_000
+MAX_ACTORS = 40
+PositiveFloat = Annotated[float, Field(gt=0)]
+
+
+class SpecError(InputError):
+    """A scenario or suite file that does not validate."""
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+class Image(Strict):
+    width: int = Field(640, ge=16, le=4096)
+    height: int = Field(480, ge=16, le=4096)
+
+
+class IntrinsicsSpec(Strict):
+    """Pinhole intrinsics. MuJoCo cameras have square pixels and a centred principal point."""
+
+    fx: PositiveFloat = 525.0
+    fy: PositiveFloat | None = None
+    cx: float | None = None
+    cy: float | None = None
+
+
+class Layout(Strict):
+    size_m: tuple[Annotated[float, Field(ge=8, le=60)], Annotated[float, Field(ge=8, le=60)]] = (
+        14.0,
+        11.0,
+    )
+    height_m: float = Field(4.5, ge=3.0, le=15.0)
+    rack_rows: int = Field(2, ge=0, le=4)
+    racks_per_row: int = Field(3, ge=0, le=8)
+    props: int = Field(10, ge=0, le=60)
+    desk: bool = True
+    seed: int | None = Field(None, ge=0, description="fixes the layout across a suite's variations")
+
+
+class Actor(Strict):
+    kind: Literal["person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird"]
+    count: int = Field(1, ge=0, le=MAX_ACTORS)
+    speed_mps: float | tuple[float, float] = 1.1
+    path: Literal["loop", "random_walk", "seated"] = "loop"
+    waypoints: list[tuple[float, float]] | None = None
+    clothing: Literal["plain", "stripes", "plaid", "any"] = "any"
+    scale: float | tuple[float, float] | None = None
+
+    @field_validator("speed_mps")
+    @classmethod
+    def _speed(cls, value: float | tuple[float, float]) -> float | tuple[float, float]:
+        low, high = (value, value) if isinstance(value, int | float) else value
+        if not (0.0 <= low <= high <= 5.0):
+            raise ValueError("speed must lie in [0, 5] m/s, as a number or a [low, high] range")
+        return value
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(
+        cls, value: float | tuple[float, float] | None
+    ) -> float | tuple[float, float] | None:
+        if value is None:
+            return value
+        low, high = (value, value) if isinstance(value, int | float) else value
+        if not (0.3 <= low <= high <= 2.0):
+            raise ValueError("scale must lie in [0.3, 2.0], as a number or a [low, high] range")
+        return value
+
+    @model_validator(mode="after")
+    def _path_fits_kind(self) -> Actor:
+        if (self.kind == "sitting_person") != (self.path == "seated"):
+            raise ValueError("path 'seated' goes with kind 'sitting_person', and only with it")
+        if self.waypoints is not None and len(self.waypoints) < 2:
+            raise ValueError("waypoints need at least two [x, y] points")
+        return self
+
+
+class Chair(Strict):
+    position_m: tuple[float, float]
+    yaw_deg: float = Field(0.0, ge=-360, le=360)
+
+
+class Camera(Strict):
+    motion: Literal["static", "xyz", "rpy", "halfsphere", "robot"] = "static"
+    position_m: tuple[float, float, float] = (0.0, -3.2, 1.45)
+    target_m: tuple[float, float, float] = (0.0, 1.5, 0.9)
+    amplitude_m: float = Field(0.25, ge=0, le=3)
+    amplitude_deg: float = Field(12.0, ge=0, le=60)
+    period_s: float = Field(6.0, gt=0.2, le=600)
+    speed_mps: float = Field(0.6, ge=0, le=5)
+
+
+class Lighting(Strict):
+    intensity: float = Field(0.9, gt=0, le=3)
+
+
+class Sensor(Strict):
+    depth_noise: bool = False
+    disparity_quantisation: bool = False
+    depth_range_m: tuple[float, float] = (0.0, 13.0)
+    edge_dropout: float = Field(0.0, ge=0, le=1)
+    rgb_noise_sigma: float = Field(0.0, ge=0, le=50)
+    motion_blur_exposure_s: float = Field(0.0, ge=0, le=0.1)
+    exposure_variation: float = Field(0.0, ge=0, le=1)
+
+    @field_validator("depth_range_m")
+    @classmethod
+    def _range(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= value[0] < value[1] <= 13.1:
+            raise ValueError("depth_range_m must be [near, far] with 0 <= near < far <= 13.1 m")
+        return value
+
+    @classmethod
+    def kinect(cls) -> Sensor:
+        return cls(
+            depth_noise=True,
+            disparity_quantisation=True,
+            depth_range_m=(0.4, 8.0),
+            edge_dropout=0.5,
+            rgb_noise_sigma=2.0,
+            motion_blur_exposure_s=0.01,
+            exposure_variation=0.05,
+        )
+
+
+class Scenario(Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    description: str = ""
+    tags: list[Annotated[str, Field(pattern=r"^[a-z0-9-]{1,32}$")]] = []
+    seed: int = Field(0, ge=0, le=2**32 - 1)
+    duration_s: float | None = Field(None, gt=0, le=3600)
+    frames: int | None = Field(None, ge=1, le=MAX_FRAMES)
+    fps: float = Field(30.0, ge=1, le=240)
+    image: Image = Image()
+    intrinsics: IntrinsicsSpec = IntrinsicsSpec()
+    layout: Layout = Layout()
+    actors: list[Actor] = []
+    chairs: list[Chair] = []
+    camera: Camera = Camera()
+    lighting: Lighting = Lighting()
+    sensor: Sensor | Literal["perfect", "kinect"] = "perfect"
+    flow: bool = False
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        if self.frames is not None and self.duration_s is not None:
+            raise ValueError("give frames or duration_s, not both")
+        if self.n_frames > MAX_FRAMES:
+            raise ValueError(
+                f"duration_s x fps gives {self.n_frames} frames, more than {MAX_FRAMES}"
+            )
+        k = self.intrinsics
+        w, h = self.image.width, self.image.height
+        if k.fy is not None and not math.isclose(k.fy, k.fx):
+            raise ValueError("intrinsics: fy must equal fx (MuJoCo cameras have square pixels)")
+        for name, value, centre in (("cx", k.cx, (w - 1) / 2), ("cy", k.cy, (h - 1) / 2)):
+            if value is not None and not math.isclose(value, centre):
+                raise ValueError(
+                    f"intrinsics: {name} must be {centre} for a {w}x{h} image "
+                    "(MuJoCo renders with a centred principal point)"
+                )
+        if sum(a.count for a in self.actors) > MAX_ACTORS:
+            raise ValueError(f"at most {MAX_ACTORS} actors in all")
+        if any(a.kind == "chair_pusher" and a.count for a in self.actors) and not self.chairs:
+            raise ValueError("a chair_pusher needs at least one chair")
+        if (
+            any(a.kind == "sitting_person" and a.count for a in self.actors)
+            and not self.layout.desk
+        ):
+            raise ValueError("a sitting_person needs the desk (layout.desk: true)")
+        return self
+
+    @property
+    def n_frames(self) -> int:
+        if self.frames is not None:
+            return self.frames
+        return max(1, round((self.duration_s or 10.0) * self.fps))
+
+    def sensor_spec(self) -> Sensor:
+        if isinstance(self.sensor, Sensor):
+            return self.sensor
+        return Sensor.kinect() if self.sensor == "kinect" else Sensor()
+
+
+def _pick(rng: np.random.Generator, value: float | tuple[float, float]) -> float:
+    if isinstance(value, int | float):
+        return float(value)
+    return float(rng.uniform(value[0], value[1]))
+
+
+def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
+    """Expand counts and ranges (drawn from the scenario's seed) into the simulator's spec."""
+    rng = np.random.default_rng(np.random.SeedSequence(scenario.seed, spawn_key=(1000,)))
+    actors = []
+    for group in scenario.actors:
+        for _ in range(group.count):
+            clothing = None if group.clothing == "any" else group.clothing
+            actors.append(
+                sim_spec.ActorSpec(
+                    kind=group.kind,
+                    speed_mps=_pick(rng, group.speed_mps),
+                    path=group.path,
+                    waypoints=tuple(tuple(p) for p in group.waypoints or ()),
+                    clothing=clothing,
+                    scale=None if group.scale is None else _pick(rng, group.scale),
+                )
+            )
+    lay = scenario.layout
+    sensor = scenario.sensor_spec()
+    return sim_spec.ScenarioSpec(
+        name=scenario.name,
+        seed=scenario.seed,
+        frames=scenario.n_frames,
+        fps=scenario.fps,
+        width=scenario.image.width,
+        height=scenario.image.height,
+        focal_px=scenario.intrinsics.fx,
+        layout=sim_spec.LayoutSpec(
+            hall_size_m=lay.size_m,
+            hall_height_m=lay.height_m,
+            rack_rows=lay.rack_rows,
+            racks_per_row=lay.racks_per_row,
+            floor_props=lay.props,
+            desk=lay.desk,
+        ),
+        actors=tuple(actors),
+        chairs=tuple(sim_spec.ChairSpec(c.position_m, c.yaw_deg) for c in scenario.chairs),
+        camera=sim_spec.CameraSpec(**scenario.camera.model_dump()),
+        light_intensity=scenario.lighting.intensity,
+        flow=scenario.flow,
+        sensor=sim_spec.SensorSpec(**sensor.model_dump()),
+        layout_seed=lay.seed,
+    )
+
+
+def format_validation_error(source: str, exc: ValidationError) -> str:
+    """One line per problem: ``file: field.path: what is wrong (got X)``."""
+    lines = []
+    for error in exc.errors():
+        path = ".".join(str(p) for p in error["loc"]) or "(top level)"
+        message = error["msg"]
+        if error["type"] == "extra_forbidden":
+            message = "unknown field (check the spelling; see `depotbench validate --help`)"
+        got = error.get("input")
+        shown = (
+            "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r})"
+        )
+        lines.append(f"{source}: {path}: {message}{shown}")
+    return "\n".join(lines)
+
+
+def read_yaml(path: Path) -> Any:
+    """Parse YAML safely: tags that would build Python objects are refused."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such file") from None
+    except (UnicodeDecodeError, IsADirectoryError) as exc:
+        raise SpecError(f"{path}: not a readable text file ({exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise SpecError(f"{path}:{where}: not valid YAML: {problem}") from None
+    if data is None:
+        raise SpecError(f"{path}: the file is empty; a scenario needs at least a name")
+    if not isinstance(data, dict):
+        raise SpecError(
+            f"{path}: the top level must be a mapping of fields, got {type(data).__name__}"
+        )
+    return data
+
+
+def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(source, exc)) from None
+
+
+def load_scenario(path: Path) -> Scenario:
+    return parse_scenario(read_yaml(path), str(path))

@@ -1,0 +1,163 @@
+"""Suites: a base scenario expanded over knobs (a grid, or seeded random draws).
+
+A suite file names a base scenario (library name or file), optional overrides,
+and either ``grid`` (every combination, times every seed) or ``random`` (a count
+of seeded draws). Each variation is validated as a full scenario, so an error
+names the variation and the field.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, ValidationError, model_validator
+
+from scenes import library
+from scenes.schema import (
+    Scenario,
+    SpecError,
+    Strict,
+    format_validation_error,
+    parse_scenario,
+    read_yaml,
+)
+
+MAX_VARIATIONS = 10_000
+
+
+class Draw(Strict):
+    """One random knob: exactly one of ``uniform``, ``int`` (inclusive) or ``choice``."""
+
+    uniform: tuple[float, float] | None = None
+    int_range: tuple[int, int] | None = Field(None, alias="int")
+    choice: list[Any] | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> Draw:
+        given = [x for x in (self.uniform, self.int_range, self.choice) if x is not None]
+        if len(given) != 1:
+            raise ValueError(
+                "give exactly one of uniform: [low, high], int: [low, high], choice: [...]"
+            )
+        if self.choice is not None and not self.choice:
+            raise ValueError("choice needs at least one value")
+        return self
+
+    def sample(self, rng: np.random.Generator) -> Any:
+        if self.uniform is not None:
+            return round(float(rng.uniform(*self.uniform)), 6)
+        if self.int_range is not None:
+            return int(rng.integers(self.int_range[0], self.int_range[1] + 1))
+        assert self.choice is not None
+        return self.choice[int(rng.integers(len(self.choice)))]
+
+
+class RandomKnobs(Strict):
+    count: int = Field(ge=1, le=MAX_VARIATIONS)
+    seed: int = Field(0, ge=0)
+    knobs: dict[str, Draw]
+
+
+class Suite(Strict):
+    suite: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    description: str = ""
+    base: str
+    overrides: dict[str, Any] = {}
+    grid: dict[str, list[Any]] = {}
+    seeds: list[int] = [0]
+    random: RandomKnobs | None = None
+    mode: Literal["grid", "random"] | None = None
+
+    @model_validator(mode="after")
+    def _shape(self) -> Suite:
+        if self.grid and self.random is not None:
+            raise ValueError("give grid or random, not both")
+        if any(not values for values in self.grid.values()):
+            raise ValueError("every grid knob needs at least one value")
+        return self
+
+
+def set_path(data: dict[str, Any], dotted: str, value: Any, source: str) -> None:
+    """Set ``a.b.0.c`` inside nested dicts and lists (list indices are integers)."""
+    keys = dotted.split(".")
+    node: Any = data
+    for i, key in enumerate(keys):
+        last = i == len(keys) - 1
+        if isinstance(node, list):
+            if not key.isdigit() or int(key) >= len(node):
+                raise SpecError(
+                    f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} has no item {key}"
+                )
+            index: Any = int(key)
+        elif isinstance(node, dict):
+            index = key
+        else:
+            raise SpecError(
+                f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} is not a mapping or list"
+            )
+        if last:
+            node[index] = value
+        else:
+            if isinstance(node, dict) and key not in node:
+                node[key] = {}
+            node = node[index]
+
+
+def _base_data(suite: Suite, suite_path: Path) -> dict[str, Any]:
+    if suite.base in library.library_files():
+        return read_yaml(library.library_files()[suite.base])
+    path = (suite_path.parent / suite.base).resolve()
+    if not path.exists():
+        raise SpecError(
+            f"{suite_path}: base {suite.base!r} is neither a library scenario nor a file"
+        )
+    return read_yaml(path)
+
+
+def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any], Scenario]]:
+    """Every (sequence name, knob values, validated scenario) of the suite, in a fixed order."""
+    base = _base_data(suite, suite_path)
+    for key, value in suite.overrides.items():
+        set_path(base, key, value, str(suite_path))
+    if suite.random is not None:
+        rng = np.random.default_rng(suite.random.seed)
+        draws = [
+            {k: d.sample(rng) for k, d in suite.random.knobs.items()}
+            for _ in range(suite.random.count)
+        ]
+        knob_sets = [{**d, "seed": int(base.get("seed", 0)) + i} for i, d in enumerate(draws)]
+    else:
+        keys = list(suite.grid)
+        combos = list(itertools.product(*(suite.grid[k] for k in keys))) or [()]
+        knob_sets = [
+            {**dict(zip(keys, combo, strict=True)), "seed": seed}
+            for combo in combos
+            for seed in suite.seeds
+        ]
+    if len(knob_sets) > MAX_VARIATIONS:
+        raise SpecError(f"{suite_path}: {len(knob_sets)} variations, more than {MAX_VARIATIONS}")
+    result = []
+    for i, knobs in enumerate(knob_sets):
+        data = copy.deepcopy(base)
+        for key, value in knobs.items():
+            set_path(data, key, value, str(suite_path))
+        name = f"{suite.suite}-{i:04d}"
+        data["name"] = name
+        result.append((name, knobs, parse_scenario(data, f"{suite_path} (variation {name})")))
+    return result
+
+
+def load_suite(path: Path) -> Suite:
+    data = read_yaml(path)
+    try:
+        return Suite.model_validate(data)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(str(path), exc)) from None
+
+
+def is_suite_file(path: Path) -> bool:
+    return "suite" in read_yaml(path)

@@ -1,0 +1,297 @@
+"""Scenario files, the library, sensor models and suites."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.cli import main
+from scenes import library
+from scenes.generation import run_suite
+from scenes.schema import Scenario, parse_scenario, to_scenario
+from scenes.suite import load_suite, variations
+from sim.sensor import kinect_sigma
+from sim.sequence import Sequence
+from tests.conftest import REPO
+
+
+def small(scenario: Scenario, frames: int, width: int = 96) -> Scenario:
+    height = width * 3 // 4
+    return scenario.model_copy(
+        update={
+            "frames": frames,
+            "duration_s": None,
+            "image": scenario.image.model_copy(update={"width": width, "height": height}),
+            "intrinsics": scenario.intrinsics.model_copy(update={"fx": 525.0 * width / 640}),
+        }
+    )
+
+
+def test_library_has_the_named_scenarios():
+    names = set(library.names())
+    required = {
+        "walking_xyz",
+        "walking_static",
+        "walking_rpy",
+        "walking_halfsphere",
+        "sitting_static",
+        "sitting_xyz",
+        "sitting_halfsphere",
+        "dog_and_cat_roaming",
+        "pig_pen",
+        "chair_pushing",
+        "robot_aisle_patrol",
+        "crowd",
+        "static_depot",
+    }
+    assert required <= names
+    assert set(library.names("tum-like")) == {
+        n for n in required if n.startswith(("walking", "sitting"))
+    }
+    assert "smoke" in library.names("smoke")
+
+
+@pytest.mark.render
+def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: Path):
+    from scenes.generation import read_difficulty
+    from sim.generate import generate
+
+    difficulty = {}
+    for name in library.names():
+        out = generate(
+            to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False
+        )
+        Sequence.open(out).verify()
+        difficulty[name] = read_difficulty(out)
+    fractions = {n: d["dynamic_pixel_fraction_mean"] for n, d in difficulty.items()}
+    assert (
+        fractions["static_depot"] == 0.0
+        and difficulty["static_depot"]["dynamic_pixel_fraction_max"] == 0
+    )
+    assert max(fractions, key=fractions.get) == "crowd"
+    assert difficulty["crowd"]["frames_over_half_dynamic"] > 0.5
+    walking = np.mean([fractions[n] for n in library.names("walking")])
+    sitting = np.mean([fractions[n] for n in library.names("sitting")])
+    assert walking > sitting
+    assert difficulty["robot_aisle_patrol"]["camera_speed_mps_mean"] == pytest.approx(0.7, rel=0.05)
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("distance", [1.0, 2.0, 3.0, 4.0])
+def test_depth_noise_on_a_flat_wall_matches_kinect_sigma(tmp_path: Path, distance: float):
+    from sim.generate import generate
+
+    wall_y = 5.5
+    scenario = parse_scenario(
+        {
+            "name": "wall",
+            "seed": 3,
+            "frames": 2,
+            "image": {"width": 160, "height": 120},
+            "intrinsics": {"fx": 131.25},
+            "layout": {"rack_rows": 0, "props": 0, "desk": False},
+            "camera": {
+                "motion": "static",
+                "position_m": [0.0, wall_y - distance, 1.8],
+                "target_m": [0.0, wall_y, 1.8],
+            },
+            "sensor": {"depth_noise": True},
+        },
+        "test",
+    )
+    seq = Sequence.open(generate(to_scenario(scenario), tmp_path / "wall", progress=False))
+    for i in range(len(seq)):
+        clean, noisy = seq.clean_depth_m(i), seq.depth_m(i)
+        wall = np.abs(clean - distance) < 0.02 * distance
+        assert wall.mean() > 0.5
+        measured = float(np.std((noisy - clean)[wall]))
+        assert measured == pytest.approx(float(kinect_sigma(np.float64(distance))), rel=0.10)
+
+
+def test_sensor_models_change_only_what_they_should():
+    from sim.sensor import SensorModel
+    from sim.spec import SensorSpec
+
+    rng = np.random.default_rng(0)
+    depth = np.full((60, 80), 3.0, np.float32)
+    depth[:, 40:] = 1.0  # a depth edge
+    depth[0, 0] = 9.0  # beyond range
+    rgb = np.full((60, 80, 3), 128, np.uint8)
+    model = SensorModel(SensorSpec(depth_range_m=(0.4, 8.0), edge_dropout=1.0), rng)
+    out = model.depth(depth)
+    assert out[0, 0] == 0.0  # no reading beyond the range
+    assert (out[:, 39:41] == 0).all() and (out[:, 10] == 3.0).all()  # edges dropped, flat kept
+    quantiser = SensorModel(SensorSpec(disparity_quantisation=True), rng)
+    quantised = quantiser.depth(np.full((4, 4), 3.7, np.float32))  # 4.0 m falls on a step exactly
+    assert abs(quantised[0, 0] - 3.7) < 0.05 and quantised[0, 0] != np.float32(3.7)
+    noisy = SensorModel(SensorSpec(rgb_noise_sigma=5.0), rng).rgb(rgb, None, 30.0)
+    assert 4.0 < np.std(noisy.astype(float)) < 6.0
+    # Motion blur spreads a bright column along its flow, conserving energy.
+    bar = np.zeros((20, 40, 3), np.uint8)
+    bar[:, 20] = 255
+    flow = np.zeros((20, 40, 2), np.float32)
+    flow[..., 0] = 6.0
+    blurred = SensorModel(SensorSpec(motion_blur_exposure_s=1 / 30), rng).rgb(bar, flow, 30.0)
+    assert (blurred[10, 17:24, 0] > 0).sum() >= 5 and blurred[10, 20, 0] < 255
+    assert abs(int(blurred[10].astype(int).sum()) - 255 * 3) < 255 * 3 * 0.1
+
+
+MALFORMED = {
+    "wrong_type_fps.yaml": ("name: a\nfps: fast\n", "fps: Input should be a valid number"),
+    "wrong_type_frames.yaml": (
+        "name: a\nframes: [1, 2]\n",
+        "frames: Input should be a valid integer",
+    ),
+    "unknown_top_key.yaml": ("name: a\ncolour: red\n", "colour: unknown field"),
+    "unknown_nested_key.yaml": (
+        "name: a\ncamera: {motion: xyz, zoom: 2}\n",
+        "camera.zoom: unknown field",
+    ),
+    "unknown_actor_key.yaml": (
+        "name: a\nactors: [{kind: person, hat: true}]\n",
+        "actors.0.hat: unknown field",
+    ),
+    "negative_count.yaml": ("name: a\nactors: [{kind: dog, count: -2}]\n", "actors.0.count"),
+    "negative_frames.yaml": (
+        "name: a\nframes: -5\n",
+        "frames: Input should be greater than or equal to 1",
+    ),
+    "unknown_kind.yaml": (
+        "name: a\nactors: [{kind: unicorn}]\n",
+        "actors.0.kind: Input should be 'person'",
+    ),
+    "unknown_motion.yaml": ("name: a\ncamera: {motion: drone}\n", "camera.motion"),
+    "empty.yaml": ("", "the file is empty"),
+    "comment_only.yaml": ("# nothing here\n", "the file is empty"),
+    "not_yaml.yaml": ("name: a\nactors: [{kind: person\n", "not valid YAML"),
+    "list_top.yaml": ("- name: a\n", "the top level must be a mapping"),
+    "huge_frames.yaml": (
+        "name: a\nframes: 100000000\n",
+        "frames: Input should be less than or equal to 100000",
+    ),
+    "huge_image.yaml": ("name: a\nimage: {width: 100000}\n", "image.width"),
+    "huge_speed.yaml": (
+        "name: a\nactors: [{kind: person, speed_mps: 300}]\n",
+        "actors.0.speed_mps",
+    ),
+    "too_many_actors.yaml": (
+        "name: a\nactors: [{kind: person, count: 30}, {kind: dog, count: 30}]\n",
+        "at most 40 actors",
+    ),
+    "python_tag.yaml": ("name: !!python/object/apply:os.system ['echo pwned']\n", "not valid YAML"),
+    "bad_name.yaml": ("name: 'has spaces/and slashes'\n", "name: String should match pattern"),
+    "missing_name.yaml": ("seed: 3\n", "name: Field required"),
+    "bad_range.yaml": ("name: a\nsensor: {depth_range_m: [5, 1]}\n", "sensor"),
+    "fy_differs.yaml": ("name: a\nintrinsics: {fx: 500, fy: 520}\n", "fy must equal fx"),
+    "off_centre.yaml": ("name: a\nintrinsics: {cx: 300}\n", "cx must be 319.5"),
+    "frames_and_duration.yaml": (
+        "name: a\nframes: 10\nduration_s: 2\n",
+        "give frames or duration_s",
+    ),
+    "seated_walker.yaml": ("name: a\nactors: [{kind: person, path: seated}]\n", "path 'seated'"),
+    "pusher_without_chair.yaml": (
+        "name: a\nactors: [{kind: chair_pusher}]\n",
+        "needs at least one chair",
+    ),
+    "binary.yaml": (b"\xff\xfe\x00name", "not a readable text file"),
+}
+
+
+@pytest.mark.parametrize("filename", sorted(MALFORMED))
+def test_malformed_specs_are_refused_by_name(tmp_path: Path, capsys, filename: str):
+    content, expected = MALFORMED[filename]
+    path = tmp_path / filename
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and str(path) in err
+    assert "Traceback" not in err
+    out = tmp_path / "out"
+    assert main(["generate", str(path), "-o", str(out)]) == 2
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == [filename]
+
+
+SUITE = """
+suite: tiny
+description: 24 tiny variations of the smoke scene
+base: smoke
+overrides: {frames: 2, image: {width: 64, height: 48}, intrinsics: {fx: 52.5}}
+grid:
+  actors.0.speed_mps: [0.6, 1.4]
+  camera.motion: [xyz, static, rpy]
+seeds: [0, 1, 2, 3]
+"""
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()
+    }
+
+
+def test_suite_expands_and_validates_each_variation(tmp_path: Path):
+    path = tmp_path / "tiny.yaml"
+    path.write_text(SUITE)
+    jobs = variations(load_suite(path), path)
+    assert len(jobs) == 24
+    assert jobs[0][1] == {"actors.0.speed_mps": 0.6, "camera.motion": "xyz", "seed": 0}
+    assert {sc.camera.motion for _, _, sc in jobs} == {"xyz", "static", "rpy"}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(SUITE.replace("[0.6, 1.4]", "[0.6, 9.0]"))
+    with pytest.raises(Exception, match=r"variation tiny-0012.*actors.0.speed_mps"):
+        variations(load_suite(bad), bad)
+    random_suite = tmp_path / "random.yaml"
+    random_suite.write_text(
+        "suite: r\nbase: smoke\nrandom: {count: 5, seed: 3, knobs: "
+        "{actors.0.count: {int: [1, 3]}, sensor: {choice: [perfect, kinect]}}}\n"
+    )
+    draws = variations(load_suite(random_suite), random_suite)
+    assert len(draws) == 5 and draws == variations(load_suite(random_suite), random_suite)
+
+
+@pytest.mark.render
+def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Path):
+    path = tmp_path / "tiny.yaml"
+    path.write_text(SUITE)
+    suite = load_suite(path)
+    first = run_suite(suite, path, tmp_path / "a", workers=2, progress=False)
+    run_suite(suite, path, tmp_path / "b", workers=2, progress=False)
+    assert len(first["sequences"]) == 24
+    files_a, files_b = _files(tmp_path / "a"), _files(tmp_path / "b")
+    assert files_a.keys() == files_b.keys()
+    differing = [k for k in files_a if files_a[k] != files_b[k]]
+    assert differing == []
+    # Kill a run midway, then rerun: only the missing sequences are generated.
+    out = tmp_path / "c"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "eval.cli", "generate", str(path), "-o", str(out), "--workers", "2"],
+        cwd=REPO,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.time() + 120
+    while time.time() < deadline and len([p for p in out.glob("tiny-*") if p.is_dir()]) < 4:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done_before = {p.name: p.stat().st_mtime_ns for p in out.glob("tiny-*") if p.is_dir()}
+    assert 4 <= len(done_before) < 24
+    index = run_suite(suite, path, out, workers=2, progress=False)
+    assert {
+        p.name: p.stat().st_mtime_ns for p in out.glob("tiny-*") if p.name in done_before
+    } == done_before
+    assert len(index["sequences"]) == 24 and not list(out.glob(".*partial*"))
+    files_c = _files(out)
+    assert {k: v for k, v in files_c.items() if k != "index.json"} == {
+        k: v for k, v in files_a.items() if k != "index.json"
+    }
+    assert json.loads(files_c["index.json"]) == json.loads(files_a["index.json"])
