@@ -1,0 +1,150 @@
+"""Every SLAM and rejection threshold as a named, range-checked field.
+
+Rejection thresholds cite their source; sweeps vary them by name (``--set k=2.5``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, fields
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A threshold out of range or an unknown name."""
+
+
+def _check(obj: Any, limits: dict[str, tuple[float, float]]) -> None:
+    for name, (low, high) in limits.items():
+        value = getattr(obj, name)
+        if not low <= value <= high:
+            raise ConfigError(f"{name} = {value} is out of range [{low}, {high}]")
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    n_features: int = 1000
+    """ORB features per frame (ORB-SLAM2's TUM setting)."""
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    fast_threshold: int = 20
+    fast_threshold_min: int = 7
+    grid_cell_px: int = 32
+    """Features are spread over cells of this size, as ORB-SLAM spreads them."""
+    min_depth_m: float = 0.1
+    max_depth_m: float = 8.0
+    baseline_fx: float = 40.0
+    """ORB-SLAM's bf for RGB-D: turns depth into a virtual right-image coordinate."""
+    match_radius_px: float = 15.0
+    match_max_hamming: int = 50
+    local_radius_px: float = 4.0
+    ransac_reprojection_px: float = 4.0
+    ransac_iterations: int = 100
+    min_inliers: int = 30
+    keyframe_max_frames: int = 30
+    keyframe_inlier_ratio: float = 0.75
+    """A keyframe is due when inliers fall below this fraction of the reference keyframe's
+    points (ORB-SLAM2 RGB-D: 0.75)."""
+    local_keyframes: int = 10
+    ba_window: int = 5
+    ba_iterations: int = 10
+    relocalize_keyframes: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            {
+                "n_features": (50, 20000),
+                "scale_factor": (1.01, 2.0),
+                "n_levels": (1, 16),
+                "fast_threshold": (1, 100),
+                "fast_threshold_min": (1, 100),
+                "grid_cell_px": (8, 256),
+                "min_depth_m": (0.0, 5.0),
+                "max_depth_m": (0.5, 100.0),
+                "baseline_fx": (1.0, 1000.0),
+                "match_radius_px": (1.0, 200.0),
+                "match_max_hamming": (1, 256),
+                "local_radius_px": (0.5, 100.0),
+                "ransac_reprojection_px": (0.5, 50.0),
+                "ransac_iterations": (10, 10000),
+                "min_inliers": (6, 1000),
+                "keyframe_max_frames": (1, 10000),
+                "keyframe_inlier_ratio": (0.1, 1.0),
+                "local_keyframes": (1, 100),
+                "ba_window": (2, 50),
+                "ba_iterations": (0, 200),
+                "relocalize_keyframes": (1, 1000),
+                "seed": (0, 2**31 - 1),
+            },
+        )
+
+
+@dataclass(frozen=True)
+class RejectionConfig:
+    """Thresholds of the rejection strategies (design.md, methods 1-3)."""
+
+    min_confidence: float = 0.5
+    """Detections below this confidence are ignored."""
+    box_dilation_px: float = 0.0
+    """Boxes grow by this many pixels on every side before the inside test."""
+    k: float = 2.0
+    """Method 1: a Q point is dynamic when its flow differs from the mean P flow by
+    more than z = k |(U, V)| (the source uses k = 2)."""
+    z_min_px: float = 1.0
+    """Method 1: floor on z, so a still camera (|(U,V)| ~ 0) does not flag every Q point
+    (our addition; 0 reproduces the source exactly)."""
+    epsilon_px: float = 1.0
+    """Method 3: distance to the epipolar line above which a point is dynamic."""
+    sigma_factor: float = 2.0
+    """Method 3: |L_i - L_avg| > sigma_factor * L_std flags a point (the source's 2-sigma rule)."""
+    l_thr1_px: float = 2.0
+    """Method 3: |L_i - L_avg| > L_thr1 flags a point while L_std < L_thr2."""
+    l_thr2_px: float = 1.0
+    fundamental_ransac_px: float = 1.0
+    """Method 3: RANSAC threshold when estimating F."""
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            {
+                "min_confidence": (0.0, 1.0),
+                "box_dilation_px": (0.0, 200.0),
+                "k": (0.0, 100.0),
+                "z_min_px": (0.0, 100.0),
+                "epsilon_px": (0.01, 100.0),
+                "sigma_factor": (0.1, 10.0),
+                "l_thr1_px": (0.0, 100.0),
+                "l_thr2_px": (0.0, 100.0),
+                "fundamental_ransac_px": (0.05, 20.0),
+            },
+        )
+
+
+@dataclass(frozen=True)
+class SlamConfig:
+    strategy: str = "none"
+    tracking: TrackingConfig = TrackingConfig()
+    rejection: RejectionConfig = RejectionConfig()
+
+    def with_settings(self, settings: dict[str, str]) -> SlamConfig:
+        """Apply ``name=value`` overrides; a name is looked up in rejection, then tracking."""
+        rejection, tracking = {}, {}
+        rej_names = {f.name: f.type for f in fields(RejectionConfig)}
+        trk_names = {f.name: f.type for f in fields(TrackingConfig)}
+        for name, text in settings.items():
+            target, types = (rejection, rej_names) if name in rej_names else (tracking, trk_names)
+            if name not in types:
+                raise ConfigError(
+                    f"unknown setting {name!r}; known: {', '.join(sorted(rej_names | trk_names))}"
+                )
+            try:
+                target[name] = int(text) if types[name] in ("int", int) else float(text)
+            except ValueError:
+                raise ConfigError(f"setting {name}={text!r} is not a number") from None
+        return dataclasses.replace(
+            self,
+            rejection=dataclasses.replace(self.rejection, **rejection),
+            tracking=dataclasses.replace(self.tracking, **tracking),
+        )

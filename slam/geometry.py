@@ -1,0 +1,54 @@
+"""Small geometry: poses, projection, Hamming distances."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from slam.types import PinholeCamera
+
+POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
+
+
+def invert(pose: np.ndarray) -> np.ndarray:
+    inv = np.eye(4)
+    inv[:3, :3] = pose[:3, :3].T
+    inv[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+    return inv
+
+
+def exp_se3(delta: np.ndarray) -> np.ndarray:
+    """A small pose increment (rotation vector, translation) as a 4x4 matrix."""
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_rotvec(delta[:3]).as_matrix()
+    pose[:3, 3] = delta[3:]
+    return pose
+
+
+def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def project(camera: PinholeCamera, points_c: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (N, 2) of camera-frame points (z > 0 assumed)."""
+    z = points_c[:, 2]
+    return np.stack(
+        [camera.fx * points_c[:, 0] / z + camera.cx, camera.fy * points_c[:, 1] / z + camera.cy],
+        axis=1,
+    )
+
+
+def backproject(camera: PinholeCamera, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+    return np.stack(
+        [(uv[:, 0] - camera.cx) / camera.fx * z, (uv[:, 1] - camera.cy) / camera.fy * z, z], axis=1
+    )
+
+
+def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamming distance of two (N, 32) uint8 descriptor arrays."""
+    return POPCOUNT[np.bitwise_xor(a, b)].sum(axis=1, dtype=np.int32)
+
+
+def hamming_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """All-pairs Hamming distances (len(a), len(b))."""
+    return POPCOUNT[np.bitwise_xor(a[:, None, :], b[None, :, :])].sum(axis=2, dtype=np.int32)

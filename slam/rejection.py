@@ -1,0 +1,180 @@
+"""Dynamic-feature rejection strategies (design.md): which keypoints may be used.
+
+``none``              ORB-SLAM2 stand-in: keep everything.
+``box_rule``          method 2: reject inside a dynamic box unless also inside a static
+                      or potential box.
+``prior_flow``        method 1: sets Z (dynamic boxes, rejected), Q (potential boxes),
+                      P (the rest); a Q point whose LK flow differs from P's mean flow
+                      (U, V) by more than z = k |(U, V)| is dynamic; only P and static Q
+                      points are kept.
+``box_epipolar_flow`` method 3: dynamic boxes out; the rest tracked to the previous
+                      frame, F by RANSAC, points farther than epsilon from their
+                      epipolar line out; then the 2-sigma and L_thr1/L_thr2 flow tests.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from detectors.detection import Detection, Prior
+from slam.config import RejectionConfig
+from slam.features import FrameFeatures
+from slam.types import REJECTION_CODES, Rejection
+
+STRATEGIES = ("none", "box_rule", "prior_flow", "box_epipolar_flow")
+LK_WINDOW = (21, 21)
+LK_LEVELS = 3
+
+
+def inside(points: np.ndarray, detections: list[Detection], dilation: float) -> np.ndarray:
+    """(N, D) bool: is point n inside (dilated) box d."""
+    if not detections:
+        return np.zeros((len(points), 0), dtype=bool)
+    boxes = np.array([d.box_xyxy for d in detections], dtype=np.float64)
+    boxes += np.array([-dilation, -dilation, dilation, dilation])
+    x, y = points[:, 0:1], points[:, 1:2]
+    return (x >= boxes[:, 0]) & (x < boxes[:, 2]) & (y >= boxes[:, 1]) & (y < boxes[:, 3])
+
+
+def box_classes(
+    points: np.ndarray, detections: list[Detection], dilation: float
+) -> tuple[str, ...]:
+    """The class of the smallest box holding each point ('' for none): a diagnostic."""
+    hits = inside(points, detections, dilation)
+    if hits.shape[1] == 0:
+        return ("",) * len(points)
+    areas = np.array(
+        [(d.box_xyxy[2] - d.box_xyxy[0]) * (d.box_xyxy[3] - d.box_xyxy[1]) for d in detections]
+    )
+    masked = np.where(hits, areas, np.inf)
+    best = np.argmin(masked, axis=1)
+    return tuple(
+        detections[b].class_name if np.isfinite(masked[n, b]) else "" for n, b in enumerate(best)
+    )
+
+
+def track_to_previous(
+    previous: FrameFeatures, current: FrameFeatures, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """LK flow of current keypoints back into the previous frame: (previous positions, ok)."""
+    if len(points) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros(0, bool)
+    prev, status, _ = cv2.calcOpticalFlowPyrLK(
+        current.grey,
+        previous.grey,
+        points.reshape(-1, 1, 2),
+        None,
+        winSize=LK_WINDOW,
+        maxLevel=LK_LEVELS,
+    )
+    h, w = previous.grey.shape
+    prev = prev.reshape(-1, 2)
+    ok = (
+        status.ravel().astype(bool)
+        & (prev[:, 0] >= 0)
+        & (prev[:, 0] < w)
+        & (prev[:, 1] >= 0)
+        & (prev[:, 1] < h)
+    )
+    return prev, ok
+
+
+def classify(
+    strategy: str,
+    current: FrameFeatures,
+    previous: FrameFeatures | None,
+    detections: tuple[Detection, ...],
+    config: RejectionConfig,
+) -> np.ndarray:
+    """A ``Rejection`` code per keypoint of ``current``."""
+    if strategy not in STRATEGIES:
+        raise ValueError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
+    n = len(current)
+    codes = np.full(n, REJECTION_CODES[Rejection.KEPT], dtype=np.int8)
+    if strategy == "none" or n == 0:
+        return codes
+    dets = [d for d in detections if d.confidence >= config.min_confidence]
+    hits = inside(current.keypoints_px, dets, config.box_dilation_px)
+    priors = np.array([d.prior for d in dets])
+    in_dynamic = hits[:, priors == Prior.DYNAMIC].any(axis=1) if len(dets) else np.zeros(n, bool)
+    in_other = hits[:, priors != Prior.DYNAMIC].any(axis=1) if len(dets) else np.zeros(n, bool)
+    if strategy == "box_rule":
+        codes[in_dynamic & ~in_other] = REJECTION_CODES[Rejection.DYNAMIC_BOX]
+        return codes
+    codes[in_dynamic] = REJECTION_CODES[Rejection.DYNAMIC_BOX]
+    if previous is None:
+        return codes
+    if strategy == "prior_flow":
+        return _prior_flow(codes, current, previous, in_dynamic, hits, priors, config)
+    return _epipolar_flow(codes, current, previous, in_dynamic, config)
+
+
+def _prior_flow(
+    codes: np.ndarray,
+    current: FrameFeatures,
+    previous: FrameFeatures,
+    in_dynamic: np.ndarray,
+    hits: np.ndarray,
+    priors: np.ndarray,
+    config: RejectionConfig,
+) -> np.ndarray:
+    in_potential = (
+        hits[:, priors == Prior.POTENTIAL].any(axis=1)
+        if hits.shape[1]
+        else np.zeros(len(codes), bool)
+    )
+    q = in_potential & ~in_dynamic
+    p = ~in_potential & ~in_dynamic
+    prev, ok = track_to_previous(previous, current, current.keypoints_px)
+    flow = current.keypoints_px - prev
+    if not (p & ok).any():
+        codes[q] = REJECTION_CODES[
+            Rejection.MOVING_FLOW
+        ]  # no camera-flow reference: Q stays unverified
+        return codes
+    mean = flow[p & ok].mean(axis=0)
+    z = max(config.k * float(np.linalg.norm(mean)), config.z_min_px)
+    moving = q & (~ok | (np.linalg.norm(flow - mean, axis=1) > z))
+    codes[moving] = REJECTION_CODES[Rejection.MOVING_FLOW]
+    return codes
+
+
+def _epipolar_flow(
+    codes: np.ndarray,
+    current: FrameFeatures,
+    previous: FrameFeatures,
+    in_dynamic: np.ndarray,
+    config: RejectionConfig,
+) -> np.ndarray:
+    rest = np.flatnonzero(~in_dynamic)
+    if len(rest) < 8:
+        return codes
+    prev, ok = track_to_previous(previous, current, current.keypoints_px[rest])
+    tracked = rest[ok]
+    if len(tracked) < 8:
+        return codes
+    cur_pts = current.keypoints_px[tracked].astype(np.float64)
+    prev_pts = prev[ok].astype(np.float64)
+    f, _ = cv2.findFundamentalMat(
+        prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99
+    )
+    if f is not None and f.shape == (3, 3):
+        lines = np.c_[prev_pts, np.ones(len(prev_pts))] @ f.T
+        distance = np.abs(
+            np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)
+        ) / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)
+        off_line = distance > config.epsilon_px
+        codes[tracked[off_line]] = REJECTION_CODES[Rejection.EPIPOLAR]
+        keep = ~off_line
+        tracked, cur_pts, prev_pts = tracked[keep], cur_pts[keep], prev_pts[keep]
+    if len(tracked) < 2:
+        return codes
+    magnitude = np.linalg.norm(cur_pts - prev_pts, axis=1)
+    deviation = np.abs(magnitude - magnitude.mean())
+    std = float(magnitude.std())
+    outlier = (deviation > config.sigma_factor * std) | (
+        (deviation > config.l_thr1_px) & (std < config.l_thr2_px)
+    )
+    codes[tracked[outlier]] = REJECTION_CODES[Rejection.FLOW_OUTLIER]
+    return codes

@@ -1,0 +1,426 @@
+"""The RGB-D SLAM system: tracking with rejection, keyframes, local mapping, relocalisation.
+
+Follows ORB-SLAM2's RGB-D structure: a constant-velocity motion model predicts
+the pose, the last frame's map points are matched by projection, PnP RANSAC and
+a robust (Huber) pose optimisation give the pose, the local map is matched and
+the pose optimised again; keyframes add map points from depth and trigger a
+local bundle adjustment and point culling. Mapping runs synchronously (so runs
+are deterministic) and its time is reported apart from tracking, as ORB-SLAM
+reports them. Rejection decides which keypoints tracking and mapping may use.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from slam.config import SlamConfig
+from slam.features import FeatureExtractor, FrameFeatures
+from slam.geometry import backproject, hamming, hamming_matrix, invert, project, transform
+from slam.map import KeyFrame, Map
+from slam.optimize import local_bundle_adjustment, refine_pose
+from slam.rejection import box_classes, classify
+from slam.types import (
+    REJECTION_CODES,
+    Frame,
+    FrameDiagnostics,
+    FrameResult,
+    PinholeCamera,
+    Rejection,
+    TrackingState,
+)
+
+MIN_INIT_POINTS = 50
+MIN_MATCHES = 15
+RATIO_TEST = 0.8
+CLOSE_DEPTH_FACTOR = 40.0
+"""ORB-SLAM's ThDepth: points closer than 40 baselines are 'close'."""
+
+
+@dataclass
+class _Tracked:
+    world_from_camera: np.ndarray
+    keypoints: np.ndarray
+    point_ids: np.ndarray
+    inliers: int
+
+
+class Slam:
+    def __init__(self, config: SlamConfig, camera: PinholeCamera) -> None:
+        self.config = config
+        self.tc = config.tracking
+        self.camera = camera
+        self.bf = self.tc.baseline_fx
+        self.close_depth_m = CLOSE_DEPTH_FACTOR * self.bf / camera.fx
+        self.extractor = FeatureExtractor(self.tc)
+        self.map = Map()
+        self.state = TrackingState.NOT_INITIALIZED
+        self.frame_index = 0
+        self._previous: FrameFeatures | None = None
+        self._last_pose: np.ndarray | None = None
+        self._velocity = np.eye(4)
+        self._last_point_ids = np.zeros(0, int)
+        self._frames_since_keyframe = 0
+        self.trajectory: list[tuple[float, np.ndarray]] = []
+
+    # -- public -----------------------------------------------------------------
+
+    def process(self, frame: Frame, features: FrameFeatures | None = None) -> FrameResult:
+        """Track one frame. ``features`` may come from a cache (see ``extract``)."""
+        cv2.setRNGSeed(self.tc.seed + self.frame_index)
+        times: dict[str, float] = {}
+        start = time.perf_counter()
+        if features is None:
+            features = self.extract(frame)
+        times["extract"] = (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
+        codes = classify(
+            self.config.strategy, features, self._previous, frame.detections, self.config.rejection
+        )
+        usable = codes == REJECTION_CODES[Rejection.KEPT]
+        times["reject"] = (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
+        tracked: _Tracked | None = None
+        if self.state == TrackingState.NOT_INITIALIZED:
+            tracked = self._initialize(features, usable)
+            state = TrackingState.OK if tracked else TrackingState.NOT_INITIALIZED
+        else:
+            state = TrackingState.LOST
+            if self.state in (TrackingState.OK, TrackingState.RELOCALIZED):
+                tracked = self._track(features, usable)
+                state = TrackingState.OK if tracked else TrackingState.LOST
+            if tracked is None:
+                tracked = self._relocalize(features, usable)
+                if tracked is not None:
+                    state = TrackingState.RELOCALIZED
+        times["track"] = (time.perf_counter() - start) * 1e3
+        times["tracking_total"] = times["extract"] + times["reject"] + times["track"]
+        start = time.perf_counter()
+        keyframe = False
+        if tracked is not None and self.state != TrackingState.NOT_INITIALIZED:
+            if self._need_keyframe(features, usable, tracked):
+                self._insert_keyframe(features, usable, tracked)
+                keyframe = True
+        elif tracked is not None:
+            keyframe = True  # the initial keyframe
+        times["mapping"] = (time.perf_counter() - start) * 1e3
+        self._advance(features, tracked, state)
+        inlier = np.zeros(len(features), bool)
+        pose = None
+        if tracked is not None:
+            inlier[tracked.keypoints] = True
+            pose = tracked.world_from_camera.copy()
+            self.trajectory.append((frame.timestamp_s, pose))
+        diagnostics = FrameDiagnostics(
+            timestamp_s=frame.timestamp_s,
+            state=state,
+            keypoints_px=features.keypoints_px,
+            keypoint_classes=box_classes(
+                features.keypoints_px, list(frame.detections), self.config.rejection.box_dilation_px
+            ),
+            rejection=codes,
+            inlier=inlier,
+            stage_ms=times,
+            keyframe=keyframe,
+        )
+        return FrameResult(frame.timestamp_s, pose, state, diagnostics)
+
+    def extract(self, frame: Frame) -> FrameFeatures:
+        return self.extractor.extract(frame.rgb, frame.depth_m)
+
+    # -- tracking ---------------------------------------------------------------
+
+    def _advance(
+        self, features: FrameFeatures, tracked: _Tracked | None, state: TrackingState
+    ) -> None:
+        if tracked is not None:
+            if self._last_pose is not None and state == TrackingState.OK:
+                self._velocity = invert(self._last_pose) @ tracked.world_from_camera
+            else:
+                self._velocity = np.eye(4)
+            self._last_pose = tracked.world_from_camera
+            self._last_point_ids = tracked.point_ids
+            self._frames_since_keyframe += 1
+        self.state = state
+        self._previous = features
+        self.frame_index += 1
+
+    def _observations(
+        self, features: FrameFeatures, keypoints: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
+        uv = features.keypoints_px[keypoints].astype(np.float64)
+        depth = features.depth_m[keypoints]
+        ur = np.where(depth > 0, uv[:, 0] - self.bf / np.where(depth > 0, depth, 1.0), np.nan)
+        weight = 1.0 / self.tc.scale_factor ** features.octaves[keypoints]
+        return uv, ur, weight
+
+    def _initialize(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
+        candidates = usable & (features.depth_m > 0)
+        if candidates.sum() < MIN_INIT_POINTS:
+            return None
+        tracked = _Tracked(np.eye(4), np.zeros(0, int), np.zeros(0, int), int(candidates.sum()))
+        self._insert_keyframe(features, usable, tracked)
+        keyframe = self.map.keyframes[-1]
+        with_point = np.flatnonzero(keyframe.point_ids >= 0)
+        return _Tracked(np.eye(4), with_point, keyframe.point_ids[with_point], len(with_point))
+
+    def _match_by_projection(
+        self,
+        point_ids: np.ndarray,
+        camera_from_world: np.ndarray,
+        features: FrameFeatures,
+        usable: np.ndarray,
+        radius: float,
+        exclude: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Matches (keypoint indices, point ids) of map points projected near usable keypoints;
+        also returns the ids that projected into the image (for visibility counts)."""
+        empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
+        point_ids = point_ids[self.map.alive[point_ids]] if len(point_ids) else point_ids
+        candidates = np.flatnonzero(usable)
+        if exclude is not None:
+            candidates = candidates[~exclude[candidates]]
+        if len(point_ids) == 0 or len(candidates) == 0:
+            return empty
+        pc = transform(camera_from_world, self.map.positions[point_ids])
+        front = pc[:, 2] > self.tc.min_depth_m
+        point_ids, pc = point_ids[front], pc[front]
+        uv = project(self.camera, pc)
+        inside = (
+            (uv[:, 0] >= 0)
+            & (uv[:, 0] < self.camera.width)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] < self.camera.height)
+        )
+        point_ids, uv = point_ids[inside], uv[inside]
+        if len(point_ids) == 0:
+            return empty
+        tree = cKDTree(features.keypoints_px[candidates])
+        neighbours = tree.query_ball_point(uv, radius)
+        pairs_point = np.repeat(np.arange(len(point_ids)), [len(n) for n in neighbours])
+        if len(pairs_point) == 0:
+            return (*empty[:2], point_ids)
+        pairs_kp = candidates[np.concatenate([np.asarray(n, dtype=int) for n in neighbours])]
+        distance = hamming(
+            self.map.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp]
+        )
+        good = distance <= self.tc.match_max_hamming
+        pairs_point, pairs_kp, distance = pairs_point[good], pairs_kp[good], distance[good]
+        # Best keypoint per point, then best point per keypoint (one-to-one).
+        order = np.lexsort((distance, pairs_point))
+        first = np.r_[True, np.diff(pairs_point[order]) != 0]
+        best = order[first]
+        order = np.lexsort((distance[best], pairs_kp[best]))
+        first = np.r_[True, np.diff(pairs_kp[best][order]) != 0]
+        best = best[order[first]]
+        return pairs_kp[best], point_ids[pairs_point[best]], point_ids
+
+    def _solve(
+        self,
+        features: FrameFeatures,
+        keypoints: np.ndarray,
+        point_ids: np.ndarray,
+        guess_cw: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """PnP RANSAC, then robust refinement: (camera_from_world, inlier mask) or None."""
+        if len(keypoints) < 6:
+            return None
+        points_w = self.map.positions[point_ids]
+        uv, ur, weight = self._observations(features, keypoints)
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            points_w.astype(np.float64),
+            uv,
+            self.camera.matrix,
+            None,
+            iterationsCount=self.tc.ransac_iterations,
+            reprojectionError=self.tc.ransac_reprojection_px,
+            confidence=0.99,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
+        pose_cw = guess_cw
+        if ok:
+            pose_cw = np.eye(4)
+            pose_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
+            pose_cw[:3, 3] = tvec.ravel()
+        if pose_cw is None:
+            return None
+        return refine_pose(pose_cw, points_w, uv, ur, weight, self.camera, self.bf)
+
+    def _track(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
+        assert self._last_pose is not None
+        predicted_cw = invert(self._last_pose @ self._velocity)
+        last_ids = self._last_point_ids[self._last_point_ids >= 0]
+        kp, pid, _ = self._match_by_projection(
+            last_ids, predicted_cw, features, usable, self.tc.match_radius_px
+        )
+        if len(kp) < 2 * MIN_MATCHES:
+            kp, pid, _ = self._match_by_projection(
+                last_ids, predicted_cw, features, usable, 2 * self.tc.match_radius_px
+            )
+        if len(kp) < MIN_MATCHES:
+            return None
+        solved = self._solve(features, kp, pid, predicted_cw)
+        if solved is None:
+            return None
+        pose_cw, inl = solved
+        kp, pid = kp[inl], pid[inl]
+        # Local map: points of the keyframes that see the tracked points.
+        local_ids = self._local_points(pid)
+        matched = np.zeros(len(features), bool)
+        matched[kp] = True
+        new_kp, new_pid, projected = self._match_by_projection(
+            np.setdiff1d(local_ids, pid),
+            pose_cw,
+            features,
+            usable,
+            self.tc.local_radius_px,
+            exclude=matched,
+        )
+        self.map.visible[projected] += 1
+        kp, pid = np.r_[kp, new_kp], np.r_[pid, new_pid]
+        if len(kp) < MIN_MATCHES:
+            return None
+        uv, ur, weight = self._observations(features, kp)
+        pose_cw, inl = refine_pose(
+            pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.bf
+        )
+        kp, pid = kp[inl], pid[inl]
+        self.map.found[pid] += 1
+        if len(kp) < self.tc.min_inliers:
+            return None
+        return _Tracked(invert(pose_cw), kp, pid, len(kp))
+
+    def _local_points(self, point_ids: np.ndarray) -> np.ndarray:
+        counts: dict[int, int] = {}
+        for point in point_ids:
+            for kf_id in self.map.observations.get(int(point), {}):
+                counts[kf_id] = counts.get(kf_id, 0) + 1
+        local = sorted(counts, key=lambda k: (-counts[k], -k))[: self.tc.local_keyframes]
+        ids = [kf.point_ids[kf.point_ids >= 0] for kf in (self.map.keyframe(k) for k in local)]
+        if not ids:
+            return np.zeros(0, int)
+        ids_all = np.unique(np.concatenate(ids))
+        return ids_all[self.map.alive[ids_all]]
+
+    def _relocalize(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
+        candidates = np.flatnonzero(usable)
+        if len(candidates) < MIN_MATCHES:
+            return None
+        for keyframe in reversed(self.map.keyframes[-self.tc.relocalize_keyframes :]):
+            ids = keyframe.point_ids[keyframe.point_ids >= 0]
+            ids = ids[self.map.alive[ids]]
+            if len(ids) < MIN_MATCHES:
+                continue
+            distances = hamming_matrix(features.descriptors[candidates], self.map.descriptors[ids])
+            if distances.shape[1] < 2:
+                continue
+            two = np.partition(distances, 1, axis=1)[:, :2]
+            best = np.argmin(distances, axis=1)
+            good = (two[:, 0] <= self.tc.match_max_hamming) & (two[:, 0] < RATIO_TEST * two[:, 1])
+            kp, pid = candidates[good], ids[best[good]]
+            _, unique = np.unique(pid, return_index=True)
+            kp, pid = kp[unique], pid[unique]
+            if len(kp) < MIN_MATCHES:
+                continue
+            solved = self._solve(features, kp, pid, None)
+            if solved is None:
+                continue
+            pose_cw, inl = solved
+            if inl.sum() >= self.tc.min_inliers:
+                return _Tracked(invert(pose_cw), kp[inl], pid[inl], int(inl.sum()))
+        return None
+
+    # -- mapping ----------------------------------------------------------------
+
+    def _need_keyframe(
+        self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked
+    ) -> bool:
+        if not self.map.keyframes:
+            return True
+        reference = self.map.keyframes[-1]
+        ref_points = int(np.sum(self.map.alive[reference.point_ids[reference.point_ids >= 0]]))
+        close = (features.depth_m > 0) & (features.depth_m < self.close_depth_m) & usable
+        tracked_mask = np.zeros(len(features), bool)
+        tracked_mask[tracked.keypoints] = True
+        need_close = (close & tracked_mask).sum() < 100 and (close & ~tracked_mask).sum() > 70
+        weak = tracked.inliers < self.tc.keyframe_inlier_ratio * ref_points
+        timed_out = self._frames_since_keyframe >= self.tc.keyframe_max_frames
+        return (timed_out or weak or need_close) and tracked.inliers > MIN_MATCHES
+
+    def _insert_keyframe(
+        self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked
+    ) -> None:
+        kf_id = len(self.map.keyframes)
+        point_ids = np.full(len(features), -1)
+        point_ids[tracked.keypoints] = tracked.point_ids
+        new = usable & (point_ids < 0) & (features.depth_m > 0)
+        uv = features.keypoints_px[new].astype(np.float64)
+        positions = transform(
+            tracked.world_from_camera, backproject(self.camera, uv, features.depth_m[new])
+        )
+        point_ids[new] = self.map.add_points(positions, features.descriptors[new], kf_id)
+        keyframe = KeyFrame(
+            kf_id, self.frame_index, tracked.world_from_camera.copy(), features, usable, point_ids
+        )
+        self.map.keyframes.append(keyframe)
+        for keypoint in np.flatnonzero(point_ids >= 0):
+            self.map.observe(int(point_ids[keypoint]), kf_id, int(keypoint))
+        self._frames_since_keyframe = 0
+        if kf_id > 0:
+            self._local_bundle_adjustment()
+            self.map.cull(kf_id)
+            tracked.world_from_camera = self.map.keyframes[-1].world_from_camera.copy()
+
+    def _local_bundle_adjustment(self) -> None:
+        window = [kf.id for kf in self.map.keyframes[-self.tc.ba_window :]]
+        points = np.unique(np.concatenate([self.map.keyframe(k).point_ids for k in window]))
+        points = points[(points >= 0)]
+        points = points[self.map.alive[points]]
+        if len(points) < 10:
+            return
+        obs_kf, obs_point, obs_kp = [], [], []
+        for index, point in enumerate(points):
+            for kf_id, keypoint in self.map.observations.get(int(point), {}).items():
+                obs_kf.append(kf_id)
+                obs_point.append(index)
+                obs_kp.append(keypoint)
+        obs_kf_arr = np.array(obs_kf)
+        involved = np.unique(obs_kf_arr)
+        slot = {kf: i for i, kf in enumerate(involved)}
+        obs_pose = np.array([slot[k] for k in obs_kf])
+        poses = np.array([invert(self.map.keyframe(k).world_from_camera) for k in involved])
+        free = np.array([(k in window) and k != 0 for k in involved])
+        uv = np.empty((len(obs_kf), 2))
+        ur = np.empty(len(obs_kf))
+        weight = np.empty(len(obs_kf))
+        for kf_id in involved:
+            rows = np.flatnonzero(obs_kf_arr == kf_id)
+            keypoints = np.array(obs_kp)[rows]
+            u, r, w = self._observations(self.map.keyframe(kf_id).features, keypoints)
+            uv[rows], ur[rows], weight[rows] = u, r, w
+        new_poses, new_points, inlier = local_bundle_adjustment(
+            poses,
+            free,
+            self.map.positions[points].copy(),
+            obs_pose,
+            np.array(obs_point),
+            uv,
+            ur,
+            weight,
+            self.camera,
+            self.bf,
+            self.tc.ba_iterations,
+        )
+        for i, kf_id in enumerate(involved):
+            if free[i]:
+                self.map.keyframe(kf_id).world_from_camera = invert(new_poses[i])
+        self.map.positions[points] = new_points
+        for k in np.flatnonzero(~inlier):
+            point = int(points[obs_point[k]])
+            kf_id, keypoint = obs_kf[k], obs_kp[k]
+            self.map.observations.get(point, {}).pop(kf_id, None)
+            self.map.keyframe(kf_id).point_ids[keypoint] = -1
