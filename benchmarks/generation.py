@@ -62,9 +62,7 @@ def main() -> None:
             start = time.perf_counter()
             rates_1t = pool.map(_run, jobs(3, 2, 1))
             wall_1t = time.perf_counter() - start
-    print(
-        f"default scenario, {args.width}x{args.height}, {args.frames} frames, includes PNG writes"
-    )
+    print(f"default scenario, {args.width}x{args.height}, {args.frames} frames, includes PNG writes")
     print(f"1 process : {single:6.1f} frames/s")
     print(
         f"2 processes: {rates[0]:6.1f} + {rates[1]:6.1f} = {sum(rates):6.1f} frames/s "

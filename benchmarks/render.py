@@ -46,9 +46,7 @@ def main() -> None:
     for k in range(args.frames):
         sim.advance_to(k / spec.fps)
         renderer.render(sim.data, world.camera_id)
-    timings["full frame (advance + both passes + decode)"] = (
-        time.perf_counter() - start
-    ) / args.frames
+    timings["full frame (advance + both passes + decode)"] = (time.perf_counter() - start) / args.frames
     print(f"{args.width}x{args.height}, {world.model.ngeom} geoms")
     for name, seconds in timings.items():
         print(f"{name:45s} {seconds * 1e3:7.2f} ms  ({1 / seconds:6.1f} /s)")

@@ -16,17 +16,13 @@ class GroundTruthDetector:
 
     def __init__(self, sequence: Sequence, min_visible_pixels: int = 20) -> None:
         if not sequence.is_generated:
-            raise ValueError(
-                f"{sequence.root}: the groundtruth detector needs a generated sequence"
-            )
+            raise ValueError(f"{sequence.root}: the groundtruth detector needs a generated sequence")
         self._objects = sequence.objects()
         self.min_visible_pixels = min_visible_pixels
 
     def detect(self, index: int) -> tuple[Detection, ...]:
         return tuple(
-            Detection(
-                tuple(float(v) for v in o.box_xyxy), o.class_name, prior_of(o.class_name), 1.0
-            )
+            Detection(tuple(float(v) for v in o.box_xyxy), o.class_name, prior_of(o.class_name), 1.0)
             for o in self._objects[index]
             if o.box_xyxy is not None and o.visible_pixels >= self.min_visible_pixels
         )

@@ -64,15 +64,11 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool) -> Similar
     return Similarity(rotation, translation, scale)
 
 
-def align(
-    estimate: Trajectory, reference: Trajectory, mode: Alignment
-) -> tuple[Trajectory, Similarity]:
+def align(estimate: Trajectory, reference: Trajectory, mode: Alignment) -> tuple[Trajectory, Similarity]:
     """Align associated trajectories (same length); returns the moved estimate and the transform."""
     if len(estimate) != len(reference):
         raise ValueError("align needs associated trajectories of equal length")
     if mode is Alignment.NONE:
         return estimate, Similarity.identity()
-    transform = umeyama(
-        estimate.positions_m, reference.positions_m, with_scale=mode is Alignment.SIM3
-    )
+    transform = umeyama(estimate.positions_m, reference.positions_m, with_scale=mode is Alignment.SIM3)
     return transform.apply(estimate), transform

@@ -46,9 +46,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
         default=DEFAULT_MAX_DIFF_S,
         help="association window in seconds (default: 0.02, TUM's)",
     )
-    p.add_argument(
-        "--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps"
-    )
+    p.add_argument("--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps")
     p.add_argument("--rpe-delta", type=_positive_float, default=1.0, help="RPE delta (default: 1)")
     p.add_argument(
         "--rpe-unit",
@@ -56,9 +54,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
         default="frames",
         help="unit of the RPE delta (default: frames)",
     )
-    p.add_argument(
-        "--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones"
-    )
+    p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(handler=_cmd_eval)
 
@@ -82,9 +78,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 def format_comparison(result: Comparison) -> str:
     o = result.options
-    header = f"{'':18}" + "".join(
-        f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max")
-    )
+    header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
     header += f"{'count':>8}"
 
     def row(label: str, s: Statistics) -> str:
@@ -97,11 +91,7 @@ def format_comparison(result: Comparison) -> str:
             f"reference {result.reference_name}  estimate {result.estimate_name}",
             f"{result.pairs} associated pairs (window {o.max_diff_s} s), "
             f"alignment {o.alignment.value}"
-            + (
-                f" (scale {result.ate.transform.scale:.6f})"
-                if o.alignment is Alignment.SIM3
-                else ""
-            ),
+            + (f" (scale {result.ate.transform.scale:.6f})" if o.alignment is Alignment.SIM3 else ""),
             header,
             row("ATE (m)", result.ate.statistics),
             row("RPE trans (m)", result.rpe.translation),
@@ -112,9 +102,7 @@ def format_comparison(result: Comparison) -> str:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "demo", help="the quick-start job: generate a depot sequence, preview, evaluate"
-    )
+    p = sub.add_parser("demo", help="the quick-start job: generate a depot sequence, preview, evaluate")
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
     p.add_argument("--frames", type=int, default=60, help="frames to generate (default: 60)")
     p.set_defaults(handler=_cmd_demo)
@@ -151,18 +139,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     reference = read_tum(ASSETS / "examples" / "fr1_xyz_groundtruth.txt")
     estimate = read_tum(ASSETS / "examples" / "fr1_xyz_rgbdslam.txt")
     for alignment in (Alignment.SE3, Alignment.SIM3):
-        print(
-            format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment)))
-        )
+        print(format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment))))
         print()
     return 0
 
 
 def _add_generate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="render a scenario or a whole suite into sequence folders")
-    p.add_argument(
-        "spec", help="'default', a library scenario name, a scenario file or a suite file"
-    )
+    p.add_argument("spec", help="'default', a library scenario name, a scenario file or a suite file")
     p.add_argument(
         "-o",
         "--output",
@@ -206,17 +190,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     path = Path(args.spec)
     if path.is_file() and is_suite_file(path):
         if args.frames is not None or args.seed is not None:
-            raise InputError(
-                "--frames and --seed apply to one scenario; set them in the suite's overrides"
-            )
+            raise InputError("--frames and --seed apply to one scenario; set them in the suite's overrides")
         if args.workers < 1:
             raise InputError(f"--workers must be >= 1, got {args.workers}")
         index = run_suite(load_suite(path), path, args.output, args.workers)
         print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
         return 0
-    scenario = (
-        default_scenario() if args.spec == "default" else to_scenario(_resolve_scenario(args.spec))
-    )
+    scenario = default_scenario() if args.spec == "default" else to_scenario(_resolve_scenario(args.spec))
     changes = {k: v for k, v in (("frames", args.frames), ("seed", args.seed)) if v is not None}
     if args.flow:
         changes["flow"] = True
@@ -254,9 +234,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 def _add_scenarios(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scenarios", help="list the library's named scenarios")
-    p.add_argument(
-        "--tag", help="only scenarios with this tag (e.g. tum-like, depot, stress, smoke)"
-    )
+    p.add_argument("--tag", help="only scenarios with this tag (e.g. tum-like, depot, stress, smoke)")
     p.set_defaults(handler=_cmd_scenarios)
 
 
@@ -269,10 +247,84 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_preview(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "preview", help="save RGB | depth | instances+boxes of sequence frames as a PNG"
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    from eval.harness import DETECTORS
+    from slam.rejection import STRATEGIES
+
+    p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
+    p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
+    p.add_argument("--strategy", choices=STRATEGIES, default="none", help="dynamic-feature rejection")
+    p.add_argument(
+        "--detector",
+        choices=DETECTORS,
+        default="groundtruth",
+        help="where boxes come from ('none' for real TUM folders without ground truth)",
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a threshold, e.g. --set k=2.5 --set epsilon_px=0.8 (repeatable)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        required=True,
+        help="folder for trajectory, diagnostics, metrics",
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.set_defaults(handler=_cmd_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from eval.harness import run_sequence
+
+    settings = {}
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise InputError(f"--set {item!r}: expected NAME=VALUE")
+        settings[name.strip()] = value.strip()
+    metrics = run_sequence(
+        args.sequence, args.output, args.strategy, args.detector, settings, overwrite=args.overwrite
+    )
+    print(format_run(metrics))
+    return 0
+
+
+def format_run(metrics: dict) -> str:
+    lines = [
+        f"{metrics['strategy']} on {metrics['sequence']}: tracked {metrics['tracked_frames']}/"
+        f"{metrics['frames']} frames ({metrics['lost_frames']} lost), {metrics['keyframes']} keyframes"
+    ]
+    if "ate_m" in metrics:
+        lines.append(
+            f"ATE rmse {metrics['ate_m']['rmse']:.4f} m, RPE {metrics['rpe_translation_m']['rmse']:.4f} m "
+            f"/ {metrics['rpe_rotation_deg']['rmse']:.3f} deg per frame"
+        )
+    rejection = metrics.get("rejection")
+    if rejection:
+
+        def show(value):
+            return "n/a" if value is None else f"{value:.3f}"
+
+        lines.append(
+            f"rejection precision {show(rejection['precision'])}, recall {show(rejection['recall'])} "
+            f"({rejection['moving_keypoints']} of {rejection['keypoints']} keypoints on moving objects; "
+            f"{rejection['moving_inliers']} ended as inliers)"
+        )
+    t = metrics["stage_time"]
+    lines.append(
+        f"tracking {t['tracking_total']['mean_ms']:.1f} ms mean, {t['tracking_total']['median_ms']:.1f} "
+        f"ms median per frame; local mapping {t['mapping']['mean_ms']:.1f} ms mean"
+    )
+    return "\n".join(lines)
+
+
+def _add_preview(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("preview", help="save RGB | depth | instances+boxes of sequence frames as a PNG")
     p.add_argument("sequence", type=Path)
     p.add_argument("--frames", type=int, nargs="+", default=[0], help="frame indices (default: 0)")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
@@ -308,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_generate(sub)
     _add_validate(sub)
     _add_scenarios(sub)
+    _add_run(sub)
     _add_preview(sub)
     return parser
 

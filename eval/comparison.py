@@ -55,7 +55,5 @@ def compare(reference: Trajectory, estimate: Trajectory, options: ComparisonOpti
     """Associate, then ATE (aligned as asked) and RPE (on the same alignment)."""
     ref, est = associate(reference, estimate, options.max_diff_s, options.offset_s)
     ate_result = ate(ref, est, options.alignment)
-    rpe_result = rpe(
-        ref, est, options.rpe_delta, options.rpe_unit, options.rpe_all_pairs, options.alignment
-    )
+    rpe_result = rpe(ref, est, options.rpe_delta, options.rpe_unit, options.rpe_all_pairs, options.alignment)
     return Comparison(reference.name, estimate.name, len(ref), options, ate_result, rpe_result)

@@ -114,15 +114,11 @@ def run_sequence(
     tmp = out_dir.parent / f".{out_dir.name}.partial-{uuid.uuid4().hex[:8]}"
     tmp.mkdir(parents=True)
     try:
-        tracked = [
-            (r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None
-        ]
+        tracked = [(r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None]
         if tracked:
             write_tum(
                 tmp / "trajectory.txt",
-                Trajectory.from_poses(
-                    np.array([t for t, _ in tracked]), np.array([p for _, p in tracked])
-                ),
+                Trajectory.from_poses(np.array([t for t, _ in tracked]), np.array([p for _, p in tracked])),
                 header=f"depotbench slam, strategy {strategy}, detector {detector}",
             )
         _write_diagnostics(tmp / "diagnostics.npz", results, labels)
@@ -161,17 +157,11 @@ def _metrics(
         "keyframes": len(slam.map.keyframes),
         "stage_time": stage,
     }
-    tracked = [
-        (r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None
-    ]
+    tracked = [(r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None]
     if sequence.groundtruth is not None and len(tracked) >= 3:
         gt = sequence.groundtruth
-        reference = Trajectory.from_quaternions(
-            gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth"
-        )
-        estimate = Trajectory.from_poses(
-            np.array([t for t, _ in tracked]), np.array([p for _, p in tracked])
-        )
+        reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
+        estimate = Trajectory.from_poses(np.array([t for t, _ in tracked]), np.array([p for _, p in tracked]))
         ref, est = associate(reference, estimate)
         ate_result = ate(ref, est, Alignment.SE3)
         rpe_result = rpe(ref, est, 1, DeltaUnit.FRAMES)
@@ -190,10 +180,7 @@ def _metrics(
             "precision": true_positive / int(rejected.sum()) if rejected.any() else None,
             "recall": true_positive / int(moving.sum()) if moving.any() else None,
             "moving_inliers": int(
-                sum(
-                    (r.diagnostics.inlier & lab).sum()
-                    for r, lab in zip(results, labels, strict=True)
-                )
+                sum((r.diagnostics.inlier & lab).sum() for r, lab in zip(results, labels, strict=True))
             ),
         }
     return metrics
@@ -218,13 +205,9 @@ def _write_diagnostics(path: Path, results: list[FrameResult], labels: list[np.n
         if results
         else np.zeros(0),
         "class_names": np.array(classes),
-        "rejection": np.concatenate([r.diagnostics.rejection for r in results])
-        if results
-        else np.zeros(0),
+        "rejection": np.concatenate([r.diagnostics.rejection for r in results]) if results else np.zeros(0),
         "rejection_names": np.array([r.value for r in Rejection]),
-        "inlier": np.concatenate([r.diagnostics.inlier for r in results])
-        if results
-        else np.zeros(0, bool),
+        "inlier": np.concatenate([r.diagnostics.inlier for r in results]) if results else np.zeros(0, bool),
         "stage_names": np.array(stages),
         "stage_ms": np.array([[r.diagnostics.stage_ms[s] for s in stages] for r in results]),
     }

@@ -66,17 +66,13 @@ class AteResult:
     transform: Similarity
 
 
-def ate(
-    reference: Trajectory, estimate: Trajectory, alignment: Alignment = Alignment.SE3
-) -> AteResult:
+def ate(reference: Trajectory, estimate: Trajectory, alignment: Alignment = Alignment.SE3) -> AteResult:
     """Translational ATE of associated trajectories (evo ``ape`` translation_part)."""
     if len(reference) != len(estimate):
         raise ValueError("ate needs associated trajectories of equal length")
     aligned, transform = align(estimate, reference, alignment)
     errors = np.linalg.norm(aligned.positions_m - reference.positions_m, axis=1)
-    return AteResult(
-        Statistics.of(errors), errors, reference.timestamps_s.copy(), alignment, transform
-    )
+    return AteResult(Statistics.of(errors), errors, reference.timestamps_s.copy(), alignment, transform)
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,9 +145,7 @@ def rpe(
             raise InputError(f"RPE delta in frames must be a whole number, got {delta}")
         pairs = pairs_by_frames(len(chooser), int(delta), all_pairs)
     else:
-        pairs = pairs_by_path(
-            chooser.positions_m, float(delta), rel_delta_tol * float(delta), all_pairs
-        )
+        pairs = pairs_by_path(chooser.positions_m, float(delta), rel_delta_tol * float(delta), all_pairs)
     if len(pairs) == 0:
         raise InputError(
             f"no pose pairs {delta} {unit.value} apart in {len(chooser)} poses; use a smaller delta"

@@ -96,9 +96,7 @@ def read_tum(path: Path | str) -> Trajectory:
     """Read a TUM trajectory file (``t tx ty tz qx qy qz qw``)."""
     path = Path(path)
     table = read_pose_file(path, strict=False)
-    return Trajectory.from_quaternions(
-        table.timestamps_s, table.positions_m, table.quats_xyzw, path.name
-    )
+    return Trajectory.from_quaternions(table.timestamps_s, table.positions_m, table.quats_xyzw, path.name)
 
 
 def write_tum(path: Path | str, trajectory: Trajectory, header: str = "trajectory") -> None:
@@ -149,9 +147,7 @@ def associate(
     estimate_longer = len(estimate) > len(reference)
     short, long = (reference, estimate) if estimate_longer else (estimate, reference)
     shift = offset_s if estimate_longer else -offset_s
-    idx_short, idx_long = matching_indices(
-        short.timestamps_s, long.timestamps_s + shift, max_diff_s
-    )
+    idx_short, idx_long = matching_indices(short.timestamps_s, long.timestamps_s + shift, max_diff_s)
     if len(idx_short) == 0:
         raise AssociationError(
             f"no timestamps of {reference.name or 'the reference'} and "

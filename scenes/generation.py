@@ -57,9 +57,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def run_suite(
-    suite: Suite, suite_path: Path, out_dir: Path, workers: int, progress: bool = True
-) -> dict:
+def run_suite(suite: Suite, suite_path: Path, out_dir: Path, workers: int, progress: bool = True) -> dict:
     """Generate every variation not yet complete; write ``index.json``; return the index."""
     jobs = variations(suite, suite_path)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -81,17 +79,13 @@ def run_suite(
     start = time.perf_counter()
     if pending:
         context = mp.get_context("spawn")
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=context, initializer=_init_worker
-        ) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker) as pool:
             running: dict[Future, tuple[str, Scenario]] = {}
             queue = list(pending)
             while queue or running:
                 while queue and len(running) < workers:
                     name, _, sc = queue.pop(0)
-                    future = pool.submit(
-                        generate_job, sc.model_dump(mode="json"), str(out_dir / name)
-                    )
+                    future = pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))
                     running[future] = (name, sc)
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:

@@ -77,9 +77,7 @@ class Actor(Strict):
 
     @field_validator("scale")
     @classmethod
-    def _scale(
-        cls, value: float | tuple[float, float] | None
-    ) -> float | tuple[float, float] | None:
+    def _scale(cls, value: float | tuple[float, float] | None) -> float | tuple[float, float] | None:
         if value is None:
             return value
         low, high = (value, value) if isinstance(value, int | float) else value
@@ -167,9 +165,7 @@ class Scenario(Strict):
         if self.frames is not None and self.duration_s is not None:
             raise ValueError("give frames or duration_s, not both")
         if self.n_frames > MAX_FRAMES:
-            raise ValueError(
-                f"duration_s x fps gives {self.n_frames} frames, more than {MAX_FRAMES}"
-            )
+            raise ValueError(f"duration_s x fps gives {self.n_frames} frames, more than {MAX_FRAMES}")
         k = self.intrinsics
         w, h = self.image.width, self.image.height
         if k.fy is not None and not math.isclose(k.fy, k.fx):
@@ -184,10 +180,7 @@ class Scenario(Strict):
             raise ValueError(f"at most {MAX_ACTORS} actors in all")
         if any(a.kind == "chair_pusher" and a.count for a in self.actors) and not self.chairs:
             raise ValueError("a chair_pusher needs at least one chair")
-        if (
-            any(a.kind == "sitting_person" and a.count for a in self.actors)
-            and not self.layout.desk
-        ):
+        if any(a.kind == "sitting_person" and a.count for a in self.actors) and not self.layout.desk:
             raise ValueError("a sitting_person needs the desk (layout.desk: true)")
         return self
 
@@ -263,9 +256,7 @@ def format_validation_error(source: str, exc: ValidationError) -> str:
         if error["type"] == "extra_forbidden":
             message = "unknown field (check the spelling; see `depotbench validate --help`)"
         got = error.get("input")
-        shown = (
-            "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r})"
-        )
+        shown = "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r})"
         lines.append(f"{source}: {path}: {message}{shown}")
     return "\n".join(lines)
 
@@ -288,9 +279,7 @@ def read_yaml(path: Path) -> Any:
     if data is None:
         raise SpecError(f"{path}: the file is empty; a scenario needs at least a name")
     if not isinstance(data, dict):
-        raise SpecError(
-            f"{path}: the top level must be a mapping of fields, got {type(data).__name__}"
-        )
+        raise SpecError(f"{path}: the top level must be a mapping of fields, got {type(data).__name__}")
     return data
 
 

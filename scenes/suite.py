@@ -40,9 +40,7 @@ class Draw(Strict):
     def _one(self) -> Draw:
         given = [x for x in (self.uniform, self.int_range, self.choice) if x is not None]
         if len(given) != 1:
-            raise ValueError(
-                "give exactly one of uniform: [low, high], int: [low, high], choice: [...]"
-            )
+            raise ValueError("give exactly one of uniform: [low, high], int: [low, high], choice: [...]")
         if self.choice is not None and not self.choice:
             raise ValueError("choice needs at least one value")
         return self
@@ -89,16 +87,12 @@ def set_path(data: dict[str, Any], dotted: str, value: Any, source: str) -> None
         last = i == len(keys) - 1
         if isinstance(node, list):
             if not key.isdigit() or int(key) >= len(node):
-                raise SpecError(
-                    f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} has no item {key}"
-                )
+                raise SpecError(f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} has no item {key}")
             index: Any = int(key)
         elif isinstance(node, dict):
             index = key
         else:
-            raise SpecError(
-                f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} is not a mapping or list"
-            )
+            raise SpecError(f"{source}: knob {dotted!r}: {'.'.join(keys[:i])} is not a mapping or list")
         if last:
             node[index] = value
         else:
@@ -112,9 +106,7 @@ def _base_data(suite: Suite, suite_path: Path) -> dict[str, Any]:
         return read_yaml(library.library_files()[suite.base])
     path = (suite_path.parent / suite.base).resolve()
     if not path.exists():
-        raise SpecError(
-            f"{suite_path}: base {suite.base!r} is neither a library scenario nor a file"
-        )
+        raise SpecError(f"{suite_path}: base {suite.base!r} is neither a library scenario nor a file")
     return read_yaml(path)
 
 
@@ -125,18 +117,13 @@ def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any]
         set_path(base, key, value, str(suite_path))
     if suite.random is not None:
         rng = np.random.default_rng(suite.random.seed)
-        draws = [
-            {k: d.sample(rng) for k, d in suite.random.knobs.items()}
-            for _ in range(suite.random.count)
-        ]
+        draws = [{k: d.sample(rng) for k, d in suite.random.knobs.items()} for _ in range(suite.random.count)]
         knob_sets = [{**d, "seed": int(base.get("seed", 0)) + i} for i, d in enumerate(draws)]
     else:
         keys = list(suite.grid)
         combos = list(itertools.product(*(suite.grid[k] for k in keys))) or [()]
         knob_sets = [
-            {**dict(zip(keys, combo, strict=True)), "seed": seed}
-            for combo in combos
-            for seed in suite.seeds
+            {**dict(zip(keys, combo, strict=True)), "seed": seed} for combo in combos for seed in suite.seeds
         ]
     if len(knob_sets) > MAX_VARIATIONS:
         raise SpecError(f"{suite_path}: {len(knob_sets)} variations, more than {MAX_VARIATIONS}")

@@ -56,9 +56,7 @@ def frame_along(direction: np.ndarray, forward: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=1)
 
 
-def two_link_knee(
-    hip: np.ndarray, ankle: np.ndarray, l1: float, l2: float, bend: np.ndarray
-) -> np.ndarray:
+def two_link_knee(hip: np.ndarray, ankle: np.ndarray, l1: float, l2: float, bend: np.ndarray) -> np.ndarray:
     """Knee position for thigh ``l1`` and shin ``l2``, bending towards ``bend``."""
     d_vec = ankle - hip
     d = min(float(np.linalg.norm(d_vec)), l1 + l2 - 1e-6)
@@ -107,9 +105,7 @@ class Gait:
         u = c - k
 
         def plant(index: int) -> float:
-            return (
-                self.start_s + (index + self.duty / 2 + leg.phase) * self.stride + leg.hip_body[0]
-            )
+            return self.start_s + (index + self.duty / 2 + leg.phase) * self.stride + leg.hip_body[0]
 
         if u < self.duty:
             s = plant(k)
@@ -154,9 +150,7 @@ class Actor:
         angle = math.acos(min(1.0, max(-1.0, (np.trace(delta) - 1) / 2)))
         if angle < 1e-12:
             return linear, np.zeros(3)
-        axis = np.array(
-            [delta[2, 1] - delta[1, 2], delta[0, 2] - delta[2, 0], delta[1, 0] - delta[0, 1]]
-        )
+        axis = np.array([delta[2, 1] - delta[1, 2], delta[0, 2] - delta[2, 0], delta[1, 0] - delta[0, 1]])
         axis /= 2 * math.sin(angle)
         return linear, axis * angle / (2 * FD_STEP_S)
 
@@ -209,9 +203,7 @@ class Walker(Actor):
         s = self.gait.arc(t)
         xy = self.gait.path.point(s)
         bob = 0.015 * self.scale * math.cos(4 * math.pi * (s - self.gait.start_s) / self.stride)
-        return np.array([xy[0], xy[1], self.hip_z + bob]), yaw_matrix(
-            float(self.gait.path.heading(s))
-        )
+        return np.array([xy[0], xy[1], self.hip_z + bob]), yaw_matrix(float(self.gait.path.heading(s)))
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         s = self.scale
@@ -413,9 +405,9 @@ class Quadruped(Actor):
         s = self.gait.arc(t)
         xy = self.gait.path.point(s)
         bob = 0.01 * math.cos(4 * math.pi * (s - self.gait.start_s) / self.gait.stride)
-        return np.array(
-            [xy[0], xy[1], self.hip_z + 0.5 * self.build.body_half[2] + bob]
-        ), yaw_matrix(float(self.gait.path.heading(s)))
+        return np.array([xy[0], xy[1], self.hip_z + 0.5 * self.build.body_half[2] + bob]), yaw_matrix(
+            float(self.gait.path.heading(s))
+        )
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         hx, hy, hz = self.build.body_half
@@ -448,9 +440,7 @@ class Bird(Actor):
     class_name = "bird"
     HOP_S, HOP_M, PAUSE_S = 0.3, 0.14, 0.2
 
-    def __init__(
-        self, path: Path, start_s: float, duration_s: float, rng: np.random.Generator
-    ) -> None:
+    def __init__(self, path: Path, start_s: float, duration_s: float, rng: np.random.Generator) -> None:
         self.path = path
         events = []  # (t0, t1, s0, s1, height)
         t, s = 0.0, start_s

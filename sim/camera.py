@@ -53,17 +53,13 @@ class Intrinsics:
     @property
     def matrix(self) -> np.ndarray:
         """The 3x3 camera matrix K."""
-        return np.array(
-            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
-        )
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64)
 
     @classmethod
     def from_fovy(cls, fovy_deg: float, width: int, height: int) -> Intrinsics:
         """Intrinsics of a MuJoCo camera: square pixels, centre at ((W-1)/2, (H-1)/2)."""
         f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-        return cls(
-            fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height
-        )
+        return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
 
     def fovy_deg(self) -> float:
         """Vertical field of view that a MuJoCo camera needs to reproduce ``fy``."""
@@ -74,9 +70,7 @@ TUM_DEFAULT = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, heig
 """The ROS/Kinect default intrinsics used by TUM's tools and by generated sequences."""
 
 TUM_FREIBURG: dict[str, Intrinsics] = {
-    "freiburg1": Intrinsics(
-        517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
-    ),
+    "freiburg1": Intrinsics(517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
     "freiburg2": Intrinsics(
         520.9, 521.0, 325.1, 249.7, 640, 480, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)
     ),
@@ -175,9 +169,7 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except cv2.error as exc:
-        raise SequenceFormatError(
-            path, None, f"not a readable OpenCV YAML file: {exc.msg}"
-        ) from exc
+        raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {exc.msg}") from exc
     try:
         values: dict[str, float] = {}
         for key in (
@@ -207,9 +199,7 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
             cy=values["Camera.cy"],
             width=int(values["Camera.width"]),
             height=int(values["Camera.height"]),
-            distortion=tuple(
-                values.get(f"Camera.{k}", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")
-            ),
+            distortion=tuple(values.get(f"Camera.{k}", 0.0) for k in ("k1", "k2", "p1", "p2", "k3")),
             depth_scale=values["DepthMapFactor"],
         )
     except ValueError as exc:

@@ -47,9 +47,7 @@ class CameraRig:
             return self.base @ self._jitter(t, 0.002, 0.2)
         if motion == "xyz":
             pose = self.base.copy()
-            pose[:3, 3] += self.base[:3, :3] @ (
-                s.amplitude_m * np.array([1.0, 0.6, 0.8]) * self._wave(0, t)
-            )
+            pose[:3, 3] += self.base[:3, :3] @ (s.amplitude_m * np.array([1.0, 0.6, 0.8]) * self._wave(0, t))
             return pose @ self._jitter(t, 0.0, 0.3)
         if motion == "rpy":
             pose = self.base.copy()
@@ -60,10 +58,7 @@ class CameraRig:
             target = np.array(s.target_m)
             offset = np.array(s.position_m) - target
             radius = float(np.linalg.norm(offset))
-            azimuth = (
-                math.atan2(offset[1], offset[0])
-                + math.radians(s.amplitude_deg) * self._wave(2, t)[0]
-            )
+            azimuth = math.atan2(offset[1], offset[0]) + math.radians(s.amplitude_deg) * self._wave(2, t)[0]
             elevation = math.asin(offset[2] / radius) + math.radians(0.5 * s.amplitude_deg) * (
                 0.5 + 0.5 * self._wave(2, t)[1]
             )

@@ -7,9 +7,7 @@ import numpy as np
 from sim.camera import Intrinsics
 
 
-def rigid_motions(
-    pos0: np.ndarray, rot0: np.ndarray, pos1: np.ndarray, rot1: np.ndarray
-) -> np.ndarray:
+def rigid_motions(pos0: np.ndarray, rot0: np.ndarray, pos1: np.ndarray, rot1: np.ndarray) -> np.ndarray:
     """Per body, the 4x4 world transform taking its points at t to t+1."""
     n = len(pos0)
     motion = np.tile(np.eye(4), (n, 1, 1))

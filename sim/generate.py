@@ -31,9 +31,7 @@ def _rotvec_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
-def object_states(
-    world: World, now: Snapshot, nxt: Snapshot, instances: np.ndarray
-) -> list[ObjectState]:
+def object_states(world: World, now: Snapshot, nxt: Snapshot, instances: np.ndarray) -> list[ObjectState]:
     """Every instance's ground truth at ``now``; ``nxt`` (one frame later) gives part speeds."""
     boxes, counts = boxes_and_counts(instances, len(world.instances))
     dt = nxt.time_s - now.time_s
@@ -97,9 +95,7 @@ class DifficultyAccumulator:
             "dynamic_pixel_fraction_mean": round(float(fractions.mean()), 6),
             "dynamic_pixel_fraction_max": round(float(fractions.max()), 6),
             "frames_over_half_dynamic": round(float((fractions > 0.5).mean()), 6),
-            "dynamic_flow_px_mean": round(self.flow_sum / self.flow_pixels, 6)
-            if self.flow_pixels
-            else 0.0,
+            "dynamic_flow_px_mean": round(self.flow_sum / self.flow_pixels, 6) if self.flow_pixels else 0.0,
             "camera_speed_mps_mean": round(float(np.mean(self.camera_speed)), 6),
         }
 
@@ -146,9 +142,7 @@ def generate(
                 sim.advance_to((k + 1) * period)
                 nxt = sim.snapshot()
                 valid = geom_ids >= 0
-                instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(
-                    np.uint16
-                )
+                instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
                 bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
                 motion = rigid_motions(
                     now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations
@@ -171,8 +165,7 @@ def generate(
                     moving,
                     moving_flow,
                     float(
-                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3])
-                        / period
+                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3]) / period
                     ),
                 )
                 flow = None

@@ -95,9 +95,7 @@ def _goods(
     return pieces
 
 
-def _rack(
-    rng: np.random.Generator, start: float, length: float, fixed: float, along_x: bool
-) -> list[Piece]:
+def _rack(rng: np.random.Generator, start: float, length: float, fixed: float, along_x: bool) -> list[Piece]:
     """A pallet rack unit: uprights, beams, shelves, goods."""
     depth, levels, height = 0.9, 4, 2.9
     pieces: list[Piece] = []
@@ -114,9 +112,7 @@ def _rack(
     for k in range(levels):
         z = 0.12 + k * (height - 0.2) / levels
         for v in (fixed - depth / 2, fixed + depth / 2):
-            pieces.append(
-                Piece(at(start + length / 2, v, z), half(length / 2, 0.03, 0.05), "metal_orange")
-            )
+            pieces.append(Piece(at(start + length / 2, v, z), half(length / 2, 0.03, 0.05), "metal_orange"))
         pieces.append(
             Piece(
                 at(start + length / 2, fixed, z + 0.06),
@@ -268,18 +264,11 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
     lights = tuple((x, y, h - 0.1) for x in (-sx / 2, sx / 2) for y in (-sy / 2, sy / 2))
     for lx, ly, lz in lights:
         world.append(Piece((lx, ly, lz + 0.05), (0.6, 0.15, 0.03), "lamp"))
-    return Layout(
-        (2 * sx, 2 * sy), h, tuple(world), tuple(objects), tuple(obstacles), seats, lights
-    )
+    return Layout((2 * sx, 2 * sy), h, tuple(world), tuple(objects), tuple(obstacles), seats, lights)
 
 
 def is_free(point: np.ndarray, obstacles: tuple[Rect, ...], margin: float, bounds: Rect) -> bool:
     x, y = float(point[0]), float(point[1])
-    if not (
-        bounds[0] + margin <= x <= bounds[2] - margin
-        and bounds[1] + margin <= y <= bounds[3] - margin
-    ):
+    if not (bounds[0] + margin <= x <= bounds[2] - margin and bounds[1] + margin <= y <= bounds[3] - margin):
         return False
-    return not any(
-        o[0] - margin < x < o[2] + margin and o[1] - margin < y < o[3] + margin for o in obstacles
-    )
+    return not any(o[0] - margin < x < o[2] + margin and o[1] - margin < y < o[3] + margin for o in obstacles)

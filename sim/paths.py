@@ -26,14 +26,10 @@ class Path:
         if len(dense_arr) > 2 * window + 1:
             kernel = np.ones(2 * window + 1) / (2 * window + 1)
             padded = np.vstack([dense_arr[-window:], dense_arr, dense_arr[:window]])
-            dense_arr = np.stack(
-                [np.convolve(padded[:, k], kernel, mode="valid") for k in (0, 1)], axis=1
-            )
+            dense_arr = np.stack([np.convolve(padded[:, k], kernel, mode="valid") for k in (0, 1)], axis=1)
         closed = np.vstack([dense_arr, dense_arr[:1]])
         self._points = closed
-        self._arc = np.concatenate(
-            [[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
-        )
+        self._arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
         self.length = float(self._arc[-1])
 
     def point(self, s: float | np.ndarray) -> np.ndarray:
@@ -91,6 +87,5 @@ def plan_loop(
         ):
             return arr
     raise ValueError(
-        f"could not place a free walking loop in region {region}; "
-        "reduce floor_props or give waypoints"
+        f"could not place a free walking loop in region {region}; reduce floor_props or give waypoints"
     )

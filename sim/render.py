@@ -47,9 +47,7 @@ class FrameRenderer:
         self._near = np.float32(model.vis.map.znear * extent)
         self._far = np.float32(model.vis.map.zfar * extent)
 
-    def render(
-        self, data: mujoco.MjData, camera_id: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def render(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RGB (H, W, 3) uint8, z-depth in metres (float32, 0 = nothing), geom ids (-1 = none)."""
         self._gl.make_current()
         self._camera.fixedcamid = camera_id

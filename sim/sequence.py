@@ -118,9 +118,7 @@ class Sequence:
             file_intrinsics, fps = read_orbslam_yaml(camera_path)
             intrinsics = intrinsics or file_intrinsics
         elif meta is not None:
-            raise SequenceFormatError(
-                camera_path, None, "file is missing (required with meta.json)"
-            )
+            raise SequenceFormatError(camera_path, None, "file is missing (required with meta.json)")
         else:
             intrinsics = intrinsics or tum_intrinsics_for(root)
         if meta is not None:
@@ -217,9 +215,7 @@ class Sequence:
         path = self._instance_path(frame)
         mask = _read_png(path, frame)
         if mask.dtype != np.uint16 or mask.ndim != 2:
-            raise SequenceFormatError(
-                path, None, "instance image must be a 16-bit single-channel PNG"
-            )
+            raise SequenceFormatError(path, None, "instance image must be a 16-bit single-channel PNG")
         self._check_size(path, mask)
         return mask
 
@@ -289,8 +285,7 @@ class Sequence:
             raise SequenceFormatError(
                 path,
                 None,
-                f"image is {width}x{height}, the camera is "
-                f"{self.intrinsics.width}x{self.intrinsics.height}",
+                f"image is {width}x{height}, the camera is {self.intrinsics.width}x{self.intrinsics.height}",
             )
 
 
@@ -308,9 +303,7 @@ def _read_meta(path: Path) -> dict[str, Any] | None:
     try:
         meta = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SequenceFormatError(
-            path, getattr(exc, "lineno", None), f"not valid JSON: {exc}"
-        ) from None
+        raise SequenceFormatError(path, getattr(exc, "lineno", None), f"not valid JSON: {exc}") from None
     if not isinstance(meta, dict):
         raise SequenceFormatError(path, None, "must hold a JSON object")
     version = meta.get("format_version")
@@ -511,9 +504,7 @@ class SequenceWriter:
         name = timestamp_name(timestamp_s)
         tmp = self._tmp
         self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        self._write_png(
-            tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale)
-        )
+        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
         if clean_depth_m is not None:
             _check_array(f"frame {index} clean_depth_m", clean_depth_m, (h, w), None)
@@ -556,9 +547,7 @@ class SequenceWriter:
             np.array(self._quats),
             header="ground truth trajectory (world_from_camera, optical frame)",
         )
-        (tmp / "camera.yaml").write_text(
-            orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8"
-        )
+        (tmp / "camera.yaml").write_text(orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8")
         (tmp / "gt" / "objects.jsonl").write_text("\n".join(self._objects) + "\n", encoding="utf-8")
         meta = {
             **self.meta,
@@ -569,9 +558,7 @@ class SequenceWriter:
             "image_size": [self.intrinsics.width, self.intrinsics.height],
             "depth_scale": self.intrinsics.depth_scale,
         }
-        (tmp / "meta.json").write_text(
-            json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8"
-        )
+        (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
         _replace_dir(tmp, self.root)
 
 

@@ -141,10 +141,6 @@ def spec_from_dict(data: dict) -> ScenarioSpec:
     values["layout"] = LayoutSpec(**{k: tuples(v) for k, v in data["layout"].items()})
     values["camera"] = CameraSpec(**{k: tuples(v) for k, v in data["camera"].items()})
     values["sensor"] = SensorSpec(**{k: tuples(v) for k, v in data.get("sensor", {}).items()})
-    values["actors"] = tuple(
-        ActorSpec(**{k: tuples(v) for k, v in a.items()}) for a in data["actors"]
-    )
-    values["chairs"] = tuple(
-        ChairSpec(**{k: tuples(v) for k, v in c.items()}) for c in data["chairs"]
-    )
+    values["actors"] = tuple(ActorSpec(**{k: tuples(v) for k, v in a.items()}) for a in data["actors"])
+    values["chairs"] = tuple(ChairSpec(**{k: tuples(v) for k, v in c.items()}) for c in data["chairs"])
     return ScenarioSpec(**values)

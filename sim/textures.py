@@ -14,9 +14,7 @@ Colour = tuple[int, int, int]
 _LETTERS = "ABCDEFGHJKLMNPRSTUVWXYZ0123456789"
 
 
-def _noise(
-    rng: np.random.Generator, size: int, octaves: int = 4, amplitude: float = 40.0
-) -> np.ndarray:
+def _noise(rng: np.random.Generator, size: int, octaves: int = 4, amplitude: float = 40.0) -> np.ndarray:
     """Multi-octave value noise in [-amplitude, amplitude] (float32, size x size)."""
     total = np.zeros((size, size), np.float32)
     weight = 1.0
@@ -40,9 +38,7 @@ def _finish(image: np.ndarray) -> np.ndarray:
     return np.clip(image, 0, 255).astype(np.uint8)
 
 
-def _text(
-    rng: np.random.Generator, image: np.ndarray, n: int, colour: Colour, scale: float
-) -> None:
+def _text(rng: np.random.Generator, image: np.ndarray, n: int, colour: Colour, scale: float) -> None:
     """Random stencil words drawn into ``image`` (float, drawn through a uint8 mask)."""
     h, w = image.shape[:2]
     if h < 12 or w < 12:
@@ -76,9 +72,7 @@ def concrete(rng: np.random.Generator, size: int = 512) -> np.ndarray:
     for _ in range(25):
         p = rng.integers(0, size, 2)
         q = p + rng.integers(-80, 80, 2)
-        cv2.line(
-            image, tuple(int(v) for v in p), tuple(int(v) for v in q), (60, 60, 58), 1, cv2.LINE_AA
-        )
+        cv2.line(image, tuple(int(v) for v in p), tuple(int(v) for v in q), (60, 60, 58), 1, cv2.LINE_AA)
     for _ in range(450):  # chips and gravel: corners that stay visible at 5 m
         c = rng.integers(0, size, 2)
         shade = float(rng.choice([20.0, 225.0]))
@@ -116,8 +110,7 @@ def wall(rng: np.random.Generator, size: int = 512) -> np.ndarray:
         x0, y0 = (int(v) for v in rng.integers(0, size - 120, 2))
         w, h = (int(v) for v in rng.integers(50, 120, 2))
         sign = tuple(
-            int(c)
-            for c in rng.choice([(200, 40, 30), (240, 200, 30), (30, 90, 170), (240, 240, 235)])
+            int(c) for c in rng.choice([(200, 40, 30), (240, 200, 30), (30, 90, 170), (240, 240, 235)])
         )
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), sign, -1)
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (20, 20, 20), 2)
@@ -170,9 +163,7 @@ def cardboard(rng: np.random.Generator, size: int = 256) -> np.ndarray:
 
 def sack(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     """Feed sacks: woven burlap with a printed brand."""
-    image = _base(
-        rng, size, tuple(int(c) for c in rng.choice([(200, 185, 150), (225, 220, 205)])), 15
-    )
+    image = _base(rng, size, tuple(int(c) for c in rng.choice([(200, 185, 150), (225, 220, 205)])), 15)
     yy, xx = np.mgrid[0:size, 0:size]
     image += (12 * np.sin(xx * 1.6) * np.sin(yy * 1.6))[:, :, None].astype(np.float32)
     centre = (size // 2, size // 2)
@@ -245,9 +236,7 @@ def cloth(rng: np.random.Generator, pattern: str, colour: Colour, size: int = 12
     return _finish(image)
 
 
-def fur(
-    rng: np.random.Generator, colour: Colour, size: int = 128, spots: bool = False
-) -> np.ndarray:
+def fur(rng: np.random.Generator, colour: Colour, size: int = 128, spots: bool = False) -> np.ndarray:
     """Animal coats: strands and, optionally, patches."""
     image = _base(rng, size, colour, grain=30)
     for _ in range(300):
@@ -263,7 +252,5 @@ def fur(
 
 
 def skin(rng: np.random.Generator, size: int = 64) -> np.ndarray:
-    tone = tuple(
-        int(c) for c in rng.choice([(235, 195, 165), (200, 150, 110), (140, 95, 65), (95, 65, 45)])
-    )
+    tone = tuple(int(c) for c in rng.choice([(235, 195, 165), (200, 150, 110), (140, 95, 65), (95, 65, 45)]))
     return _finish(_base(rng, size, tone, grain=10))

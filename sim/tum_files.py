@@ -50,9 +50,7 @@ def parse_float(path: Path, row: Row, index: int, what: str) -> float:
     try:
         return float(row.fields[index])
     except ValueError:
-        raise SequenceFormatError(
-            path, row.line, f"{what} {row.fields[index]!r} is not a number"
-        ) from None
+        raise SequenceFormatError(path, row.line, f"{what} {row.fields[index]!r} is not a number") from None
 
 
 def check_increasing(path: Path, timestamps: np.ndarray, lines: list[int]) -> None:
@@ -88,9 +86,7 @@ def read_frame_list(path: Path) -> FrameList:
     return FrameList(stamps, tuple(r.fields[1] for r in rows), tuple(lines))
 
 
-def write_frame_list(
-    path: Path, title: str, timestamps_s: np.ndarray, filenames: list[str]
-) -> None:
+def write_frame_list(path: Path, title: str, timestamps_s: np.ndarray, filenames: list[str]) -> None:
     header = f"# {title}\n# file: 'depotbench'\n# timestamp filename\n"
     body = "".join(f"{t:.6f} {name}\n" for t, name in zip(timestamps_s, filenames, strict=True))
     path.write_text(header + body, encoding="utf-8")
@@ -118,9 +114,7 @@ def read_pose_file(path: Path, *, strict: bool) -> PoseTable:
     rows = read_rows(path, 8)
     if not rows:
         raise SequenceFormatError(path, None, "holds no poses")
-    values = np.array(
-        [[parse_float(path, r, i, "field") for i in range(8)] for r in rows], dtype=np.float64
-    )
+    values = np.array([[parse_float(path, r, i, "field") for i in range(8)] for r in rows], dtype=np.float64)
     lines = tuple(r.line for r in rows)
     finite = np.isfinite(values).all(axis=1)
     if not finite.all():
@@ -134,9 +128,7 @@ def read_pose_file(path: Path, *, strict: bool) -> PoseTable:
         off = norms < 1e-9
     if off.any():
         i = int(np.flatnonzero(off)[0])
-        raise SequenceFormatError(
-            path, lines[i], f"quaternion (qx qy qz qw) has norm {norms[i]:.6g}, not 1"
-        )
+        raise SequenceFormatError(path, lines[i], f"quaternion (qx qy qz qw) has norm {norms[i]:.6g}, not 1")
     return PoseTable(values[:, 0], values[:, 1:4], values[:, 4:8], lines)
 
 
@@ -150,7 +142,5 @@ def write_pose_file(
     """Write a TUM pose file; fixed formatting keeps output byte-reproducible."""
     lines = [f"# {header}", "# timestamp tx ty tz qx qy qz qw"]
     for t, p, q in zip(timestamps_s, positions_m, quats_xyzw, strict=True):
-        lines.append(
-            f"{t:.6f} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
-        )
+        lines.append(f"{t:.6f} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")

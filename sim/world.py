@@ -198,9 +198,7 @@ def _make_actor(
         waypoints = np.array([[cx, cy] - 1.6 * direction, [cx, cy] + 1.4 * direction])
         path = Path(waypoints, smoothing_m=0.3)
         return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True)
-    chair_rects = tuple(
-        (x - 0.45, y - 0.45, x + 0.45, y + 0.45) for x, y in (c.position_m for c in chairs)
-    )
+    chair_rects = tuple((x - 0.45, y - 0.45, x + 0.45, y + 0.45) for x, y in (c.position_m for c in chairs))
     obstacles = layout.obstacles + chair_rects
     if spec.waypoints:
         waypoints = np.array(spec.waypoints, dtype=float)
@@ -235,9 +233,7 @@ def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
         ((-0.2, 0.0, 0.72), (0.02, 0.2, 0.2), "chair_seat"),
     ]
     parts += [
-        ((sx * 0.19, sy * 0.19, 0.215), (0.02, 0.02, 0.215), "chair")
-        for sx in (-1, 1)
-        for sy in (-1, 1)
+        ((sx * 0.19, sy * 0.19, 0.215), (0.02, 0.02, 0.215), "chair") for sx in (-1, 1) for sy in (-1, 1)
     ]
     volume = sum(8 * h[0] * h[1] * h[2] for _, h, _ in parts)
     for pos, half, material in parts:
@@ -272,15 +268,12 @@ def build_world(scenario: ScenarioSpec) -> World:
         for k, a in enumerate(scenario.actors)
     ]
     clothing = [
-        (a.clothing or str(actor_rng.choice(["plain", "stripes", "plaid"])), a.kind)
-        for a in scenario.actors
+        (a.clothing or str(actor_rng.choice(["plain", "stripes", "plaid"])), a.kind) for a in scenario.actors
     ]
 
     spec = mujoco.MjSpec()
     spec.modelname = f"depot_{scenario.name}"
-    spec.option.timestep = 1.0 / (
-        scenario.fps * max(1, round(1.0 / (scenario.fps * PHYSICS_STEP_S)))
-    )
+    spec.option.timestep = 1.0 / (scenario.fps * max(1, round(1.0 / (scenario.fps * PHYSICS_STEP_S))))
     spec.visual.global_.offwidth = scenario.width
     spec.visual.global_.offheight = scenario.height
     spec.visual.quality.offsamples = 0
@@ -382,9 +375,7 @@ def build_world(scenario: ScenarioSpec) -> World:
         intrinsics=intrinsics,
         rig=rig,
         actors=actors,
-        actor_mocap=[
-            np.array([mocap_of[b.id] for b in bodies], dtype=int) for bodies in actor_bodies
-        ],
+        actor_mocap=[np.array([mocap_of[b.id] for b in bodies], dtype=int) for bodies in actor_bodies],
         chair_bodies=chair_ids,
         chair_qpos=[int(model.jnt_qposadr[joint_of[b]]) for b in chair_ids],
         chair_qvel=[int(model.jnt_dofadr[joint_of[b]]) for b in chair_ids],

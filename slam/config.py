@@ -32,7 +32,7 @@ class TrackingConfig:
     grid_cell_px: int = 32
     """Features are spread over cells of this size, as ORB-SLAM spreads them."""
     min_depth_m: float = 0.1
-    max_depth_m: float = 8.0
+    max_depth_m: float = 12.0
     baseline_fx: float = 40.0
     """ORB-SLAM's bf for RGB-D: turns depth into a virtual right-image coordinate."""
     match_radius_px: float = 15.0

@@ -80,9 +80,7 @@ class FeatureExtractor:
         cell = self.config.grid_cell_px
         pts = np.array([k.pt for k in keypoints])
         response = np.array([k.response for k in keypoints])
-        cells = (pts[:, 1] // cell).astype(int) * (shape[1] // cell + 1) + (
-            pts[:, 0] // cell
-        ).astype(int)
+        cells = (pts[:, 1] // cell).astype(int) * (shape[1] // cell + 1) + (pts[:, 0] // cell).astype(int)
         order = np.lexsort((-response, cells))
         rank = np.empty(len(keypoints), dtype=int)
         sorted_cells = cells[order]

@@ -35,9 +35,7 @@ class Map:
     observations: dict[int, dict[int, int]] = field(default_factory=dict)
     """point id -> {keyframe id: keypoint index}."""
 
-    def add_points(
-        self, positions: np.ndarray, descriptors: np.ndarray, keyframe_id: int
-    ) -> np.ndarray:
+    def add_points(self, positions: np.ndarray, descriptors: np.ndarray, keyframe_id: int) -> np.ndarray:
         start = len(self.positions)
         n = len(positions)
         self.positions = np.vstack([self.positions, positions])

@@ -37,21 +37,15 @@ def inside(points: np.ndarray, detections: list[Detection], dilation: float) -> 
     return (x >= boxes[:, 0]) & (x < boxes[:, 2]) & (y >= boxes[:, 1]) & (y < boxes[:, 3])
 
 
-def box_classes(
-    points: np.ndarray, detections: list[Detection], dilation: float
-) -> tuple[str, ...]:
+def box_classes(points: np.ndarray, detections: list[Detection], dilation: float) -> tuple[str, ...]:
     """The class of the smallest box holding each point ('' for none): a diagnostic."""
     hits = inside(points, detections, dilation)
     if hits.shape[1] == 0:
         return ("",) * len(points)
-    areas = np.array(
-        [(d.box_xyxy[2] - d.box_xyxy[0]) * (d.box_xyxy[3] - d.box_xyxy[1]) for d in detections]
-    )
+    areas = np.array([(d.box_xyxy[2] - d.box_xyxy[0]) * (d.box_xyxy[3] - d.box_xyxy[1]) for d in detections])
     masked = np.where(hits, areas, np.inf)
     best = np.argmin(masked, axis=1)
-    return tuple(
-        detections[b].class_name if np.isfinite(masked[n, b]) else "" for n, b in enumerate(best)
-    )
+    return tuple(detections[b].class_name if np.isfinite(masked[n, b]) else "" for n, b in enumerate(best))
 
 
 def track_to_previous(
@@ -120,18 +114,14 @@ def _prior_flow(
     config: RejectionConfig,
 ) -> np.ndarray:
     in_potential = (
-        hits[:, priors == Prior.POTENTIAL].any(axis=1)
-        if hits.shape[1]
-        else np.zeros(len(codes), bool)
+        hits[:, priors == Prior.POTENTIAL].any(axis=1) if hits.shape[1] else np.zeros(len(codes), bool)
     )
     q = in_potential & ~in_dynamic
     p = ~in_potential & ~in_dynamic
     prev, ok = track_to_previous(previous, current, current.keypoints_px)
     flow = current.keypoints_px - prev
     if not (p & ok).any():
-        codes[q] = REJECTION_CODES[
-            Rejection.MOVING_FLOW
-        ]  # no camera-flow reference: Q stays unverified
+        codes[q] = REJECTION_CODES[Rejection.MOVING_FLOW]  # no camera-flow reference: Q stays unverified
         return codes
     mean = flow[p & ok].mean(axis=0)
     z = max(config.k * float(np.linalg.norm(mean)), config.z_min_px)
@@ -156,14 +146,12 @@ def _epipolar_flow(
         return codes
     cur_pts = current.keypoints_px[tracked].astype(np.float64)
     prev_pts = prev[ok].astype(np.float64)
-    f, _ = cv2.findFundamentalMat(
-        prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99
-    )
+    f, _ = cv2.findFundamentalMat(prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99)
     if f is not None and f.shape == (3, 3):
         lines = np.c_[prev_pts, np.ones(len(prev_pts))] @ f.T
-        distance = np.abs(
-            np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)
-        ) / np.maximum(np.hypot(lines[:, 0], lines[:, 1]), 1e-12)
+        distance = np.abs(np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)) / np.maximum(
+            np.hypot(lines[:, 0], lines[:, 1]), 1e-12
+        )
         off_line = distance > config.epsilon_px
         codes[tracked[off_line]] = REJECTION_CODES[Rejection.EPIPOLAR]
         keep = ~off_line

@@ -134,9 +134,7 @@ class Slam:
 
     # -- tracking ---------------------------------------------------------------
 
-    def _advance(
-        self, features: FrameFeatures, tracked: _Tracked | None, state: TrackingState
-    ) -> None:
+    def _advance(self, features: FrameFeatures, tracked: _Tracked | None, state: TrackingState) -> None:
         if tracked is not None:
             if self._last_pose is not None and state == TrackingState.OK:
                 self._velocity = invert(self._last_pose) @ tracked.world_from_camera
@@ -149,9 +147,7 @@ class Slam:
         self._previous = features
         self.frame_index += 1
 
-    def _observations(
-        self, features: FrameFeatures, keypoints: np.ndarray
-    ) -> tuple[np.ndarray, ...]:
+    def _observations(self, features: FrameFeatures, keypoints: np.ndarray) -> tuple[np.ndarray, ...]:
         uv = features.keypoints_px[keypoints].astype(np.float64)
         depth = features.depth_m[keypoints]
         ur = np.where(depth > 0, uv[:, 0] - self.bf / np.where(depth > 0, depth, 1.0), np.nan)
@@ -205,10 +201,10 @@ class Slam:
         if len(pairs_point) == 0:
             return (*empty[:2], point_ids)
         pairs_kp = candidates[np.concatenate([np.asarray(n, dtype=int) for n in neighbours])]
-        distance = hamming(
-            self.map.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp]
-        )
+        distance = hamming(self.map.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp])
         good = distance <= self.tc.match_max_hamming
+        if not good.any():
+            return (*empty[:2], point_ids)
         pairs_point, pairs_kp, distance = pairs_point[good], pairs_kp[good], distance[good]
         # Best keypoint per point, then best point per keypoint (one-to-one).
         order = np.lexsort((distance, pairs_point))
@@ -285,9 +281,7 @@ class Slam:
         if len(kp) < MIN_MATCHES:
             return None
         uv, ur, weight = self._observations(features, kp)
-        pose_cw, inl = refine_pose(
-            pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.bf
-        )
+        pose_cw, inl = refine_pose(pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.bf)
         kp, pid = kp[inl], pid[inl]
         self.map.found[pid] += 1
         if len(kp) < self.tc.min_inliers:
@@ -336,13 +330,15 @@ class Slam:
 
     # -- mapping ----------------------------------------------------------------
 
-    def _need_keyframe(
-        self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked
-    ) -> bool:
+    def _need_keyframe(self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked) -> bool:
         if not self.map.keyframes:
             return True
         reference = self.map.keyframes[-1]
-        ref_points = int(np.sum(self.map.alive[reference.point_ids[reference.point_ids >= 0]]))
+        ids = reference.point_ids[reference.point_ids >= 0]
+        ids = ids[self.map.alive[ids]]
+        # ORB-SLAM counts only established points: seen by >= 3 keyframes (2 while the map is young).
+        min_observations = 3 if len(self.map.keyframes) > 2 else 2
+        ref_points = sum(len(self.map.observations.get(int(p), {})) >= min_observations for p in ids)
         close = (features.depth_m > 0) & (features.depth_m < self.close_depth_m) & usable
         tracked_mask = np.zeros(len(features), bool)
         tracked_mask[tracked.keypoints] = True
@@ -351,17 +347,13 @@ class Slam:
         timed_out = self._frames_since_keyframe >= self.tc.keyframe_max_frames
         return (timed_out or weak or need_close) and tracked.inliers > MIN_MATCHES
 
-    def _insert_keyframe(
-        self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked
-    ) -> None:
+    def _insert_keyframe(self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked) -> None:
         kf_id = len(self.map.keyframes)
         point_ids = np.full(len(features), -1)
         point_ids[tracked.keypoints] = tracked.point_ids
         new = usable & (point_ids < 0) & (features.depth_m > 0)
         uv = features.keypoints_px[new].astype(np.float64)
-        positions = transform(
-            tracked.world_from_camera, backproject(self.camera, uv, features.depth_m[new])
-        )
+        positions = transform(tracked.world_from_camera, backproject(self.camera, uv, features.depth_m[new]))
         point_ids[new] = self.map.add_points(positions, features.descriptors[new], kf_id)
         keyframe = KeyFrame(
             kf_id, self.frame_index, tracked.world_from_camera.copy(), features, usable, point_ids

@@ -52,15 +52,11 @@ def random_frame(rng: np.random.Generator, k: int, intrinsics: Intrinsics = SMAL
     return rgb, depth, pose, instances, (person, chair), flow
 
 
-def write_sequence(
-    root: Path, n: int = 5, seed: int = 0, fps: float = 30.0, with_flow: bool = True
-):
+def write_sequence(root: Path, n: int = 5, seed: int = 0, fps: float = 30.0, with_flow: bool = True):
     """Write an ``n``-frame sequence; returns the frames as given to the writer."""
     rng = np.random.default_rng(seed)
     frames = []
-    with SequenceWriter(
-        root, SMALL, fps=fps, meta={"scenario": {"name": "test"}, "seed": seed}
-    ) as w:
+    with SequenceWriter(root, SMALL, fps=fps, meta={"scenario": {"name": "test"}, "seed": seed}) as w:
         for k in range(n):
             rgb, depth, pose, instances, objects, flow = random_frame(rng, k)
             t = 1.0 + k / fps

@@ -49,9 +49,7 @@ def handheld(n: int = 300, seed: int = 0, rate_hz: float = 30.0, t0: float = 100
     return Trajectory(t, positions, Rotation.from_rotvec(rotvec).as_matrix())
 
 
-def transformed(
-    traj: Trajectory, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0
-):
+def transformed(traj: Trajectory, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0):
     return Trajectory(
         traj.timestamps_s.copy(),
         scale * traj.positions_m @ rotation.T + translation,
@@ -59,9 +57,7 @@ def transformed(
     )
 
 
-def noisy(
-    traj: Trajectory, seed: int, sigma_m: float = 0.01, sigma_rad: float = 0.01
-) -> Trajectory:
+def noisy(traj: Trajectory, seed: int, sigma_m: float = 0.01, sigma_rad: float = 0.01) -> Trajectory:
     rng = np.random.default_rng(seed)
     noise_rot = Rotation.from_rotvec(rng.normal(0, sigma_rad, (len(traj), 3))).as_matrix()
     return Trajectory(
@@ -104,9 +100,7 @@ def test_rotation_about_origin():
 def test_sim3_scale():
     ref = handheld(seed=3)
     rotation = Rotation.from_euler("xyz", [5, 80, -30], degrees=True).as_matrix()
-    est = noisy(
-        transformed(ref, rotation, np.array([1.0, 2.0, -0.5]), scale=0.37), seed=4, sigma_m=0.001
-    )
+    est = noisy(transformed(ref, rotation, np.array([1.0, 2.0, -0.5]), scale=0.37), seed=4, sigma_m=0.001)
     result = our_ate(ref, est, Alignment.SIM3)
     assert_stats_match(result.statistics, evo_ape(ref, est, "sim3"))
     assert result.transform.scale == pytest.approx(1 / 0.37, rel=0.01)
@@ -116,9 +110,7 @@ def test_sim3_scale():
 def test_per_frame_drift_ate_and_rpe():
     ref = handheld(seed=5)
     drift = np.cumsum(np.tile([0.0005, 0.0002, -0.0001], (len(ref), 1)), axis=0)
-    yaw_drift = Rotation.from_euler(
-        "z", np.arange(len(ref))[:, None] * 0.02, degrees=True
-    ).as_matrix()
+    yaw_drift = Rotation.from_euler("z", np.arange(len(ref))[:, None] * 0.02, degrees=True).as_matrix()
     est = Trajectory(ref.timestamps_s.copy(), ref.positions_m + drift, yaw_drift @ ref.rotations)
     assert_stats_match(our_ate(ref, est, Alignment.SE3).statistics, evo_ape(ref, est, "se3"))
     result = our_rpe(ref, est, 1, DeltaUnit.FRAMES, False)
@@ -159,9 +151,7 @@ def test_association_different_rates_and_jitter():
     ref = handheld(n=1000, seed=12, rate_hz=100.0)
     est = noisy(handheld(n=300, seed=12, rate_hz=30.0), seed=13)
     rng = np.random.default_rng(14)
-    est = Trajectory(
-        est.timestamps_s + rng.uniform(-0.008, 0.008, len(est)), est.positions_m, est.rotations
-    )
+    est = Trajectory(est.timestamps_s + rng.uniform(-0.008, 0.008, len(est)), est.positions_m, est.rotations)
     assert_stats_match(our_ate(ref, est, Alignment.SE3).statistics, evo_ape(ref, est, "se3"))
     r, e = associate(ref, est, 0.002)
     assert len(r) == len(e) < len(est)
@@ -208,17 +198,11 @@ def test_statistics_closed_form():
 def test_randomised_against_evo(seed, n, align, delta, all_pairs, scale):
     rng = np.random.default_rng(seed)
     t = np.cumsum(rng.uniform(0.01, 0.05, n))
-    ref = Trajectory(
-        t, rng.normal(0, 1, (n, 3)), Rotation.random(n, random_state=seed % 2**31).as_matrix()
-    )
+    ref = Trajectory(t, rng.normal(0, 1, (n, 3)), Rotation.random(n, random_state=seed % 2**31).as_matrix())
     rotation = Rotation.random(random_state=(seed + 1) % 2**31).as_matrix()
     est = noisy(transformed(ref, rotation, rng.normal(0, 2, 3), scale), seed + 2, 0.05, 0.05)
-    est = Trajectory(
-        est.timestamps_s + rng.uniform(-0.004, 0.004, n), est.positions_m, est.rotations
-    )
-    assert_stats_match(
-        our_ate(ref, est, Alignment(align), 0.005).statistics, evo_ape(ref, est, align, 0.005)
-    )
+    est = Trajectory(est.timestamps_s + rng.uniform(-0.004, 0.004, n), est.positions_m, est.rotations)
+    assert_stats_match(our_ate(ref, est, Alignment(align), 0.005).statistics, evo_ape(ref, est, align, 0.005))
     r, e = associate(ref, est, 0.005)
     if len(r) > delta:
         result = rpe(r, e, delta, DeltaUnit.FRAMES, all_pairs, Alignment(align))

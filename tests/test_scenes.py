@@ -53,9 +53,7 @@ def test_library_has_the_named_scenarios():
         "static_depot",
     }
     assert required <= names
-    assert set(library.names("tum-like")) == {
-        n for n in required if n.startswith(("walking", "sitting"))
-    }
+    assert set(library.names("tum-like")) == {n for n in required if n.startswith(("walking", "sitting"))}
     assert "smoke" in library.names("smoke")
 
 
@@ -66,16 +64,11 @@ def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: P
 
     difficulty = {}
     for name in library.names():
-        out = generate(
-            to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False
-        )
+        out = generate(to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False)
         Sequence.open(out).verify()
         difficulty[name] = read_difficulty(out)
     fractions = {n: d["dynamic_pixel_fraction_mean"] for n, d in difficulty.items()}
-    assert (
-        fractions["static_depot"] == 0.0
-        and difficulty["static_depot"]["dynamic_pixel_fraction_max"] == 0
-    )
+    assert fractions["static_depot"] == 0.0 and difficulty["static_depot"]["dynamic_pixel_fraction_max"] == 0
     assert max(fractions, key=fractions.get) == "crowd"
     assert difficulty["crowd"]["frames_over_half_dynamic"] > 0.5
     walking = np.mean([fractions[n] for n in library.names("walking")])
@@ -232,9 +225,7 @@ seeds: [0, 1, 2, 3]
 
 
 def _files(root: Path) -> dict[str, bytes]:
-    return {
-        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()
-    }
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def test_suite_expands_and_validates_each_variation(tmp_path: Path):
@@ -286,9 +277,7 @@ def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Pa
     done_before = {p.name: p.stat().st_mtime_ns for p in out.glob("tiny-*") if p.is_dir()}
     assert 4 <= len(done_before) < 24
     index = run_suite(suite, path, out, workers=2, progress=False)
-    assert {
-        p.name: p.stat().st_mtime_ns for p in out.glob("tiny-*") if p.name in done_before
-    } == done_before
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("tiny-*") if p.name in done_before} == done_before
     assert len(index["sequences"]) == 24 and not list(out.glob(".*partial*"))
     files_c = _files(out)
     assert {k: v for k, v in files_c.items() if k != "index.json"} == {

@@ -113,12 +113,8 @@ def test_overwrite_replaces_whole_folder(seq_dir: Path):
 def test_same_input_same_bytes(tmp_path: Path):
     write_sequence(tmp_path / "a", seed=3)
     write_sequence(tmp_path / "b", seed=3)
-    files_a = sorted(
-        p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file()
-    )
-    files_b = sorted(
-        p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file()
-    )
+    files_a = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    files_b = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
     assert files_a == files_b
     for rel in files_a:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
@@ -157,9 +153,7 @@ def test_unsorted_timestamps(seq_dir: Path):
     lines = assoc.read_text().splitlines()
     lines[1], lines[2] = lines[2], lines[1]
     assoc.write_text("\n".join(lines) + "\n")
-    with pytest.raises(
-        SequenceFormatError, match=r"associations.txt:3: timestamp 1.033333 is earlier than"
-    ):
+    with pytest.raises(SequenceFormatError, match=r"associations.txt:3: timestamp 1.033333 is earlier than"):
         Sequence.open(seq_dir)
 
 
@@ -169,9 +163,7 @@ def test_duplicate_timestamps(seq_dir: Path):
     fields = gt.read_text().splitlines()[line - 1].split()
     fields[0] = "1.033333"
     _rewrite_line(gt, line, " ".join(fields))
-    with pytest.raises(
-        SequenceFormatError, match=rf"groundtruth.txt:{line}: timestamp 1.033333 duplicates"
-    ):
+    with pytest.raises(SequenceFormatError, match=rf"groundtruth.txt:{line}: timestamp 1.033333 duplicates"):
         Sequence.open(seq_dir)
 
 
@@ -188,9 +180,7 @@ def test_depth_not_16_bit(seq_dir: Path):
 
 def test_wrong_image_size(seq_dir: Path):
     cv2.imwrite(str(seq_dir / "rgb" / "1.100000.png"), np.zeros((24, 32, 3), np.uint8))
-    with pytest.raises(
-        SequenceFormatError, match=r"rgb/1.100000.png: image is 32x24, the camera is 64x48"
-    ):
+    with pytest.raises(SequenceFormatError, match=r"rgb/1.100000.png: image is 32x24, the camera is 64x48"):
         Sequence.open(seq_dir).verify()
 
 
@@ -231,14 +221,10 @@ def test_field_count_and_non_numbers(seq_dir: Path):
     gt = seq_dir / "groundtruth.txt"
     line = _data_line(gt, 0)
     _rewrite_line(gt, line, "1.000000 0 0 0 0 0 1")
-    with pytest.raises(
-        SequenceFormatError, match=rf"groundtruth.txt:{line}: expected 8 fields, found 7"
-    ):
+    with pytest.raises(SequenceFormatError, match=rf"groundtruth.txt:{line}: expected 8 fields, found 7"):
         Sequence.open(seq_dir)
     _rewrite_line(gt, line, "1.000000 0 zero 0 0 0 0 1")
-    with pytest.raises(
-        SequenceFormatError, match=rf"groundtruth.txt:{line}: field 'zero' is not a number"
-    ):
+    with pytest.raises(SequenceFormatError, match=rf"groundtruth.txt:{line}: field 'zero' is not a number"):
         Sequence.open(seq_dir)
 
 
@@ -279,14 +265,10 @@ def make_tum_folder(root: Path) -> None:
     depth_t[5] += 0.2  # the last RGB frame finds no partner within 0.02 s
     rgb_lines, depth_lines = ["# color images", "# timestamp filename"], ["# depth maps"]
     for t in rgb_t:
-        cv2.imwrite(
-            str(root / "rgb" / f"{t:.6f}.png"), rng.integers(0, 255, (480, 640, 3), np.uint8)
-        )
+        cv2.imwrite(str(root / "rgb" / f"{t:.6f}.png"), rng.integers(0, 255, (480, 640, 3), np.uint8))
         rgb_lines.append(f"{t:.6f}\trgb/{t:.6f}.png")
     for t in depth_t:
-        cv2.imwrite(
-            str(root / "depth" / f"{t:.6f}.png"), rng.integers(0, 60000, (480, 640), np.uint16)
-        )
+        cv2.imwrite(str(root / "depth" / f"{t:.6f}.png"), rng.integers(0, 60000, (480, 640), np.uint16))
         depth_lines.append(f"{t:.6f} depth/{t:.6f}.png")
     (root / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (root / "depth.txt").write_text("\n".join(depth_lines) + "\n")

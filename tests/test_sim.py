@@ -129,10 +129,7 @@ def test_flow_ground_truth_matches_reprojection_and_moving_instances(walking: Se
             tu, tv = uu + flow[vv, uu, 0], vv + flow[vv, uu, 1]
             h, w = inst1.shape
             inside = (tu >= 0) & (tu <= w - 1) & (tv >= 0) & (tv <= h - 1)
-            same = (
-                inst1[np.rint(tv[inside]).astype(int), np.rint(tu[inside]).astype(int)]
-                == obj.instance_id
-            )
+            same = inst1[np.rint(tv[inside]).astype(int), np.rint(tu[inside]).astype(int)] == obj.instance_id
             assert same.mean() > 0.85, obj
             warped = bilinear(grey1, tu[inside], tv[inside])
             assert np.median(np.abs(warped - grey0[vv[inside], uu[inside]])[same]) < 10.0
@@ -155,9 +152,7 @@ def test_boxes_are_mask_extents_and_flags_follow_velocities(walking: Sequence):
             if obj.prior == "potential" and obj.class_name != "chair":
                 assert not obj.moving and speed == 0.0
             if obj.class_name == "chair":
-                assert obj.moving == (
-                    speed > 0.01 or np.linalg.norm(obj.angular_velocity_radps) > 0.05
-                )
+                assert obj.moving == (speed > 0.01 or np.linalg.norm(obj.angular_velocity_radps) > 0.05)
 
 
 def test_walkers_do_not_slide_their_feet():
@@ -257,9 +252,7 @@ def test_camera_rigs_are_smooth(motion):
 def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
     from sim.generate import generate
 
-    out = generate(
-        dataclasses.replace(default_scenario(), frames=30), tmp_path / "seq", progress=False
-    )
+    out = generate(dataclasses.replace(default_scenario(), frames=30), tmp_path / "seq", progress=False)
     seq = Sequence.open(out)
     orb = cv2.ORB_create(nfeatures=1000)
     good = 0
