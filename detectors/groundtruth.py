@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from detectors.detection import Detection
 from detectors.priors import prior_of
+from sim.errors import InputError
 from sim.sequence import Sequence
 
 
@@ -16,7 +17,10 @@ class GroundTruthDetector:
 
     def __init__(self, sequence: Sequence, min_visible_pixels: int = 20) -> None:
         if not sequence.is_generated:
-            raise ValueError(f"{sequence.root}: the groundtruth detector needs a generated sequence")
+            raise InputError(
+                f"{sequence.root}: the groundtruth detector needs a generated sequence "
+                "(use --detector none on a real TUM folder)"
+            )
         self._objects = sequence.objects()
         self.min_visible_pixels = min_visible_pixels
 
