@@ -66,6 +66,31 @@ def is_inlier(
     return (errors < threshold) & (points_c[:, 2] > 0)
 
 
+def _pose_jacobian(
+    points_c: np.ndarray, camera: PinholeCamera, bf: float, has_depth: np.ndarray
+) -> np.ndarray:
+    """d(residual)/d(delta) (N, 3, 6) for a left perturbation exp(delta) of camera_from_world.
+
+    delta = (rotation vector, translation); residual = observation - prediction.
+    """
+    x, y, z = points_c[:, 0], points_c[:, 1], np.maximum(points_c[:, 2], 1e-6)
+    n = len(points_c)
+    d_pred = np.zeros((n, 3, 3))
+    d_pred[:, 0, 0] = camera.fx / z
+    d_pred[:, 0, 2] = -camera.fx * x / z**2
+    d_pred[:, 1, 1] = camera.fy / z
+    d_pred[:, 1, 2] = -camera.fy * y / z**2
+    d_pred[:, 2] = d_pred[:, 0]
+    d_pred[:, 2, 2] += bf / z**2
+    d_pred[~has_depth, 2] = 0.0
+    d_point = np.zeros((n, 3, 6))
+    d_point[:, 0, 1], d_point[:, 0, 2] = points_c[:, 2], -points_c[:, 1]
+    d_point[:, 1, 0], d_point[:, 1, 2] = -points_c[:, 2], points_c[:, 0]
+    d_point[:, 2, 0], d_point[:, 2, 1] = points_c[:, 1], -points_c[:, 0]
+    d_point[:, :, 3:] = np.eye(3)
+    return -np.matmul(d_pred, d_point)
+
+
 def refine_pose(
     camera_from_world: np.ndarray,
     points_w: np.ndarray,
@@ -77,30 +102,35 @@ def refine_pose(
     rounds: int = 4,
     iterations: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pose-only optimisation with outlier rounds, as ORB-SLAM's PoseOptimization."""
+    """Pose-only optimisation with outlier rounds, as ORB-SLAM's PoseOptimization.
+
+    Gauss-Newton on the analytic SE(3) Jacobian with Huber weights (IRLS, per
+    observation as g2o weighs an edge); after each round observations over the
+    chi-square threshold are set aside and the last round runs without Huber.
+    """
     pose = camera_from_world.copy()
+    has_depth = np.isfinite(ur)
     active = np.ones(len(points_w), dtype=bool)
+    huber = np.sqrt(CHI2_STEREO)
     for round_index in range(rounds):
         if active.sum() < 3:
             break
-        pw, obs, right, w = points_w[active], uv[active], ur[active], weight[active]
-        base = pose
-
-        def fun(delta: np.ndarray, base=base, pw=pw, obs=obs, right=right, w=w) -> np.ndarray:
-            t = exp_se3(delta) @ base
-            return _residuals(pw @ t[:3, :3].T + t[:3, 3], obs, right, w, camera, bf).ravel()
-
-        loss = "huber" if round_index < rounds - 1 else "linear"
-        result = least_squares(
-            fun,
-            np.zeros(6),
-            method="trf",
-            loss=loss,
-            f_scale=np.sqrt(CHI2_STEREO),
-            max_nfev=iterations,
-            x_scale=1.0,
-        )
-        pose = exp_se3(result.x) @ base
+        pw, obs, right, w, depth = points_w[active], uv[active], ur[active], weight[active], has_depth[active]
+        robust = round_index < rounds - 1
+        for _ in range(iterations):
+            pc = pw @ pose[:3, :3].T + pose[:3, 3]
+            r = _residuals(pc, obs, right, w, camera, bf)
+            jac = _pose_jacobian(pc, camera, bf, depth) * w[:, None, None]
+            norm = np.linalg.norm(r, axis=1)
+            irls = np.repeat(np.where(robust & (norm > huber), huber / np.maximum(norm, 1e-12), 1.0), 3)
+            flat = jac.reshape(-1, 6)
+            weighted = flat * irls[:, None]
+            hessian = weighted.T @ flat + 1e-9 * np.eye(6)
+            gradient = weighted.T @ r.ravel()
+            delta = -np.linalg.solve(hessian, gradient)
+            pose = exp_se3(delta) @ pose
+            if np.linalg.norm(delta) < 1e-8:
+                break
         points_c = points_w @ pose[:3, :3].T + pose[:3, 3]
         active = is_inlier(points_c, uv, ur, weight, camera, bf)
     return pose, active

@@ -23,7 +23,7 @@ from slam.features import FrameFeatures
 from slam.types import REJECTION_CODES, Rejection
 
 STRATEGIES = ("none", "box_rule", "prior_flow", "box_epipolar_flow")
-LK_WINDOW = (21, 21)
+LK_WINDOW = (15, 15)
 LK_LEVELS = 3
 
 
@@ -45,7 +45,9 @@ def box_classes(points: np.ndarray, detections: list[Detection], dilation: float
     areas = np.array([(d.box_xyxy[2] - d.box_xyxy[0]) * (d.box_xyxy[3] - d.box_xyxy[1]) for d in detections])
     masked = np.where(hits, areas, np.inf)
     best = np.argmin(masked, axis=1)
-    return tuple(detections[b].class_name if np.isfinite(masked[n, b]) else "" for n, b in enumerate(best))
+    names = np.array([d.class_name for d in detections] + [""], dtype=object)
+    best[~np.isfinite(masked.min(axis=1))] = len(detections)
+    return tuple(names[best])
 
 
 def track_to_previous(

@@ -187,3 +187,27 @@ def test_epipolar_rule_flags_points_off_their_epipolar_line():
     )
     assert codes[-1] != REJECTION_CODES[Rejection.KEPT]
     assert (codes[:-1] == REJECTION_CODES[Rejection.KEPT]).mean() > 0.8
+
+
+def test_pose_jacobian_matches_finite_differences():
+    from slam.geometry import exp_se3
+    from slam.optimize import _pose_jacobian, _residuals
+    from slam.types import PinholeCamera
+
+    camera = PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480)
+    rng = np.random.default_rng(0)
+    points = rng.normal(0, 1, (6, 3)) + [0, 0, 4]
+    uv = rng.normal(300, 50, (6, 2))
+    ur = uv[:, 0] - 10.0
+    ur[1] = np.nan  # an observation without depth
+    weight = np.ones(6)
+    analytic = _pose_jacobian(points, camera, 40.0, np.isfinite(ur))
+    numeric = np.zeros_like(analytic)
+    for k in range(6):
+        step = np.zeros(6)
+        step[k] = 1e-6
+        plus, minus = exp_se3(step), exp_se3(-step)
+        r_plus = _residuals(points @ plus[:3, :3].T + plus[:3, 3], uv, ur, weight, camera, 40.0)
+        r_minus = _residuals(points @ minus[:3, :3].T + minus[:3, 3], uv, ur, weight, camera, 40.0)
+        numeric[:, :, k] = (r_plus - r_minus) / 2e-6
+    np.testing.assert_allclose(analytic, numeric, atol=1e-5 * np.abs(numeric).max())
