@@ -102,45 +102,55 @@ def format_comparison(result: Comparison) -> str:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="the quick-start job: generate a depot sequence, preview, evaluate")
+    p = sub.add_parser("demo", help="the quick-start job: generate a small suite, run SLAM, report")
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--frames", type=int, default=60, help="frames to generate (default: 60)")
+    p.add_argument("--workers", type=int, default=max(1, os.cpu_count() or 1))
     p.set_defaults(handler=_cmd_demo)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    import dataclasses
-
     import cv2
     import numpy as np
 
+    from eval.harness import run_sequence
     from eval.preview import preview
-    from sim.generate import generate
+    from eval.report import format_table, summarise, write_report
+    from scenes.generation import run_suite
+    from scenes.suite import load_suite
     from sim.sequence import Sequence
-    from sim.spec import default_scenario
+    from slam.rejection import STRATEGIES
 
-    scenario = dataclasses.replace(default_scenario(), frames=args.frames)
-    print(f"1/3 generating the default depot scenario ({args.frames} frames, 640x480)")
-    seq_dir = generate(scenario, args.output / "sequence", overwrite=True)
-    seq = Sequence.open(seq_dir)
-    picture = args.output / "preview.png"
-    frames = sorted({0, len(seq) // 2, len(seq) - 1})
-    cv2.imwrite(str(picture), np.vstack([preview(seq, i) for i in frames])[:, :, ::-1])
-    objects = seq.objects()
-    moving = sum(o.moving and o.visible_pixels > 0 for frame in objects for o in frame)
-    print(
-        f"2/3 wrote {seq_dir} (TUM RGB-D format + ground truth) and {picture}; "
-        f"{moving} visible moving-object detections over {len(seq)} frames"
+    suite_path = Path(__file__).resolve().parents[1] / "scenes" / "suites" / "demo.yaml"
+    suite = load_suite(suite_path)
+    print(f"1/3 generating the demo suite ({suite.description})")
+    index = run_suite(suite, suite_path, args.output / "sequences", args.workers)
+    names = [s["name"] for s in index["sequences"]]
+    last = Sequence.open(args.output / "sequences" / names[-1])
+    cv2.imwrite(
+        str(args.output / "preview.png"),
+        np.vstack([preview(last, i) for i in (0, len(last) - 1)])[:, :, ::-1],
     )
     print(
-        "3/3 evaluating the shipped example run (RGBD-SLAM on TUM fr1/xyz; "
-        "the SLAM pipeline lands with issue 5)\n"
+        f"2/3 tracking {len(names)} sequences with {len(STRATEGIES)} strategies "
+        f"(ground-truth boxes); results under {args.output / 'runs'}"
     )
-    reference = read_tum(ASSETS / "examples" / "fr1_xyz_groundtruth.txt")
-    estimate = read_tum(ASSETS / "examples" / "fr1_xyz_rgbdslam.txt")
-    for alignment in (Alignment.SE3, Alignment.SIM3):
-        print(format_comparison(compare(reference, estimate, ComparisonOptions(alignment=alignment))))
-        print()
+    runs: dict[str, dict[str, dict]] = {}
+    for entry in index["sequences"]:
+        name = entry["name"]
+        label = f"{entry['knobs']['actors.0.count']} people"
+        runs[label] = {}
+        for strategy in STRATEGIES:
+            runs[label][strategy] = run_sequence(
+                args.output / "sequences" / name,
+                args.output / "runs" / name / strategy,
+                strategy,
+                overwrite=True,
+            )
+    rows = summarise(runs)
+    write_report(rows, args.output)
+    print("3/3 report (rho: ATE improvement over the no-rejection baseline)\n")
+    print(format_table(rows))
+    print(f"\nwrote {args.output / 'report.txt'}, report.json, ate.png and preview.png")
     return 0
 
 

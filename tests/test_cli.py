@@ -19,14 +19,32 @@ GT = EXAMPLES / "fr1_xyz_groundtruth.txt"
 EST = EXAMPLES / "fr1_xyz_rgbdslam.txt"
 
 
-@pytest.mark.render
-def test_demo_generates_previews_and_evaluates(capsys, tmp_path: Path):
-    assert main(["demo", "-o", str(tmp_path), "--frames", "3"]) == 0
+@pytest.mark.slow
+def test_demo_generates_tracks_and_reports(capsys, tmp_path: Path):
+    assert main(["demo", "-o", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert (tmp_path / "preview.png").is_file()
-    assert (tmp_path / "sequence" / "associations.txt").is_file()
-    assert "786 associated pairs" in out
-    assert "0.013473" in out and "0.013394" in out
+    for name in ("report.txt", "report.json", "preview.png", "ate.png"):
+        assert (tmp_path / name).is_file(), name
+    rows = json.loads((tmp_path / "report.json").read_text())
+    assert len(rows) == 12 and "12 people" in out
+
+
+def test_report_table_and_rho():
+    from eval.report import format_table, summarise
+
+    def metrics(ate, precision=None):
+        return {
+            "ate_m": {"rmse": ate},
+            "tracked_frames": 10,
+            "frames": 10,
+            "rejection": {"precision": precision, "recall": 0.5},
+            "stage_time": {"tracking_total": {"mean_ms": 20.0}},
+        }
+
+    rows = summarise({"crowd": {"none": metrics(0.2), "box_rule": metrics(0.05, 0.3)}})
+    assert rows[1]["rho_percent"] == pytest.approx(75.0)
+    table = format_table(rows).splitlines()
+    assert len({len(line) for line in table}) == 1  # columns line up, missing values included
 
 
 def test_eval_json_matches_evo(capsys):
