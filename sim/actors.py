@@ -155,6 +155,26 @@ class Actor:
         return linear, axis * angle / (2 * FD_STEP_S)
 
 
+def person_parts(s: float, materials: dict[str, str], thigh_half: float, shin_half: float) -> list[Part]:
+    """The 13 parts of a person of scale ``s``, in the order ``pose`` fills them."""
+    shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
+    return [
+        Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
+        Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
+        Part("head", "sphere", (0.11 * s,), skin),
+        Part("upper_arm_l", "capsule", (0.05 * s, 0.14 * s), shirt),
+        Part("upper_arm_r", "capsule", (0.05 * s, 0.14 * s), shirt),
+        Part("forearm_l", "capsule", (0.04 * s, 0.14 * s), skin),
+        Part("forearm_r", "capsule", (0.04 * s, 0.14 * s), skin),
+        Part("thigh_l", "capsule", (0.07 * s, thigh_half), pants),
+        Part("thigh_r", "capsule", (0.07 * s, thigh_half), pants),
+        Part("shin_l", "capsule", (0.055 * s, shin_half), pants),
+        Part("shin_r", "capsule", (0.055 * s, shin_half), pants),
+        Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+        Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+    ]
+
+
 class Walker(Actor):
     """A person: pelvis, torso, head, arms, legs, feet; walks a path with swinging arms."""
 
@@ -182,22 +202,7 @@ class Walker(Actor):
             Leg((0.0, -0.1 * s, 0.0), self.l_thigh, self.l_shin, 0.5),
         ]
         self.gait = Gait(path, speed, self.stride, duty, 0.1 * s, start_s)
-        shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
-        self.parts = [
-            Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
-            Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
-            Part("head", "sphere", (0.11 * s,), skin),
-            Part("upper_arm_l", "capsule", (0.05 * s, 0.14 * s), shirt),
-            Part("upper_arm_r", "capsule", (0.05 * s, 0.14 * s), shirt),
-            Part("forearm_l", "capsule", (0.04 * s, 0.14 * s), skin),
-            Part("forearm_r", "capsule", (0.04 * s, 0.14 * s), skin),
-            Part("thigh_l", "capsule", (0.07 * s, self.l_thigh / 2), pants),
-            Part("thigh_r", "capsule", (0.07 * s, self.l_thigh / 2), pants),
-            Part("shin_l", "capsule", (0.055 * s, self.l_shin / 2), pants),
-            Part("shin_r", "capsule", (0.055 * s, self.l_shin / 2), pants),
-            Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
-            Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
-        ]
+        self.parts = person_parts(s, materials, self.l_thigh / 2, self.l_shin / 2)
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         s = self.gait.arc(t)
@@ -278,22 +283,7 @@ class SittingPerson(Actor):
         self.seat = seat
         self.phases = rng.uniform(0, 2 * math.pi, 6)
         self.rates = rng.uniform(0.6, 1.4, 6)
-        shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
-        self.parts = [
-            Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
-            Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
-            Part("head", "sphere", (0.11 * s,), skin),
-            Part("upper_arm_l", "capsule", (0.05 * s, 0.14 * s), shirt),
-            Part("upper_arm_r", "capsule", (0.05 * s, 0.14 * s), shirt),
-            Part("forearm_l", "capsule", (0.04 * s, 0.14 * s), skin),
-            Part("forearm_r", "capsule", (0.04 * s, 0.14 * s), skin),
-            Part("thigh_l", "capsule", (0.07 * s, 0.21 * s), pants),
-            Part("thigh_r", "capsule", (0.07 * s, 0.21 * s), pants),
-            Part("shin_l", "capsule", (0.055 * s, 0.2 * s), pants),
-            Part("shin_r", "capsule", (0.055 * s, 0.2 * s), pants),
-            Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
-            Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
-        ]
+        self.parts = person_parts(s, materials, 0.21 * s, 0.2 * s)
 
     def _wave(self, k: int, t: float, amplitude: float) -> float:
         return amplitude * math.sin(self.rates[k] * t + self.phases[k])

@@ -33,21 +33,18 @@ class FrameFeatures:
 class FeatureExtractor:
     def __init__(self, config: TrackingConfig) -> None:
         self.config = config
-        self._orb = cv2.ORB_create(
-            nfeatures=2 * config.n_features,
-            scaleFactor=config.scale_factor,
-            nlevels=config.n_levels,
+        self._orb = self._make_orb(config.fast_threshold)
+        self._orb_low = self._make_orb(config.fast_threshold_min)
+
+    def _make_orb(self, fast_threshold: int) -> cv2.ORB:
+        c = self.config
+        return cv2.ORB_create(
+            nfeatures=2 * c.n_features,
+            scaleFactor=c.scale_factor,
+            nlevels=c.n_levels,
             edgeThreshold=19,
             patchSize=31,
-            fastThreshold=config.fast_threshold,
-        )
-        self._orb_low = cv2.ORB_create(
-            nfeatures=2 * config.n_features,
-            scaleFactor=config.scale_factor,
-            nlevels=config.n_levels,
-            edgeThreshold=19,
-            patchSize=31,
-            fastThreshold=config.fast_threshold_min,
+            fastThreshold=fast_threshold,
         )
 
     def extract(self, rgb: np.ndarray, depth_m: np.ndarray) -> FrameFeatures:
