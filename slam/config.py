@@ -104,6 +104,9 @@ class RejectionConfig:
     l_thr2_px: float = 1.0
     fundamental_ransac_px: float = 1.0
     """Method 3: RANSAC threshold when estimating F."""
+    lk_window_px: int = 15
+    """Methods 1 and 3: side of the pyramidal LK window (11 halves LK's cost, 21 is OpenCV's default)."""
+    lk_levels: int = 3
 
     def __post_init__(self) -> None:
         _check(
@@ -118,6 +121,8 @@ class RejectionConfig:
                 "l_thr1_px": (0.0, 100.0),
                 "l_thr2_px": (0.0, 100.0),
                 "fundamental_ransac_px": (0.05, 20.0),
+                "lk_window_px": (5, 51),
+                "lk_levels": (0, 6),
             },
         )
 

@@ -23,8 +23,6 @@ from slam.features import FrameFeatures
 from slam.types import REJECTION_CODES, Rejection
 
 STRATEGIES = ("none", "box_rule", "prior_flow", "box_epipolar_flow")
-LK_WINDOW = (15, 15)
-LK_LEVELS = 3
 
 
 def inside(points: np.ndarray, detections: list[Detection], dilation: float) -> np.ndarray:
@@ -51,7 +49,7 @@ def box_classes(points: np.ndarray, detections: list[Detection], dilation: float
 
 
 def track_to_previous(
-    previous: FrameFeatures, current: FrameFeatures, points: np.ndarray
+    previous: FrameFeatures, current: FrameFeatures, points: np.ndarray, config: RejectionConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """LK flow of current keypoints back into the previous frame: (previous positions, ok)."""
     if len(points) == 0:
@@ -61,8 +59,8 @@ def track_to_previous(
         previous.grey,
         points.reshape(-1, 1, 2),
         None,
-        winSize=LK_WINDOW,
-        maxLevel=LK_LEVELS,
+        winSize=(config.lk_window_px, config.lk_window_px),
+        maxLevel=config.lk_levels,
     )
     h, w = previous.grey.shape
     prev = prev.reshape(-1, 2)
@@ -120,7 +118,7 @@ def _prior_flow(
     )
     q = in_potential & ~in_dynamic
     p = ~in_potential & ~in_dynamic
-    prev, ok = track_to_previous(previous, current, current.keypoints_px)
+    prev, ok = track_to_previous(previous, current, current.keypoints_px, config)
     flow = current.keypoints_px - prev
     if not (p & ok).any():
         codes[q] = REJECTION_CODES[Rejection.MOVING_FLOW]  # no camera-flow reference: Q stays unverified
@@ -142,7 +140,7 @@ def _epipolar_flow(
     rest = np.flatnonzero(~in_dynamic)
     if len(rest) < 8:
         return codes
-    prev, ok = track_to_previous(previous, current, current.keypoints_px[rest])
+    prev, ok = track_to_previous(previous, current, current.keypoints_px[rest], config)
     tracked = rest[ok]
     if len(tracked) < 8:
         return codes

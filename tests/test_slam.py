@@ -211,3 +211,22 @@ def test_pose_jacobian_matches_finite_differences():
         r_minus = _residuals(points @ minus[:3, :3].T + minus[:3, 3], uv, ur, weight, camera, 40.0)
         numeric[:, :, k] = (r_plus - r_minus) / 2e-6
     np.testing.assert_allclose(analytic, numeric, atol=1e-5 * np.abs(numeric).max())
+
+
+def test_settings_are_named_typed_and_range_checked():
+    from slam.config import ConfigError
+
+    config = SlamConfig(strategy="prior_flow").with_settings(
+        {"k": "2.5", "lk_window_px": "11", "n_features": "800"}
+    )
+    assert (
+        config.rejection.k == 2.5
+        and config.rejection.lk_window_px == 11
+        and config.tracking.n_features == 800
+    )
+    with pytest.raises(ConfigError, match="k = -1.0 is out of range"):
+        SlamConfig().with_settings({"k": "-1"})
+    with pytest.raises(ConfigError, match="unknown setting 'kk'"):
+        SlamConfig().with_settings({"kk": "1"})
+    with pytest.raises(ConfigError, match="is not a number"):
+        SlamConfig().with_settings({"epsilon_px": "wide"})
