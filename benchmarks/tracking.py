@@ -35,7 +35,15 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--scenario", default="walking_xyz")
     parser.add_argument("--frames", type=int, default=150)
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a SLAM setting for every strategy, e.g. lk_window_px=11",
+    )
     args = parser.parse_args()
+    settings = dict(item.split("=", 1) for item in args.set)
     cv2.setNumThreads(1)
     with tempfile.TemporaryDirectory() as tmp:
         scenario = library.get(args.scenario).model_copy(update={"frames": args.frames, "duration_s": None})
@@ -52,7 +60,7 @@ def main() -> None:
     )
     print(f"{'strategy':18s} " + " ".join(f"{s + ' mean/med ms':>24s}" for s in STAGES))
     for strategy in STRATEGIES:
-        slam = Slam(SlamConfig(strategy=strategy), camera)
+        slam = Slam(SlamConfig(strategy=strategy).with_settings(settings), camera)
         results = [slam.process(f) for f in frames]
         row = []
         for stage in STAGES:

@@ -104,8 +104,9 @@ class RejectionConfig:
     l_thr2_px: float = 1.0
     fundamental_ransac_px: float = 1.0
     """Method 3: RANSAC threshold when estimating F."""
-    lk_window_px: int = 15
-    """Methods 1 and 3: side of the pyramidal LK window (11 halves LK's cost, 21 is OpenCV's default)."""
+    lk_window_px: int = 11
+    """Methods 1 and 3: side of the pyramidal LK window. 11 costs half of 15 with the same ATE and
+    recall on the crowd scene (measured); OpenCV's default is 21."""
     lk_levels: int = 3
 
     def __post_init__(self) -> None:

@@ -31,6 +31,8 @@ class Map:
     first_keyframe: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     visible: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     found: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    n_observations: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    """Keyframes observing each point (kept equal to len(observations[point]))."""
     keyframes: list[KeyFrame] = field(default_factory=list)
     observations: dict[int, dict[int, int]] = field(default_factory=dict)
     """point id -> {keyframe id: keypoint index}."""
@@ -44,10 +46,21 @@ class Map:
         self.first_keyframe = np.r_[self.first_keyframe, np.full(n, keyframe_id)]
         self.visible = np.r_[self.visible, np.ones(n, int)]
         self.found = np.r_[self.found, np.ones(n, int)]
+        self.n_observations = np.r_[self.n_observations, np.zeros(n, int)]
         return np.arange(start, start + n)
 
     def observe(self, point_id: int, keyframe_id: int, keypoint: int) -> None:
-        self.observations.setdefault(point_id, {})[keyframe_id] = keypoint
+        seen = self.observations.setdefault(point_id, {})
+        if keyframe_id not in seen:
+            self.n_observations[point_id] += 1
+        seen[keyframe_id] = keypoint
+
+    def forget(self, point_id: int, keyframe_id: int) -> None:
+        """Drop one observation (an outlier found by bundle adjustment)."""
+        keypoint = self.observations.get(point_id, {}).pop(keyframe_id, None)
+        if keypoint is not None:
+            self.n_observations[point_id] -= 1
+            self.keyframes[keyframe_id].point_ids[keypoint] = -1
 
     def keyframe(self, keyframe_id: int) -> KeyFrame:
         return self.keyframes[keyframe_id]
@@ -56,7 +69,7 @@ class Map:
         """Drop points rarely found where predicted, or seen by one keyframe after two more."""
         candidates = np.flatnonzero(self.alive)
         ratio = self.found[candidates] / np.maximum(self.visible[candidates], 1)
-        n_obs = np.array([len(self.observations.get(int(p), {})) for p in candidates])
+        n_obs = self.n_observations[candidates]
         old = current_keyframe_id - self.first_keyframe[candidates] >= 2
         bad = (ratio < 0.25) | (old & (n_obs < 2))
         removed = candidates[bad]
@@ -64,4 +77,5 @@ class Map:
         for point in removed:
             for kf_id, keypoint in self.observations.pop(int(point), {}).items():
                 self.keyframes[kf_id].point_ids[keypoint] = -1
+        self.n_observations[removed] = 0
         return len(removed)

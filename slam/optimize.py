@@ -22,6 +22,8 @@ from slam.types import PinholeCamera
 CHI2_STEREO = 7.815
 """95 % quantile of chi-square with 3 dof (ORB-SLAM's RGB-D outlier threshold)."""
 CHI2_MONO = 5.991
+GN_STEP_TOLERANCE = 1e-6
+"""Gauss-Newton stops once a step moves the pose by less than 1 micrometre / microradian."""
 
 
 def _residuals(
@@ -129,7 +131,7 @@ def refine_pose(
             gradient = weighted.T @ r.ravel()
             delta = -np.linalg.solve(hessian, gradient)
             pose = exp_se3(delta) @ pose
-            if np.linalg.norm(delta) < 1e-8:
+            if np.linalg.norm(delta) < GN_STEP_TOLERANCE:
                 break
         points_c = points_w @ pose[:3, :3].T + pose[:3, 3]
         active = is_inlier(points_c, uv, ur, weight, camera, bf)

@@ -36,6 +36,8 @@ from slam.types import (
 
 MIN_INIT_POINTS = 50
 MIN_MATCHES = 15
+NEIGHBOURS = 8
+"""Keypoints within the search radius considered per projected map point (nearest first)."""
 RATIO_TEST = 0.8
 CLOSE_DEPTH_FACTOR = 40.0
 """ORB-SLAM's ThDepth: points closer than 40 baselines are 'close'."""
@@ -196,11 +198,12 @@ class Slam:
         if len(point_ids) == 0:
             return empty
         tree = cKDTree(features.keypoints_px[candidates])
-        neighbours = tree.query_ball_point(uv, radius)
-        pairs_point = np.repeat(np.arange(len(point_ids)), [len(n) for n in neighbours])
+        _, nearest = tree.query(uv, k=NEIGHBOURS, distance_upper_bound=radius)
+        found = nearest < len(candidates)
+        pairs_point = np.nonzero(found)[0]
         if len(pairs_point) == 0:
             return (*empty[:2], point_ids)
-        pairs_kp = candidates[np.concatenate([np.asarray(n, dtype=int) for n in neighbours])]
+        pairs_kp = candidates[nearest[found]]
         distance = hamming(self.map.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp])
         good = distance <= self.tc.match_max_hamming
         if not good.any():
@@ -338,7 +341,7 @@ class Slam:
         ids = ids[self.map.alive[ids]]
         # ORB-SLAM counts only established points: seen by >= 3 keyframes (2 while the map is young).
         min_observations = 3 if len(self.map.keyframes) > 2 else 2
-        ref_points = sum(len(self.map.observations.get(int(p), {})) >= min_observations for p in ids)
+        ref_points = int(np.sum(self.map.n_observations[ids] >= min_observations))
         close = (features.depth_m > 0) & (features.depth_m < self.close_depth_m) & usable
         tracked_mask = np.zeros(len(features), bool)
         tracked_mask[tracked.keypoints] = True
@@ -412,7 +415,4 @@ class Slam:
                 self.map.keyframe(kf_id).world_from_camera = invert(new_poses[i])
         self.map.positions[points] = new_points
         for k in np.flatnonzero(~inlier):
-            point = int(points[obs_point[k]])
-            kf_id, keypoint = obs_kf[k], obs_kp[k]
-            self.map.observations.get(point, {}).pop(kf_id, None)
-            self.map.keyframe(kf_id).point_ids[keypoint] = -1
+            self.map.forget(int(points[obs_point[k]]), obs_kf[k])
