@@ -263,9 +263,6 @@ class Walker(Actor):
             rotations.append(r)
         return np.array(positions), np.array(rotations)
 
-    def foot_parts(self) -> tuple[int, int]:
-        return (11, 12)
-
 
 class SittingPerson(Actor):
     """A person seated at the desk: small torso sway, head turns, typing hands."""

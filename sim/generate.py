@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from sim.flow import exact_flow, flow_at, rigid_motions
@@ -24,9 +25,7 @@ START_TIME_S = 1.0
 """Timestamp of the first frame (TUM tools dislike a zero timestamp)."""
 
 
-def _rotvec_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    from scipy.spatial.transform import Rotation
-
+def _quat_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
     q = Rotation.from_matrix(rotation).as_quat(canonical=True)
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
@@ -61,7 +60,7 @@ def object_states(world: World, now: Snapshot, nxt: Snapshot, instances: np.ndar
                 class_name=info.class_name,
                 prior=info.prior,
                 position_m=tuple(float(v) for v in position),
-                quat_xyzw=_rotvec_xyzw(rotation),
+                quat_xyzw=_quat_xyzw(rotation),
                 linear_velocity_mps=tuple(float(v) for v in linear),
                 angular_velocity_radps=tuple(float(v) for v in angular),
                 moving=moving,

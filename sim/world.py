@@ -29,15 +29,6 @@ CHAIR_MASS_KG = 6.0
 CHAIR_FRICTION = 0.5
 PHYSICS_STEP_S = 0.002
 
-DYNAMIC_PRIOR_CLASSES = {
-    "person": "dynamic",
-    "dog": "dynamic",
-    "cat": "dynamic",
-    "pig": "dynamic",
-    "bird": "dynamic",
-    "chair": "potential",
-}
-
 
 @dataclass(frozen=True)
 class InstanceInfo:
