@@ -1,0 +1,37 @@
+"""Accuracy of every rejection strategy on sequences: ATE, rho, precision, recall.
+
+Usage: python benchmarks/strategies.py SEQUENCE [SEQUENCE ...] [-o OUT]
+Each sequence is tracked with every strategy (ground-truth boxes); results go to
+OUT/<sequence>/<strategy>/ and a table (eval.report) is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+from eval.harness import run_sequence
+from eval.report import format_table, summarise
+from slam.rejection import STRATEGIES
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("sequences", nargs="+", type=Path)
+    parser.add_argument("-o", "--output", type=Path, help="keep the runs here (default: a temporary folder)")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.output or Path(tmp)
+        runs = {
+            seq.name: {
+                s: run_sequence(seq, out / seq.name / s, s, overwrite=True, progress=False)
+                for s in STRATEGIES
+            }
+            for seq in args.sequences
+        }
+    print(format_table(summarise(runs)))
+
+
+if __name__ == "__main__":
+    main()
