@@ -25,6 +25,8 @@ class FrameFeatures:
     """(N, 32) uint8 ORB descriptors."""
     depth_m: np.ndarray
     """(N,) depth at each keypoint, 0 where missing or out of range."""
+    angles_deg: np.ndarray
+    """(N,) ORB orientation of each keypoint."""
 
     def __len__(self) -> int:
         return len(self.keypoints_px)
@@ -61,6 +63,7 @@ class FeatureExtractor:
                 np.zeros(0, int),
                 np.zeros((0, 32), np.uint8),
                 np.zeros(0),
+                np.zeros(0),
             )
         pts = np.array([k.pt for k in keypoints], dtype=np.float32)
         octaves = np.array([k.octave for k in keypoints], dtype=int)
@@ -69,7 +72,8 @@ class FeatureExtractor:
         rows = np.clip(np.rint(pts[:, 1]).astype(int), 0, h - 1)
         depth = depth_m[rows, cols].astype(np.float64)
         depth[(depth < self.config.min_depth_m) | (depth > self.config.max_depth_m)] = 0.0
-        return FrameFeatures(grey, pts, octaves, descriptors, depth)
+        angles = np.array([k.angle for k in keypoints], dtype=np.float64)
+        return FrameFeatures(grey, pts, octaves, descriptors, depth, angles)
 
     def _spread(self, keypoints: list, shape: tuple[int, int]) -> list:
         if len(keypoints) <= self.config.n_features:

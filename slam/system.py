@@ -36,6 +36,8 @@ from slam.types import (
 
 MIN_INIT_POINTS = 50
 MIN_MATCHES = 15
+ROTATION_BINS = 30
+"""Matches against the last frame keep the 3 most common keypoint-angle changes (ORB-SLAM)."""
 NEIGHBOURS = 8
 """Keypoints within the search radius considered per projected map point (nearest first)."""
 RATIO_TEST = 0.8
@@ -49,6 +51,16 @@ class _Tracked:
     keypoints: np.ndarray
     point_ids: np.ndarray
     inliers: int
+
+
+def _consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
+    """Mask of matches whose keypoint-angle change falls in the 3 most common of 30 bins
+    (ORB-SLAM's rotation-consistency check; a bin needs 10 % of the largest one's count)."""
+    bins = (np.mod(delta_deg, 360.0) / (360.0 / ROTATION_BINS)).astype(int) % ROTATION_BINS
+    counts = np.bincount(bins, minlength=ROTATION_BINS)
+    top = np.argsort(-counts, kind="stable")[:3]
+    top = top[counts[top] >= 0.1 * counts[top[0]]]
+    return np.isin(bins, top)
 
 
 class Slam:
@@ -66,6 +78,7 @@ class Slam:
         self._last_pose: np.ndarray | None = None
         self._velocity = np.eye(4)
         self._last_point_ids = np.zeros(0, int)
+        self._last_angles = np.zeros(0)
         self._frames_since_keyframe = 0
         self.trajectory: list[tuple[float, np.ndarray]] = []
 
@@ -144,6 +157,7 @@ class Slam:
                 self._velocity = np.eye(4)
             self._last_pose = tracked.world_from_camera
             self._last_point_ids = tracked.point_ids
+            self._last_angles = features.angles_deg[tracked.keypoints]
             self._frames_since_keyframe += 1
         self.state = state
         self._previous = features
@@ -174,11 +188,16 @@ class Slam:
         usable: np.ndarray,
         radius: float,
         exclude: np.ndarray | None = None,
+        reference_angles: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Matches (keypoint indices, point ids) of map points projected near usable keypoints;
         also returns the ids that projected into the image (for visibility counts)."""
         empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
-        point_ids = point_ids[self.map.alive[point_ids]] if len(point_ids) else point_ids
+        angles = reference_angles
+        if len(point_ids):
+            alive = self.map.alive[point_ids]
+            point_ids = point_ids[alive]
+            angles = None if angles is None else angles[alive]
         candidates = np.flatnonzero(usable)
         if exclude is not None:
             candidates = candidates[~exclude[candidates]]
@@ -187,6 +206,7 @@ class Slam:
         pc = transform(camera_from_world, self.map.positions[point_ids])
         front = pc[:, 2] > self.tc.min_depth_m
         point_ids, pc = point_ids[front], pc[front]
+        angles = None if angles is None else angles[front]
         uv = project(self.camera, pc)
         inside = (
             (uv[:, 0] >= 0)
@@ -195,6 +215,7 @@ class Slam:
             & (uv[:, 1] < self.camera.height)
         )
         point_ids, uv = point_ids[inside], uv[inside]
+        angles = None if angles is None else angles[inside]
         if len(point_ids) == 0:
             return empty
         tree = cKDTree(features.keypoints_px[candidates])
@@ -216,6 +237,8 @@ class Slam:
         order = np.lexsort((distance[best], pairs_kp[best]))
         first = np.r_[True, np.diff(pairs_kp[best][order]) != 0]
         best = best[order[first]]
+        if angles is not None and len(best):
+            best = best[_consistent_rotation(features.angles_deg[pairs_kp[best]] - angles[pairs_point[best]])]
         return pairs_kp[best], point_ids[pairs_point[best]], point_ids
 
     def _solve(
@@ -252,13 +275,19 @@ class Slam:
     def _track(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
         assert self._last_pose is not None
         predicted_cw = invert(self._last_pose @ self._velocity)
-        last_ids = self._last_point_ids[self._last_point_ids >= 0]
+        has_point = self._last_point_ids >= 0
+        last_ids, last_angles = self._last_point_ids[has_point], self._last_angles[has_point]
         kp, pid, _ = self._match_by_projection(
-            last_ids, predicted_cw, features, usable, self.tc.match_radius_px
+            last_ids, predicted_cw, features, usable, self.tc.match_radius_px, reference_angles=last_angles
         )
         if len(kp) < 2 * MIN_MATCHES:
             kp, pid, _ = self._match_by_projection(
-                last_ids, predicted_cw, features, usable, 2 * self.tc.match_radius_px
+                last_ids,
+                predicted_cw,
+                features,
+                usable,
+                2 * self.tc.match_radius_px,
+                reference_angles=last_angles,
             )
         if len(kp) < MIN_MATCHES:
             return None

@@ -126,7 +126,12 @@ def test_runs_unchanged_on_a_plain_tum_folder(static_seq: Path, tmp_path: Path, 
 def _features(grey: np.ndarray, points: np.ndarray) -> FrameFeatures:
     n = len(points)
     return FrameFeatures(
-        grey, points.astype(np.float32), np.zeros(n, int), np.zeros((n, 32), np.uint8), np.ones(n)
+        grey,
+        points.astype(np.float32),
+        np.zeros(n, int),
+        np.zeros((n, 32), np.uint8),
+        np.ones(n),
+        np.zeros(n),
     )
 
 
@@ -230,3 +235,15 @@ def test_settings_are_named_typed_and_range_checked():
         SlamConfig().with_settings({"kk": "1"})
     with pytest.raises(ConfigError, match="is not a number"):
         SlamConfig().with_settings({"epsilon_px": "wide"})
+
+
+def test_rotation_consistency_keeps_the_dominant_angle_changes():
+    from slam.system import _consistent_rotation
+
+    rng = np.random.default_rng(0)
+    consistent = rng.normal(10.0, 2.0, 200)  # the image rotated by ~10 degrees
+    wrong = rng.uniform(0, 360, 20)  # mismatches: any angle change
+    keep = _consistent_rotation(np.r_[consistent, wrong])
+    assert keep[:200].mean() > 0.95
+    assert keep[200:].mean() < 0.3
+    assert _consistent_rotation(np.array([359.0, 1.0, -1.0])).all()  # wraps around 0/360
