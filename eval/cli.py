@@ -19,7 +19,6 @@ from eval.metrics import DeltaUnit, Statistics
 from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
 from sim.errors import InputError
 
-ASSETS = Path(__file__).resolve().parents[1] / "assets"
 EXIT_INPUT_ERROR = 2
 
 

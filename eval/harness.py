@@ -11,7 +11,7 @@ import json
 import os
 import shutil
 import uuid
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -30,17 +30,6 @@ from slam.system import Slam
 from slam.types import REJECTION_CODES, Frame, FrameResult, PinholeCamera, Rejection, TrackingState
 
 DETECTORS = ("groundtruth", "none")
-
-
-@dataclass(frozen=True)
-class RunSummary:
-    frames: int
-    tracked_frames: int
-    lost_frames: int
-    keyframes: int
-    ate_rmse_m: float | None
-    precision: float | None
-    recall: float | None
 
 
 def make_detector(name: str, sequence: Sequence):

@@ -88,9 +88,6 @@ class Trajectory:
             self.name,
         )
 
-    def path_length_m(self) -> float:
-        return float(np.linalg.norm(np.diff(self.positions_m, axis=0), axis=1).sum())
-
 
 def read_tum(path: Path | str) -> Trajectory:
     """Read a TUM trajectory file (``t tx ty tz qx qy qz qw``)."""

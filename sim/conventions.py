@@ -39,7 +39,3 @@ def quat_wxyz(rotation: np.ndarray) -> np.ndarray:
     """MuJoCo's quaternion order (w, x, y, z) of rotation matrices (..., 3, 3)."""
     xyzw = Rotation.from_matrix(rotation).as_quat(canonical=True)
     return np.roll(xyzw, 1, axis=-1)
-
-
-def matrix_from_wxyz(quat: np.ndarray) -> np.ndarray:
-    return Rotation.from_quat(np.roll(np.asarray(quat, dtype=float), -1, axis=-1)).as_matrix()

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.conventions import GL_FROM_CV, quat_wxyz
+from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, quat_wxyz
 from sim.mujoco_env import mujoco
 from sim.world import World
 
@@ -42,7 +42,7 @@ class Simulation:
             quat[ids] = quat_wxyz(rotations)
         pose = self.world.rig.world_from_camera(t)
         pos[self.world.camera_mocap] = pose[:3, 3]
-        quat[self.world.camera_mocap] = quat_wxyz(pose[:3, :3] @ GL_FROM_CV)
+        quat[self.world.camera_mocap] = quat_wxyz(gl_from_cv_rotation(pose[:3, :3]))
         return pos, quat
 
     def _apply(self, pos: np.ndarray, quat: np.ndarray) -> None:
@@ -75,7 +75,7 @@ class Simulation:
         mujoco.mj_forward(self.model, self.data)
 
     def snapshot(self) -> Snapshot:
-        rotation = self.data.cam_xmat[self.world.camera_id].reshape(3, 3) @ GL_FROM_CV
+        rotation = cv_from_gl_rotation(self.data.cam_xmat[self.world.camera_id].reshape(3, 3))
         pose = np.eye(4)
         pose[:3, :3] = rotation
         pose[:3, 3] = self.data.cam_xpos[self.world.camera_id]

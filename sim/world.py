@@ -16,7 +16,7 @@ from sim import textures
 from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
 from sim.camera import Intrinsics
 from sim.camera_rig import CameraRig
-from sim.conventions import GL_FROM_CV, quat_wxyz
+from sim.conventions import gl_from_cv_rotation, quat_wxyz
 from sim.layout import CENTRAL_AREA, Layout, Piece, StaticObject, plan_layout
 from sim.mujoco_env import mujoco
 from sim.paths import Path, plan_loop
@@ -335,7 +335,7 @@ def build_world(scenario: ScenarioSpec) -> World:
         name="camera_rig",
         mocap=True,
         pos=list(pose0[:3, 3]),
-        quat=list(quat_wxyz(pose0[:3, :3] @ GL_FROM_CV)),
+        quat=list(quat_wxyz(gl_from_cv_rotation(pose0[:3, :3]))),
     )
     cam_body.add_camera(name="camera", fovy=intrinsics.fovy_deg())
 

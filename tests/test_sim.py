@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
-from sim.conventions import GL_FROM_CV, look_at
+from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, look_at
 from sim.sequence import Sequence
 from sim.simulation import Simulation
 from sim.spec import ActorSpec, CameraSpec, ChairSpec, ScenarioSpec, default_scenario
@@ -49,7 +49,9 @@ def test_camera_conventions_round_trip():
     pose = look_at(np.array([1.0, -2.0, 1.5]), np.array([0.0, 1.0, 1.0]))
     r = pose[:3, :3]
     assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
-    assert np.allclose((r @ GL_FROM_CV) @ GL_FROM_CV, r)
+    assert np.allclose(cv_from_gl_rotation(gl_from_cv_rotation(r)), r)
+    # MuJoCo looks along its camera's -z: the optical axis is -z of the OpenGL frame.
+    assert np.allclose(gl_from_cv_rotation(r)[:, 2], -r[:, 2])
     # The optical axis (z) points at the target, image y points down (world -z side).
     direction = np.array([0.0, 1.0, 1.0]) - np.array([1.0, -2.0, 1.5])
     assert np.allclose(r[:, 2], direction / np.linalg.norm(direction))
