@@ -56,6 +56,16 @@ def true_moving_labels(
     return np.isin(instances[rows, cols], list(moving_ids))
 
 
+def estimated_trajectory(results: list[FrameResult]) -> Trajectory | None:
+    """The poses of the tracked frames (lost frames have none), or None if no frame was tracked."""
+    tracked = [r for r in results if r.world_from_camera is not None]
+    if not tracked:
+        return None
+    return Trajectory.from_poses(
+        np.array([r.timestamp_s for r in tracked]), np.array([r.world_from_camera for r in tracked])
+    )
+
+
 def run_sequence(
     sequence_dir: Path,
     out_dir: Path,
@@ -103,11 +113,11 @@ def run_sequence(
     tmp = out_dir.parent / f".{out_dir.name}.partial-{uuid.uuid4().hex[:8]}"
     tmp.mkdir(parents=True)
     try:
-        tracked = [(r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None]
-        if tracked:
+        estimate = estimated_trajectory(results)
+        if estimate is not None:
             write_tum(
                 tmp / "trajectory.txt",
-                Trajectory.from_poses(np.array([t for t, _ in tracked]), np.array([p for _, p in tracked])),
+                estimate,
                 header=f"depotbench slam, strategy {strategy}, detector {detector}",
             )
         _write_diagnostics(tmp / "diagnostics.npz", results, labels)
@@ -146,11 +156,10 @@ def _metrics(
         "keyframes": len(slam.map.keyframes),
         "stage_time": stage,
     }
-    tracked = [(r.timestamp_s, r.world_from_camera) for r in results if r.world_from_camera is not None]
-    if sequence.groundtruth is not None and len(tracked) >= 3:
+    estimate = estimated_trajectory(results)
+    if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         gt = sequence.groundtruth
         reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
-        estimate = Trajectory.from_poses(np.array([t for t, _ in tracked]), np.array([p for _, p in tracked]))
         ref, est = associate(reference, estimate)
         ate_result = ate(ref, est, Alignment.SE3)
         rpe_result = rpe(ref, est, 1, DeltaUnit.FRAMES)

@@ -48,7 +48,7 @@ def object_states(world: World, now: Snapshot, nxt: Snapshot, instances: np.ndar
             linear = now.qvel[dof : dof + 3]
             angular = rotation @ now.qvel[dof + 3 : dof + 6]
         else:
-            position, quat = world.object_poses[info.index]
+            position = world.object_positions[info.index]
             rotation, linear, angular = np.eye(3), np.zeros(3), np.zeros(3)
         bodies = np.flatnonzero(world.body_instance == info.instance_id)
         moving = info.kind != "object" and bool(part_speed[bodies].max() > MOVING_SPEED_MPS)
@@ -150,23 +150,6 @@ def generate(
                 moving_ids = [o.instance_id for o in objects if o.moving]
                 moving = np.isin(instances, moving_ids) & (depth > 0)
                 vv, uu = np.nonzero(moving)
-                moving_flow = flow_at(
-                    uu,
-                    vv,
-                    depth[vv, uu],
-                    bodies[vv, uu],
-                    world.intrinsics,
-                    now.world_from_camera,
-                    nxt.world_from_camera,
-                    motion,
-                )
-                difficulty.add(
-                    moving,
-                    moving_flow,
-                    float(
-                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3]) / period
-                    ),
-                )
                 flow = None
                 if scenario.flow or sensor.needs_flow:
                     flow = exact_flow(
@@ -177,6 +160,26 @@ def generate(
                         nxt.world_from_camera,
                         motion,
                     )
+                    moving_flow = flow[vv, uu]
+                else:
+                    # Only the moving pixels' flow is needed: the same computation, cast as exact_flow does.
+                    moving_flow = flow_at(
+                        uu,
+                        vv,
+                        depth[vv, uu],
+                        bodies[vv, uu],
+                        world.intrinsics,
+                        now.world_from_camera,
+                        nxt.world_from_camera,
+                        motion,
+                    ).astype(np.float32)
+                difficulty.add(
+                    moving,
+                    moving_flow,
+                    float(
+                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3]) / period
+                    ),
+                )
                 clean = None
                 if scenario.sensor.enabled:
                     clean = depth

@@ -17,7 +17,7 @@ from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
 from sim.camera import Intrinsics
 from sim.camera_rig import CameraRig
 from sim.conventions import gl_from_cv_rotation, quat_wxyz
-from sim.layout import CENTRAL_AREA, Layout, Piece, StaticObject, plan_layout
+from sim.layout import CENTRAL_AREA, Layout, Piece, plan_layout
 from sim.mujoco_env import mujoco
 from sim.paths import Path, plan_loop
 from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
@@ -60,7 +60,8 @@ class World:
     body_instance: np.ndarray
     """Instance id of every body (0 = static world)."""
     substeps: int
-    object_poses: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    object_positions: list[np.ndarray] = field(default_factory=list)
+    """Centre of each never-moving object (its rotation is the identity)."""
 
     def classes(self) -> dict[str, str]:
         return {i.class_name: i.prior for i in self.instances}
@@ -375,15 +376,10 @@ def build_world(scenario: ScenarioSpec) -> World:
         instances=instances,
         body_instance=body_instance,
         substeps=max(1, round(1.0 / (scenario.fps * model.opt.timestep))),
-        object_poses=[_object_pose(obj) for obj in layout.objects],
+        object_positions=[np.mean([p.center for p in obj.pieces], axis=0) for obj in layout.objects],
     )
 
 
 def scenario_streams(seed: int) -> list[np.random.Generator]:
     """Independent streams: textures, layout, actors, camera, sensor (in that order)."""
     return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5)]
-
-
-def _object_pose(obj: StaticObject) -> tuple[np.ndarray, np.ndarray]:
-    centre = np.mean([p.center for p in obj.pieces], axis=0)
-    return centre, np.array([0.0, 0.0, 0.0, 1.0])
