@@ -19,9 +19,8 @@ import numpy as np
 from tqdm import tqdm
 
 from detectors.groundtruth import GroundTruthDetector
-from eval.alignment import Alignment
-from eval.metrics import DeltaUnit, ate, rpe
-from eval.trajectory import Trajectory, associate, write_tum
+from eval.comparison import ComparisonOptions, compare
+from eval.trajectory import Trajectory, write_tum
 from sim.errors import InputError
 from sim.sequence import Sequence
 from slam.config import ConfigError, SlamConfig
@@ -160,12 +159,9 @@ def _metrics(
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         gt = sequence.groundtruth
         reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
-        ref, est = associate(reference, estimate)
-        ate_result = ate(ref, est, Alignment.SE3)
-        rpe_result = rpe(ref, est, 1, DeltaUnit.FRAMES)
-        metrics["ate_m"] = ate_result.statistics.to_dict()
-        metrics["rpe_translation_m"] = rpe_result.translation.to_dict()
-        metrics["rpe_rotation_deg"] = rpe_result.rotation_deg.to_dict()
+        comparison = compare(reference, estimate, ComparisonOptions()).to_dict()
+        for key in ("ate_m", "rpe_translation_m", "rpe_rotation_deg"):
+            metrics[key] = comparison[key]
     if labels:
         kept = REJECTION_CODES[Rejection.KEPT]
         rejected = np.concatenate([r.diagnostics.rejection != kept for r in results])

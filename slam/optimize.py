@@ -43,18 +43,6 @@ def _residuals(
     return np.stack([uv[:, 0] - u, uv[:, 1] - v, r_right], axis=1) * weight[:, None]
 
 
-def chi2(
-    points_c: np.ndarray,
-    uv: np.ndarray,
-    ur: np.ndarray,
-    weight: np.ndarray,
-    camera: PinholeCamera,
-    bf: float,
-) -> np.ndarray:
-    r = _residuals(points_c, uv, ur, weight, camera, bf)
-    return np.sum(r**2, axis=1)
-
-
 def is_inlier(
     points_c: np.ndarray,
     uv: np.ndarray,
@@ -63,7 +51,7 @@ def is_inlier(
     camera: PinholeCamera,
     bf: float,
 ) -> np.ndarray:
-    errors = chi2(points_c, uv, ur, weight, camera, bf)
+    errors = np.sum(_residuals(points_c, uv, ur, weight, camera, bf) ** 2, axis=1)
     threshold = np.where(np.isfinite(ur), CHI2_STEREO, CHI2_MONO)
     return (errors < threshold) & (points_c[:, 2] > 0)
 
