@@ -1,6 +1,6 @@
 """Accuracy of every rejection strategy on sequences: ATE, rho, precision, recall.
 
-Usage: python benchmarks/strategies.py SEQUENCE [SEQUENCE ...] [-o OUT]
+Usage: python benchmarks/strategies.py SEQUENCE [SEQUENCE ...] [-o OUT] [--set name=value ...]
 Each sequence is tracked with every strategy (ground-truth boxes); results go to
 OUT/<sequence>/<strategy>/ and a table (eval.report) is printed.
 """
@@ -20,12 +20,14 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("sequences", nargs="+", type=Path)
     parser.add_argument("-o", "--output", type=Path, help="keep the runs here (default: a temporary folder)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a SLAM setting")
     args = parser.parse_args()
+    settings = dict(item.split("=", 1) for item in args.set)
     with tempfile.TemporaryDirectory() as tmp:
         out = args.output or Path(tmp)
         runs = {
             seq.name: {
-                s: run_sequence(seq, out / seq.name / s, s, overwrite=True, progress=False)
+                s: run_sequence(seq, out / seq.name / s, s, settings=settings, overwrite=True, progress=False)
                 for s in STRATEGIES
             }
             for seq in args.sequences

@@ -17,6 +17,30 @@ def invert(pose: np.ndarray) -> np.ndarray:
     return inv
 
 
+def orthonormalize(pose: np.ndarray) -> np.ndarray:
+    """The pose with its rotation projected back onto SO(3) (nearest rotation, by SVD).
+
+    Composing poses accumulates rounding, and ``invert`` transposes the rotation: on a
+    slightly non-orthogonal rotation the constant-velocity model (velocity = last^-1 @ current,
+    next = current @ velocity) multiplies that error by 1 + sqrt(2) per frame, so a pose
+    chain that is not re-anchored degenerates within ~40 frames unless it is re-projected.
+    """
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    rotation = u @ vt
+    if np.linalg.det(rotation) < 0:
+        rotation = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    out = pose.copy()
+    out[:3, :3] = rotation
+    out[3] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
+def constant_velocity(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """The motion from ``previous`` to ``current`` (world_from_camera poses), in the camera frame:
+    ``current @ velocity`` predicts the next pose."""
+    return orthonormalize(invert(previous) @ current)
+
+
 def exp_se3(delta: np.ndarray) -> np.ndarray:
     """A small pose increment (rotation vector, translation) as a 4x4 matrix."""
     pose = np.eye(4)

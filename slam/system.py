@@ -20,7 +20,16 @@ from scipy.spatial import cKDTree
 
 from slam.config import SlamConfig
 from slam.features import FeatureExtractor, FrameFeatures
-from slam.geometry import backproject, hamming, hamming_matrix, invert, project, transform
+from slam.geometry import (
+    backproject,
+    constant_velocity,
+    hamming,
+    hamming_matrix,
+    invert,
+    orthonormalize,
+    project,
+    transform,
+)
 from slam.map import KeyFrame, Map
 from slam.optimize import local_bundle_adjustment, refine_pose
 from slam.rejection import box_classes, classify
@@ -41,6 +50,9 @@ ROTATION_BINS = 30
 NEIGHBOURS = 8
 """Keypoints within the search radius considered per projected map point (nearest first)."""
 RATIO_TEST = 0.8
+RELOCALIZE_MAX_HAMMING = 50
+"""Relocalisation matches descriptors without a pose prior, so it keeps ORB-SLAM2's stricter
+TH_LOW (its bag-of-words threshold) instead of the projection matches' TH_HIGH."""
 CLOSE_DEPTH_FACTOR = 40.0
 """ORB-SLAM's ThDepth: points closer than 40 baselines are 'close'."""
 
@@ -152,10 +164,10 @@ class Slam:
     def _advance(self, features: FrameFeatures, tracked: _Tracked | None, state: TrackingState) -> None:
         if tracked is not None:
             if self._last_pose is not None and state == TrackingState.OK:
-                self._velocity = invert(self._last_pose) @ tracked.world_from_camera
+                self._velocity = constant_velocity(self._last_pose, tracked.world_from_camera)
             else:
                 self._velocity = np.eye(4)
-            self._last_pose = tracked.world_from_camera
+            self._last_pose = orthonormalize(tracked.world_from_camera)
             self._last_point_ids = tracked.point_ids
             self._last_angles = features.angles_deg[tracked.keypoints]
             self._frames_since_keyframe += 1
@@ -248,11 +260,21 @@ class Slam:
         point_ids: np.ndarray,
         guess_cw: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """PnP RANSAC, then robust refinement: (camera_from_world, inlier mask) or None."""
+        """Robust pose from matches: (camera_from_world, inlier mask) or None.
+
+        With a guess (the motion model's prediction) and ``motion_model_ransac`` off, the
+        refinement starts from the guess, as ORB-SLAM's TrackWithMotionModel does; PnP RANSAC
+        runs when there is no guess, when that is on, or when refining from the guess keeps
+        fewer than ``MIN_MATCHES`` inliers (ORB-SLAM then falls back to its reference keyframe).
+        """
         if len(keypoints) < 6:
             return None
         points_w = self.map.positions[point_ids]
         uv, ur, weight = self._observations(features, keypoints)
+        if guess_cw is not None and not self.tc.motion_model_ransac:
+            pose_cw, inliers = refine_pose(guess_cw, points_w, uv, ur, weight, self.camera, self.bf)
+            if inliers.sum() >= MIN_MATCHES:
+                return pose_cw, inliers
         ok, rvec, tvec, _ = cv2.solvePnPRansac(
             points_w.astype(np.float64),
             uv,
@@ -346,7 +368,7 @@ class Slam:
                 continue
             two = np.partition(distances, 1, axis=1)[:, :2]
             best = np.argmin(distances, axis=1)
-            good = (two[:, 0] <= self.tc.match_max_hamming) & (two[:, 0] < RATIO_TEST * two[:, 1])
+            good = (two[:, 0] <= RELOCALIZE_MAX_HAMMING) & (two[:, 0] < RATIO_TEST * two[:, 1])
             kp, pid = candidates[good], ids[best[good]]
             _, unique = np.unique(pid, return_index=True)
             kp, pid = kp[unique], pid[unique]

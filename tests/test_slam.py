@@ -235,6 +235,9 @@ def test_settings_are_named_typed_and_range_checked():
         SlamConfig().with_settings({"kk": "1"})
     with pytest.raises(ConfigError, match="is not a number"):
         SlamConfig().with_settings({"epsilon_px": "wide"})
+    assert SlamConfig().with_settings({"motion_model_ransac": "True"}).tracking.motion_model_ransac is True
+    with pytest.raises(ConfigError, match="motion_model_ransac='maybe' is not true or false"):
+        SlamConfig().with_settings({"motion_model_ransac": "maybe"})
 
 
 def test_rotation_consistency_keeps_the_dominant_angle_changes():
@@ -247,3 +250,40 @@ def test_rotation_consistency_keeps_the_dominant_angle_changes():
     assert keep[:200].mean() > 0.95
     assert keep[200:].mean() < 0.3
     assert _consistent_rotation(np.array([359.0, 1.0, -1.0])).all()  # wraps around 0/360
+
+
+def test_constant_velocity_chain_stays_a_rigid_motion():
+    """Regression: the motion model's pose chain used to lose orthogonality by 1 + sqrt(2) per
+    frame (``invert`` transposes), so tracking without per-frame RANSAC diverged at ~40 frames."""
+    from scipy.spatial.transform import Rotation
+
+    from slam.geometry import constant_velocity, invert
+
+    step = np.eye(4)
+    step[:3, :3] = Rotation.from_rotvec([0.002, -0.01, 0.004]).as_matrix()
+    step[:3, 3] = [0.01, 0.0, 0.003]
+    previous = np.eye(4)
+    current = step.copy()
+    current[:3, :3] += 1e-13  # the rounding a few compositions leave behind
+    naive_previous, naive_current = previous.copy(), current.copy()
+    for _ in range(60):
+        previous, current = current, current @ constant_velocity(previous, current)
+        naive_velocity = invert(naive_previous) @ naive_current
+        naive_previous, naive_current = naive_current, naive_current @ naive_velocity
+    assert np.abs(current[:3, :3].T @ current[:3, :3] - np.eye(3)).max() < 1e-9
+    expected = np.linalg.matrix_power(step, 61)
+    assert np.allclose(current, expected, atol=1e-6)
+    # The uncorrected chain is what broke: its rotation is no longer one (or has overflowed to nan).
+    assert not np.abs(naive_current[:3, :3].T @ naive_current[:3, :3] - np.eye(3)).max() < 1e-3
+
+
+def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: Path, tmp_path: Path):
+    """ORB-SLAM2's motion-model tracking (no RANSAC unless it fails) stays on the static scene."""
+    metrics = {
+        mode: run_sequence(
+            static_seq, tmp_path / mode, "none", settings={"motion_model_ransac": mode}, progress=False
+        )
+        for mode in ("false", "true")
+    }
+    for mode in metrics.values():
+        assert mode["lost_frames"] == 0 and mode["ate_m"]["rmse"] <= 0.005
