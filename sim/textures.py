@@ -215,24 +215,79 @@ def screen(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     return _finish(image)
 
 
-def cloth(rng: np.random.Generator, pattern: str, colour: Colour, size: int = 128) -> np.ndarray:
-    """Clothing: ``plain`` (with folds), ``stripes`` or ``plaid``."""
+def _wear(rng: np.random.Generator, image: np.ndarray, colour: Colour, folds: int) -> None:
+    """Folds (short dark and light curved strokes) and stitched seams on fabric.
+
+    Real clothes carry wrinkles, seams and prints, and give ORB as many corners per
+    pixel as a cluttered background does (TUM's walking sequences); smooth fabric would
+    make people nearly featureless and the dynamic-SLAM problem disappear.
+    """
+    size = image.shape[0]
+    for _ in range(folds):
+        start = rng.uniform(0, size, 2)
+        heading = rng.uniform(0, np.pi)
+        steps = np.cumsum(rng.normal(0, 0.25, 6)) + heading
+        points = start + np.cumsum(np.stack([np.cos(steps), np.sin(steps)], 1) * rng.uniform(5, 12), 0)
+        shade = float(rng.choice([0.45, 0.6, 1.35]))
+        cv2.polylines(
+            image,
+            [points.astype(np.int32)],
+            False,
+            tuple(float(np.clip(c * shade, 0, 255)) for c in colour),
+            int(rng.integers(1, 3)),
+            cv2.LINE_AA,
+        )
+    for _ in range(2):
+        x = int(rng.integers(8, size - 8))
+        cv2.line(image, (x, 0), (x, size), tuple(0.5 * c for c in colour), 2)
+        for y in range(3, size, 7):
+            cv2.line(image, (x + 3, y), (x + 3, y + 3), tuple(min(255.0, 1.4 * c + 30) for c in colour), 1)
+
+
+def cloth(rng: np.random.Generator, pattern: str, colour: Colour, size: int = 256) -> np.ndarray:
+    """Clothing: ``plain`` (folds, seams, buttons, a small print), ``stripes`` or ``plaid``."""
     image = _base(rng, size, colour, grain=22)
-    accent = tuple(int(np.clip(c + rng.choice([-1, 1]) * 55, 0, 255)) for c in colour)
+    sign = rng.choice([-1, 1])
+    accent = tuple(int(np.clip(c + sign * rng.uniform(70, 110), 0, 255)) for c in colour)
+    line = tuple(int(v) for v in rng.integers(0, 255, 3))
     if pattern == "stripes":
-        period = int(rng.integers(10, 22))
-        for y in range(0, size, period):
-            cv2.rectangle(image, (0, y), (size, y + period // 2), accent, -1)
+        y = 0
+        while y < size:
+            width = int(rng.integers(4, 14))
+            cv2.rectangle(image, (0, y), (size, y + width), accent, -1)
+            y += width + int(rng.integers(5, 18))
     elif pattern == "plaid":
-        period = int(rng.integers(16, 30))
+        period = int(rng.integers(22, 40))
         overlay = image.copy()
         for v in range(0, size, period):
             cv2.rectangle(overlay, (v, 0), (v + period // 3, size), accent, -1)
             cv2.rectangle(overlay, (0, v), (size, v + period // 3), accent, -1)
-        image = 0.55 * image + 0.45 * overlay
+        image = 0.4 * image + 0.6 * overlay
+        for v in range(period // 2, size, period):
+            cv2.line(image, (v, 0), (v, size), line, 1)
+            cv2.line(image, (0, v), (size, v), line, 1)
     elif pattern != "plain":
         raise ValueError(f"unknown clothing pattern {pattern!r} (plain, stripes, plaid)")
+    _wear(rng, image, colour, folds=40)
+    for y in range(int(rng.integers(10, 30)), size, int(rng.integers(30, 50))):
+        cv2.circle(image, (size // 2, y), 3, line, -1)
+    _text(rng, image, 2, line, 0.7)
     image += _noise(rng, size, amplitude=18)[:, :, None]
+    return _finish(image)
+
+
+def denim(rng: np.random.Generator, colour: Colour, size: int = 256) -> np.ndarray:
+    """Trousers: twill, seams, pockets and rivets, faded along folds."""
+    image = _base(rng, size, colour, grain=20)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    image += (10 * np.sign(np.sin((xx + yy) * 1.2)))[:, :, None]
+    _wear(rng, image, colour, folds=35)
+    for _ in range(2):
+        x0, y0 = (int(v) for v in rng.integers(10, size - 70, 2))
+        cv2.rectangle(image, (x0, y0), (x0 + 50, y0 + 45), (200, 160, 80), 1)
+        for corner in ((x0, y0), (x0 + 50, y0)):
+            cv2.circle(image, corner, 3, (210, 190, 120), -1)
+    image += _noise(rng, size, amplitude=14)[:, :, None]
     return _finish(image)
 
 
@@ -251,6 +306,17 @@ def fur(rng: np.random.Generator, colour: Colour, size: int = 128, spots: bool =
     return _finish(image)
 
 
-def skin(rng: np.random.Generator, size: int = 64) -> np.ndarray:
+def skin(rng: np.random.Generator, size: int = 128) -> np.ndarray:
+    """Skin with hair, brows and shading: heads and forearms are not smooth balls."""
     tone = tuple(int(c) for c in rng.choice([(235, 195, 165), (200, 150, 110), (140, 95, 65), (95, 65, 45)]))
-    return _finish(_base(rng, size, tone, grain=10))
+    image = _base(rng, size, tone, grain=14)
+    hair = tuple(int(c) for c in rng.choice([(30, 22, 18), (90, 60, 30), (200, 170, 110), (120, 120, 120)]))
+    cv2.rectangle(image, (0, 0), (size, size // 3), hair, -1)
+    for _ in range(60):
+        x = int(rng.integers(0, size))
+        cv2.line(image, (x, 0), (x + int(rng.integers(-6, 7)), size // 3 + int(rng.integers(-4, 8))), hair, 1)
+    for _ in range(12):
+        c = tuple(int(v) for v in rng.integers(0, size, 2))
+        axes = (int(rng.integers(3, 9)), int(rng.integers(1, 4)))
+        cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, tuple(0.55 * v for v in tone), -1)
+    return _finish(image)

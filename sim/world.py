@@ -98,7 +98,7 @@ def _material_images(
         shirt = tuple(int(c) for c in rng.integers(30, 230, 3))
         pants = tuple(int(c) for c in rng.choice([(40, 50, 90), (60, 60, 60), (120, 100, 70)]))
         mats[f"shirt{k}"] = ("cube", textures.cloth(rng, pattern, shirt))
-        mats[f"pants{k}"] = ("cube", textures.cloth(rng, "plain", pants))
+        mats[f"pants{k}"] = ("cube", textures.denim(rng, pants))
         mats[f"skin{k}"] = ("cube", textures.skin(rng))
         mats[f"shoes{k}"] = ("cube", textures.cloth(rng, "plain", (35, 30, 30)))
     return mats
