@@ -332,7 +332,7 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
     """Clothes, hair and skin give ORB corners: on TUM's walking sequences ORB-SLAM2 fails
     because people carry features; featureless people would make rejection moot. Keypoint
     density (per pixel) on people must be at least 0.4x that on the static world (measured
-    0.52 on walking_static; the earlier smooth clothing gave 0.33)."""
+    0.49 on walking_static; the earlier smooth clothing gave 0.13)."""
     from scenes import library
     from scenes.schema import to_scenario
     from sim.generate import generate
