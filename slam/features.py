@@ -1,8 +1,13 @@
 """ORB features spread over the image, with their depth: the cacheable front-end stage.
 
-ORB-SLAM spreads features with a quadtree per pyramid level; here keypoints from
-OpenCV's ORB are bucketed into grid cells and taken round-robin by response, so
-no textured corner of the image takes all the budget.
+ORB-SLAM detects FAST corners per pyramid level in ~30 px cells, each cell with a
+threshold of 20 that falls back to 7 where the cell has no corner, and gives each
+level a share of the budget that shrinks with its area. Here OpenCV's ORB detects
+once at the low threshold with FAST scores; a cell keeps only its strong corners
+when it has any (the per-cell fallback), and each level's share is taken
+round-robin over its cells by score, so neither a textured corner of the image
+nor a high-contrast background takes the budget from low-contrast surfaces
+(clothes, skin) that ORB-SLAM would still sample.
 """
 
 from __future__ import annotations
@@ -13,6 +18,9 @@ import cv2
 import numpy as np
 
 from slam.config import TrackingConfig
+
+CANDIDATE_FACTOR = 10
+"""OpenCV keeps this many times the budget of FAST candidates before the per-cell selection."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,26 +43,22 @@ class FrameFeatures:
 class FeatureExtractor:
     def __init__(self, config: TrackingConfig) -> None:
         self.config = config
-        self._orb = self._make_orb(config.fast_threshold)
-        self._orb_low = self._make_orb(config.fast_threshold_min)
-
-    def _make_orb(self, fast_threshold: int) -> cv2.ORB:
-        c = self.config
-        return cv2.ORB_create(
-            nfeatures=2 * c.n_features,
-            scaleFactor=c.scale_factor,
-            nlevels=c.n_levels,
+        self._orb = cv2.ORB_create(
+            nfeatures=CANDIDATE_FACTOR * config.n_features,
+            scaleFactor=config.scale_factor,
+            nlevels=config.n_levels,
             edgeThreshold=19,
             patchSize=31,
-            fastThreshold=fast_threshold,
+            fastThreshold=config.fast_threshold_min,
+            scoreType=cv2.ORB_FAST_SCORE,
         )
+        inverse = 1.0 / config.scale_factor
+        share = inverse ** np.arange(config.n_levels)
+        self._per_level = np.round(config.n_features * share / share.sum()).astype(int)
 
     def extract(self, rgb: np.ndarray, depth_m: np.ndarray) -> FrameFeatures:
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
-        keypoints = self._orb.detect(grey, None)
-        if len(keypoints) < self.config.n_features:
-            keypoints = self._orb_low.detect(grey, None)
-        keypoints = self._spread(keypoints, grey.shape)
+        keypoints = self._spread(self._orb.detect(grey, None))
         keypoints, descriptors = self._orb.compute(grey, keypoints)
         if descriptors is None or not keypoints:
             return FrameFeatures(
@@ -75,18 +79,34 @@ class FeatureExtractor:
         angles = np.array([k.angle for k in keypoints], dtype=np.float64)
         return FrameFeatures(grey, pts, octaves, descriptors, depth, angles)
 
-    def _spread(self, keypoints: list, shape: tuple[int, int]) -> list:
-        if len(keypoints) <= self.config.n_features:
-            return list(keypoints)
-        cell = self.config.grid_cell_px
-        pts = np.array([k.pt for k in keypoints])
-        response = np.array([k.response for k in keypoints])
-        cells = (pts[:, 1] // cell).astype(int) * (shape[1] // cell + 1) + (pts[:, 0] // cell).astype(int)
-        order = np.lexsort((-response, cells))
-        rank = np.empty(len(keypoints), dtype=int)
+    def _spread(self, keypoints: tuple) -> list:
+        """Per level: drop a cell's weak corners where it has strong ones, then take the
+        level's share round-robin over cells, strongest first."""
+        if not keypoints:
+            return []
+        c = self.config
+        pts = cv2.KeyPoint_convert(keypoints)
+        score = np.fromiter((k.response for k in keypoints), np.float32, len(keypoints))
+        level = np.fromiter((k.octave for k in keypoints), np.int64, len(keypoints))
+        size = c.grid_cell_px * c.scale_factor**level  # a cell of the level's image, in level-0 pixels
+        cells = (
+            level * 1_000_000
+            + (pts[:, 1] // size).astype(int) * 1000
+            + (pts[:, 0] // size).astype(int)
+        )
+        strong = score >= c.fast_threshold
+        cell_ids, cell_index = np.unique(cells, return_inverse=True)
+        has_strong = np.zeros(len(cell_ids), bool)
+        has_strong[cell_index[strong]] = True
+        keep = strong | ~has_strong[cell_index]
+        candidates = np.flatnonzero(keep)
+        order = candidates[np.lexsort((-score[candidates], cells[candidates]))]
         sorted_cells = cells[order]
         starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
-        run = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
-        rank[order] = run
-        chosen = np.lexsort((-response, rank))[: self.config.n_features]
-        return [keypoints[i] for i in np.sort(chosen)]
+        rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
+        chosen = []
+        for lev in range(c.n_levels):
+            at_level = level[order] == lev
+            picks = order[at_level][np.lexsort((-score[order][at_level], rank[at_level]))]
+            chosen.append(picks[: self._per_level[lev]])
+        return [keypoints[i] for i in np.sort(np.concatenate(chosen))]
