@@ -2,26 +2,30 @@
 
 Both minimise ORB-SLAM's RGB-D reprojection error: (u, v) plus a virtual right
 coordinate u_r = u - bf / z, weighted by the keypoint's pyramid level, under a
-Huber loss. The solver is SciPy's ``least_squares`` (trust-region reflective with
-a sparse Jacobian pattern and LSMR): maintained, deterministic, and for the
-few thousand residuals of a local window its sparse finite-difference Jacobian
-(a handful of grouped evaluations) keeps a BA step in tens of milliseconds
-without a compiled extension.
+Huber loss. The pose-only refinement is a small Gauss-Newton on the analytic
+Jacobian (6 unknowns; a solver call would cost more than the solve).
+
+Local BA uses GTSAM (Georgia Tech, maintained, the standard factor-graph library
+of the field): its stereo factor is exactly ORB-SLAM's RGB-D edge and its sparse
+multifrontal Cholesky eliminates the points as a Schur complement does. On windows
+captured from walking_xyz it reached the same cost as SciPy's least_squares
+(trust-region, sparse finite-difference Jacobian, LSMR) 5-16x faster: 2,000 to
+15,000 observations in 56-330 ms instead of 0.27-5 s.
 """
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
-from scipy.spatial.transform import Rotation
 
-from slam.geometry import exp_se3
+from slam.geometry import exp_se3, invert
 from slam.types import PinholeCamera
 
 CHI2_STEREO = 7.815
 """95 % quantile of chi-square with 3 dof (ORB-SLAM's RGB-D outlier threshold)."""
 CHI2_MONO = 5.991
+FIXED_POSE_SIGMA = 1e-6
+"""Prior sigma (rad, m) that holds the keyframes outside the local window in place."""
 GN_STEP_TOLERANCE = 1e-6
 """Gauss-Newton stops once a step moves the pose by less than 1 micrometre / microradian."""
 
@@ -141,52 +145,48 @@ def local_bundle_adjustment(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimise free keyframe poses (camera_from_world, (K, 4, 4)) and all points (P, 3).
 
-    Returns new poses, new points and the inlier mask of the observations.
+    GTSAM's Levenberg-Marquardt on stereo factors (u_left, u_right, v), which are
+    ORB-SLAM's RGB-D edges, and monocular factors where a keypoint had no depth; Huber
+    loss; sigma = scale_factor^octave. Fixed keyframes get a tight prior rather than a
+    hard equality, which would force a slow QR elimination. Returns new poses, new points
+    and the inlier mask of the observations (chi-square test at the result).
     """
-    n_free = int(free.sum())
-    free_index = np.full(len(poses), -1)
-    free_index[free] = np.arange(n_free)
-    n_obs = len(obs_pose)
-    x0 = np.concatenate([np.zeros(6 * n_free), points.ravel()])
-    sparsity = lil_matrix((3 * n_obs, len(x0)), dtype=np.int8)
-    rows = np.arange(n_obs)
-    for k in range(3):
-        for c in range(3):
-            sparsity[3 * rows + k, 6 * n_free + 3 * obs_point + c] = 1
-        has_pose = free_index[obs_pose] >= 0
-        for c in range(6):
-            sparsity[3 * rows[has_pose] + k, 6 * free_index[obs_pose[has_pose]] + c] = 1
-
-    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        deltas = x[: 6 * n_free].reshape(-1, 6)
-        new_poses = poses.copy()
-        if n_free:
-            rot = Rotation.from_rotvec(deltas[:, :3]).as_matrix()
-            base = poses[free]
-            new_r = rot @ base[:, :3, :3]
-            new_t = np.einsum("nij,nj->ni", rot, base[:, :3, 3]) + deltas[:, 3:]
-            new_poses[free, :3, :3] = new_r
-            new_poses[free, :3, 3] = new_t
-        return new_poses, x[6 * n_free :].reshape(-1, 3)
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        new_poses, new_points = unpack(x)
-        r = new_poses[obs_pose, :3, :3]
-        pc = np.einsum("nij,nj->ni", r, new_points[obs_point]) + new_poses[obs_pose, :3, 3]
-        return _residuals(pc, uv, ur, weight, camera, bf).ravel()
-
-    result = least_squares(
-        fun,
-        x0,
-        jac_sparsity=sparsity.tocsr(),
-        method="trf",
-        loss="huber",
-        f_scale=np.sqrt(CHI2_STEREO),
-        max_nfev=max(1, iterations),
-        x_scale="jac",
-        tr_solver="lsmr",
-    )
-    new_poses, new_points = unpack(result.x)
+    calibration = gtsam.Cal3_S2Stereo(camera.fx, camera.fy, 0.0, camera.cx, camera.cy, bf / camera.fx)
+    mono_calibration = gtsam.Cal3_S2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy)
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_STEREO))
+    fixed_noise = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_POSE_SIGMA)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for i, camera_from_world in enumerate(poses):
+        world_from_camera = gtsam.Pose3(invert(camera_from_world))
+        values.insert(gtsam.symbol("x", i), world_from_camera)
+        if not free[i]:
+            graph.add(gtsam.PriorFactorPose3(gtsam.symbol("x", i), world_from_camera, fixed_noise))
+    for j, point in enumerate(points):
+        values.insert(gtsam.symbol("l", j), point.astype(np.float64))
+    stereo = np.isfinite(ur)
+    noise: dict[tuple[float, bool], gtsam.noiseModel.Base] = {}
+    for k in range(len(obs_pose)):
+        key = (float(weight[k]), bool(stereo[k]))
+        if key not in noise:
+            base = gtsam.noiseModel.Isotropic.Sigma(3 if key[1] else 2, 1.0 / key[0])
+            noise[key] = gtsam.noiseModel.Robust.Create(huber, base)
+        pose_key, point_key = gtsam.symbol("x", int(obs_pose[k])), gtsam.symbol("l", int(obs_point[k]))
+        if key[1]:
+            measured = gtsam.StereoPoint2(uv[k, 0], ur[k], uv[k, 1])
+            graph.add(gtsam.GenericStereoFactor3D(measured, noise[key], pose_key, point_key, calibration))
+        else:
+            graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(
+                    uv[k], noise[key], pose_key, point_key, mono_calibration
+                )
+            )
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max(1, iterations))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    new_poses = np.array([invert(result.atPose3(gtsam.symbol("x", i)).matrix()) for i in range(len(poses))])
+    new_poses[~free] = poses[~free]
+    new_points = np.array([result.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))]).reshape(-1, 3)
     pc = (
         np.einsum("nij,nj->ni", new_poses[obs_pose, :3, :3], new_points[obs_point])
         + new_poses[obs_pose, :3, 3]
