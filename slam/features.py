@@ -89,11 +89,7 @@ class FeatureExtractor:
         score = np.fromiter((k.response for k in keypoints), np.float32, len(keypoints))
         level = np.fromiter((k.octave for k in keypoints), np.int64, len(keypoints))
         size = c.grid_cell_px * c.scale_factor**level  # a cell of the level's image, in level-0 pixels
-        cells = (
-            level * 1_000_000
-            + (pts[:, 1] // size).astype(int) * 1000
-            + (pts[:, 0] // size).astype(int)
-        )
+        cells = level * 1_000_000 + (pts[:, 1] // size).astype(int) * 1000 + (pts[:, 0] // size).astype(int)
         strong = score >= c.fast_threshold
         cell_ids, cell_index = np.unique(cells, return_inverse=True)
         has_strong = np.zeros(len(cell_ids), bool)

@@ -177,9 +177,7 @@ def local_bundle_adjustment(
             graph.add(gtsam.GenericStereoFactor3D(measured, noise[key], pose_key, point_key, calibration))
         else:
             graph.add(
-                gtsam.GenericProjectionFactorCal3_S2(
-                    uv[k], noise[key], pose_key, point_key, mono_calibration
-                )
+                gtsam.GenericProjectionFactorCal3_S2(uv[k], noise[key], pose_key, point_key, mono_calibration)
             )
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max(1, iterations))
