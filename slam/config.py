@@ -42,9 +42,13 @@ class TrackingConfig:
     scale_factor: float = 1.2
     n_levels: int = 8
     fast_threshold: int = 20
+    """ORB-SLAM's iniThFAST: a cell keeps only corners this strong when it has any."""
     fast_threshold_min: int = 7
+    """ORB-SLAM's minThFAST: the fallback threshold of cells without a strong corner. It is
+    what gives low-contrast surfaces (clothes, skin) features; 20 disables the fallback and
+    saves ~5 ms of extraction per frame (measured)."""
     grid_cell_px: int = 32
-    """Features are spread over cells of this size, as ORB-SLAM spreads them."""
+    """Cell side at each pyramid level (ORB-SLAM: 30), for the fallback and the spreading."""
     min_depth_m: float = 0.1
     max_depth_m: float = 12.0
     baseline_fx: float = 40.0

@@ -271,10 +271,11 @@ class Slam:
             return None
         points_w = self.map.positions[point_ids]
         uv, ur, weight = self._observations(features, keypoints)
+        from_guess = None
         if guess_cw is not None and not self.tc.motion_model_ransac:
-            pose_cw, inliers = refine_pose(guess_cw, points_w, uv, ur, weight, self.camera, self.bf)
-            if inliers.sum() >= MIN_MATCHES:
-                return pose_cw, inliers
+            from_guess = refine_pose(guess_cw, points_w, uv, ur, weight, self.camera, self.bf)
+            if from_guess[1].sum() >= MIN_MATCHES:
+                return from_guess
         ok, rvec, tvec, _ = cv2.solvePnPRansac(
             points_w.astype(np.float64),
             uv,
@@ -285,13 +286,13 @@ class Slam:
             confidence=0.99,
             flags=cv2.SOLVEPNP_EPNP,
         )
-        pose_cw = guess_cw
-        if ok:
-            pose_cw = np.eye(4)
-            pose_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
-            pose_cw[:3, 3] = tvec.ravel()
-        if pose_cw is None:
-            return None
+        if not ok:
+            if from_guess is not None or guess_cw is None:
+                return from_guess
+            return refine_pose(guess_cw, points_w, uv, ur, weight, self.camera, self.bf)
+        pose_cw = np.eye(4)
+        pose_cw[:3, :3] = cv2.Rodrigues(rvec)[0]
+        pose_cw[:3, 3] = tvec.ravel()
         return refine_pose(pose_cw, points_w, uv, ur, weight, self.camera, self.bf)
 
     def _track(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
