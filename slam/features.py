@@ -102,9 +102,10 @@ class FeatureExtractor:
         sorted_cells = cells[order]
         starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
         rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
+        level, score = level[order], score[order]
         chosen = []
         for lev in range(c.n_levels):
-            at_level = level[order] == lev
-            picks = order[at_level][np.lexsort((-score[order][at_level], rank[at_level]))]
+            at_level = level == lev
+            picks = order[at_level][np.lexsort((-score[at_level], rank[at_level]))]
             chosen.append(picks[: self._per_level[lev]])
         return [keypoints[i] for i in np.sort(np.concatenate(chosen))]
