@@ -7,8 +7,8 @@ other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
-import json
 import os
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -18,14 +18,24 @@ from eval.comparison import Comparison, ComparisonOptions, compare
 from eval.metrics import DeltaUnit, Statistics
 from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
 from sim.errors import InputError
+from sim.files import dumps_json
 
 EXIT_INPUT_ERROR = 2
+EXIT_INTERRUPTED = 128 + signal.SIGINT
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
 def _positive_float(text: str) -> float:
     value = float(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _workers(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 256:
+        raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
     return value
 
 
@@ -69,7 +79,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     )
     result = compare(read_tum(args.reference), read_tum(args.estimate), options)
     if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+        print(dumps_json(result.to_dict()))
     else:
         print(format_comparison(result))
     return 0
@@ -103,7 +113,7 @@ def format_comparison(result: Comparison) -> str:
 def _add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="the quick-start job: generate a small suite, run SLAM, report")
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--workers", type=int, default=max(1, os.cpu_count() or 1))
+    p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1))
     p.set_defaults(handler=_cmd_demo)
 
 
@@ -116,37 +126,39 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from eval.report import format_table, summarise, write_report
     from scenes.generation import run_suite
     from scenes.suite import load_suite
+    from sim.output import OutputContainer, OutputKind, write_bytes_atomic
     from sim.sequence import Sequence
     from slam.rejection import STRATEGIES
 
     suite_path = Path(__file__).resolve().parents[1] / "scenes" / "suites" / "demo.yaml"
     suite = load_suite(suite_path)
-    print(f"1/3 generating the demo suite ({suite.description})")
-    index = run_suite(suite, suite_path, args.output / "sequences", args.workers)
-    names = [s["name"] for s in index["sequences"]]
-    last = Sequence.open(args.output / "sequences" / names[-1])
-    cv2.imwrite(
-        str(args.output / "preview.png"),
-        np.vstack([preview(last, i) for i in (0, len(last) - 1)])[:, :, ::-1],
-    )
-    print(
-        f"2/3 tracking {len(names)} sequences with {len(STRATEGIES)} strategies "
-        f"(ground-truth boxes); results under {args.output / 'runs'}"
-    )
-    runs: dict[str, dict[str, dict]] = {}
-    for entry in index["sequences"]:
-        name = entry["name"]
-        label = f"{entry['knobs']['actors.0.count']} people"
-        runs[label] = {}
-        for strategy in STRATEGIES:
-            runs[label][strategy] = run_sequence(
-                args.output / "sequences" / name,
-                args.output / "runs" / name / strategy,
-                strategy,
-                overwrite=True,
-            )
-    rows = summarise(runs)
-    write_report(rows, args.output)
+    with OutputContainer(args.output, OutputKind.DEMO) as container:
+        out = container.path
+        print(f"1/3 generating the demo suite ({suite.description})")
+        index = run_suite(suite, suite_path, out / "sequences", args.workers)
+        names = [s["name"] for s in index["sequences"]]
+        last = Sequence.open(out / "sequences" / names[-1])
+        image = np.vstack([preview(last, i) for i in (0, len(last) - 1)])[:, :, ::-1]
+        write_bytes_atomic(out / "preview.png", cv2.imencode(".png", image)[1].tobytes())
+        print(
+            f"2/3 tracking {len(names)} sequences with {len(STRATEGIES)} strategies "
+            f"(ground-truth boxes); results under {args.output / 'runs'}"
+        )
+        runs: dict[str, dict[str, dict]] = {}
+        for entry in index["sequences"]:
+            name = entry["name"]
+            label = f"{entry['knobs']['actors.0.count']} people"
+            runs[label] = {}
+            (out / "runs" / name).mkdir(parents=True, exist_ok=True)
+            for strategy in STRATEGIES:
+                runs[label][strategy] = run_sequence(
+                    out / "sequences" / name,
+                    out / "runs" / name / strategy,
+                    strategy,
+                    overwrite=True,
+                )
+        rows = summarise(runs)
+        write_report(rows, out)
     print("3/3 report (rho: ATE improvement over the no-rejection baseline)\n")
     print(format_table(rows))
     print(f"\nwrote {args.output / 'report.txt'}, report.json, ate.png and preview.png")
@@ -166,10 +178,14 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, help="number of frames (overrides the spec)")
     p.add_argument("--seed", type=int, help="random seed (overrides the spec)")
     p.add_argument("--flow", action="store_true", help="also write exact optical flow (gt/flow)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing output of depotbench (a suite: regenerate every sequence)",
+    )
     p.add_argument(
         "--workers",
-        type=int,
+        type=_workers,
         default=max(1, os.cpu_count() or 1),
         help="parallel worker processes for a suite (default: one per core)",
     )
@@ -191,29 +207,29 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     import dataclasses
 
     from scenes.generation import run_suite
-    from scenes.schema import to_scenario
+    from scenes.schema import check_option, to_scenario
     from scenes.suite import is_suite_file, load_suite
     from sim.generate import generate
     from sim.spec import default_scenario
 
     path = Path(args.spec)
     if path.is_file() and is_suite_file(path):
-        if args.frames is not None or args.seed is not None:
-            raise InputError("--frames and --seed apply to one scenario; set them in the suite's overrides")
-        if args.workers < 1:
-            raise InputError(f"--workers must be >= 1, got {args.workers}")
-        index = run_suite(load_suite(path), path, args.output, args.workers)
+        if args.frames is not None or args.seed is not None or args.flow:
+            raise InputError("--frames, --seed and --flow apply to one scenario; set them in the suite")
+        index = run_suite(load_suite(path), path, args.output, args.workers, overwrite=args.overwrite)
         print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
         return 0
+    changes = {
+        name: check_option(name, value, f"--{name}")
+        for name, value in (("frames", args.frames), ("seed", args.seed))
+        if value is not None
+    }
     scenario = default_scenario() if args.spec == "default" else to_scenario(_resolve_scenario(args.spec))
-    changes = {k: v for k, v in (("frames", args.frames), ("seed", args.seed)) if v is not None}
     if args.flow:
         changes["flow"] = True
-    try:
-        scenario = dataclasses.replace(scenario, **changes)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-    out = generate(scenario, args.output, overwrite=args.overwrite)
+    scenario = dataclasses.replace(scenario, **changes)
+    inputs = (path,) if path.exists() else ()
+    out = generate(scenario, args.output, overwrite=args.overwrite, inputs=inputs)
     print(f"wrote {scenario.frames} frames of '{scenario.name}' (seed {scenario.seed}) to {out}")
     return 0
 
@@ -337,6 +353,7 @@ def _add_preview(sub: argparse._SubParsersAction) -> None:
     p.add_argument("sequence", type=Path)
     p.add_argument("--frames", type=int, nargs="+", default=[0], help="frame indices (default: 0)")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     p.set_defaults(handler=_cmd_preview)
 
 
@@ -345,15 +362,20 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     import numpy as np
 
     from eval.preview import preview
+    from sim.output import write_bytes_atomic
     from sim.sequence import Sequence
 
+    if args.output.suffix.lower() != ".png":
+        raise InputError(f"{args.output}: the preview is a PNG; give a file name ending in .png")
+    if args.output.is_dir() or (args.output.exists() and not args.overwrite):
+        what = "is a folder" if args.output.is_dir() else "already exists (pass --overwrite to replace it)"
+        raise InputError(f"{args.output}: {what}")
     seq = Sequence.open(args.sequence)
     bad = [i for i in args.frames if not 0 <= i < len(seq)]
     if bad:
         raise InputError(f"{args.sequence}: frame {bad[0]} is out of range (0..{len(seq) - 1})")
     image = np.vstack([preview(seq, i) for i in args.frames])
-    if not cv2.imwrite(str(args.output), image[:, :, ::-1]):
-        raise InputError(f"{args.output}: could not write the PNG")
+    write_bytes_atomic(args.output, cv2.imencode(".png", image[:, :, ::-1])[1].tobytes())
     print(f"wrote {args.output}")
     return 0
 
@@ -381,15 +403,27 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return int(args.handler(args))
-    except (
-        InputError,
-        EnvironmentProblem,
-        FileNotFoundError,
-        FileExistsError,
-        IsADirectoryError,
-    ) as exc:
+    except (InputError, EnvironmentProblem) as exc:
         print(f"depotbench {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
+    except BrokenPipeError:
+        # The reader went away (``depotbench scenarios | head``): say nothing more.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+    except OSError as exc:
+        if exc.filename is None:
+            raise
+        # A path the system refused (missing, unreadable, full disk): the user's to fix.
+        print(f"depotbench {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return EXIT_INPUT_ERROR
+    except KeyboardInterrupt:
+        fresh_line = "\n" if sys.stderr.isatty() else ""  # after a progress bar
+        print(
+            f"{fresh_line}depotbench {args.command}: interrupted; "
+            "finished outputs are kept and nothing is half-written",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -7,10 +7,6 @@ stage) and ``metrics.json`` into a temporary folder renamed into place.
 
 from __future__ import annotations
 
-import json
-import os
-import shutil
-import uuid
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -22,6 +18,8 @@ from detectors.groundtruth import GroundTruthDetector
 from eval.comparison import ComparisonOptions, compare
 from eval.trajectory import Trajectory, write_tum
 from sim.errors import InputError
+from sim.files import dumps_json
+from sim.output import OutputKind, StagedOutput
 from sim.sequence import Sequence
 from slam.config import ConfigError, SlamConfig
 from slam.rejection import STRATEGIES
@@ -81,52 +79,45 @@ def run_sequence(
         config = SlamConfig(strategy=strategy).with_settings(settings or {})
     except ConfigError as exc:
         raise InputError(f"--set: {exc}") from None
-    if out_dir.exists() and not overwrite:
-        raise InputError(f"{out_dir}: already exists (pass --overwrite to replace it)")
     sequence = Sequence.open(sequence_dir)
     det = make_detector(detector, sequence)
-    slam = Slam(config, camera_of(sequence))
-    objects = sequence.objects() if sequence.is_generated else None
-    results: list[FrameResult] = []
-    labels: list[np.ndarray] = []
-    for i in tqdm(
-        range(len(sequence)),
-        desc=f"slam {strategy}",
-        unit="frame",
-        disable=not progress,
-        leave=False,
-    ):
-        frame = Frame(
-            sequence.frames[i].timestamp_s,
-            sequence.rgb(i),
-            sequence.depth_m(i),
-            slam.camera,
-            det.detect(i) if det else (),
-        )
-        result = slam.process(frame)
-        results.append(result)
-        if objects is not None:
-            moving = {o.instance_id for o in objects[i] if o.moving}
-            labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
-    metrics = _metrics(sequence, slam, results, labels, config, detector)
-    tmp = out_dir.parent / f".{out_dir.name}.partial-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir(parents=True)
-    try:
+    # The output is checked, locked and staged first: a place that must not or cannot be
+    # written is refused before the run, not after it.
+    with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
+        slam = Slam(config, camera_of(sequence))
+        objects = sequence.objects() if sequence.is_generated else None
+        results: list[FrameResult] = []
+        labels: list[np.ndarray] = []
+        for i in tqdm(
+            range(len(sequence)),
+            desc=f"slam {strategy}",
+            unit="frame",
+            disable=not progress,
+            leave=False,
+        ):
+            frame = Frame(
+                sequence.frames[i].timestamp_s,
+                sequence.rgb(i),
+                sequence.depth_m(i),
+                slam.camera,
+                det.detect(i) if det else (),
+            )
+            result = slam.process(frame)
+            results.append(result)
+            if objects is not None:
+                moving = {o.instance_id for o in objects[i] if o.moving}
+                labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
+        metrics = _metrics(sequence, slam, results, labels, config, detector)
         estimate = estimated_trajectory(results)
         if estimate is not None:
             write_tum(
-                tmp / "trajectory.txt",
+                output.path / "trajectory.txt",
                 estimate,
                 header=f"depotbench slam, strategy {strategy}, detector {detector}",
             )
-        _write_diagnostics(tmp / "diagnostics.npz", results, labels)
-        (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+        _write_diagnostics(output.path / "diagnostics.npz", results, labels)
+        (output.path / "metrics.json").write_text(dumps_json(metrics) + "\n", encoding="utf-8")
+        output.commit()
     return metrics
 
 

@@ -113,10 +113,7 @@ def matching_indices(
     if len(stamps_2) == 0:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
     if np.any(np.diff(stamps_2) < 0):
-        diffs = np.abs(stamps_2[None, :] - stamps_1[:, None])
-        best = np.argmin(diffs, axis=1)
-        ok = diffs[np.arange(len(stamps_1)), best] <= max_diff_s
-        return np.flatnonzero(ok), best[ok]
+        return _matching_indices_unsorted(stamps_1, stamps_2, max_diff_s)
     upper = np.minimum(np.searchsorted(stamps_2, stamps_1, side="right"), len(stamps_2) - 1)
     diff_ub = stamps_2[upper] - stamps_1
     diff_lb = np.where(upper > 0, stamps_1 - stamps_2[np.maximum(upper - 1, 0)], np.inf)
@@ -125,6 +122,26 @@ def matching_indices(
     in_range = (stamps_1 >= stamps_2[0] - max_diff_s) & (stamps_1 <= stamps_2[-1] + max_diff_s)
     ok = in_range & (take_ub | take_lb)
     best = np.where(take_ub, upper, upper - 1)
+    return np.flatnonzero(ok), best[ok]
+
+
+def _matching_indices_unsorted(
+    stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``matching_indices`` for unsorted ``stamps_2``: evo's argmin over all pairs (the first
+    index wins a tie), found by sorting instead of an N x M table of differences."""
+    order = np.argsort(stamps_2, kind="stable")
+    ordered = stamps_2[order]
+    above = np.minimum(np.searchsorted(ordered, stamps_1, side="left"), len(ordered) - 1)
+    below = np.maximum(above - 1, 0)
+    # Among equal stamps the stable sort puts the smallest index first: take the run's first.
+    below = np.searchsorted(ordered, ordered[below], side="left")
+    diff_above = np.abs(ordered[above] - stamps_1)
+    diff_below = np.abs(ordered[below] - stamps_1)
+    index_above, index_below = order[above], order[below]
+    take_below = (diff_below < diff_above) | ((diff_below == diff_above) & (index_below < index_above))
+    best = np.where(take_below, index_below, index_above)
+    ok = np.where(take_below, diff_below, diff_above) <= max_diff_s
     return np.flatnonzero(ok), best[ok]
 
 

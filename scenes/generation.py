@@ -1,9 +1,11 @@
-"""Generate scenarios and suites: worker processes, resumable runs, an index of difficulty.
+"""Generate suites: worker processes, resumable by content, an index of difficulty.
 
 Jobs take plain, picklable arguments (a scenario's JSON-able data and an output
-path) so they run in spawned workers now and on Ray later. A sequence folder
-exists only once complete (the writer renames it into place), so a rerun skips
-finished sequences and redoes the rest.
+path) so they run in spawned workers now and on Ray later. A sequence counts as
+complete only when its marker holds the content key of what is asked for now
+(spec, seed, format and generator version); anything else is regenerated. The
+suite folder is locked while a run owns it, each sequence while a worker writes
+it, and workers die with their parent.
 """
 
 from __future__ import annotations
@@ -11,9 +13,9 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import shutil
+import signal
+import threading
 import time
-import uuid
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
@@ -22,21 +24,36 @@ from tqdm import tqdm
 
 from scenes.schema import Scenario, to_scenario
 from scenes.suite import Suite, variations
+from sim.files import dumps_json
+from sim.output import OutputContainer, OutputKind, check_replaceable, read_marker, write_text_atomic
+from sim.spec import content_key
 
 INDEX_NAME = "index.json"
+PARENT_POLL_S = 0.2
+"""How often a worker checks that its parent is alive."""
 
 
-def _init_worker() -> None:
+def _exit_with_parent(parent_pid: int) -> None:
+    while True:
+        time.sleep(PARENT_POLL_S)
+        if os.getppid() != parent_pid:
+            os._exit(1)  # orphaned: the parent was killed; its lock is gone, so must we be
+
+
+def _init_worker(parent_pid: int) -> None:
     # With one process per core, Mesa's llvmpipe should not spawn threads of its own.
     os.environ["LP_NUM_THREADS"] = "1"
+    # Ctrl-C reaches the whole process group: the parent alone handles it and stops us.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
 
 
 def generate_job(scenario_data: dict[str, Any], out: str) -> dict[str, Any]:
-    """Worker entry point: validate, generate, and return the sequence's difficulty."""
+    """Worker entry point: validate, generate (replacing a stale sequence), return its difficulty."""
     from sim.generate import generate
 
     scenario = Scenario.model_validate(scenario_data)
-    generate(to_scenario(scenario), Path(out), progress=False)
+    generate(to_scenario(scenario), Path(out), progress=False, overwrite=True)
     return read_difficulty(Path(out))
 
 
@@ -45,69 +62,105 @@ def read_difficulty(sequence: Path) -> dict[str, Any]:
     return meta.get("difficulty", {})
 
 
-def clean_partials(out_dir: Path) -> None:
-    """Remove temporary folders left by a run that was killed."""
-    for stale in out_dir.glob(".*.partial-*"):
-        shutil.rmtree(stale, ignore_errors=True)
+def is_complete(sequence: Path, key: str) -> bool:
+    """True when ``sequence`` is a complete depotbench sequence holding exactly ``key``."""
+    marker = read_marker(sequence)
+    return marker is not None and marker.kind is OutputKind.SEQUENCE and marker.content_key == key
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
-    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.tmp"
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel what has not started and terminate what runs (shutdown alone would wait for it)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate is not None:
+        terminate()
+        return
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
 
 
-def run_suite(suite: Suite, suite_path: Path, out_dir: Path, workers: int, progress: bool = True) -> dict:
-    """Generate every variation not yet complete; write ``index.json``; return the index."""
+def _generate_all(pending: list[tuple[str, Scenario]], out_dir: Path, workers: int, bar: tqdm) -> None:
+    context = mp.get_context("spawn")
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
+    )
+    try:
+        running: dict[Future, Scenario] = {}
+        queue = list(pending)
+        while queue or running:
+            while queue and len(running) < workers:
+                name, sc = queue.pop(0)
+                running[pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))] = sc
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                sc = running.pop(future)
+                future.result()  # a failed sequence stops the suite with its own error
+                bar.update(sc.n_frames)
+    except BaseException:
+        _stop_workers(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def run_suite(
+    suite: Suite,
+    suite_path: Path,
+    out_dir: Path,
+    workers: int,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> dict:
+    """Generate every variation whose sequence is missing or stale; write ``index.json``.
+
+    ``overwrite`` regenerates every sequence, even those that are up to date.
+    """
     jobs = variations(suite, suite_path)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    clean_partials(out_dir)
-    pending = [(name, knobs, sc) for name, knobs, sc in jobs if not (out_dir / name).is_dir()]
-    skipped = len(jobs) - len(pending)
-    total_frames = sum(sc.n_frames for _, _, sc in pending)
-    bar = tqdm(
-        total=total_frames,
-        unit="frame",
-        desc=f"suite {suite.suite}",
-        disable=not progress,
-        smoothing=0.1,
-    )
-    bar.write(
-        f"{len(jobs)} sequences: {skipped} already complete, {len(pending)} to generate "
-        f"with {workers} worker(s)"
-    )
-    start = time.perf_counter()
-    if pending:
-        context = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker) as pool:
-            running: dict[Future, tuple[str, Scenario]] = {}
-            queue = list(pending)
-            while queue or running:
-                while queue and len(running) < workers:
-                    name, _, sc = queue.pop(0)
-                    future = pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))
-                    running[future] = (name, sc)
-                done, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in done:
-                    name, sc = running.pop(future)
-                    future.result()  # a failed sequence stops the suite with its own error
-                    bar.update(sc.n_frames)
-    bar.close()
-    index = {
-        "suite": suite.suite,
-        "description": suite.description,
-        "sequences": [
-            {
-                "name": name,
-                "knobs": knobs,
-                "seed": sc.seed,
-                "frames": sc.n_frames,
-                "difficulty": read_difficulty(out_dir / name),
-            }
-            for name, knobs, sc in jobs
-        ],
-    }
-    write_json_atomic(out_dir / INDEX_NAME, index)
+    with OutputContainer(out_dir, OutputKind.SUITE, inputs=(suite_path,)) as container:
+        root = container.path
+        keys = {name: content_key(to_scenario(sc)) for name, _, sc in jobs}
+        for name, _, _ in jobs:  # never replace a folder depotbench did not write
+            check_replaceable(root / name, out_dir / name, OutputKind.SEQUENCE, overwrite=True)
+        pending = [
+            (name, sc) for name, _, sc in jobs if overwrite or not is_complete(root / name, keys[name])
+        ]
+        stale = sum((root / name).exists() for name, _ in pending)
+        total_frames = sum(sc.n_frames for _, sc in pending)
+        bar = tqdm(
+            total=total_frames,
+            unit="frame",
+            desc=f"suite {suite.suite}",
+            disable=not progress,
+            smoothing=0.1,
+        )
+        bar.write(
+            f"{len(jobs)} sequences: {len(jobs) - len(pending)} complete, {len(pending)} to generate "
+            f"({stale} of them stale or replaced) with {workers} worker(s)"
+        )
+        start = time.perf_counter()
+        try:
+            if pending:
+                _generate_all(pending, root, workers, bar)
+        finally:
+            bar.close()
+        index = {
+            "suite": suite.suite,
+            "description": suite.description,
+            "sequences": [
+                {
+                    "name": name,
+                    "knobs": knobs,
+                    "seed": sc.seed,
+                    "frames": sc.n_frames,
+                    "content_key": keys[name],
+                    "difficulty": read_difficulty(root / name),
+                }
+                for name, knobs, sc in jobs
+            ],
+        }
+        write_text_atomic(root / INDEX_NAME, dumps_json(index) + "\n")
     if progress and pending:
         elapsed = time.perf_counter() - start
         print(

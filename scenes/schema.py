@@ -13,13 +13,25 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from sim import spec as sim_spec
-from sim.errors import InputError
+from sim.errors import FileError, InputError
+from sim.files import MAX_SPEC_BYTES, read_text
 
 MAX_FRAMES = 100_000
 MAX_ACTORS = 40
+MAX_YAML_NODES = 100_000
+"""Values a scenario or suite file may expand to, aliases counted at every use."""
+MAX_YAML_DEPTH = 32
 PositiveFloat = Annotated[float, Field(gt=0)]
 
 
@@ -28,7 +40,7 @@ class SpecError(InputError):
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, allow_inf_nan=False)
 
 
 class Image(Strict):
@@ -261,14 +273,41 @@ def format_validation_error(source: str, exc: ValidationError) -> str:
     return "\n".join(lines)
 
 
+def _check_size(data: Any, path: Path) -> None:
+    """Refuse YAML whose aliases expand past ``MAX_YAML_NODES`` or nest past ``MAX_YAML_DEPTH``.
+
+    Aliases load as shared references, so a small file can stand for a tree of 10^9
+    nodes that validation would walk; sizes are counted once per shared node.
+    """
+    sizes: dict[int, int] = {}
+
+    def size(node: Any, depth: int, path_ids: frozenset[int]) -> int:
+        if depth > MAX_YAML_DEPTH or id(node) in path_ids:
+            raise SpecError(
+                f"{path}: nested more than {MAX_YAML_DEPTH} levels deep (or an alias refers to itself)"
+            )
+        if not isinstance(node, dict | list):
+            return 1
+        if id(node) not in sizes:
+            children = list(node.keys()) + list(node.values()) if isinstance(node, dict) else node
+            inner = path_ids | {id(node)}
+            sizes[id(node)] = 1 + sum(size(child, depth + 1, inner) for child in children)
+            if sizes[id(node)] > MAX_YAML_NODES:
+                raise SpecError(f"{path}: expands to more than {MAX_YAML_NODES} values (check its aliases)")
+        return sizes[id(node)]
+
+    size(data, 0, frozenset())
+
+
 def read_yaml(path: Path) -> Any:
-    """Parse YAML safely: tags that would build Python objects are refused."""
+    """Parse YAML safely: tags that would build Python objects are refused, and size,
+    nesting and alias expansion are bounded."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, MAX_SPEC_BYTES, "scenario or suite file")
     except FileNotFoundError:
         raise SpecError(f"{path}: no such file") from None
-    except (UnicodeDecodeError, IsADirectoryError) as exc:
-        raise SpecError(f"{path}: not a readable text file ({exc})") from None
+    except FileError as exc:
+        raise SpecError(str(exc)) from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -276,11 +315,24 @@ def read_yaml(path: Path) -> Any:
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise SpecError(f"{path}:{where}: not valid YAML: {problem}") from None
+    except RecursionError:
+        raise SpecError(f"{path}: nested too deeply to parse (more than {MAX_YAML_DEPTH} levels)") from None
+    _check_size(data, path)
     if data is None:
         raise SpecError(f"{path}: the file is empty; a scenario needs at least a name")
     if not isinstance(data, dict):
         raise SpecError(f"{path}: the top level must be a mapping of fields, got {type(data).__name__}")
     return data
+
+
+def check_option(field: str, value: Any, option: str) -> Any:
+    """A command-line value checked against the limits the schema sets for ``field``."""
+    info = Scenario.model_fields[field]
+    adapter = TypeAdapter(Annotated[info.annotation, *info.metadata])  # type: ignore[valid-type]
+    try:
+        return adapter.validate_python(value)
+    except ValidationError as exc:
+        raise SpecError(f"{option} {value}: {exc.errors()[0]['msg']} (the scenario's {field})") from None
 
 
 def parse_scenario(data: dict[str, Any], source: str) -> Scenario:

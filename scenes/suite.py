@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import copy
 import itertools
+import math
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
@@ -66,7 +67,7 @@ class Suite(Strict):
     base: str
     overrides: dict[str, Any] = {}
     grid: dict[str, list[Any]] = {}
-    seeds: list[int] = [0]
+    seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] = Field([0], min_length=1)
     random: RandomKnobs | None = None
     mode: Literal["grid", "random"] | None = None
 
@@ -110,8 +111,22 @@ def _base_data(suite: Suite, suite_path: Path) -> dict[str, Any]:
     return read_yaml(path)
 
 
+def count_variations(suite: Suite) -> int:
+    """How many sequences the suite expands to, counted without building them."""
+    if suite.random is not None:
+        return suite.random.count
+    return math.prod(len(values) for values in suite.grid.values()) * len(suite.seeds)
+
+
 def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any], Scenario]]:
     """Every (sequence name, knob values, validated scenario) of the suite, in a fixed order."""
+    count = count_variations(suite)
+    if count > MAX_VARIATIONS:
+        sizes = " x ".join(str(len(v)) for v in suite.grid.values())
+        raise SpecError(
+            f"{suite_path}: the grid ({sizes} values x {len(suite.seeds)} seeds) makes {count} "
+            f"sequences, more than the limit of {MAX_VARIATIONS}"
+        )
     base = _base_data(suite, suite_path)
     for key, value in suite.overrides.items():
         set_path(base, key, value, str(suite_path))
@@ -121,12 +136,10 @@ def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any]
         knob_sets = [{**d, "seed": int(base.get("seed", 0)) + i} for i, d in enumerate(draws)]
     else:
         keys = list(suite.grid)
-        combos = list(itertools.product(*(suite.grid[k] for k in keys))) or [()]
+        combos = itertools.product(*(suite.grid[k] for k in keys))
         knob_sets = [
             {**dict(zip(keys, combo, strict=True)), "seed": seed} for combo in combos for seed in suite.seeds
         ]
-    if len(knob_sets) > MAX_VARIATIONS:
-        raise SpecError(f"{suite_path}: {len(knob_sets)} variations, more than {MAX_VARIATIONS}")
     result = []
     for i, knobs in enumerate(knob_sets):
         data = copy.deepcopy(base)

@@ -13,8 +13,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.errors import SequenceFormatError
+from sim.errors import FileError, SequenceFormatError
+from sim.files import MAX_SPEC_BYTES, read_text
 
+MAX_IMAGE_SIDE = 16384
+"""Largest image width or height a settings file may declare."""
 TUM_DEPTH_SCALE = 5000.0
 """Depth PNG units per metre (TUM RGB-D)."""
 
@@ -49,6 +52,8 @@ class Intrinsics:
             raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
         if len(self.distortion) != 5:
             raise ValueError("distortion must hold (k1, k2, p1, p2, k3)")
+        if not all(math.isfinite(k) for k in self.distortion):
+            raise ValueError(f"distortion coefficients must be finite, got {self.distortion}")
 
     @property
     def matrix(self) -> np.ndarray:
@@ -167,9 +172,16 @@ _REQUIRED_KEYS = (
 def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     """Intrinsics and frame rate from an ORB-SLAM settings file (OpenCV YAML)."""
     try:
-        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        text = read_text(path, MAX_SPEC_BYTES, "settings file")
+    except FileError as exc:
+        raise SequenceFormatError(path, None, exc.problem) from None
+    try:
+        storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as exc:
-        raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {exc.msg}") from exc
+        problem = (exc.err or str(exc)).strip().splitlines()[0]
+        raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {problem}") from None
+    if not storage.isOpened():
+        raise SequenceFormatError(path, None, "not an OpenCV YAML file (it must start with %YAML:1.0)")
     try:
         values: dict[str, float] = {}
         for key in (
@@ -191,6 +203,12 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
             values[key] = float(node.real())
     finally:
         storage.release()
+    for key in ("Camera.width", "Camera.height"):
+        if not (values[key].is_integer() and 1 <= values[key] <= MAX_IMAGE_SIDE):
+            raise SequenceFormatError(path, None, f"{key} must be a whole number in 1..{MAX_IMAGE_SIDE}")
+    fps = values.get("Camera.fps", 30.0)
+    if not (math.isfinite(fps) and fps > 0):
+        raise SequenceFormatError(path, None, f"Camera.fps must be a positive number, got {fps}")
     try:
         intrinsics = Intrinsics(
             fx=values["Camera.fx"],
@@ -203,5 +221,5 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
             depth_scale=values["DepthMapFactor"],
         )
     except ValueError as exc:
-        raise SequenceFormatError(path, None, str(exc)) from exc
-    return intrinsics, values.get("Camera.fps", 30.0)
+        raise SequenceFormatError(path, None, str(exc)) from None
+    return intrinsics, fps

@@ -13,8 +13,8 @@ class InputError(ValueError):
     """Bad input from the user: a file, a field or an argument."""
 
 
-class SequenceFormatError(InputError):
-    """A folder or file breaks the sequence contract of design.md."""
+class FileError(InputError):
+    """A file that cannot be used as input: the message names it and, where known, the line."""
 
     def __init__(self, path: Path | str, line: int | None, problem: str) -> None:
         self.path = Path(path)
@@ -22,6 +22,10 @@ class SequenceFormatError(InputError):
         self.problem = problem
         where = f"{self.path}" if line is None else f"{self.path}:{line}"
         super().__init__(f"{where}: {problem}")
+
+
+class SequenceFormatError(FileError):
+    """A folder or file breaks the sequence contract of design.md."""
 
 
 class EnvironmentProblem(RuntimeError):

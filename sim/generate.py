@@ -16,8 +16,8 @@ from sim.render import FrameRenderer
 from sim.sensor import SensorModel
 from sim.sequence import SequenceWriter
 from sim.simulation import Simulation, Snapshot
-from sim.spec import ScenarioSpec
-from sim.world import World, build_world, scenario_streams
+from sim.spec import ScenarioSpec, content_key
+from sim.world import World, build_world, intrinsics_of, scenario_streams
 
 MOVING_SPEED_MPS = 0.01
 """An instance is 'moving' when any of its parts moves faster than this."""
@@ -106,27 +106,35 @@ def generate(
     overwrite: bool = False,
     progress: bool = True,
     position: int = 0,
+    inputs: tuple[Path, ...] = (),
 ) -> Path:
-    """Write ``scenario`` as a sequence folder at ``out`` (atomically)."""
+    """Write ``scenario`` as a sequence folder at ``out`` (atomically).
+
+    The output is checked, locked and staged before the world is built, so a place
+    that must not or cannot be written is refused before any work.
+    """
     out = Path(out)
-    world = build_world(scenario)
-    sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
-    renderer = FrameRenderer(world.model, scenario.width, scenario.height)
-    sim = Simulation(world)
-    geom_body = world.model.geom_bodyid.astype(np.int64)
-    geom_instance = world.body_instance[geom_body]
-    difficulty = DifficultyAccumulator()
-    meta = {
-        "scenario": dataclasses.asdict(scenario),
-        "seed": scenario.seed,
-        "classes": world.classes(),
-        "instances": [dataclasses.asdict(i) for i in world.instances],
-    }
+    writer = SequenceWriter(
+        out,
+        intrinsics_of(scenario),
+        fps=scenario.fps,
+        meta={"scenario": dataclasses.asdict(scenario), "seed": scenario.seed},
+        overwrite=overwrite,
+        content_key=content_key(scenario),
+        inputs=inputs,
+    )
     period = 1.0 / scenario.fps
-    try:
-        with SequenceWriter(
-            out, world.intrinsics, fps=scenario.fps, meta=meta, overwrite=overwrite
-        ) as writer:
+    with writer:
+        world = build_world(scenario)
+        sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
+        renderer = FrameRenderer(world.model, scenario.width, scenario.height)
+        sim = Simulation(world)
+        geom_body = world.model.geom_bodyid.astype(np.int64)
+        geom_instance = world.body_instance[geom_body]
+        difficulty = DifficultyAccumulator()
+        writer.meta["classes"] = world.classes()
+        writer.meta["instances"] = [dataclasses.asdict(i) for i in world.instances]
+        try:
             now = sim.snapshot()
             frames = tqdm(
                 range(scenario.frames),
@@ -197,6 +205,6 @@ def generate(
                 )
                 now = nxt
             writer.meta["difficulty"] = difficulty.summary()
-    finally:
-        renderer.close()
+        finally:
+            renderer.close()
     return out

@@ -48,6 +48,10 @@ class ObjectState:
             raise ValueError("visible_pixels must be >= 0")
         if (self.box_xyxy is None) != (self.visible_pixels == 0):
             raise ValueError("an instance has a box exactly when it has visible pixels")
+        if self.box_xyxy is not None:
+            x0, y0, x1, y1 = self.box_xyxy
+            if not (0 <= x0 < x1 and 0 <= y0 < y1):
+                raise ValueError(f"box_xyxy {self.box_xyxy} of instance {self.instance_id} is empty")
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -66,24 +70,28 @@ class ObjectState:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> ObjectState:
         box = data["box_xyxy"]
+        if not isinstance(data["moving"], bool):
+            raise ValueError(f"moving must be true or false, got {data['moving']!r}")
         return cls(
             instance_id=int(data["id"]),
             class_name=str(data["class"]),
             prior=str(data["prior"]),
-            position_m=_triple(data["position_m"]),
-            quat_xyzw=tuple(float(v) for v in data["quat_xyzw"]),  # type: ignore[arg-type]
-            linear_velocity_mps=_triple(data["linear_velocity_mps"]),
-            angular_velocity_radps=_triple(data["angular_velocity_radps"]),
-            moving=bool(data["moving"]),
-            box_xyxy=None if box is None else tuple(int(v) for v in box),  # type: ignore[arg-type]
+            position_m=_numbers(data["position_m"], 3, float),  # type: ignore[arg-type]
+            quat_xyzw=_numbers(data["quat_xyzw"], 4, float),  # type: ignore[arg-type]
+            linear_velocity_mps=_numbers(data["linear_velocity_mps"], 3, float),  # type: ignore[arg-type]
+            angular_velocity_radps=_numbers(data["angular_velocity_radps"], 3, float),  # type: ignore[arg-type]
+            moving=data["moving"],
+            box_xyxy=None if box is None else _numbers(box, 4, int),  # type: ignore[arg-type]
             visible_pixels=int(data["visible_pixels"]),
         )
 
 
-def _triple(values: list[float]) -> tuple[float, float, float]:
-    if len(values) != 3:
-        raise ValueError(f"expected 3 values, got {len(values)}")
-    return (float(values[0]), float(values[1]), float(values[2]))
+def _numbers(values: Any, n: int, kind: type) -> tuple:
+    if not isinstance(values, list) or len(values) != n:
+        raise ValueError(f"expected a list of {n} numbers, got {values!r:.60}")
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        raise ValueError(f"expected numbers, got {values!r:.60}")
+    return tuple(kind(v) for v in values)
 
 
 def boxes_and_counts(instances: np.ndarray, n_instances: int) -> tuple[list, np.ndarray]:

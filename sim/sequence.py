@@ -7,12 +7,12 @@
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import uuid
+import math
+import posixpath
+import zipfile
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -28,8 +28,10 @@ from sim.camera import (
     read_orbslam_yaml,
     tum_intrinsics_for,
 )
-from sim.errors import SequenceFormatError
+from sim.errors import FileError, SequenceFormatError
+from sim.files import MAX_META_BYTES, MAX_RECORD_BYTES, open_regular, png_header, read_text
 from sim.ground_truth import ObjectState
+from sim.output import OutputKind, StagedOutput
 from sim.tum_files import (
     FrameList,
     PoseTable,
@@ -41,9 +43,8 @@ from sim.tum_files import (
     write_frame_list,
     write_pose_file,
 )
+from sim.version import FORMAT_VERSION, SUPPORTED_FORMAT_VERSIONS, generator_version
 
-FORMAT_VERSION = 1
-SUPPORTED_FORMAT_VERSIONS = (1,)
 PNG_WRITER_THREADS = 2
 ASSOCIATION_MAX_DIFF_S = 0.02
 """Largest RGB/depth timestamp gap paired when a folder has no associations.txt (TUM)."""
@@ -52,13 +53,6 @@ ASSOCIATION_MAX_DIFF_S = 0.02
 def timestamp_name(timestamp_s: float) -> str:
     """The file stem of a frame: seconds with 6 decimals, as in TUM."""
     return f"{timestamp_s:.6f}"
-
-
-def generator_version() -> str:
-    try:
-        return metadata.version("depotbench")
-    except metadata.PackageNotFoundError:
-        return "unknown"
 
 
 @dataclass(frozen=True)
@@ -121,8 +115,10 @@ class Sequence:
             raise SequenceFormatError(camera_path, None, "file is missing (required with meta.json)")
         else:
             intrinsics = intrinsics or tum_intrinsics_for(root)
-        if meta is not None:
-            fps = float(meta.get("fps", fps))
+        if meta is not None and "fps" in meta:
+            fps = meta["fps"]
+            if isinstance(fps, bool) or not isinstance(fps, int | float) or not 0 < fps < math.inf:
+                raise SequenceFormatError(root / "meta.json", None, f"fps must be a number > 0, got {fps!r}")
         frames = _read_frames(root, max_diff_s)
         gt_path = root / "groundtruth.txt"
         groundtruth = None
@@ -167,7 +163,7 @@ class Sequence:
     def rgb(self, index: int) -> np.ndarray:
         """Frame ``index`` as 8-bit RGB, shape (H, W, 3)."""
         frame = self.frames[index]
-        image = _read_png(frame.rgb_path, frame)
+        image = _read_png(frame.rgb_path, frame, self._size)
         if image.dtype != np.uint8:
             raise SequenceFormatError(frame.rgb_path, None, f"RGB must be 8-bit, got {image.dtype}")
         if image.ndim == 2:
@@ -176,13 +172,12 @@ class Sequence:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
         else:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-        self._check_size(frame.rgb_path, image)
         return image
 
     def depth_raw(self, index: int) -> np.ndarray:
         """Frame ``index``'s depth PNG as stored: uint16, metres x depth_scale, 0 = none."""
         frame = self.frames[index]
-        depth = _read_png(frame.depth_path, frame)
+        depth = _read_png(frame.depth_path, frame, self._size)
         if depth.dtype != np.uint16 or depth.ndim != 2:
             channels = 1 if depth.ndim == 2 else depth.shape[2]
             raise SequenceFormatError(
@@ -190,7 +185,6 @@ class Sequence:
                 None,
                 f"depth must be a 16-bit single-channel PNG, got {depth.dtype} x{channels}",
             )
-        self._check_size(frame.depth_path, depth)
         return depth
 
     def depth_m(self, index: int) -> np.ndarray:
@@ -213,10 +207,9 @@ class Sequence:
         self._require_generated()
         frame = self.frames[index]
         path = self._instance_path(frame)
-        mask = _read_png(path, frame)
+        mask = _read_png(path, frame, self._size)
         if mask.dtype != np.uint16 or mask.ndim != 2:
             raise SequenceFormatError(path, None, "instance image must be a 16-bit single-channel PNG")
-        self._check_size(path, mask)
         return mask
 
     def objects(self) -> list[tuple[ObjectState, ...]]:
@@ -224,13 +217,14 @@ class Sequence:
         self._require_generated()
         path = self.root / "gt" / "objects.jsonl"
         records: list[tuple[ObjectState, ...]] = []
-        with path.open(encoding="utf-8") as handle:
-            for line_number, line in enumerate(handle, start=1):
+        fd = open_regular(path, 2**62, "JSON-lines file")
+        with open(fd, encoding="utf-8", errors="strict") as handle:
+            for line_number, line in enumerate(_bounded_lines(path, handle), start=1):
                 try:
                     data = json.loads(line)
                     states = tuple(ObjectState.from_json(o) for o in data["objects"])
                     timestamp = float(data["timestamp"])
-                except (ValueError, KeyError, TypeError) as exc:
+                except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
                     raise SequenceFormatError(path, line_number, f"bad record: {exc}") from None
                 if line_number > len(self.frames):
                     raise SequenceFormatError(path, line_number, "more records than frames")
@@ -253,7 +247,7 @@ class Sequence:
         path = self.root / "gt" / "depth" / f"{timestamp_name(frame.timestamp_s)}.png"
         if not path.exists():
             return self.depth_m(index)
-        depth = _read_png(path, frame)
+        depth = _read_png(path, frame, self._size)
         return depth.astype(np.float32) / np.float32(self.intrinsics.depth_scale)
 
     def flow(self, index: int) -> np.ndarray | None:
@@ -262,8 +256,19 @@ class Sequence:
         path = self.root / "gt" / "flow" / f"{timestamp_name(self.frames[index].timestamp_s)}.npz"
         if not path.exists():
             return None
-        with np.load(path) as data:
-            return data["flow"]
+        h, w = self.intrinsics.height, self.intrinsics.width
+        try:
+            with zipfile.ZipFile(path) as archive:
+                size = archive.getinfo("flow.npy").file_size
+            if size > h * w * 2 * 4 + 4096:  # float32 (H, W, 2) and the .npy header
+                raise SequenceFormatError(path, None, f"flow.npy holds {size} bytes, too many for {w}x{h}")
+            with np.load(path) as data:
+                flow = data["flow"]
+        except (zipfile.BadZipFile, KeyError, ValueError, OSError) as exc:
+            raise SequenceFormatError(path, None, f"not a flow archive ({exc})") from None
+        if flow.shape != (h, w, 2):
+            raise SequenceFormatError(path, None, f"flow has shape {flow.shape}, expected {(h, w, 2)}")
+        return flow
 
     def verify(self) -> None:
         """Decode every image, so a corrupt file is found before a long run."""
@@ -279,14 +284,9 @@ class Sequence:
         if not self.is_generated:
             raise ValueError(f"{self.root}: not a generated sequence (no meta.json, no gt/)")
 
-    def _check_size(self, path: Path, image: np.ndarray) -> None:
-        height, width = image.shape[:2]
-        if (width, height) != (self.intrinsics.width, self.intrinsics.height):
-            raise SequenceFormatError(
-                path,
-                None,
-                f"image is {width}x{height}, the camera is {self.intrinsics.width}x{self.intrinsics.height}",
-            )
+    @property
+    def _size(self) -> tuple[int, int]:
+        return (self.intrinsics.width, self.intrinsics.height)
 
 
 def pose_matrix(position: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
@@ -298,12 +298,17 @@ def pose_matrix(position: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
 
 
 def _read_meta(path: Path) -> dict[str, Any] | None:
-    if not path.exists():
+    if not (path.exists() or path.is_symlink()):
         return None
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SequenceFormatError(path, getattr(exc, "lineno", None), f"not valid JSON: {exc}") from None
+        meta = json.loads(read_text(path, MAX_META_BYTES, "meta.json"))
+    except FileNotFoundError:
+        raise SequenceFormatError(path, None, "is a broken link") from None
+    except FileError as exc:
+        raise SequenceFormatError(path, None, exc.problem) from None
+    except (json.JSONDecodeError, RecursionError) as exc:
+        line = getattr(exc, "lineno", None)
+        raise SequenceFormatError(path, line, f"not valid JSON: {getattr(exc, 'msg', exc)}") from None
     if not isinstance(meta, dict):
         raise SequenceFormatError(path, None, "must hold a JSON object")
     version = meta.get("format_version")
@@ -328,9 +333,9 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
         frames = [
             FrameRef(
                 float(stamps[k]),
-                root / r.fields[1],
+                _inside(root, r.fields[1], assoc_path, r.line),
                 parse_float(assoc_path, r, 2, "timestamp"),
-                root / r.fields[3],
+                _inside(root, r.fields[3], assoc_path, r.line),
                 assoc_path,
                 r.line,
             )
@@ -342,9 +347,9 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
         frames = [
             FrameRef(
                 float(rgb.timestamps_s[i]),
-                root / rgb.filenames[i],
+                _inside(root, rgb.filenames[i], root / "rgb.txt", rgb.lines[i]),
                 float(depth.timestamps_s[j]),
-                root / depth.filenames[j],
+                _inside(root, depth.filenames[j], root / "depth.txt", depth.lines[j]),
                 root / "rgb.txt",
                 rgb.lines[i],
             )
@@ -363,6 +368,14 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
                     f"frame file {path.relative_to(root)} is missing",
                 )
     return tuple(frames)
+
+
+def _inside(root: Path, name: str, list_path: Path, line: int) -> Path:
+    """``root / name``, refused when ``name`` is absolute or climbs out of the sequence."""
+    normal = posixpath.normpath(name.replace("\\", "/"))
+    if posixpath.isabs(normal) or normal == ".." or normal.startswith("../"):
+        raise SequenceFormatError(list_path, line, f"path {name!r} points outside the sequence folder")
+    return root / normal
 
 
 def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list[tuple[int, int]]:
@@ -393,13 +406,30 @@ def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list
     return pairs
 
 
-def _read_png(path: Path, frame: FrameRef) -> np.ndarray:
-    if not path.is_file():
-        raise SequenceFormatError(frame.list_path, frame.list_line, f"frame file {path} is missing")
+def _read_png(path: Path, frame: FrameRef, size: tuple[int, int]) -> np.ndarray:
+    """Decode a frame's PNG after its header says it has the camera's ``(width, height)``."""
+    try:
+        width, height, _, _ = png_header(path)
+    except FileNotFoundError:
+        raise SequenceFormatError(frame.list_path, frame.list_line, f"frame file {path} is missing") from None
+    except FileError as exc:
+        raise SequenceFormatError(path, None, exc.problem) from None
+    if (width, height) != size:
+        raise SequenceFormatError(path, None, f"image is {width}x{height}, the camera is {size[0]}x{size[1]}")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
-        raise SequenceFormatError(path, None, "cannot be decoded as an image (corrupt or not PNG)")
+        raise SequenceFormatError(path, None, "cannot be decoded as a PNG image (corrupt or truncated)")
     return image
+
+
+def _bounded_lines(path: Path, handle: Any) -> Iterator[str]:
+    """The lines of a text file, refusing one longer than ``MAX_RECORD_BYTES``."""
+    number = 0
+    while line := handle.readline(MAX_RECORD_BYTES + 1):
+        number += 1
+        if len(line) > MAX_RECORD_BYTES:
+            raise SequenceFormatError(path, number, f"line is longer than {MAX_RECORD_BYTES} bytes")
+        yield line
 
 
 # -- writer --------------------------------------------------------------------
@@ -421,12 +451,13 @@ class SequenceWriter:
         overwrite: bool = False,
         png_compression: int = 1,
         orbslam: OrbSlamSettings | None = None,
+        content_key: str | None = None,
+        inputs: tuple[Path, ...] = (),
     ) -> None:
         self.root = Path(root)
         self.intrinsics = intrinsics
         self.fps = fps
         self.meta = dict(meta)
-        self.overwrite = overwrite
         # The SUB filter at level 1 encodes a third faster than libpng's adaptive default.
         self.png_params = [
             cv2.IMWRITE_PNG_COMPRESSION,
@@ -434,6 +465,9 @@ class SequenceWriter:
             cv2.IMWRITE_PNG_FILTER,
             cv2.IMWRITE_PNG_FILTER_SUB,
         ]
+        self._output = StagedOutput(
+            self.root, OutputKind.SEQUENCE, overwrite=overwrite, inputs=inputs, content_key=content_key
+        )
         self._pool: ThreadPoolExecutor | None = None
         self._pending: list[Future[None]] = []
         self.orbslam = orbslam or OrbSlamSettings(fps=fps)
@@ -444,10 +478,9 @@ class SequenceWriter:
         self._objects: list[str] = []
 
     def __enter__(self) -> SequenceWriter:
-        if self.root.exists() and not self.overwrite:
-            raise FileExistsError(f"{self.root}: already exists (pass overwrite to replace it)")
-        self.root.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.root.parent / f".{self.root.name}.partial-{uuid.uuid4().hex[:8]}"
+        """Check and lock the output, and stage it: a place that cannot be written fails here."""
+        self._output.__enter__()
+        self._tmp = self._output.path
         for sub in ("rgb", "depth", "gt/instances"):
             (self._tmp / sub).mkdir(parents=True)
         # cv2.imwrite releases the GIL: encoding overlaps with rendering the next frame.
@@ -460,17 +493,17 @@ class SequenceWriter:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        assert self._tmp is not None and self._pool is not None
+        assert self._pool is not None
         try:
-            self._pool.shutdown(wait=True)
+            self._pool.shutdown(wait=True, cancel_futures=exc_type is not None)
             for future in self._pending:
                 if exc_type is None:
                     future.result()  # re-raises a failed write
             if exc_type is None:
                 self._finish()
+                self._output.commit()
         finally:
-            if self._tmp.exists():
-                shutil.rmtree(self._tmp)
+            self._output.__exit__(exc_type, exc, tb)
 
     def add_frame(
         self,
@@ -559,7 +592,6 @@ class SequenceWriter:
             "depth_scale": self.intrinsics.depth_scale,
         }
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-        _replace_dir(tmp, self.root)
 
 
 def _imwrite(path: Path, image: np.ndarray, params: list[int]) -> None:
@@ -572,17 +604,6 @@ def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     scaled = np.rint(np.asarray(depth_m, dtype=np.float64) * depth_scale)
     valid = np.isfinite(scaled) & (scaled > 0) & (scaled <= np.iinfo(np.uint16).max)
     return np.where(valid, scaled, 0).astype(np.uint16)
-
-
-def _replace_dir(src: Path, dst: Path) -> None:
-    """Move a finished folder into place; an old one is removed only after the swap."""
-    old = None
-    if dst.exists():
-        old = dst.parent / f".{dst.name}.old-{uuid.uuid4().hex[:8]}"
-        os.replace(dst, old)
-    os.replace(src, dst)
-    if old is not None:
-        shutil.rmtree(old)
 
 
 def _check_array(what: str, array: np.ndarray, shape: tuple[int, ...], dtype: type | None) -> None:

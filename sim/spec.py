@@ -6,7 +6,12 @@ the hall centred on the origin with the default camera looking along +y.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 from dataclasses import dataclass, field
+
+from sim.version import FORMAT_VERSION, generator_version
 
 ACTOR_KINDS = ("person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird")
 PATH_MODES = ("loop", "random_walk", "seated")
@@ -129,6 +134,21 @@ def default_scenario(frames: int = 90, seed: int = 0) -> ScenarioSpec:
         chairs=(ChairSpec((1.6, 0.6), 30.0), ChairSpec((-2.2, 2.6), -20.0)),
         camera=CameraSpec(motion="xyz"),
     )
+
+
+def content_key(scenario: ScenarioSpec) -> str:
+    """What a generated sequence's bytes depend on: the spec (seed included), format and generator.
+
+    Stored in the sequence's marker, so a suite counts a sequence complete only when it
+    holds exactly what is asked for now.
+    """
+    data = {
+        "scenario": dataclasses.asdict(scenario),
+        "format_version": FORMAT_VERSION,
+        "generator": generator_version(),
+    }
+    digest = hashlib.sha256(json.dumps(data, sort_keys=True).encode("utf-8")).hexdigest()
+    return f"sha256:{digest}"
 
 
 def spec_from_dict(data: dict) -> ScenarioSpec:

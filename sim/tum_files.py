@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.errors import SequenceFormatError
+from sim.errors import FileError, SequenceFormatError
+from sim.files import MAX_TEXT_BYTES, read_text
 
 QUATERNION_NORM_TOLERANCE = 1e-3
 """How far from 1 a stored quaternion's norm may be (TUM files keep 4 decimals)."""
@@ -27,11 +28,11 @@ class Row:
 def read_rows(path: Path, n_fields: int) -> list[Row]:
     """The data rows of a TUM text file, each checked to hold ``n_fields`` fields."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, MAX_TEXT_BYTES, "TUM text file")
     except FileNotFoundError:
         raise SequenceFormatError(path, None, "file is missing") from None
-    except UnicodeDecodeError as exc:
-        raise SequenceFormatError(path, None, f"not a text file ({exc.reason})") from None
+    except FileError as exc:
+        raise SequenceFormatError(path, None, exc.problem) from None
     rows: list[Row] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()

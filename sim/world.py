@@ -242,14 +242,19 @@ def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
     return body
 
 
-def build_world(scenario: ScenarioSpec) -> World:
-    """Compile the scenario into a MuJoCo model; every random draw comes from its seed."""
-    texture_rng, layout_rng, actor_rng, camera_rng = scenario_streams(scenario.seed)[:4]
-    intrinsics = Intrinsics.from_fovy(
+def intrinsics_of(scenario: ScenarioSpec) -> Intrinsics:
+    """The intrinsics of the scenario's MuJoCo camera (square pixels, centred principal point)."""
+    return Intrinsics.from_fovy(
         2 * math.degrees(math.atan((scenario.height / 2) / scenario.focal_px)),
         scenario.width,
         scenario.height,
     )
+
+
+def build_world(scenario: ScenarioSpec) -> World:
+    """Compile the scenario into a MuJoCo model; every random draw comes from its seed."""
+    texture_rng, layout_rng, actor_rng, camera_rng = scenario_streams(scenario.seed)[:4]
+    intrinsics = intrinsics_of(scenario)
     if scenario.layout_seed is not None:
         layout_rng = np.random.default_rng(scenario.layout_seed)
     layout = plan_layout(scenario.layout, layout_rng)

@@ -105,6 +105,15 @@ class TrackingConfig:
                 "seed": (0, 2**31 - 1),
             },
         )
+        if self.min_depth_m >= self.max_depth_m:
+            raise ConfigError(
+                f"min_depth_m = {self.min_depth_m} must be below max_depth_m = {self.max_depth_m}"
+            )
+        if self.fast_threshold_min > self.fast_threshold:
+            raise ConfigError(
+                f"fast_threshold_min = {self.fast_threshold_min} must not exceed "
+                f"fast_threshold = {self.fast_threshold} (it is the fallback for cells without a corner)"
+            )
 
 
 @dataclass(frozen=True)

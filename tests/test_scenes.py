@@ -194,7 +194,7 @@ MALFORMED = {
         "name: a\nactors: [{kind: chair_pusher}]\n",
         "needs at least one chair",
     ),
-    "binary.yaml": (b"\xff\xfe\x00name", "not a readable text file"),
+    "binary.yaml": (b"\xff\xfe\x00name", "not a text file"),
 }
 
 

@@ -12,6 +12,7 @@ import pytest
 
 from sim.camera import TUM_FREIBURG, read_orbslam_yaml
 from sim.errors import SequenceFormatError
+from sim.output import OutputError
 from sim.sequence import Sequence, SequenceWriter, encode_depth
 from tests.sequences import SMALL, random_frame, write_sequence
 
@@ -81,7 +82,7 @@ def test_writer_is_atomic_on_error(tmp_path: Path):
 
 
 def test_writer_refuses_bad_frames_and_existing_output(seq_dir: Path, tmp_path: Path):
-    with pytest.raises(FileExistsError, match="already exists"):
+    with pytest.raises(OutputError, match="already exists"):
         SequenceWriter(seq_dir, SMALL, fps=30, meta={}).__enter__()
     rng = np.random.default_rng(0)
     rgb, depth, pose, inst, objs, _ = random_frame(rng, 0)
@@ -185,8 +186,13 @@ def test_wrong_image_size(seq_dir: Path):
 
 
 def test_corrupt_png(seq_dir: Path):
-    (seq_dir / "rgb" / "1.100000.png").write_bytes(b"\x89PNG not really")
-    with pytest.raises(SequenceFormatError, match=r"1.100000.png: cannot be decoded"):
+    path = seq_dir / "rgb" / "1.100000.png"
+    intact = path.read_bytes()
+    path.write_bytes(b"\x89PNG not really")
+    with pytest.raises(SequenceFormatError, match=r"1.100000.png: is not a PNG image"):
+        Sequence.open(seq_dir).rgb(3)
+    path.write_bytes(intact[:60])  # a valid header, then nothing
+    with pytest.raises(SequenceFormatError, match=r"1.100000.png: cannot be decoded as a PNG"):
         Sequence.open(seq_dir).rgb(3)
 
 

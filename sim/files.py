@@ -1,0 +1,114 @@
+"""Reading user files within bounds, and writing JSON that every JSON reader accepts.
+
+Every file a user hands in is checked before it is read: it must be a regular
+file (``/dev/zero`` or a FIFO would be read forever) no larger than the limit
+for its kind, and an image's header is read before its pixels. Each limit, when
+hit, is named in the error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import stat
+import struct
+from pathlib import Path
+from typing import Any
+
+from sim.errors import FileError
+
+KIB = 1024
+MIB = 1024 * KIB
+
+MAX_TEXT_BYTES = 32 * MIB
+"""TUM lists and pose files: 100,000 frames of poses take about 11 MB."""
+MAX_SPEC_BYTES = 1 * MIB
+"""Scenario, suite and settings files (YAML or JSON)."""
+MAX_META_BYTES = 16 * MIB
+"""A sequence's meta.json (it holds the scenario and the instance table)."""
+MAX_RECORD_BYTES = 4 * MIB
+"""One line of gt/objects.jsonl (one frame's objects)."""
+MAX_IMAGE_BYTES = 64 * MIB
+"""One PNG frame; its decoded size is bounded by the header check."""
+
+
+def _limit_text(limit: int) -> str:
+    return f"{limit // MIB} MiB" if limit >= MIB else f"{limit // KIB} KiB"
+
+
+def open_regular(path: Path, limit: int, what: str) -> int:
+    """A file descriptor on ``path``, refused unless it is a regular file of at most ``limit`` bytes.
+
+    ``O_NONBLOCK`` keeps a FIFO from blocking the open; ``FileNotFoundError`` propagates so
+    that callers can say what the missing file was for.
+    """
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise FileError(path, None, f"is a directory, not a {what}")
+        if not stat.S_ISREG(info.st_mode):
+            raise FileError(path, None, f"is not a regular file (a device, pipe or socket), not a {what}")
+        if info.st_size > limit:
+            raise FileError(
+                path,
+                None,
+                f"is {info.st_size} bytes, more than the {_limit_text(limit)} limit for a {what}",
+            )
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_bytes(path: Path, limit: int, what: str) -> bytes:
+    """The whole file, size-checked before it is read (and again while, should it grow)."""
+    fd = open_regular(path, limit, what)
+    with os.fdopen(fd, "rb") as handle:
+        data = handle.read(limit + 1)
+    if len(data) > limit:
+        raise FileError(path, None, f"grew beyond the {_limit_text(limit)} limit for a {what} while read")
+    return data
+
+
+def read_text(path: Path, limit: int, what: str) -> str:
+    data = read_bytes(path, limit, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FileError(path, None, f"not a text file ({exc.reason} at byte {exc.start})") from None
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_COLOR_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
+
+
+def png_header(path: Path) -> tuple[int, int, int, int]:
+    """(width, height, bit depth, channels) read from the IHDR chunk, before any pixel."""
+    fd = open_regular(path, MAX_IMAGE_BYTES, "PNG image")
+    with os.fdopen(fd, "rb") as handle:
+        head = handle.read(33)
+    if len(head) < 33 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise FileError(path, None, "is not a PNG image (no PNG signature and IHDR header)")
+    width, height, depth, color = struct.unpack(">IIBB", head[16:26])
+    if color not in PNG_COLOR_CHANNELS or width == 0 or height == 0:
+        raise FileError(path, None, f"has a malformed PNG header ({width}x{height}, colour type {color})")
+    return width, height, depth, PNG_COLOR_CHANNELS[color]
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def dumps_json(value: Any, *, indent: int | None = 2) -> str:
+    """Strict JSON: non-finite numbers become null, keys are sorted (byte-reproducible)."""
+    return json.dumps(json_safe(value), indent=indent, sort_keys=True, allow_nan=False)

@@ -1,0 +1,421 @@
+"""Output folders that never lose a user's data.
+
+Every folder depotbench writes goes through this module:
+
+- **Staged and swapped.** A sequence or a run is written into a hidden sibling
+  ``.NAME.partial-XXXXXXXX`` and swapped into place only when complete. On Linux the
+  swap is one ``renameat2(RENAME_EXCHANGE)``, so a kill at any moment leaves either the
+  old complete folder or the new one; elsewhere it is two renames, and the next writer
+  puts the old folder back if a kill fell between them.
+- **Marked.** A marker file (``.depotbench.json``) inside says that depotbench wrote the
+  folder, what kind of output it is and, for sequences, the key of its content. It is
+  written last, so it also means "complete". ``overwrite`` replaces only a folder that
+  carries a marker of the same kind, and never the current directory, one of its
+  ancestors, an input, or a folder holding an input.
+- **Locked.** A lock file ``.NAME.lock`` beside the output (``flock``) keeps a second
+  writer out and names the holder. The kernel releases it when the holder dies, so a
+  stale lock file is simply free.
+- **Cleaned.** The lock holder removes what killed writers of the same output left
+  beside it; nobody else does, so a live writer's staging folder is never touched.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import errno
+import fcntl
+import json
+import os
+import shutil
+import socket
+import sys
+import time
+import uuid
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+from pathlib import Path
+from types import TracebackType
+
+from sim.errors import InputError
+
+MARKER_NAME = ".depotbench.json"
+MARKER_MAX_BYTES = 64 * 1024
+
+
+class OutputKind(StrEnum):
+    SEQUENCE = "sequence"
+    RUN = "run"
+    SUITE = "suite"
+    DEMO = "demo"
+
+
+class OutputError(InputError):
+    """An output path that cannot, or must not, be written."""
+
+
+@dataclass(frozen=True)
+class Marker:
+    """What the marker file of an output folder records."""
+
+    kind: OutputKind
+    content_key: str | None = None
+    tool: str = "depotbench"
+
+    def to_json(self) -> str:
+        data = {**asdict(self), "kind": self.kind.value}
+        return json.dumps(data, indent=2, sort_keys=True) + "\n"
+
+
+def read_marker(folder: Path) -> Marker | None:
+    """The folder's marker, or None when it has none (or one depotbench did not write)."""
+    path = folder / MARKER_NAME
+    try:
+        with path.open("rb") as handle:
+            raw = handle.read(MARKER_MAX_BYTES + 1)
+    except OSError:
+        return None
+    if len(raw) > MARKER_MAX_BYTES:
+        return None
+    try:
+        data = json.loads(raw)
+        if data.get("tool") != "depotbench":
+            return None
+        return Marker(OutputKind(data["kind"]), data.get("content_key"))
+    except (ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+# -- locks ------------------------------------------------------------------------
+
+
+def lock_path(target: Path) -> Path:
+    return target.parent / f".{target.name}.lock"
+
+
+def _describe_holder(text: str) -> str:
+    try:
+        holder = json.loads(text)
+        return f"pid {holder['pid']} on {holder['host']}, `{holder['command']}`, since {holder['started']}"
+    except (ValueError, KeyError, TypeError):
+        return "a process that is starting"
+
+
+class OutputLock:
+    """An exclusive ``flock`` on ``.NAME.lock`` beside an output, with the holder written in it."""
+
+    def __init__(self, target: Path) -> None:
+        self.target = target
+        self.path = lock_path(target)
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        while True:
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise OutputError(f"{self.target}: cannot write here ({exc.strerror})") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 4096, 0).decode("utf-8", "replace")
+                os.close(fd)
+                raise OutputError(
+                    f"{self.target}: another depotbench is writing it ({_describe_holder(holder)}); "
+                    "wait for it to finish or stop it"
+                ) from None
+            # The previous holder may have unlinked the file between our open and our lock:
+            # then we hold a lock on a file nobody else can see, and must try again.
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        holder = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "command": " ".join(["depotbench", *sys.argv[1:]])[:300],
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+        }
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, json.dumps(holder).encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(self.path)  # while still holding it: see acquire()
+        os.close(self._fd)
+        self._fd = None
+
+    def __enter__(self) -> OutputLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+# -- the checks every writer makes ---------------------------------------------------
+
+
+def _is_same_or_ancestor(path: Path, of: Path) -> bool:
+    return path == of or path in of.parents
+
+
+def check_target(target: Path, inputs: tuple[Path, ...] = ()) -> Path:
+    """The resolved target, refused when it is the working directory, an ancestor of it,
+    an input or a folder holding an input."""
+    resolved = target.expanduser().resolve()
+    cwd = Path.cwd().resolve()
+    if _is_same_or_ancestor(resolved, cwd):
+        what = "the current directory" if resolved == cwd else "an ancestor of the current directory"
+        raise OutputError(f"{target}: is {what}; give a new folder for the output")
+    for item in inputs:
+        source = item.expanduser().resolve()
+        if _is_same_or_ancestor(resolved, source):
+            what = "the input" if resolved == source else f"a folder holding the input {item}"
+            raise OutputError(f"{target}: is {what}; give a separate folder for the output")
+    return resolved
+
+
+def _is_empty_dir(path: Path) -> bool:
+    try:
+        return path.is_dir() and not any(path.iterdir())
+    except OSError:
+        return False
+
+
+def check_replaceable(target: Path, shown: Path, kind: OutputKind, overwrite: bool) -> None:
+    """Refuse to replace anything but an empty folder or, with ``overwrite``, our own output."""
+    if not (target.exists() or target.is_symlink()):
+        return
+    if not target.is_dir():
+        raise OutputError(f"{shown}: is a file, not an output folder; give a folder path")
+    if _is_empty_dir(target):
+        return
+    marker = read_marker(target)
+    if marker is None:
+        raise OutputError(
+            f"{shown}: exists and was not written by depotbench (no {MARKER_NAME}); "
+            "it is never replaced: give a new folder"
+        )
+    if marker.kind is not kind:
+        raise OutputError(
+            f"{shown}: is a depotbench {marker.kind.value} output, not a {kind.value} output; "
+            "give another folder"
+        )
+    if not overwrite:
+        raise OutputError(f"{shown}: already exists (pass --overwrite to replace it)")
+
+
+# -- the atomic swap -------------------------------------------------------------------
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _renameat2():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        function = libc.renameat2
+    except (OSError, AttributeError):
+        return None
+    function.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    function.restype = ctypes.c_int
+    return function
+
+
+_RENAMEAT2 = _renameat2()
+
+
+def exchange(a: Path, b: Path) -> bool:
+    """Swap two folders in one atomic step; False where the system cannot."""
+    if _RENAMEAT2 is None:
+        return False
+    result = _RENAMEAT2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if result == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP, errno.EOPNOTSUPP):
+        return False  # this file system cannot exchange: fall back to two renames
+    raise OSError(code, os.strerror(code), str(b))
+
+
+def _leftovers(target: Path, tag: str) -> list[Path]:
+    return sorted(target.parent.glob(f".{target.name}.{tag}-*"))
+
+
+def recover_and_clean(target: Path) -> None:
+    """Undo what killed writers of ``target`` left; the caller holds the target's lock.
+
+    An old folder set aside by the two-rename swap goes back if the new one never
+    arrived; every other leftover (staging folders, set-aside folders) is removed.
+    """
+    olds = [p for p in _leftovers(target, "old") if read_marker(p) is not None]
+    if olds and not target.exists():
+        os.replace(olds[0], target)
+    for stale in _leftovers(target, "old") + _leftovers(target, "partial"):
+        shutil.rmtree(stale, ignore_errors=True)
+
+
+def replace_folder(new: Path, target: Path) -> None:
+    """Put the complete folder ``new`` at ``target``; an old one goes only after the swap."""
+    if not target.exists():
+        os.rename(new, target)
+        return
+    if exchange(new, target):
+        shutil.rmtree(new)  # ``new`` now holds the old output
+        return
+    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+    os.rename(target, old)
+    os.rename(new, target)
+    shutil.rmtree(old)
+
+
+def _os_error(path: Path, exc: OSError) -> OutputError:
+    return OutputError(f"{path}: cannot write the output ({exc.strerror or exc})")
+
+
+# -- the writers' context managers ---------------------------------------------------------
+
+
+class StagedOutput:
+    """A folder written beside its target and swapped into place by ``commit()``.
+
+    ``with StagedOutput(target, kind) as out:`` checks the target, takes its lock,
+    cleans leftovers and creates ``out.path`` (so an unwritable place is found before
+    any work). Leaving the block without ``commit()`` removes everything it wrote.
+    """
+
+    def __init__(
+        self,
+        target: Path | str,
+        kind: OutputKind,
+        *,
+        overwrite: bool = False,
+        inputs: tuple[Path, ...] = (),
+        content_key: str | None = None,
+    ) -> None:
+        self.shown = Path(target)
+        self.kind = kind
+        self.overwrite = overwrite
+        self.inputs = inputs
+        self.content_key = content_key
+        self.target = self.shown
+        self._lock: OutputLock | None = None
+        self._path: Path | None = None
+
+    @property
+    def path(self) -> Path:
+        if self._path is None:
+            raise RuntimeError("StagedOutput must be entered before use")
+        return self._path
+
+    def __enter__(self) -> StagedOutput:
+        self.target = check_target(self.shown, self.inputs)
+        try:
+            self.target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise _os_error(self.shown, exc) from None
+        self._lock = OutputLock(self.target)
+        self._lock.acquire()
+        try:
+            recover_and_clean(self.target)
+            check_replaceable(self.target, self.shown, self.kind, self.overwrite)
+            staging = self.target.parent / f".{self.target.name}.partial-{uuid.uuid4().hex[:8]}"
+            try:
+                staging.mkdir()
+            except OSError as exc:
+                raise _os_error(self.shown, exc) from None
+            self._path = staging
+        except BaseException:
+            self._lock.release()
+            raise
+        return self
+
+    def commit(self) -> None:
+        """Mark the staged folder complete and swap it into place."""
+        path = self.path
+        try:
+            (path / MARKER_NAME).write_text(Marker(self.kind, self.content_key).to_json(), encoding="utf-8")
+            replace_folder(path, self.target)
+        except OSError as exc:
+            raise _os_error(self.shown, exc) from None
+        self._path = None
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        try:
+            if self._path is not None:
+                shutil.rmtree(self._path, ignore_errors=True)
+                self._path = None
+        finally:
+            if self._lock is not None:
+                self._lock.release()
+
+
+class OutputContainer:
+    """A folder that collects outputs (a suite's sequences, the demo's runs), locked while in use.
+
+    It is created in place with its marker; an existing one is reused only when it is
+    empty or carries a marker of the same kind.
+    """
+
+    def __init__(self, target: Path | str, kind: OutputKind, *, inputs: tuple[Path, ...] = ()) -> None:
+        self.shown = Path(target)
+        self.kind = kind
+        self.inputs = inputs
+        self.path = self.shown
+        self._lock: OutputLock | None = None
+
+    def __enter__(self) -> OutputContainer:
+        self.path = check_target(self.shown, self.inputs)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise _os_error(self.shown, exc) from None
+        self._lock = OutputLock(self.path)
+        self._lock.acquire()
+        try:
+            if self.path.exists() and not _is_empty_dir(self.path):
+                check_replaceable(self.path, self.shown, self.kind, overwrite=True)
+            try:
+                self.path.mkdir(exist_ok=True)
+                if read_marker(self.path) is None:
+                    write_text_atomic(self.path / MARKER_NAME, Marker(self.kind).to_json())
+            except OSError as exc:
+                raise _os_error(self.shown, exc) from None
+        except BaseException:
+            self._lock.release()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._lock is not None:
+            self._lock.release()
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write a file through a temporary sibling, so it is never seen half-written."""
+    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.tmp"
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise _os_error(path, exc) from None
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    write_bytes_atomic(path, text.encode("utf-8"))
