@@ -32,6 +32,12 @@ MAX_ACTORS = 40
 MAX_YAML_NODES = 100_000
 """Values a scenario or suite file may expand to, aliases counted at every use."""
 MAX_YAML_DEPTH = 32
+MAX_MIN_FOVY_DEG = (170.0, 1.0)
+"""Widest and narrowest vertical field of view a MuJoCo camera is given."""
+MIN_VIEW_DISTANCE_M = 0.01
+MIN_PATH_SPAN_M = 0.1
+WALL_MARGIN_M = 0.3
+"""Waypoints and chairs keep this far from the walls."""
 PositiveFloat = Annotated[float, Field(gt=0)]
 
 
@@ -174,27 +180,78 @@ class Scenario(Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
+        """Checks across fields; each message starts with the field it names."""
         if self.frames is not None and self.duration_s is not None:
-            raise ValueError("give frames or duration_s, not both")
+            raise ValueError("frames: give frames or duration_s, not both")
         if self.n_frames > MAX_FRAMES:
-            raise ValueError(f"duration_s x fps gives {self.n_frames} frames, more than {MAX_FRAMES}")
+            raise ValueError(
+                f"duration_s: duration_s x fps gives {self.n_frames} frames, more than {MAX_FRAMES}"
+            )
+        self._check_intrinsics()
+        if sum(a.count for a in self.actors) > MAX_ACTORS:
+            raise ValueError(f"actors: at most {MAX_ACTORS} actors in all")
+        if any(a.kind == "chair_pusher" and a.count for a in self.actors) and not self.chairs:
+            raise ValueError("chairs: a chair_pusher needs at least one chair")
+        if any(a.kind == "sitting_person" and a.count for a in self.actors) and not self.layout.desk:
+            raise ValueError("layout.desk: a sitting_person needs the desk (layout.desk: true)")
+        self._check_geometry()
+        return self
+
+    def _check_intrinsics(self) -> None:
         k = self.intrinsics
         w, h = self.image.width, self.image.height
         if k.fy is not None and not math.isclose(k.fy, k.fx):
-            raise ValueError("intrinsics: fy must equal fx (MuJoCo cameras have square pixels)")
+            raise ValueError("intrinsics.fy: fy must equal fx (MuJoCo cameras have square pixels)")
         for name, value, centre in (("cx", k.cx, (w - 1) / 2), ("cy", k.cy, (h - 1) / 2)):
             if value is not None and not math.isclose(value, centre):
                 raise ValueError(
-                    f"intrinsics: {name} must be {centre} for a {w}x{h} image "
+                    f"intrinsics.{name}: must be {centre} for a {w}x{h} image "
                     "(MuJoCo renders with a centred principal point)"
                 )
-        if sum(a.count for a in self.actors) > MAX_ACTORS:
-            raise ValueError(f"at most {MAX_ACTORS} actors in all")
-        if any(a.kind == "chair_pusher" and a.count for a in self.actors) and not self.chairs:
-            raise ValueError("a chair_pusher needs at least one chair")
-        if any(a.kind == "sitting_person" and a.count for a in self.actors) and not self.layout.desk:
-            raise ValueError("a sitting_person needs the desk (layout.desk: true)")
-        return self
+        low, high = (h / 2 / math.tan(math.radians(f / 2)) for f in MAX_MIN_FOVY_DEG)
+        if not low <= k.fx <= high:
+            raise ValueError(
+                f"intrinsics.fx: {k.fx} px gives a vertical field of view outside "
+                f"{MAX_MIN_FOVY_DEG[1]}-{MAX_MIN_FOVY_DEG[0]} degrees; for a {h}-pixel-high image "
+                f"fx must lie in [{low:.1f}, {high:.1f}]"
+            )
+
+    def _check_geometry(self) -> None:
+        """The camera inside the hall and looking somewhere; paths and chairs on its floor."""
+        half_x, half_y = self.layout.size_m[0] / 2, self.layout.size_m[1] / 2
+        height = self.layout.height_m
+
+        def on_floor(point: tuple[float, ...], margin: float) -> bool:
+            return abs(point[0]) <= half_x - margin and abs(point[1]) <= half_y - margin
+
+        camera = self.camera
+        if camera.motion != "robot":  # the robot drives its own loop
+            x, y, z = camera.position_m
+            if not (on_floor(camera.position_m, 0.05) and 0.05 <= z <= height - 0.05):
+                raise ValueError(
+                    f"camera.position_m: {[x, y, z]} lies outside the hall (x within +-{half_x}, "
+                    f"y within +-{half_y}, z in 0..{height} m; layout.size_m and layout.height_m set it)"
+                )
+            if math.dist(camera.position_m, camera.target_m) < MIN_VIEW_DISTANCE_M:
+                raise ValueError("camera.target_m: the target must lie away from position_m")
+        for i, group in enumerate(self.actors):
+            points = group.waypoints or []
+            for j, point in enumerate(points):
+                if not on_floor(point, WALL_MARGIN_M):
+                    raise ValueError(
+                        f"actors.{i}.waypoints.{j}: {list(point)} lies outside the hall floor "
+                        f"(x within +-{half_x - WALL_MARGIN_M}, y within +-{half_y - WALL_MARGIN_M})"
+                    )
+            if points and max(math.dist(points[0], p) for p in points) < MIN_PATH_SPAN_M:
+                raise ValueError(
+                    f"actors.{i}.waypoints: the points coincide; a path needs two of them at "
+                    f"least {MIN_PATH_SPAN_M} m apart"
+                )
+        for i, chair in enumerate(self.chairs):
+            if not on_floor(chair.position_m, WALL_MARGIN_M):
+                raise ValueError(
+                    f"chairs.{i}.position_m: {list(chair.position_m)} lies outside the hall floor"
+                )
 
     @property
     def n_frames(self) -> int:
@@ -263,13 +320,17 @@ def format_validation_error(source: str, exc: ValidationError) -> str:
     """One line per problem: ``file: field.path: what is wrong (got X)``."""
     lines = []
     for error in exc.errors():
-        path = ".".join(str(p) for p in error["loc"]) or "(top level)"
+        path = ".".join(str(p) for p in error["loc"])
         message = error["msg"]
         if error["type"] == "extra_forbidden":
             message = "unknown field (check the spelling; see `depotbench validate --help`)"
         got = error.get("input")
-        shown = "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r})"
-        lines.append(f"{source}: {path}: {message}{shown}")
+        shown = "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r:.80})"
+        if not path and error["type"] == "value_error":
+            # A check across fields: its message starts with the field it names.
+            lines.append(f"{source}: {message.removeprefix('Value error, ')}")
+            continue
+        lines.append(f"{source}: {path or '(top level)'}: {message}{shown}")
     return "\n".join(lines)
 
 

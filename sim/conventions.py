@@ -21,12 +21,26 @@ def cv_from_gl_rotation(world_from_gl: np.ndarray) -> np.ndarray:
     return world_from_gl @ GL_FROM_CV
 
 
+UP_PARALLEL_TOLERANCE = 1e-6
+"""|sin| of the angle between view and up below which ``look_at`` takes world +y as up."""
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
-    """``world_from_camera`` (4x4, optical frame) of a camera at ``eye`` looking at ``target``."""
+    """``world_from_camera`` (4x4, optical frame) of a camera at ``eye`` looking at ``target``.
+
+    The image's up points along ``up`` (world +z by default). A camera looking straight
+    along ``up`` (a top-down view) has no such direction; its image's up is then world +y,
+    the direction the default camera faces.
+    """
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
     z = np.asarray(target, dtype=float) - np.asarray(eye, dtype=float)
-    z /= np.linalg.norm(z)
+    length = np.linalg.norm(z)
+    if not length > 0:
+        raise ValueError(f"look_at: the target {target} is the eye {eye}")
+    z = z / length
     x = np.cross(z, up)
+    if np.linalg.norm(x) < UP_PARALLEL_TOLERANCE * np.linalg.norm(up):
+        x = np.cross(z, [0.0, 1.0, 0.0])
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     pose = np.eye(4)

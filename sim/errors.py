@@ -28,5 +28,9 @@ class SequenceFormatError(FileError):
     """A folder or file breaks the sequence contract of design.md."""
 
 
+class ScenarioError(InputError):
+    """A spec that validates but cannot be built (no free path among the props, say)."""
+
+
 class EnvironmentProblem(RuntimeError):
     """The machine lacks something the user can install (a GL library, say)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.errors import ScenarioError
 from sim.layout import Rect, is_free
 
 SAMPLE_SPACING_M = 0.05
@@ -14,8 +15,13 @@ class Path:
 
     def __init__(self, waypoints: np.ndarray, smoothing_m: float = 0.8) -> None:
         pts = np.asarray(waypoints, dtype=float)
-        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-            raise ValueError("a path needs at least two (x, y) waypoints")
+        if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2 or not np.isfinite(pts).all():
+            raise ValueError("a path needs at least two finite (x, y) waypoints")
+        # A waypoint repeated in a row adds a leg of length zero: drop it.
+        step = np.linalg.norm(np.diff(np.vstack([pts, pts[:1]]), axis=0), axis=1)
+        pts = pts[step > 1e-9]
+        if len(pts) < 2:
+            raise ValueError("a path needs two distinct waypoints")
         loop = np.vstack([pts, pts[:1]])
         dense = [loop[0]]
         for a, b in zip(loop[:-1], loop[1:], strict=True):
@@ -86,6 +92,7 @@ def plan_loop(
             for a, b in zip(arr, np.roll(arr, -1, axis=0), strict=True)
         ):
             return arr
-    raise ValueError(
-        f"could not place a free walking loop in region {region}; reduce floor_props or give waypoints"
+    raise ScenarioError(
+        f"actors: could not place a free walking loop in region {region} after {tries} tries; "
+        "lower layout.props or give the actor waypoints"
     )

@@ -184,7 +184,7 @@ MALFORMED = {
     "missing_name.yaml": ("seed: 3\n", "name: Field required"),
     "bad_range.yaml": ("name: a\nsensor: {depth_range_m: [5, 1]}\n", "sensor"),
     "fy_differs.yaml": ("name: a\nintrinsics: {fx: 500, fy: 520}\n", "fy must equal fx"),
-    "off_centre.yaml": ("name: a\nintrinsics: {cx: 300}\n", "cx must be 319.5"),
+    "off_centre.yaml": ("name: a\nintrinsics: {cx: 300}\n", "intrinsics.cx: must be 319.5"),
     "frames_and_duration.yaml": (
         "name: a\nframes: 10\nduration_s: 2\n",
         "give frames or duration_s",
