@@ -15,6 +15,8 @@ import numpy as np
 from sim.errors import FileError, SequenceFormatError
 from sim.files import MAX_TEXT_BYTES, read_text
 
+MAX_ABS_POSITION_M = 1e9
+"""Positions beyond this are refused: their squares would overflow the error statistics."""
 QUATERNION_NORM_TOLERANCE = 1e-3
 """How far from 1 a stored quaternion's norm may be (TUM files keep 4 decimals)."""
 
@@ -121,6 +123,10 @@ def read_pose_file(path: Path, *, strict: bool) -> PoseTable:
     if not finite.all():
         i = int(np.flatnonzero(~finite)[0])
         raise SequenceFormatError(path, lines[i], "pose holds NaN or infinity")
+    large = np.abs(values[:, 1:4]).max(axis=1) > MAX_ABS_POSITION_M
+    if large.any():
+        i = int(np.flatnonzero(large)[0])
+        raise SequenceFormatError(path, lines[i], f"position is beyond +-{MAX_ABS_POSITION_M:g} m")
     norms = np.linalg.norm(values[:, 4:8], axis=1)
     if strict:
         check_increasing(path, values[:, 0], list(lines))

@@ -1,0 +1,474 @@
+"""Output safety: no command ever loses or corrupts what a user had (issue: reliability).
+
+Each test here reproduces a way data was lost or silently wrong, and failed
+before outputs were staged, marked, locked and checked against the inputs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from eval.cli import main
+from sim.output import (
+    MARKER_NAME,
+    OutputContainer,
+    OutputError,
+    OutputKind,
+    OutputLock,
+    StagedOutput,
+    exchange,
+    lock_path,
+    read_marker,
+)
+from tests.conftest import REPO
+from tests.sequences import write_sequence
+
+
+def cli(capsys, *args: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` with its bytes (hidden ones included)."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def one_error_line(err: str, *needles: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
+@pytest.fixture
+def sequence(tmp_path: Path) -> Path:
+    """A small synthetic sequence written by the real writer."""
+    root = tmp_path / "seq"
+    write_sequence(root, n=4)
+    return root
+
+
+# -- the building blocks -----------------------------------------------------------------
+
+
+def test_staged_output_appears_complete_and_marked_or_not_at_all(tmp_path: Path):
+    target = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="boom"), StagedOutput(target, OutputKind.RUN) as out:
+        (out.path / "half.txt").write_text("half")
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []  # no staging folder, no lock file
+    with StagedOutput(target, OutputKind.RUN) as out:
+        (out.path / "result.txt").write_text("new")
+        assert not target.exists()
+        out.commit()
+    assert (target / "result.txt").read_text() == "new"
+    assert read_marker(target).kind is OutputKind.RUN
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_overwrite_replaces_only_our_own_output_of_the_same_kind(tmp_path: Path):
+    user = tmp_path / "photos"
+    user.mkdir()
+    (user / "holiday.jpg").write_bytes(b"precious")
+    with pytest.raises(OutputError, match="not written by depotbench"):
+        StagedOutput(user, OutputKind.RUN, overwrite=True).__enter__()
+    assert (user / "holiday.jpg").read_bytes() == b"precious"
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("keep")
+    with pytest.raises(OutputError, match="is a file"):
+        StagedOutput(a_file, OutputKind.RUN, overwrite=True).__enter__()
+    assert a_file.read_text() == "keep"
+    sequence = tmp_path / "seq"
+    write_sequence(sequence, n=2)
+    with pytest.raises(OutputError, match="is a depotbench sequence output, not a run output"):
+        StagedOutput(sequence, OutputKind.RUN, overwrite=True).__enter__()
+    with pytest.raises(OutputError, match="already exists"):
+        StagedOutput(sequence, OutputKind.SEQUENCE).__enter__()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with StagedOutput(empty, OutputKind.RUN) as out:  # an empty folder holds nothing to lose
+        out.commit()
+    assert read_marker(empty) is not None
+
+
+def test_no_output_at_the_working_directory_its_ancestors_or_the_inputs(tmp_path: Path, monkeypatch):
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    monkeypatch.chdir(work / "sub")
+    for target in (Path("."), Path(".."), tmp_path, Path("/")):
+        with pytest.raises(OutputError, match="current directory"):
+            StagedOutput(target, OutputKind.RUN, overwrite=True).__enter__()
+    source = tmp_path / "data" / "seq"
+    source.mkdir(parents=True)
+    for target, what in ((source, "is the input"), (tmp_path / "data", "holding the input")):
+        with pytest.raises(OutputError, match=what):
+            StagedOutput(target, OutputKind.RUN, overwrite=True, inputs=(source,)).__enter__()
+
+
+def test_exchange_swaps_two_folders_in_one_step(tmp_path: Path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "A").write_text("a")
+    (tmp_path / "b" / "B").write_text("b")
+    if not exchange(tmp_path / "a", tmp_path / "b"):
+        pytest.skip("this file system cannot exchange folders atomically")
+    assert [p.name for p in (tmp_path / "a").iterdir()] == ["B"]
+    assert [p.name for p in (tmp_path / "b").iterdir()] == ["A"]
+
+
+def test_without_exchange_a_kill_between_the_renames_is_undone(tmp_path: Path, monkeypatch):
+    import sim.output as output
+
+    target = tmp_path / "out"
+    with StagedOutput(target, OutputKind.RUN) as out:
+        (out.path / "r.txt").write_text("old")
+        out.commit()
+    # Two-rename swap killed after the first rename: the old output sits aside, nothing at the target.
+    aside = tmp_path / ".out.old-deadbeef"
+    os.rename(target, aside)
+    partial = tmp_path / ".out.partial-cafecafe"
+    partial.mkdir()
+    monkeypatch.setattr(output, "exchange", lambda a, b: False)
+    with StagedOutput(target, OutputKind.RUN, overwrite=True) as out:
+        assert (target / "r.txt").read_text() == "old"  # put back before anything else
+        assert not aside.exists() and not partial.exists()
+        (out.path / "r.txt").write_text("new")
+        out.commit()
+    assert (target / "r.txt").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+HOLD_LOCK = """
+import sys, time
+from pathlib import Path
+from sim.output import OutputLock
+OutputLock(Path(sys.argv[1])).acquire()
+print("held", flush=True)
+time.sleep(120)
+"""
+
+
+def hold_lock(target: Path) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD_LOCK, str(target)], cwd=REPO, stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_is_refused_by_name_and_a_dead_holders_lock_is_free(
+    sequence: Path, tmp_path: Path, capsys
+):
+    target = tmp_path / "run"
+    holder = hold_lock(target)
+    try:
+        code, _, err = cli(capsys, "run", sequence, "-o", target, "--detector", "none")
+        assert code == 2
+        one_error_line(err, str(target), f"pid {holder.pid}", "another depotbench is writing it")
+        assert not target.exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert lock_path(target).exists()  # the dead holder's lock file stays behind, unlocked
+    code, _, err = cli(capsys, "run", sequence, "-o", target, "--detector", "none")
+    assert code == 0, err
+    assert not lock_path(target).exists() and read_marker(target).kind is OutputKind.RUN
+
+
+def test_lock_file_swapped_under_a_waiting_writer_is_not_trusted(tmp_path: Path):
+    target = tmp_path / "out"
+    first = OutputLock(target)
+    first.acquire()
+    with pytest.raises(OutputError, match=f"pid {os.getpid()}"):
+        OutputLock(target).acquire()
+    first.release()
+    second = OutputLock(target)
+    second.acquire()  # the file was unlinked on release: a fresh one is made and locked
+    assert lock_path(target).exists()
+    second.release()
+
+
+def test_container_refuses_a_foreign_folder_and_reuses_its_own(tmp_path: Path):
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("x")
+    with pytest.raises(OutputError, match="not written by depotbench"):
+        OutputContainer(foreign, OutputKind.SUITE).__enter__()
+    with OutputContainer(tmp_path / "suite", OutputKind.SUITE) as box:
+        (box.path / "a").mkdir()
+    with OutputContainer(tmp_path / "suite", OutputKind.SUITE) as box:
+        assert (box.path / "a").is_dir() and (box.path / MARKER_NAME).is_file()
+    with pytest.raises(OutputError, match="is a depotbench suite output, not a demo output"):
+        OutputContainer(tmp_path / "suite", OutputKind.DEMO).__enter__()
+
+
+# -- the reproductions of the issue, through the command line ------------------------------------
+
+
+def test_run_into_the_working_directory_is_refused_and_nothing_is_emptied(
+    sequence: Path, monkeypatch, capsys
+):
+    folder = sequence.parent
+    before = snapshot(folder)
+    monkeypatch.chdir(folder)
+    code, _, err = cli(capsys, "run", "seq", "-o", ".", "--overwrite", "--detector", "none")
+    assert code == 2
+    one_error_line(err, "is the current directory")
+    assert snapshot(folder) == before
+
+
+def test_run_onto_its_own_input_is_refused(sequence: Path, capsys):
+    before = snapshot(sequence)
+    for target in (sequence, sequence.parent):
+        code, _, err = cli(capsys, "run", sequence, "-o", target, "--overwrite", "--detector", "none")
+        assert code == 2
+        one_error_line(err, str(target))
+    assert snapshot(sequence) == before
+
+
+def test_overwrite_onto_a_file_or_a_foreign_folder_is_refused(sequence: Path, tmp_path: Path, capsys):
+    a_file = tmp_path / "results.csv"
+    a_file.write_text("1,2,3\n")
+    code, _, err = cli(capsys, "run", sequence, "-o", a_file, "--overwrite", "--detector", "none")
+    assert code == 2 and a_file.read_text() == "1,2,3\n"
+    one_error_line(err, str(a_file), "is a file")
+    foreign = tmp_path / "experiments"
+    foreign.mkdir()
+    (foreign / "notes.md").write_text("keep me")
+    code, _, err = cli(capsys, "run", sequence, "-o", foreign, "--overwrite", "--detector", "none")
+    assert code == 2 and (foreign / "notes.md").read_text() == "keep me"
+    one_error_line(err, "not written by depotbench")
+
+
+def test_unwritable_output_is_found_before_any_work(sequence: Path, tmp_path: Path, capsys, monkeypatch):
+    import slam.system
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the SLAM ran before the output was checked")
+
+    monkeypatch.setattr(slam.system.Slam, "process", no_work)
+    a_file = tmp_path / "plain-file"
+    a_file.write_text("")
+    for target in (a_file / "run", Path("/proc/depotbench-cannot-write/run")):
+        code, _, err = cli(capsys, "run", sequence, "-o", target, "--detector", "none")
+        assert code == 2
+        one_error_line(err, str(target))
+
+
+def test_a_rerun_replaces_its_output_atomically_and_cleans_killed_writers_leftovers(
+    sequence: Path, tmp_path: Path, capsys
+):
+    target = tmp_path / "run"
+    assert cli(capsys, "run", sequence, "-o", target, "--detector", "none")[0] == 0
+    old = snapshot(target)
+    stale = tmp_path / ".run.partial-0badc0de"
+    stale.mkdir()
+    (stale / "trajectory.txt").write_text("half")
+    assert cli(capsys, "run", sequence, "-o", target, "--detector", "none")[0] == 2  # no --overwrite
+    assert snapshot(target) == old
+    code, _, err = cli(capsys, "run", sequence, "-o", target, "--detector", "none", "--overwrite")
+    assert code == 0, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "seq"]
+
+
+def test_preview_never_overwrites_a_file_unasked(sequence: Path, tmp_path: Path, capsys):
+    png = tmp_path / "p.png"
+    png.write_bytes(b"user's picture")
+    code, _, err = cli(capsys, "preview", sequence, "-o", png)
+    assert code == 2 and png.read_bytes() == b"user's picture"
+    one_error_line(err, "already exists")
+    assert cli(capsys, "preview", sequence, "-o", png, "--overwrite")[0] == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_eval_json_holds_only_json_numbers(tmp_path: Path, capsys):
+    gt = tmp_path / "gt.txt"
+    est = tmp_path / "est.txt"
+    rows = [f"{1 + 0.1 * k:.6f} {k * 0.1} {k % 2 * 0.05} 0 0 0 0 1" for k in range(10)]
+    gt.write_text("\n".join(rows) + "\n")
+    est.write_text("\n".join(rows) + "\n")
+    code, out, _ = cli(capsys, "eval", gt, est, "--json")
+    assert code == 0
+    json.loads(out, parse_constant=lambda name: pytest.fail(f"{name} in --json output"))
+    huge = tmp_path / "huge.txt"
+    huge.write_text("\n".join(f"{1 + 0.1 * k:.6f} {k * 1e200} 0 0 0 0 0 1" for k in range(10)) + "\n")
+    code, _, err = cli(capsys, "eval", gt, huge, "--json")
+    assert code == 2
+    one_error_line(err, f"{huge}:2", "beyond")
+
+
+def test_validated_specs_generate_including_a_top_down_camera(tmp_path: Path, capsys):
+    """Specs that validated and then crashed ``generate``: now refused, or generated correctly."""
+    import numpy as np
+
+    from sim.sequence import Sequence
+
+    spec = tmp_path / "top.yaml"
+    spec.write_text(
+        "name: top\nframes: 2\nimage: {width: 160, height: 120}\nintrinsics: {fx: 131.25}\n"
+        "layout: {props: 0, desk: false, rack_rows: 0}\n"
+        "camera: {position_m: [0, 0, 3], target_m: [0, 0, 0]}\n"
+    )
+    code, _, err = cli(capsys, "generate", spec, "-o", tmp_path / "top")
+    assert code == 0, err
+    seq = Sequence.open(tmp_path / "top")
+    pose = seq.world_from_camera(0)
+    assert np.allclose(pose[:3, 2], [0, 0, -1], atol=0.01)  # looks straight down
+    depth = seq.depth_m(0)
+    assert abs(float(depth[60, 80]) - pose[2, 3]) < 0.01  # the floor, camera height away
+    refused = {
+        "above.yaml": ("camera: {position_m: [0, 0, 5], target_m: [0, 0, 0]}", "camera.position_m"),
+        "same.yaml": ("camera: {position_m: [0, 0, 2], target_m: [0, 0, 2]}", "camera.target_m"),
+        "twice.yaml": ("actors: [{kind: person, waypoints: [[1, 1], [1, 1]]}]", "actors.0.waypoints"),
+        "inf.yaml": ("intrinsics: {fx: .inf}", "intrinsics.fx"),
+        "wide.yaml": ("intrinsics: {fx: 0.001}", "intrinsics.fx"),
+    }
+    for name, (body, field) in refused.items():
+        path = tmp_path / name
+        path.write_text(f"name: x\nframes: 2\n{body}\n")
+        for command in ("validate", "generate"):
+            args = (command, path) if command == "validate" else (command, path, "-o", tmp_path / "o")
+            code, _, err = cli(capsys, *args)
+            assert code == 2, (name, command)
+            one_error_line(err, str(path), field)
+    assert not (tmp_path / "o").exists()
+
+
+def test_command_line_values_obey_the_spec_limits(tmp_path: Path, capsys):
+    for option, value, needle in (
+        ("--seed", "-1", "greater than or equal to 0"),
+        ("--frames", "100001", "less than or equal to 100000"),
+        ("--frames", "0", "greater than or equal to 1"),
+    ):
+        code, _, err = cli(capsys, "generate", "smoke", "-o", tmp_path / "x", option, value)
+        assert code == 2
+        one_error_line(err, f"{option} {value}", needle)
+    assert not (tmp_path / "x").exists()
+
+
+def test_contradictory_settings_are_refused(sequence: Path, tmp_path: Path, capsys):
+    code, _, err = cli(
+        capsys, "run", sequence, "-o", tmp_path / "r", "--set", "min_depth_m=4", "--set", "max_depth_m=3"
+    )
+    assert code == 2
+    one_error_line(err, "min_depth_m", "max_depth_m")
+
+
+def test_paths_in_the_lists_must_stay_inside_the_sequence(sequence: Path, tmp_path: Path, capsys):
+    outside = tmp_path / "outside.png"
+    shutil.copy(next((sequence / "rgb").iterdir()), outside)
+    assoc = sequence / "associations.txt"
+    lines = assoc.read_text().splitlines()
+    for bad in ("../outside.png", str(outside), "rgb/../../outside.png"):
+        fields = lines[1].split()
+        fields[1] = bad
+        assoc.write_text("\n".join([lines[0], " ".join(fields), *lines[2:]]) + "\n")
+        code, _, err = cli(capsys, "run", sequence, "-o", tmp_path / "r", "--detector", "none")
+        assert code == 2
+        one_error_line(err, "associations.txt:2", "outside the sequence folder")
+
+
+@pytest.mark.render
+def test_a_changed_suite_regenerates_what_changed_and_keeps_the_rest(tmp_path: Path, capsys):
+    suite = tmp_path / "speeds.yaml"
+    body = "suite: speeds\nbase: smoke\noverrides: {{frames: 2}}\ngrid:\n  actors.0.speed_mps: [{speeds}]\n"
+    suite.write_text(body.format(speeds="0.6, 0.9"))
+    out = tmp_path / "out"
+    assert cli(capsys, "generate", suite, "-o", out, "--workers", "1")[0] == 0
+    kept = (out / "speeds-0001" / "meta.json").stat().st_mtime_ns
+    suite.write_text(body.format(speeds="1.4, 0.9"))
+    code, _, err = cli(capsys, "generate", suite, "-o", out, "--workers", "1")
+    assert code == 0, err
+    index = json.loads((out / "index.json").read_text())
+    for entry in index["sequences"]:
+        meta = json.loads((out / entry["name"] / "meta.json").read_text())
+        assert meta["scenario"]["actors"][0]["speed_mps"] == entry["knobs"]["actors.0.speed_mps"]
+        assert read_marker(out / entry["name"]).content_key == entry["content_key"]
+    assert (out / "speeds-0001" / "meta.json").stat().st_mtime_ns == kept  # unchanged, not redone
+
+
+def test_suite_expansion_is_counted_before_it_is_built(tmp_path: Path, capsys):
+    suite = tmp_path / "huge.yaml"
+    grid = "\n".join(f"  knob{k}: [{', '.join(str(v) for v in range(20))}]" for k in range(8))
+    suite.write_text(f"suite: huge\nbase: smoke\ngrid:\n{grid}\n")
+    started = time.perf_counter()
+    code, _, err = cli(capsys, "validate", suite)
+    assert code == 2
+    one_error_line(err, str(suite), "25600000000 sequences", "limit of 10000")
+    assert time.perf_counter() - started < 30  # it used to take minutes and 5 GB; generous bound
+
+
+@pytest.mark.render
+def test_ctrl_c_ends_a_suite_with_one_line_and_no_worker_left(tmp_path: Path):
+    suite = tmp_path / "s.yaml"
+    suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 40}\nseeds: [1, 2, 3, 4]\n")
+    token = f"depotbench-test-{os.getpid()}-{time.time_ns()}"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "eval.cli",
+            "generate",
+            str(suite),
+            "-o",
+            str(tmp_path / "o"),
+            "--workers",
+            "2",
+        ],
+        cwd=REPO,
+        env={**os.environ, "DEPOTBENCH_TEST_TOKEN": token},
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+    )
+    time.sleep(0.5)
+    deadline = time.time() + 60
+    while time.time() < deadline and not processes_with(token, exclude=proc.pid):
+        time.sleep(0.1)  # wait for the workers to start
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert (
+        err.strip()
+        .splitlines()[-1]
+        .endswith("interrupted; finished outputs are kept and nothing is half-written")
+    )
+    assert wait_until_gone(token) == []
+
+
+def processes_with(token: str, exclude: int | None = None) -> list[int]:
+    """PIDs of live processes whose environment holds ``token`` (zombies do not count)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) in (os.getpid(), exclude):
+            continue
+        try:
+            if (entry / "stat").read_text().split(") ")[-1].startswith("Z"):
+                continue
+            if token.encode() in (entry / "environ").read_bytes():
+                found.append(int(entry.name))
+        except OSError:
+            continue
+    return found
+
+
+def wait_until_gone(token: str, timeout_s: float = 15.0) -> list[int]:
+    deadline = time.time() + timeout_s
+    while (alive := processes_with(token)) and time.time() < deadline:
+        time.sleep(0.1)
+    return alive
