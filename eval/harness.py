@@ -88,25 +88,27 @@ def run_sequence(
         objects = sequence.objects() if sequence.is_generated else None
         results: list[FrameResult] = []
         labels: list[np.ndarray] = []
-        for i in tqdm(
+        frames = tqdm(
             range(len(sequence)),
             desc=f"slam {strategy}",
             unit="frame",
-            disable=not progress,
+            disable=None if progress else True,  # None: only on a terminal
             leave=False,
-        ):
-            frame = Frame(
-                sequence.frames[i].timestamp_s,
-                sequence.rgb(i),
-                sequence.depth_m(i),
-                slam.camera,
-                det.detect(i) if det else (),
-            )
-            result = slam.process(frame)
-            results.append(result)
-            if objects is not None:
-                moving = {o.instance_id for o in objects[i] if o.moving}
-                labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
+        )
+        with frames:  # closed (and its line cleared) before an error is printed
+            for i in frames:
+                frame = Frame(
+                    sequence.frames[i].timestamp_s,
+                    sequence.rgb(i),
+                    sequence.depth_m(i),
+                    slam.camera,
+                    det.detect(i) if det else (),
+                )
+                result = slam.process(frame)
+                results.append(result)
+                if objects is not None:
+                    moving = {o.instance_id for o in objects[i] if o.moving}
+                    labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
         metrics = _metrics(sequence, slam, results, labels, config, detector)
         estimate = estimated_trajectory(results)
         if estimate is not None:

@@ -132,7 +132,7 @@ def run_suite(
             total=total_frames,
             unit="frame",
             desc=f"suite {suite.suite}",
-            disable=not progress,
+            disable=None if progress else True,  # None: only on a terminal
             smoothing=0.1,
         )
         bar.write(

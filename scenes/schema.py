@@ -16,7 +16,9 @@ import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
+    Tag,
     TypeAdapter,
     ValidationError,
     field_validator,
@@ -39,6 +41,17 @@ MIN_PATH_SPAN_M = 0.1
 WALL_MARGIN_M = 0.3
 """Waypoints and chairs keep this far from the walls."""
 PositiveFloat = Annotated[float, Field(gt=0)]
+
+
+def _number_or_range(value: Any) -> str:
+    return "range" if isinstance(value, list | tuple) else "number"
+
+
+NumberOrRange = Annotated[
+    Annotated[float, Tag("number")] | Annotated[tuple[float, float], Tag("range")],
+    Discriminator(_number_or_range),
+]
+"""A value, or a [low, high] range drawn from the seed; errors name the one that was given."""
 
 
 class SpecError(InputError):
@@ -79,11 +92,11 @@ class Layout(Strict):
 class Actor(Strict):
     kind: Literal["person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird"]
     count: int = Field(1, ge=0, le=MAX_ACTORS)
-    speed_mps: float | tuple[float, float] = 1.1
+    speed_mps: NumberOrRange = 1.1
     path: Literal["loop", "random_walk", "seated"] = "loop"
     waypoints: list[tuple[float, float]] | None = None
     clothing: Literal["plain", "stripes", "plaid", "any"] = "any"
-    scale: float | tuple[float, float] | None = None
+    scale: NumberOrRange | None = None
 
     @field_validator("speed_mps")
     @classmethod
@@ -175,8 +188,19 @@ class Scenario(Strict):
     chairs: list[Chair] = []
     camera: Camera = Camera()
     lighting: Lighting = Lighting()
-    sensor: Sensor | Literal["perfect", "kinect"] = "perfect"
+    sensor: Sensor = Sensor()
+    """``perfect``, ``kinect`` or a mapping of sensor settings."""
     flow: bool = False
+
+    @field_validator("sensor", mode="before")
+    @classmethod
+    def _sensor_preset(cls, value: Any) -> Any:
+        if not isinstance(value, str):
+            return value
+        presets = {"perfect": Sensor(), "kinect": Sensor.kinect()}
+        if value not in presets:
+            raise ValueError(f"give {' or '.join(presets)}, or a mapping of sensor settings")
+        return presets[value]
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -259,11 +283,6 @@ class Scenario(Strict):
             return self.frames
         return max(1, round((self.duration_s or 10.0) * self.fps))
 
-    def sensor_spec(self) -> Sensor:
-        if isinstance(self.sensor, Sensor):
-            return self.sensor
-        return Sensor.kinect() if self.sensor == "kinect" else Sensor()
-
 
 def _pick(rng: np.random.Generator, value: float | tuple[float, float]) -> float:
     if isinstance(value, int | float):
@@ -289,7 +308,6 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
                 )
             )
     lay = scenario.layout
-    sensor = scenario.sensor_spec()
     return sim_spec.ScenarioSpec(
         name=scenario.name,
         seed=scenario.seed,
@@ -311,7 +329,7 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
         camera=sim_spec.CameraSpec(**scenario.camera.model_dump()),
         light_intensity=scenario.lighting.intensity,
         flow=scenario.flow,
-        sensor=sim_spec.SensorSpec(**sensor.model_dump()),
+        sensor=sim_spec.SensorSpec(**scenario.sensor.model_dump()),
         layout_seed=lay.seed,
     )
 
@@ -321,14 +339,14 @@ def format_validation_error(source: str, exc: ValidationError) -> str:
     lines = []
     for error in exc.errors():
         path = ".".join(str(p) for p in error["loc"])
-        message = error["msg"]
+        message = error["msg"].removeprefix("Value error, ")
         if error["type"] == "extra_forbidden":
             message = "unknown field (check the spelling; see `depotbench validate --help`)"
         got = error.get("input")
         shown = "" if isinstance(got, dict | list) or error["type"] == "missing" else f" (got {got!r:.80})"
         if not path and error["type"] == "value_error":
             # A check across fields: its message starts with the field it names.
-            lines.append(f"{source}: {message.removeprefix('Value error, ')}")
+            lines.append(f"{source}: {message}")
             continue
         lines.append(f"{source}: {path or '(top level)'}: {message}{shown}")
     return "\n".join(lines)

@@ -44,6 +44,9 @@ class Draw(Strict):
             raise ValueError("give exactly one of uniform: [low, high], int: [low, high], choice: [...]")
         if self.choice is not None and not self.choice:
             raise ValueError("choice needs at least one value")
+        for name, bounds in (("uniform", self.uniform), ("int", self.int_range)):
+            if bounds is not None and bounds[0] > bounds[1]:
+                raise ValueError(f"{name}: [low, high] needs low <= high, got {list(bounds)}")
         return self
 
     def sample(self, rng: np.random.Generator) -> Any:

@@ -177,8 +177,9 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
         raise SequenceFormatError(path, None, exc.problem) from None
     try:
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as exc:
-        problem = (exc.err or str(exc)).strip().splitlines()[0]
+    except (cv2.error, SystemError) as exc:  # the binding wraps some parse errors in SystemError
+        cause = exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ else exc
+        problem = (getattr(cause, "err", None) or str(cause)).strip().splitlines()[0]
         raise SequenceFormatError(path, None, f"not a readable OpenCV YAML file: {problem}") from None
     if not storage.isOpened():
         raise SequenceFormatError(path, None, "not an OpenCV YAML file (it must start with %YAML:1.0)")

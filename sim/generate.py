@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -123,88 +124,80 @@ def generate(
         content_key=content_key(scenario),
         inputs=inputs,
     )
-    period = 1.0 / scenario.fps
     with writer:
         world = build_world(scenario)
-        sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
-        renderer = FrameRenderer(world.model, scenario.width, scenario.height)
-        sim = Simulation(world)
-        geom_body = world.model.geom_bodyid.astype(np.int64)
-        geom_instance = world.body_instance[geom_body]
-        difficulty = DifficultyAccumulator()
         writer.meta["classes"] = world.classes()
         writer.meta["instances"] = [dataclasses.asdict(i) for i in world.instances]
+        renderer = FrameRenderer(world.model, scenario.width, scenario.height)
         try:
-            now = sim.snapshot()
             frames = tqdm(
                 range(scenario.frames),
                 desc=f"generate {scenario.name}",
                 unit="frame",
-                disable=not progress,
+                disable=None if progress else True,  # None: only on a terminal
                 leave=False,
                 position=position,
             )
-            for k in frames:
-                rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
-                sim.advance_to((k + 1) * period)
-                nxt = sim.snapshot()
-                valid = geom_ids >= 0
-                instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
-                bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
-                motion = rigid_motions(
-                    now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations
-                )
-                objects = object_states(world, now, nxt, instances)
-                moving_ids = [o.instance_id for o in objects if o.moving]
-                moving = np.isin(instances, moving_ids) & (depth > 0)
-                vv, uu = np.nonzero(moving)
-                flow = None
-                if scenario.flow or sensor.needs_flow:
-                    flow = exact_flow(
-                        depth,
-                        bodies,
-                        world.intrinsics,
-                        now.world_from_camera,
-                        nxt.world_from_camera,
-                        motion,
-                    )
-                    moving_flow = flow[vv, uu]
-                else:
-                    # Only the moving pixels' flow is needed: the same computation, cast as exact_flow does.
-                    moving_flow = flow_at(
-                        uu,
-                        vv,
-                        depth[vv, uu],
-                        bodies[vv, uu],
-                        world.intrinsics,
-                        now.world_from_camera,
-                        nxt.world_from_camera,
-                        motion,
-                    ).astype(np.float32)
-                difficulty.add(
-                    moving,
-                    moving_flow,
-                    float(
-                        np.linalg.norm(nxt.world_from_camera[:3, 3] - now.world_from_camera[:3, 3]) / period
-                    ),
-                )
-                clean = None
-                if scenario.sensor.enabled:
-                    clean = depth
-                    rgb = sensor.rgb(rgb, flow, scenario.fps)
-                    depth = sensor.depth(depth)
-                writer.add_frame(
-                    START_TIME_S + k * period,
-                    rgb,
-                    depth,
-                    now.world_from_camera,
-                    instances,
-                    objects,
-                    flow if scenario.flow else None,
-                    clean,
-                )
-                now = nxt
-            writer.meta["difficulty"] = difficulty.summary()
+            with frames:  # closed (and its line cleared) before an error is printed
+                writer.meta["difficulty"] = _write_frames(scenario, world, renderer, writer, frames)
         finally:
             renderer.close()
     return out
+
+
+def _write_frames(
+    scenario: ScenarioSpec,
+    world: World,
+    renderer: FrameRenderer,
+    writer: SequenceWriter,
+    frames: Iterable[int],
+) -> dict[str, float]:
+    """Simulate, render and write each frame with its ground truth; return the difficulty."""
+    sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
+    sim = Simulation(world)
+    geom_body = world.model.geom_bodyid.astype(np.int64)
+    geom_instance = world.body_instance[geom_body]
+    difficulty = DifficultyAccumulator()
+    period = 1.0 / scenario.fps
+    now = sim.snapshot()
+    for k in frames:
+        rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
+        sim.advance_to((k + 1) * period)
+        nxt = sim.snapshot()
+        valid = geom_ids >= 0
+        instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
+        bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
+        motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
+        objects = object_states(world, now, nxt, instances)
+        moving_ids = [o.instance_id for o in objects if o.moving]
+        moving = np.isin(instances, moving_ids) & (depth > 0)
+        vv, uu = np.nonzero(moving)
+        flow = None
+        poses = (now.world_from_camera, nxt.world_from_camera)
+        if scenario.flow or sensor.needs_flow:
+            flow = exact_flow(depth, bodies, world.intrinsics, *poses, motion)
+            moving_flow = flow[vv, uu]
+        else:
+            # Only the moving pixels' flow is needed: the same computation, cast as exact_flow does.
+            moving_flow = flow_at(
+                uu, vv, depth[vv, uu], bodies[vv, uu], world.intrinsics, *poses, motion
+            ).astype(np.float32)
+        camera_speed = float(np.linalg.norm(poses[1][:3, 3] - poses[0][:3, 3]) / period)
+        difficulty.add(moving, moving_flow, camera_speed)
+        clean = None
+        if scenario.sensor.enabled:
+            clean = depth
+            rgb = sensor.rgb(rgb, flow, scenario.fps)
+            depth = sensor.depth(depth)
+        writer.add_frame(
+            START_TIME_S + k * period,
+            rgb,
+            depth,
+            now.world_from_camera,
+            instances,
+            objects,
+            flow if scenario.flow else None,
+            clean,
+        )
+        now = nxt
+    return difficulty.summary()

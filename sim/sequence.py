@@ -425,7 +425,13 @@ def _read_png(path: Path, frame: FrameRef, size: tuple[int, int]) -> np.ndarray:
 def _bounded_lines(path: Path, handle: Any) -> Iterator[str]:
     """The lines of a text file, refusing one longer than ``MAX_RECORD_BYTES``."""
     number = 0
-    while line := handle.readline(MAX_RECORD_BYTES + 1):
+    while True:
+        try:
+            line = handle.readline(MAX_RECORD_BYTES + 1)
+        except UnicodeDecodeError as exc:
+            raise SequenceFormatError(path, number + 1, f"not UTF-8 text ({exc.reason})") from None
+        if not line:
+            return
         number += 1
         if len(line) > MAX_RECORD_BYTES:
             raise SequenceFormatError(path, number, f"line is longer than {MAX_RECORD_BYTES} bytes")
