@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-import json
+import os
 from pathlib import Path
 from typing import Any
 
 from eval.metrics import improvement_rate
+from sim.files import dumps_json
+from sim.output import write_text_atomic
 
 
 def summarise(runs: dict[str, dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:
@@ -86,6 +88,9 @@ def plot(rows: list[dict[str, Any]], path: Path) -> bool:
 
 
 def write_report(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    (out_dir / "report.json").write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
-    (out_dir / "report.txt").write_text(format_table(rows) + "\n", encoding="utf-8")
-    plot(rows, out_dir / "ate.png")
+    """report.json, report.txt and ate.png, each replaced whole (never seen half-written)."""
+    write_text_atomic(out_dir / "report.json", dumps_json(rows) + "\n")
+    write_text_atomic(out_dir / "report.txt", format_table(rows) + "\n")
+    staged = out_dir / ".ate.png.tmp.png"
+    if plot(rows, staged):
+        os.replace(staged, out_dir / "ate.png")

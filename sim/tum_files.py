@@ -111,8 +111,8 @@ def read_pose_file(path: Path, *, strict: bool) -> PoseTable:
     ``strict`` (sequence ground truth) also refuses unsorted or duplicate
     timestamps and quaternions whose norm is off 1 by more than
     ``QUATERNION_NORM_TOLERANCE``. Otherwise (SLAM estimates) quaternions are
-    only required to be non-zero; they are normalised by the consumer, as evo
-    does. Non-finite values are always refused.
+    only required to have a norm in (1e-9, 1e9); they are normalised by the
+    consumer, as evo does. Non-finite values are always refused.
     """
     rows = read_rows(path, 8)
     if not rows:
@@ -127,12 +127,13 @@ def read_pose_file(path: Path, *, strict: bool) -> PoseTable:
     if large.any():
         i = int(np.flatnonzero(large)[0])
         raise SequenceFormatError(path, lines[i], f"position is beyond +-{MAX_ABS_POSITION_M:g} m")
-    norms = np.linalg.norm(values[:, 4:8], axis=1)
+    with np.errstate(over="ignore"):
+        norms = np.linalg.norm(values[:, 4:8], axis=1)
     if strict:
         check_increasing(path, values[:, 0], list(lines))
         off = np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE
     else:
-        off = norms < 1e-9
+        off = ~((norms > 1e-9) & (norms < 1e9))  # normalisable without overflow
     if off.any():
         i = int(np.flatnonzero(off)[0])
         raise SequenceFormatError(path, lines[i], f"quaternion (qx qy qz qw) has norm {norms[i]:.6g}, not 1")

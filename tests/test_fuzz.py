@@ -515,6 +515,7 @@ TRAJECTORIES: dict[str, tuple[str | bytes, str]] = {
     "inf": (GOOD + "5.0 0 inf 0 0 0 0 1\n", ":13: pose holds NaN or infinity"),
     "zero_quaternion": (GOOD + "5.0 0 0 0 0 0 0 0\n", ":13: quaternion"),
     "far": (GOOD + "5.0 1e30 0 0 0 0 0 1\n", ":13: position is beyond"),
+    "huge_quaternion": (GOOD + "5.0 0 0 0 1.34e154 0 0 1\n", ":13: quaternion"),
     "binary": (b"\x00\x01\xff\xfe", "not a text file"),
     "one_pose": ("1.0 0 0 0 0 0 0 1\n", "cannot align"),
     "two_poses": ("1.0 0 0 0 0 0 0 1\n1.1 1 0 0 0 0 0 1\n", "cannot align"),
