@@ -26,6 +26,7 @@ import ctypes
 import ctypes.util
 import errno
 import fcntl
+import glob
 import json
 import os
 import shutil
@@ -249,7 +250,7 @@ def exchange(a: Path, b: Path) -> bool:
 
 
 def _leftovers(target: Path, tag: str) -> list[Path]:
-    return sorted(target.parent.glob(f".{target.name}.{tag}-*"))
+    return sorted(target.parent.glob(f".{glob.escape(target.name)}.{tag}-*"))
 
 
 def recover_and_clean(target: Path) -> None:

@@ -472,3 +472,14 @@ def wait_until_gone(token: str, timeout_s: float = 15.0) -> list[int]:
     while (alive := processes_with(token)) and time.time() < deadline:
         time.sleep(0.1)
     return alive
+
+
+def test_leftovers_of_a_name_with_glob_characters_are_found(tmp_path: Path):
+    target = tmp_path / "run[1]*"
+    stale = tmp_path / ".run[1]*.partial-0badc0de"
+    stale.mkdir()
+    other = tmp_path / ".run1x.partial-0badc0de"  # what the unescaped pattern would also match
+    other.mkdir()
+    with StagedOutput(target, OutputKind.RUN) as out:
+        out.commit()
+    assert not stale.exists() and other.exists()
