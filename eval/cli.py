@@ -7,6 +7,7 @@ other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -22,12 +23,22 @@ from sim.errors import InputError
 from sim.files import dumps_json
 
 EXIT_INPUT_ERROR = 2
+MAX_PREVIEW_FRAMES = 16
+"""Rows of one preview picture (each 3 frames wide)."""
 EXIT_INTERRUPTED = 128 + signal.SIGINT
+EXIT_TERMINATED = 128 + signal.SIGTERM
 EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
-def _positive_float(text: str) -> float:
+def _finite_float(text: str) -> float:
     value = float(text)
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = _finite_float(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
@@ -52,11 +63,13 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-diff",
-        type=float,
+        type=_finite_float,
         default=DEFAULT_MAX_DIFF_S,
         help="association window in seconds (default: 0.02, TUM's)",
     )
-    p.add_argument("--t-offset", type=float, default=0.0, help="seconds added to the estimate's stamps")
+    p.add_argument(
+        "--t-offset", type=_finite_float, default=0.0, help="seconds added to the estimate's stamps"
+    )
     p.add_argument("--rpe-delta", type=_positive_float, default=1.0, help="RPE delta (default: 1)")
     p.add_argument(
         "--rpe-unit",
@@ -371,11 +384,14 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     if args.output.is_dir() or (args.output.exists() and not args.overwrite):
         what = "is a folder" if args.output.is_dir() else "already exists (pass --overwrite to replace it)"
         raise InputError(f"{args.output}: {what}")
+    if len(args.frames) > MAX_PREVIEW_FRAMES:
+        raise InputError(f"--frames: give at most {MAX_PREVIEW_FRAMES} frames, got {len(args.frames)}")
     seq = Sequence.open(args.sequence)
     bad = [i for i in args.frames if not 0 <= i < len(seq)]
     if bad:
         raise InputError(f"{args.sequence}: frame {bad[0]} is out of range (0..{len(seq) - 1})")
-    image = np.vstack([preview(seq, i) for i in args.frames])
+    objects = seq.objects() if seq.is_generated else None
+    image = np.vstack([preview(seq, i, objects=None if objects is None else objects[i]) for i in args.frames])
     write_bytes_atomic(args.output, cv2.imencode(".png", image[:, :, ::-1])[1].tobytes())
     print(f"wrote {args.output}")
     return 0
@@ -404,9 +420,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a CI job cancelled, ``timeout``), handled as Ctrl-C: stop, clean up, say so."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        return _run(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command's exit code; a user's mistake or an interruption ends in one line."""
     from sim.errors import EnvironmentProblem
 
     try:
@@ -424,14 +457,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         # A path the system refused (missing, unreadable, full disk): the user's to fix.
         print(f"depotbench {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
         return EXIT_INPUT_ERROR
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         fresh_line = "\n" if sys.stderr.isatty() else ""  # after a progress bar
+        what = "terminated" if isinstance(exc, Terminated) else "interrupted"
         print(
-            f"{fresh_line}depotbench {args.command}: interrupted; "
+            f"{fresh_line}depotbench {args.command}: {what}; "
             "finished outputs are kept and nothing is half-written",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

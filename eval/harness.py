@@ -83,8 +83,11 @@ def run_sequence(
     det = make_detector(detector, sequence)
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
-    with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
+    try:
         slam = Slam(config, camera_of(sequence))
+    except ConfigError as exc:
+        raise InputError(f"--set: {exc}") from None
+    with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
         objects = sequence.objects() if sequence.is_generated else None
         results: list[FrameResult] = []
         labels: list[np.ndarray] = []

@@ -140,10 +140,13 @@ def rpe(
         raise ValueError("rpe needs associated trajectories of equal length")
     estimate, _ = align(estimate, reference, alignment)
     chooser = reference if pairs_from_reference else estimate
+    if not np.isfinite(delta):
+        raise InputError(f"RPE delta must be a finite number, got {delta}")
     if unit is DeltaUnit.FRAMES:
         if float(delta) != int(delta):
             raise InputError(f"RPE delta in frames must be a whole number, got {delta}")
-        pairs = pairs_by_frames(len(chooser), int(delta), all_pairs)
+        # A delta beyond the trajectory has no pairs (and would overflow an index).
+        pairs = pairs_by_frames(len(chooser), int(min(delta, len(chooser))), all_pairs)
     else:
         pairs = pairs_by_path(chooser.positions_m, float(delta), rel_delta_tol * float(delta), all_pairs)
     if len(pairs) == 0:

@@ -5,13 +5,22 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from sim.ground_truth import ObjectState
 from sim.sequence import Sequence
 
 DEPTH_RANGE_M = 8.0
 
 
-def preview(seq: Sequence, index: int, max_depth_m: float = DEPTH_RANGE_M) -> np.ndarray:
-    """One RGB image (H, 3W, 3): the frame, its depth, and the instance overlay with boxes."""
+def preview(
+    seq: Sequence,
+    index: int,
+    max_depth_m: float = DEPTH_RANGE_M,
+    objects: tuple[ObjectState, ...] | None = None,
+) -> np.ndarray:
+    """One RGB image (H, 3W, 3): the frame, its depth, and the instance overlay with boxes.
+
+    ``objects`` are the frame's ground truth, when the caller has read them already.
+    """
     rgb = seq.rgb(index)
     depth = seq.depth_m(index)
     scaled = (np.clip(depth / max_depth_m, 0, 1) * 255).astype(np.uint8)
@@ -23,7 +32,7 @@ def preview(seq: Sequence, index: int, max_depth_m: float = DEPTH_RANGE_M) -> np
         palette = np.random.default_rng(0).integers(60, 255, (int(instances.max()) + 1, 3))
         mask = instances > 0
         overlay[mask] = (0.45 * overlay[mask] + 0.55 * palette[instances[mask]]).astype(np.uint8)
-        for obj in seq.objects()[index]:
+        for obj in seq.objects()[index] if objects is None else objects:
             if obj.box_xyxy is None:
                 continue
             x0, y0, x1, y1 = obj.box_xyxy

@@ -70,12 +70,13 @@ def is_complete(sequence: Path, key: str) -> bool:
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """Cancel what has not started and terminate what runs (shutdown alone would wait for it)."""
-    pool.shutdown(wait=False, cancel_futures=True)
     terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
     if terminate is not None:
         terminate()
         return
+    # The pool forgets its processes on shutdown: take them first.
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         process.terminate()
     for process in processes:

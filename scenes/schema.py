@@ -28,9 +28,14 @@ from pydantic import (
 from sim import spec as sim_spec
 from sim.errors import FileError, InputError
 from sim.files import MAX_SPEC_BYTES, read_text
+from sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
 
 MAX_FRAMES = 100_000
 MAX_ACTORS = 40
+MAX_CHAIRS = 12
+MAX_IMAGE_SIDE = sim_spec.MAX_IMAGE_SIDE
+MIN_CHAIR_SPACING_M = 0.9
+"""Chairs closer than this overlap (each is about 0.9 m across with its legs)."""
 MAX_YAML_NODES = 100_000
 """Values a scenario or suite file may expand to, aliases counted at every use."""
 MAX_YAML_DEPTH = 32
@@ -63,8 +68,8 @@ class Strict(BaseModel):
 
 
 class Image(Strict):
-    width: int = Field(640, ge=16, le=4096)
-    height: int = Field(480, ge=16, le=4096)
+    width: int = Field(640, ge=16, le=MAX_IMAGE_SIDE)
+    height: int = Field(480, ge=16, le=MAX_IMAGE_SIDE)
 
 
 class IntrinsicsSpec(Strict):
@@ -87,6 +92,16 @@ class Layout(Strict):
     props: int = Field(10, ge=0, le=60)
     desk: bool = True
     seed: int | None = Field(None, ge=0, description="fixes the layout across a suite's variations")
+
+    def to_spec(self) -> sim_spec.LayoutSpec:
+        return sim_spec.LayoutSpec(
+            hall_size_m=self.size_m,
+            hall_height_m=self.height_m,
+            rack_rows=self.rack_rows,
+            racks_per_row=self.racks_per_row,
+            floor_props=self.props,
+            desk=self.desk,
+        )
 
 
 class Actor(Strict):
@@ -185,7 +200,7 @@ class Scenario(Strict):
     intrinsics: IntrinsicsSpec = IntrinsicsSpec()
     layout: Layout = Layout()
     actors: list[Actor] = []
-    chairs: list[Chair] = []
+    chairs: list[Chair] = Field([], max_length=MAX_CHAIRS)
     camera: Camera = Camera()
     lighting: Lighting = Lighting()
     sensor: Sensor = Sensor()
@@ -276,6 +291,17 @@ class Scenario(Strict):
                 raise ValueError(
                     f"chairs.{i}.position_m: {list(chair.position_m)} lies outside the hall floor"
                 )
+            half = CHAIR_HALF_M
+            x, y = chair.position_m
+            for what, rect in fixed_footprints(self.layout.to_spec()):
+                if overlaps((x - half, y - half, x + half, y + half), rect):
+                    raise ValueError(f"chairs.{i}.position_m: {[x, y]} stands on {what}; move it")
+            for j, other in enumerate(self.chairs[:i]):
+                if math.dist(chair.position_m, other.position_m) < MIN_CHAIR_SPACING_M:
+                    raise ValueError(
+                        f"chairs.{i}.position_m: overlaps chairs.{j} (chairs stand at least "
+                        f"{MIN_CHAIR_SPACING_M} m apart)"
+                    )
 
     @property
     def n_frames(self) -> int:
@@ -316,14 +342,7 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
         width=scenario.image.width,
         height=scenario.image.height,
         focal_px=scenario.intrinsics.fx,
-        layout=sim_spec.LayoutSpec(
-            hall_size_m=lay.size_m,
-            hall_height_m=lay.height_m,
-            rack_rows=lay.rack_rows,
-            racks_per_row=lay.racks_per_row,
-            floor_props=lay.props,
-            desk=lay.desk,
-        ),
+        layout=lay.to_spec(),
         actors=tuple(actors),
         chairs=tuple(sim_spec.ChairSpec(c.position_m, c.yaw_deg) for c in scenario.chairs),
         camera=sim_spec.CameraSpec(**scenario.camera.model_dump()),
@@ -378,6 +397,21 @@ def _check_size(data: Any, path: Path) -> None:
     size(data, 0, frozenset())
 
 
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, but a key given twice in one mapping is an error, not the last one wins."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: list[Any] = []
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} appears twice in one mapping", key_node.start_mark
+                )
+            seen.append(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml(path: Path) -> Any:
     """Parse YAML safely: tags that would build Python objects are refused, and size,
     nesting and alias expansion are bounded."""
@@ -388,7 +422,7 @@ def read_yaml(path: Path) -> Any:
     except FileError as exc:
         raise SpecError(str(exc)) from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader that refuses duplicate keys
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -396,6 +430,8 @@ def read_yaml(path: Path) -> Any:
         raise SpecError(f"{path}:{where}: not valid YAML: {problem}") from None
     except RecursionError:
         raise SpecError(f"{path}: nested too deeply to parse (more than {MAX_YAML_DEPTH} levels)") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise SpecError(f"{path}: holds a value that cannot be read: {str(exc).split(';')[0]}") from None
     _check_size(data, path)
     if data is None:
         raise SpecError(f"{path}: the file is empty; a scenario needs at least a name")

@@ -12,7 +12,7 @@ import copy
 import itertools
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
@@ -28,13 +28,15 @@ from scenes.schema import (
 )
 
 MAX_VARIATIONS = 10_000
+Bound = Annotated[float, Field(ge=-1e12, le=1e12)]
+IntBound = Annotated[int, Field(ge=-(2**53), le=2**53)]
 
 
 class Draw(Strict):
     """One random knob: exactly one of ``uniform``, ``int`` (inclusive) or ``choice``."""
 
-    uniform: tuple[float, float] | None = None
-    int_range: tuple[int, int] | None = Field(None, alias="int")
+    uniform: tuple[Bound, Bound] | None = None
+    int_range: tuple[IntBound, IntBound] | None = Field(None, alias="int")
     choice: list[Any] | None = None
 
     @model_validator(mode="after")
@@ -72,7 +74,6 @@ class Suite(Strict):
     grid: dict[str, list[Any]] = {}
     seeds: list[Annotated[int, Field(ge=0, le=2**32 - 1)]] = Field([0], min_length=1)
     random: RandomKnobs | None = None
-    mode: Literal["grid", "random"] | None = None
 
     @model_validator(mode="after")
     def _shape(self) -> Suite:
@@ -80,6 +81,13 @@ class Suite(Strict):
             raise ValueError("give grid or random, not both")
         if any(not values for values in self.grid.values()):
             raise ValueError("every grid knob needs at least one value")
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds: {self.seeds} repeats a seed (the same sequence twice)")
+        knobs = list(self.grid) + (list(self.random.knobs) if self.random else [])
+        reserved_knobs = (("name", "names are the suite's, numbered"), ("seed", "list seeds in seeds:"))
+        for reserved, instead in reserved_knobs:
+            if reserved in knobs:
+                raise ValueError(f"'{reserved}' cannot be a knob ({instead})")
         return self
 
 
@@ -111,7 +119,10 @@ def _base_data(suite: Suite, suite_path: Path) -> dict[str, Any]:
     path = (suite_path.parent / suite.base).resolve()
     if not path.exists():
         raise SpecError(f"{suite_path}: base {suite.base!r} is neither a library scenario nor a file")
-    return read_yaml(path)
+    data = read_yaml(path)
+    if "suite" in data:
+        raise SpecError(f"{suite_path}: base {suite.base!r} is a suite; a suite's base is a scenario")
+    return data
 
 
 def count_variations(suite: Suite) -> int:

@@ -18,6 +18,15 @@ from sim.files import MAX_SPEC_BYTES, read_text
 
 MAX_IMAGE_SIDE = 16384
 """Largest image width or height a settings file may declare."""
+PLAUSIBLE = {
+    "Camera.fx": (1.0, 1e5),
+    "Camera.fy": (1.0, 1e5),
+    "Camera.cx": (-1e5, 1e5),
+    "Camera.cy": (-1e5, 1e5),
+    "DepthMapFactor": (1e-3, 1e6),
+    "Camera.fps": (0.1, 10_000.0),
+}
+"""Ranges outside which a settings file's number is a mistake (they keep the arithmetic finite)."""
 TUM_DEPTH_SCALE = 5000.0
 """Depth PNG units per metre (TUM RGB-D)."""
 
@@ -169,12 +178,28 @@ _REQUIRED_KEYS = (
 )
 
 
+MAX_SETTINGS_NESTING = 16
+"""Bracket depth and indentation (in levels of two spaces) a settings file may have."""
+
+
+def _check_nesting(path: Path, text: str) -> None:
+    """Refuse deep nesting before OpenCV's recursive parser sees it (it overflows the C stack)."""
+    codes = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    opens = np.isin(codes, (ord("["), ord("{"))).astype(np.int32)
+    closes = np.isin(codes, (ord("]"), ord("}"))).astype(np.int32)
+    depth = int(np.max(np.cumsum(opens - closes), initial=0))
+    indent = max((len(line) - len(line.lstrip(" \t")) for line in text.splitlines()), default=0)
+    if depth > MAX_SETTINGS_NESTING or indent > 2 * MAX_SETTINGS_NESTING:
+        raise SequenceFormatError(path, None, f"nested more than {MAX_SETTINGS_NESTING} levels deep")
+
+
 def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     """Intrinsics and frame rate from an ORB-SLAM settings file (OpenCV YAML)."""
     try:
         text = read_text(path, MAX_SPEC_BYTES, "settings file")
     except FileError as exc:
         raise SequenceFormatError(path, None, exc.problem) from None
+    _check_nesting(path, text)
     try:
         storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:  # the binding wraps some parse errors in SystemError
@@ -207,6 +232,11 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     for key in ("Camera.width", "Camera.height"):
         if not (values[key].is_integer() and 1 <= values[key] <= MAX_IMAGE_SIDE):
             raise SequenceFormatError(path, None, f"{key} must be a whole number in 1..{MAX_IMAGE_SIDE}")
+    for key, (low, high) in PLAUSIBLE.items():
+        if key in values and not low <= values[key] <= high:
+            raise SequenceFormatError(
+                path, None, f"{key} = {values[key]:g} is outside the plausible {low:g}..{high:g}"
+            )
     fps = values.get("Camera.fps", 30.0)
     if not (math.isfinite(fps) and fps > 0):
         raise SequenceFormatError(path, None, f"Camera.fps must be a positive number, got {fps}")

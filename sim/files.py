@@ -13,8 +13,12 @@ import math
 import os
 import stat
 import struct
+import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from sim.errors import FileError
 
@@ -23,6 +27,8 @@ MIB = 1024 * KIB
 
 MAX_TEXT_BYTES = 32 * MIB
 """TUM lists and pose files: 100,000 frames of poses take about 11 MB."""
+MAX_TEXT_LINES = 500_000
+"""Lines of a TUM list or pose file (TUM's longest ground truth has about 16,000)."""
 MAX_SPEC_BYTES = 1 * MIB
 """Scenario, suite and settings files (YAML or JSON)."""
 MAX_META_BYTES = 16 * MIB
@@ -66,8 +72,11 @@ def open_regular(path: Path, limit: int, what: str) -> int:
 def read_bytes(path: Path, limit: int, what: str) -> bytes:
     """The whole file, size-checked before it is read (and again while, should it grow)."""
     fd = open_regular(path, limit, what)
-    with os.fdopen(fd, "rb") as handle:
-        data = handle.read(limit + 1)
+    try:
+        with os.fdopen(fd, "rb") as handle:
+            data = handle.read(limit + 1)
+    except OSError as exc:  # /proc/self/mem says it is a file of 0 bytes, then refuses to be read
+        raise FileError(path, None, f"cannot be read ({exc.strerror or exc})") from None
     if len(data) > limit:
         raise FileError(path, None, f"grew beyond the {_limit_text(limit)} limit for a {what} while read")
     return data
@@ -88,14 +97,66 @@ PNG_COLOR_CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 def png_header(path: Path) -> tuple[int, int, int, int]:
     """(width, height, bit depth, channels) read from the IHDR chunk, before any pixel."""
     fd = open_regular(path, MAX_IMAGE_BYTES, "PNG image")
-    with os.fdopen(fd, "rb") as handle:
-        head = handle.read(33)
+    try:
+        with os.fdopen(fd, "rb") as handle:
+            head = handle.read(33)
+    except OSError as exc:
+        raise FileError(path, None, f"cannot be read ({exc.strerror or exc})") from None
     if len(head) < 33 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise FileError(path, None, "is not a PNG image (no PNG signature and IHDR header)")
     width, height, depth, color = struct.unpack(">IIBB", head[16:26])
     if color not in PNG_COLOR_CHANNELS or width == 0 or height == 0:
         raise FileError(path, None, f"has a malformed PNG header ({width}x{height}, colour type {color})")
     return width, height, depth, PNG_COLOR_CHANNELS[color]
+
+
+class _StderrCapture:
+    """Catch what C libraries print on file descriptor 2 while a call runs (libpng prints its
+    errors there), so that it can go into our own one-line message instead."""
+
+    def __init__(self) -> None:
+        self._fd: int | None = None
+
+    def run(self, call: Callable[[], Any]) -> tuple[Any, str]:
+        if self._fd is None:
+            self._fd = os.memfd_create("stderr") if hasattr(os, "memfd_create") else _temporary_fd()
+        os.ftruncate(self._fd, 0)
+        os.lseek(self._fd, 0, os.SEEK_SET)
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            os.dup2(self._fd, 2)
+            result = call()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        os.lseek(self._fd, 0, os.SEEK_SET)
+        text = os.read(self._fd, 4096).decode("utf-8", "replace")
+        return result, " ".join(text.split())
+
+
+def _temporary_fd() -> int:
+    import tempfile
+
+    with tempfile.TemporaryFile() as handle:
+        return os.dup(handle.fileno())  # the file lives on in the duplicate
+
+
+_CAPTURE = _StderrCapture()
+
+
+def decode_png(path: Path) -> np.ndarray:
+    """Decode a PNG (whose header was checked) as stored; libpng's complaints become the error."""
+    import cv2  # only readers of images pay for it
+
+    data = read_bytes(path, MAX_IMAGE_BYTES, "PNG image")
+    image, complaint = _CAPTURE.run(
+        lambda: cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    )
+    if image is None:
+        detail = complaint.removeprefix("libpng error: ") or "corrupt or truncated"
+        raise FileError(path, None, f"cannot be decoded as a PNG image ({detail})")
+    return image
 
 
 def json_safe(value: Any) -> Any:

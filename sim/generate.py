@@ -11,8 +11,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
+from sim.errors import ScenarioError
 from sim.flow import exact_flow, flow_at, rigid_motions
 from sim.ground_truth import ObjectState, boxes_and_counts
+from sim.mujoco_env import mujoco
 from sim.render import FrameRenderer
 from sim.sensor import SensorModel
 from sim.sequence import SequenceWriter
@@ -140,6 +142,8 @@ def generate(
             )
             with frames:  # closed (and its line cleared) before an error is printed
                 writer.meta["difficulty"] = _write_frames(scenario, world, renderer, writer, frames)
+        except mujoco.FatalError as exc:
+            raise ScenarioError(f"{scenario.name}: MuJoCo cannot simulate this scene: {exc}") from None
         finally:
             renderer.close()
     return out

@@ -18,6 +18,12 @@ Rect = tuple[float, float, float, float]  # x0, y0, x1, y1
 
 CENTRAL_AREA: Rect = (-3.0, -2.4, 3.0, 3.2)
 """Kept free of floor props: where actors walk in front of the camera."""
+DESK_CENTRE = (0.0, 1.6)
+DESK_HALF = (0.8, 0.4)
+SEAT_AREA: Rect = (-0.75, 1.95, 0.8, 2.6)
+"""Behind the desk, where seated people sit."""
+CHAIR_HALF_M = 0.45
+"""Half the side of the square a chair takes on the floor."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +66,7 @@ def _footprint(center: Vec3, half: Vec3, yaw_deg: float, margin: float = 0.0) ->
     return (center[0] - hx, center[1] - hy, center[0] + hx, center[1] + hy)
 
 
-def _overlaps(a: Rect, b: Rect) -> bool:
+def overlaps(a: Rect, b: Rect) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
@@ -127,7 +133,7 @@ def _rack(rng: np.random.Generator, start: float, length: float, fixed: float, a
 
 
 def _desk(rng: np.random.Generator, x: float, y: float) -> tuple[list[StaticObject], Rect]:
-    top_z, hx, hy = 0.75, 0.8, 0.4
+    top_z, (hx, hy) = 0.75, DESK_HALF
     desk = [Piece((x, y, top_z - 0.02), (hx, hy, 0.02), "wood2")]
     for sx in (-1, 1):
         for sy in (-1, 1):
@@ -183,8 +189,51 @@ def _desk(rng: np.random.Generator, x: float, y: float) -> tuple[list[StaticObje
     return objects, (x - hx, y - hy, x + hx, y + hy)
 
 
-def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
-    """Walls, racks along the walls, floor props outside the central area, and a desk."""
+@dataclass(frozen=True)
+class _RackUnit:
+    start: float
+    length: float
+    fixed: float
+    along_x: bool
+
+    @property
+    def footprint(self) -> Rect:
+        a, b = (self.start, self.fixed - 0.5), (self.start + self.length, self.fixed + 0.5)
+        return (a[0], a[1], b[0], b[1]) if self.along_x else (a[1], a[0], b[1], b[0])
+
+
+def _rack_units(spec: LayoutSpec) -> list[_RackUnit]:
+    """Where the rack units stand: rows along the walls, a function of the layout spec alone."""
+    sx, sy = spec.hall_size_m[0] / 2, spec.hall_size_m[1] / 2
+    rows = [(True, sy - 0.6), (False, -sx + 0.6), (False, sx - 0.6), (True, sy - 2.4)]
+    units = []
+    for along_x, fixed in rows[: spec.rack_rows]:
+        span = 2 * (sx if along_x else sy) - 2.0
+        unit = min(2.6, span / max(1, spec.racks_per_row))
+        start0 = -unit * spec.racks_per_row / 2
+        for k in range(spec.racks_per_row):
+            start = start0 + k * unit
+            if not along_x and start + unit > sy - 1.2:
+                continue
+            units.append(_RackUnit(start, unit, fixed, along_x))
+    return units
+
+
+def fixed_footprints(spec: LayoutSpec) -> list[tuple[str, Rect]]:
+    """The floor areas that racks, the desk and its seats take, whatever the seed."""
+    found = [("a rack", unit.footprint) for unit in _rack_units(spec)]
+    if spec.desk:
+        x, y = DESK_CENTRE
+        found.append(("the desk", (x - DESK_HALF[0], y - DESK_HALF[1], x + DESK_HALF[0], y + DESK_HALF[1])))
+        found.append(("the desk's seats", SEAT_AREA))
+    return found
+
+
+def plan_layout(spec: LayoutSpec, rng: np.random.Generator, keep_out: tuple[Rect, ...] = ()) -> Layout:
+    """Walls, racks along the walls, floor props outside the central area, and a desk.
+
+    Floor props also stay out of ``keep_out`` (the chairs' footprints).
+    """
     sx, sy = spec.hall_size_m[0] / 2, spec.hall_size_m[1] / 2
     h = spec.hall_height_m
     world: list[Piece] = [
@@ -216,26 +265,17 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
         ),
     ]
     obstacles: list[Rect] = []
-    rows = [(True, sy - 0.6), (False, -sx + 0.6), (False, sx - 0.6), (True, sy - 2.4)]
-    for along_x, fixed in rows[: spec.rack_rows]:
-        span = 2 * (sx if along_x else sy) - 2.0
-        unit = min(2.6, span / max(1, spec.racks_per_row))
-        start0 = -unit * spec.racks_per_row / 2
-        for k in range(spec.racks_per_row):
-            start = start0 + k * unit
-            if not along_x and start + unit > sy - 1.2:
-                continue
-            world += _rack(rng, start, unit - 0.1, fixed, along_x)
-            a, b = (start, fixed - 0.5), (start + unit, fixed + 0.5)
-            obstacles.append((a[0], a[1], b[0], b[1]) if along_x else (a[1], a[0], b[1], b[0]))
+    for unit in _rack_units(spec):
+        world += _rack(rng, unit.start, unit.length - 0.1, unit.fixed, unit.along_x)
+        obstacles.append(unit.footprint)
     objects: list[StaticObject] = []
     seats: tuple[tuple[float, float, float], ...] = ()
     if spec.desk:
-        desk_objects, desk_rect = _desk(rng, 0.0, 1.6)
+        desk_objects, desk_rect = _desk(rng, *DESK_CENTRE)
         objects += desk_objects
         obstacles.append(desk_rect)
         seats = ((-0.4, 2.25, -90.0), (0.45, 2.25, -90.0))
-        obstacles.append((-0.75, 1.95, 0.8, 2.6))
+        obstacles.append(SEAT_AREA)
     placed = 0
     for _ in range(200 * max(1, spec.floor_props)):
         if placed >= spec.floor_props:
@@ -243,7 +283,7 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator) -> Layout:
         centre = (float(rng.uniform(-sx + 1.2, sx - 1.2)), float(rng.uniform(-sy + 1.0, sy - 1.2)))
         yaw = float(rng.uniform(0, 90))
         rect = _footprint((*centre, 0.0), (0.6, 0.5, 0.0), yaw, margin=0.25)
-        if _overlaps(rect, CENTRAL_AREA) or any(_overlaps(rect, o) for o in obstacles):
+        if overlaps(rect, CENTRAL_AREA) or any(overlaps(rect, o) for o in (*obstacles, *keep_out)):
             continue
         world.append(Piece((*centre, 0.07), (0.6, 0.5, 0.07), "wood1", yaw))
         z = 0.14

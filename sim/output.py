@@ -170,7 +170,7 @@ def _is_same_or_ancestor(path: Path, of: Path) -> bool:
 
 def check_target(target: Path, inputs: tuple[Path, ...] = ()) -> Path:
     """The resolved target, refused when it is the working directory, an ancestor of it,
-    an input or a folder holding an input."""
+    an input, inside an input or a folder holding an input."""
     resolved = target.expanduser().resolve()
     cwd = Path.cwd().resolve()
     if _is_same_or_ancestor(resolved, cwd):
@@ -178,9 +178,14 @@ def check_target(target: Path, inputs: tuple[Path, ...] = ()) -> Path:
         raise OutputError(f"{target}: is {what}; give a new folder for the output")
     for item in inputs:
         source = item.expanduser().resolve()
-        if _is_same_or_ancestor(resolved, source):
-            what = "the input" if resolved == source else f"a folder holding the input {item}"
-            raise OutputError(f"{target}: is {what}; give a separate folder for the output")
+        if _is_same_or_ancestor(resolved, source) or source in resolved.parents:
+            if resolved == source:
+                what = "is the input"
+            elif source in resolved.parents:
+                what = f"lies inside the input {item}"
+            else:
+                what = f"is a folder holding the input {item}"
+            raise OutputError(f"{target}: {what}; give a separate folder for the output")
     return resolved
 
 

@@ -29,7 +29,7 @@ from sim.camera import (
     tum_intrinsics_for,
 )
 from sim.errors import FileError, SequenceFormatError
-from sim.files import MAX_META_BYTES, MAX_RECORD_BYTES, open_regular, png_header, read_text
+from sim.files import MAX_META_BYTES, MAX_RECORD_BYTES, decode_png, open_regular, png_header, read_text
 from sim.ground_truth import ObjectState
 from sim.output import OutputKind, StagedOutput
 from sim.tum_files import (
@@ -132,8 +132,19 @@ class Sequence:
         return sequence
 
     def _check_generated(self) -> None:
-        """Generated sequences have one ground-truth pose and gt record per frame."""
-        assert self.groundtruth is not None
+        """Generated sequences have one ground-truth pose and gt record per frame, and a
+        camera.yaml that agrees with meta.json."""
+        assert self.groundtruth is not None and self.meta is not None
+        k = self.intrinsics
+        for key, stored, here in (
+            ("image_size", self.meta.get("image_size"), [k.width, k.height]),
+            ("depth_scale", self.meta.get("depth_scale"), k.depth_scale),
+            ("frames", self.meta.get("frames"), len(self.frames)),
+        ):
+            if stored is not None and stored != here:
+                raise SequenceFormatError(
+                    self.root / "meta.json", None, f"{key} is {stored!r} but the sequence has {here!r}"
+                )
         gt_path = self.root / "groundtruth.txt"
         if len(self.groundtruth.timestamps_s) != len(self.frames):
             raise SequenceFormatError(
@@ -226,6 +237,7 @@ class Sequence:
                     timestamp = float(data["timestamp"])
                 except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
                     raise SequenceFormatError(path, line_number, f"bad record: {exc}") from None
+                self._check_boxes(path, line_number, states)
                 if line_number > len(self.frames):
                     raise SequenceFormatError(path, line_number, "more records than frames")
                 expected = self.frames[line_number - 1].timestamp_s
@@ -239,6 +251,17 @@ class Sequence:
                 path, None, f"holds {len(records)} records for {len(self.frames)} frames"
             )
         return records
+
+    def _check_boxes(self, path: Path, line: int, states: tuple[ObjectState, ...]) -> None:
+        width, height = self._size
+        for state in states:
+            box = state.box_xyxy
+            if box is not None and (box[2] > width or box[3] > height):
+                raise SequenceFormatError(
+                    path,
+                    line,
+                    f"box {list(box)} of instance {state.instance_id} exceeds the {width}x{height} frame",
+                )
 
     def clean_depth_m(self, index: int) -> np.ndarray:
         """Noise-free depth (gt/depth) where a sensor model was applied, else the depth."""
@@ -306,13 +329,14 @@ def _read_meta(path: Path) -> dict[str, Any] | None:
         raise SequenceFormatError(path, None, "is a broken link") from None
     except FileError as exc:
         raise SequenceFormatError(path, None, exc.problem) from None
-    except (json.JSONDecodeError, RecursionError) as exc:
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, or an integer too long to convert
         line = getattr(exc, "lineno", None)
-        raise SequenceFormatError(path, line, f"not valid JSON: {getattr(exc, 'msg', exc)}") from None
+        problem = str(getattr(exc, "msg", exc)).split(";")[0]
+        raise SequenceFormatError(path, line, f"not valid JSON: {problem}") from None
     if not isinstance(meta, dict):
         raise SequenceFormatError(path, None, "must hold a JSON object")
     version = meta.get("format_version")
-    if version not in SUPPORTED_FORMAT_VERSIONS:
+    if type(version) is not int or version not in SUPPORTED_FORMAT_VERSIONS:
         raise SequenceFormatError(
             path,
             None,
@@ -341,6 +365,14 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
             )
             for k, r in enumerate(rows)
         ]
+        for frame in frames:
+            gap = abs(frame.depth_timestamp_s - frame.timestamp_s)
+            if not gap <= max_diff_s:
+                raise SequenceFormatError(
+                    assoc_path,
+                    frame.list_line,
+                    f"depth is {gap:.6f} s from its RGB frame (at most {max_diff_s} s, as TUM's associate)",
+                )
     else:
         rgb = read_frame_list(root / "rgb.txt")
         depth = read_frame_list(root / "depth.txt")
@@ -359,8 +391,16 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
             raise SequenceFormatError(
                 root / "depth.txt", None, f"no depth frame within {max_diff_s} s of any RGB frame"
             )
+    seen: dict[Path, int] = {}
     for frame in frames:
         for path in (frame.rgb_path, frame.depth_path):
+            if path in seen:
+                raise SequenceFormatError(
+                    frame.list_path,
+                    frame.list_line,
+                    f"frame file {path.relative_to(root)} is listed again (first on line {seen[path]})",
+                )
+            seen[path] = frame.list_line
             if not path.is_file():
                 raise SequenceFormatError(
                     frame.list_path,
@@ -416,10 +456,10 @@ def _read_png(path: Path, frame: FrameRef, size: tuple[int, int]) -> np.ndarray:
         raise SequenceFormatError(path, None, exc.problem) from None
     if (width, height) != size:
         raise SequenceFormatError(path, None, f"image is {width}x{height}, the camera is {size[0]}x{size[1]}")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise SequenceFormatError(path, None, "cannot be decoded as a PNG image (corrupt or truncated)")
-    return image
+    try:
+        return decode_png(path)
+    except FileError as exc:
+        raise SequenceFormatError(path, None, exc.problem) from None
 
 
 def _bounded_lines(path: Path, handle: Any) -> Iterator[str]:

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, quat_wxyz
+from sim.errors import ScenarioError
 from sim.mujoco_env import mujoco
 from sim.world import World
 
@@ -31,6 +32,7 @@ class Simulation:
         self._targets = self._kinematic_targets(0.0)
         self._apply(*self._targets)
         mujoco.mj_forward(self.model, self.data)
+        self._check_warnings()
 
     def _kinematic_targets(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Mocap positions and quaternions (wxyz) of every actor part and the camera at t."""
@@ -73,6 +75,17 @@ class Simulation:
         self._targets = target
         self.time_s = t
         mujoco.mj_forward(self.model, self.data)
+        self._check_warnings()
+
+    def _check_warnings(self) -> None:
+        """A warning from MuJoCo means the physics (hence the ground truth) went wrong: stop."""
+        for kind, stat in enumerate(self.data.warning):
+            if stat.number:
+                raise ScenarioError(
+                    f"the simulation failed at t = {self.time_s:.3f} s: "
+                    f"{mujoco.mju_warningText(kind, stat.lastinfo)} (check chairs and paths that overlap "
+                    "racks, props or each other)"
+                )
 
     def snapshot(self) -> Snapshot:
         rotation = cv_from_gl_rotation(self.data.cam_xmat[self.world.camera_id].reshape(3, 3))

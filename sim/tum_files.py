@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import FileError, SequenceFormatError
-from sim.files import MAX_TEXT_BYTES, read_text
+from sim.files import MAX_TEXT_BYTES, MAX_TEXT_LINES, read_text
 
 MAX_ABS_POSITION_M = 1e9
 """Positions beyond this are refused: their squares would overflow the error statistics."""
@@ -35,6 +35,8 @@ def read_rows(path: Path, n_fields: int) -> list[Row]:
         raise SequenceFormatError(path, None, "file is missing") from None
     except FileError as exc:
         raise SequenceFormatError(path, None, exc.problem) from None
+    if text.count("\n") > MAX_TEXT_LINES:
+        raise SequenceFormatError(path, None, f"has more than the limit of {MAX_TEXT_LINES} lines")
     rows: list[Row] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()

@@ -17,7 +17,7 @@ from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
 from sim.camera import Intrinsics
 from sim.camera_rig import CameraRig
 from sim.conventions import gl_from_cv_rotation, quat_wxyz
-from sim.layout import CENTRAL_AREA, Layout, Piece, plan_layout
+from sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
 from sim.mujoco_env import mujoco
 from sim.paths import Path, plan_loop
 from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
@@ -190,8 +190,7 @@ def _make_actor(
         waypoints = np.array([[cx, cy] - 1.6 * direction, [cx, cy] + 1.4 * direction])
         path = Path(waypoints, smoothing_m=0.3)
         return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True)
-    chair_rects = tuple((x - 0.45, y - 0.45, x + 0.45, y + 0.45) for x, y in (c.position_m for c in chairs))
-    obstacles = layout.obstacles + chair_rects
+    obstacles = layout.obstacles + chair_footprints(chairs)
     if spec.waypoints:
         waypoints = np.array(spec.waypoints, dtype=float)
     else:
@@ -242,6 +241,11 @@ def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
     return body
 
 
+def chair_footprints(chairs: tuple[ChairSpec, ...]) -> tuple[Rect, ...]:
+    h = CHAIR_HALF_M
+    return tuple((x - h, y - h, x + h, y + h) for x, y in (c.position_m for c in chairs))
+
+
 def intrinsics_of(scenario: ScenarioSpec) -> Intrinsics:
     """The intrinsics of the scenario's MuJoCo camera (square pixels, centred principal point)."""
     return Intrinsics.from_fovy(
@@ -257,7 +261,7 @@ def build_world(scenario: ScenarioSpec) -> World:
     intrinsics = intrinsics_of(scenario)
     if scenario.layout_seed is not None:
         layout_rng = np.random.default_rng(scenario.layout_seed)
-    layout = plan_layout(scenario.layout, layout_rng)
+    layout = plan_layout(scenario.layout, layout_rng, keep_out=chair_footprints(scenario.chairs))
     duration = scenario.frames / scenario.fps
     seat_of = np.cumsum([a.kind == "sitting_person" for a in scenario.actors]) - 1
     actors = [

@@ -116,6 +116,21 @@ class TrackingConfig:
             )
 
 
+MIN_PYRAMID_SIDE_PX = 8
+"""The coarsest ORB pyramid level keeps at least this many pixels on its short side."""
+
+
+def check_pyramid(config: TrackingConfig, width: int, height: int) -> None:
+    """Refuse a pyramid whose coarsest level would shrink the image to (almost) nothing."""
+    side = min(width, height) / config.scale_factor ** (config.n_levels - 1)
+    if side < MIN_PYRAMID_SIDE_PX:
+        raise ConfigError(
+            f"n_levels = {config.n_levels} with scale_factor = {config.scale_factor} shrinks a "
+            f"{width}x{height} image to {side:.1f} px at the coarsest level (at least "
+            f"{MIN_PYRAMID_SIDE_PX} needed); use fewer levels or a smaller scale factor"
+        )
+
+
 @dataclass(frozen=True)
 class RejectionConfig:
     """Thresholds of the rejection strategies (design.md, methods 1-3)."""

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slam.config import SlamConfig
+from slam.config import SlamConfig, check_pyramid
 from slam.features import FeatureExtractor, FrameFeatures
 from slam.geometry import (
     backproject,
@@ -78,6 +78,7 @@ def _consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
 
 class Slam:
     def __init__(self, config: SlamConfig, camera: PinholeCamera) -> None:
+        check_pyramid(config.tracking, camera.width, camera.height)
         self.config = config
         self.tc = config.tracking
         self.camera = camera

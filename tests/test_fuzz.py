@@ -44,7 +44,7 @@ class Case:
     needle: str
 
 
-def check_refused(tmp: Path, capsys, case: Case) -> None:
+def check_refused(tmp: Path, capfd, case: Case) -> None:
     """Run the case; exit 2, one line naming the thing, nothing written, the input untouched."""
     case.make(tmp)
     before = snapshot(tmp)
@@ -53,7 +53,7 @@ def check_refused(tmp: Path, capsys, case: Case) -> None:
     with pytest.raises(SystemExit) if args[0] == "__argparse__" else _no_exit():
         code = main(args[1:] if args[0] == "__argparse__" else args)
         assert code == 2, f"exit {code} for {args}"
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     lines = err.strip().splitlines()
     assert len(lines) == 1, f"{len(lines)} lines for {args}:\n{err}"
     assert "Traceback" not in err
@@ -265,6 +265,14 @@ def replace_text(name: str, old: str, new: str) -> Callable[[Path], None]:
     return corrupt
 
 
+def both(*corruptions: Callable[[Path], None]) -> Callable[[Path], None]:
+    def corrupt(seq: Path) -> None:
+        for corruption in corruptions:
+            corruption(seq)
+
+    return corrupt
+
+
 def set_bytes(name: str, content: bytes) -> Callable[[Path], None]:
     return lambda seq: (seq / name).write_bytes(content)
 
@@ -331,6 +339,13 @@ def object_record(line: int, old: str, new: str) -> Callable[[Path], None]:
 def shift_list(path: Path, seconds: float) -> None:
     rows = [line.split() for line in path.read_text().splitlines() if not line.startswith("#")]
     path.write_text("".join(f"{float(t) + seconds:.6f} {name}\n" for t, name in rows))
+
+
+def flip_byte(path: Path, offset: int) -> None:
+    """Corrupt one byte; libpng then complains on the process's stderr, which must not leak."""
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    path.write_bytes(bytes(data))
 
 
 def keep_records(n: int) -> Callable[[Path], None]:
@@ -411,10 +426,46 @@ def _sequence_cases() -> dict[str, Case]:
             replace_text(cam, "Camera.width: 64", "Camera.width: 64.5"), "Camera.width"
         ),
         "camera-width-other": sequence_case(
-            replace_text(cam, "Camera.width: 64", "Camera.width: 128"), "is 64x48, the camera is 128x48"
+            both(
+                replace_text(cam, "Camera.width: 64", "Camera.width: 128"),
+                replace_text("meta.json", '"image_size": [\n    64,', '"image_size": [\n    128,'),
+            ),
+            "is 64x48, the camera is 128x48",
         ),
         "camera-depth-factor": sequence_case(
-            replace_text(cam, "DepthMapFactor: 5000", "DepthMapFactor: 0"), "depth_scale"
+            replace_text(cam, "DepthMapFactor: 5000", "DepthMapFactor: 0"), "DepthMapFactor = 0 is outside"
+        ),
+        "camera-fx-tiny": sequence_case(
+            replace_text(cam, "Camera.fx: 50", "Camera.fx: 1e-300"), "Camera.fx = 1e-300"
+        ),
+        "camera-cx-huge": sequence_case(
+            replace_text(cam, "Camera.cx: 31.5", "Camera.cx: 1e300"), "Camera.cx = 1e+300"
+        ),
+        "camera-meta-size": sequence_case(
+            replace_text("meta.json", '"image_size": [\n    64,', '"image_size": [\n    640,'),
+            "image_size is [640, 48]",
+        ),
+        "camera-nested": sequence_case(
+            replace_text(cam, "Camera.fx: 50", "Camera.fx: " + "[" * 50_000 + "]" * 50_000),
+            "nested more than 16",
+        ),
+        "assoc-far-depth": sequence_case(
+            edit_line(a, 2, "1.033333 rgb/1.033333.png 99.0 depth/1.033333.png"),
+            "associations.txt:2: depth is",
+        ),
+        "assoc-same-file": sequence_case(
+            edit_line(a, 2, "1.033333 rgb/1.000000.png 1.033333 depth/1.033333.png"),
+            "associations.txt:2: frame file rgb/1.000000.png is listed again",
+        ),
+        "meta-version-bool": sequence_case(
+            replace_text("meta.json", '"format_version": 1', '"format_version": true'), "format_version True"
+        ),
+        "meta-huge-int": sequence_case(
+            replace_text("meta.json", '"fps": 30.0', '"fps": ' + "9" * 5000), "meta.json"
+        ),
+        "objects-box-outside": sequence_case(
+            object_record(3, '"box_xyxy":[30,10,40,20]', '"box_xyxy":[30,10,40000,20]'),
+            "exceeds the 64x48 frame",
         ),
         "camera-fps": sequence_case(replace_text(cam, "Camera.fps: 30", "Camera.fps: -1"), "Camera.fps"),
         "camera-k1-nan": sequence_case(replace_text(cam, "Camera.k1: 0", "Camera.k1: .nan"), "distortion"),
@@ -459,6 +510,10 @@ def _sequence_cases() -> dict[str, Case]:
             "cannot be decoded",
         ),
         "rgb-not-png": sequence_case(frame_bytes("rgb", lambda: b"GIF89a...."), "is not a PNG image"),
+        "rgb-header-crc": sequence_case(lambda s: flip_byte(frame_file(s, "rgb"), 29), "(IHDR: CRC error)"),
+        "rgb-bad-zlib": sequence_case(
+            lambda s: flip_byte(frame_file(s, "rgb"), 50), "cannot be decoded as a PNG image"
+        ),
         "rgb-empty": sequence_case(frame_bytes("rgb", lambda: b""), "is not a PNG image"),
         "rgb-bomb": sequence_case(
             frame_bytes("rgb", lambda: forged_png(30000, 30000)), "image is 30000x30000"
@@ -653,8 +708,8 @@ def test_the_suite_covers_at_least_100_distinct_inputs_of_each_kind_together():
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_bad_input_gets_one_line_and_exit_2(name: str, tmp_path: Path, capsys):
-    check_refused(tmp_path, capsys, CASES[name])
+def test_bad_input_gets_one_line_and_exit_2(name: str, tmp_path: Path, capfd):
+    check_refused(tmp_path, capfd, CASES[name])
 
 
 # -- hypothesis: random corruptions -------------------------------------------------------------------
@@ -670,7 +725,7 @@ JUNK = st.one_of(
     max_examples=FUZZ_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(line=st.integers(0, 11), field=st.integers(0, 9), junk=JUNK)
-def test_any_corrupted_trajectory_is_evaluated_or_refused_by_line(tmp_path: Path, capsys, line, field, junk):
+def test_any_corrupted_trajectory_is_evaluated_or_refused_by_line(tmp_path: Path, capfd, line, field, junk):
     rows = [r.split() for r in GOOD.splitlines()]
     if field < 8:
         rows[line][field] = junk
@@ -680,7 +735,7 @@ def test_any_corrupted_trajectory_is_evaluated_or_refused_by_line(tmp_path: Path
     est.write_text("\n".join(" ".join(r) for r in rows) + "\n", encoding="utf-8", errors="surrogateescape")
     (tmp_path / "gt.txt").write_text(GOOD)
     code = main(["eval", str(tmp_path / "gt.txt"), str(est), "--json"])
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert code in (0, 2)
     if code == 2:
         assert len(err.strip().splitlines()) == 1 and str(est) in err and "Traceback" not in err
@@ -706,7 +761,7 @@ def pristine(tmp_path_factory) -> Path:
     cut=st.booleans(),
 )
 def test_any_corrupted_sequence_file_is_read_or_refused_by_name(
-    pristine: Path, tmp_path_factory, capsys, name, offset, junk, cut
+    pristine: Path, tmp_path_factory, capfd, name, offset, junk, cut
 ):
     seq = tmp_path_factory.mktemp("h") / "seq"
     shutil.copytree(pristine, seq)
@@ -715,7 +770,7 @@ def test_any_corrupted_sequence_file_is_read_or_refused_by_name(
     (seq / name).write_bytes(data[:at] + junk + (b"" if cut else data[at + len(junk) :]))
     out = seq.parent / "out"
     code = main(["preview", str(seq), "--frames", "0", "2", "-o", str(seq.parent / "p.png")])
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert code in (0, 2)
     if code == 2:
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
@@ -860,20 +915,20 @@ def geometry(draw) -> dict:
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 @given(spec=geometry())
-def test_every_spec_that_validates_generates(tmp_path_factory, capsys, spec: dict):
+def test_every_spec_that_validates_generates(tmp_path_factory, capfd, spec: dict):
     import yaml
 
     folder = tmp_path_factory.mktemp("gen")
     path = folder / "spec.yaml"
     path.write_text(yaml.safe_dump({"name": "g", "frames": 1, "image": {"width": 48, "height": 36}, **spec}))
     if main(["validate", str(path)]) != 0:
-        err = capsys.readouterr().err
+        err = capfd.readouterr().err
         event(f"refused: {err.split(str(path) + ': ')[-1].split(':')[0]}")
         assert len(err.strip().splitlines()) >= 1 and str(path) in err and "Traceback" not in err
         return
-    capsys.readouterr()
+    capfd.readouterr()
     code = main(["generate", str(path), "-o", str(folder / "out")])
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     # A loop that cannot be placed among the props is the one refusal validation cannot foresee.
     assert code == 0 or (code == 2 and "could not place a free walking loop" in err), err
     event("generated" if code == 0 else "no free loop")

@@ -113,7 +113,11 @@ def test_no_output_at_the_working_directory_its_ancestors_or_the_inputs(tmp_path
             StagedOutput(target, OutputKind.RUN, overwrite=True).__enter__()
     source = tmp_path / "data" / "seq"
     source.mkdir(parents=True)
-    for target, what in ((source, "is the input"), (tmp_path / "data", "holding the input")):
+    for target, what in (
+        (source, "is the input"),
+        (tmp_path / "data", "holding the input"),
+        (source / "results", "inside the input"),
+    ):
         with pytest.raises(OutputError, match=what):
             StagedOutput(target, OutputKind.RUN, overwrite=True, inputs=(source,)).__enter__()
 
@@ -412,22 +416,16 @@ def test_suite_expansion_is_counted_before_it_is_built(tmp_path: Path, capsys):
 
 
 @pytest.mark.render
-def test_ctrl_c_ends_a_suite_with_one_line_and_no_worker_left(tmp_path: Path):
+@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
+def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(tmp_path: Path, how: str):
+    """Ctrl-C reaches the whole process group; SIGTERM (``timeout``, a cancelled CI job) the
+    parent alone. Either way the workers are stopped mid-sequence, not waited for."""
     suite = tmp_path / "s.yaml"
-    suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 40}\nseeds: [1, 2, 3, 4]\n")
+    suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 900}\nseeds: [1, 2, 3, 4]\n")
     token = f"depotbench-test-{os.getpid()}-{time.time_ns()}"
+    out = tmp_path / "o"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "eval.cli",
-            "generate",
-            str(suite),
-            "-o",
-            str(tmp_path / "o"),
-            "--workers",
-            "2",
-        ],
+        [sys.executable, "-m", "eval.cli", "generate", str(suite), "-o", str(out)],
         cwd=REPO,
         env={**os.environ, "DEPOTBENCH_TEST_TOKEN": token},
         stderr=subprocess.PIPE,
@@ -435,20 +433,24 @@ def test_ctrl_c_ends_a_suite_with_one_line_and_no_worker_left(tmp_path: Path):
         text=True,
         start_new_session=True,
     )
-    time.sleep(0.5)
     deadline = time.time() + 60
-    while time.time() < deadline and not processes_with(token, exclude=proc.pid):
+    while time.time() < deadline and len(processes_with(token, exclude=proc.pid)) < 2:
         time.sleep(0.1)  # wait for the workers to start
-    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole group
+    time.sleep(1.0)  # and to be well into their first sequences (each takes tens of seconds)
+    signalled = time.perf_counter()
+    if how == "ctrl-c":
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
-    assert "Traceback" not in err
-    assert (
-        err.strip()
-        .splitlines()[-1]
-        .endswith("interrupted; finished outputs are kept and nothing is half-written")
-    )
+    stopped_after_s = time.perf_counter() - signalled
+    assert proc.returncode == (130 if how == "ctrl-c" else 143), err
+    word = "interrupted" if how == "ctrl-c" else "terminated"
+    expected = f"depotbench generate: {word}; finished outputs are kept and nothing is half-written"
+    assert err.strip() == expected
     assert wait_until_gone(token) == []
+    assert not [p for p in out.iterdir() if p.name.startswith("s-")]  # no sequence was finished
+    assert stopped_after_s < 20, stopped_after_s  # generous: finishing one sequence takes ~40 s
 
 
 def processes_with(token: str, exclude: int | None = None) -> list[int]:
