@@ -25,7 +25,14 @@ from tqdm import tqdm
 from scenes.schema import Scenario, to_scenario
 from scenes.suite import Suite, variations
 from sim.files import dumps_json
-from sim.output import OutputContainer, OutputKind, check_replaceable, read_marker, write_text_atomic
+from sim.output import (
+    OutputContainer,
+    OutputKind,
+    check_replaceable,
+    clean_if_unowned,
+    read_marker,
+    write_text_atomic,
+)
 from sim.spec import content_key
 
 INDEX_NAME = "index.json"
@@ -123,6 +130,7 @@ def run_suite(
         root = container.path
         keys = {name: content_key(to_scenario(sc)) for name, _, sc in jobs}
         for name, _, _ in jobs:  # never replace a folder depotbench did not write
+            clean_if_unowned(root / name)
             check_replaceable(root / name, out_dir / name, OutputKind.SEQUENCE, overwrite=True)
         pending = [
             (name, sc) for name, _, sc in jobs if overwrite or not is_complete(root / name, keys[name])

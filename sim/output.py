@@ -271,6 +271,23 @@ def recover_and_clean(target: Path) -> None:
         shutil.rmtree(stale, ignore_errors=True)
 
 
+def clean_if_unowned(target: Path) -> bool:
+    """Clean what killed writers of ``target`` left, unless a live writer holds it (then False).
+
+    For containers, whose outputs may be complete already (so never written again).
+    """
+    lock = OutputLock(target)
+    try:
+        lock.acquire()
+    except OutputError:
+        return False
+    try:
+        recover_and_clean(target)
+    finally:
+        lock.release()
+    return True
+
+
 def replace_folder(new: Path, target: Path) -> None:
     """Put the complete folder ``new`` at ``target``; an old one goes only after the swap."""
     if not target.exists():

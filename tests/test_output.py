@@ -485,3 +485,27 @@ def test_leftovers_of_a_name_with_glob_characters_are_found(tmp_path: Path):
     with StagedOutput(target, OutputKind.RUN) as out:
         out.commit()
     assert not stale.exists() and other.exists()
+
+
+def test_a_container_cleans_its_outputs_leftovers_unless_a_live_writer_owns_them(tmp_path: Path):
+    """A suite whose sequences are all complete writes none of them again, so it cleans
+    what killed workers left beside them itself, but never under a live writer."""
+    from sim.output import clean_if_unowned
+
+    done, busy = tmp_path / "s-0000", tmp_path / "s-0001"
+    for target in (done, busy):
+        with StagedOutput(target, OutputKind.SEQUENCE) as out:
+            out.commit()
+        (tmp_path / f".{target.name}.partial-0badc0de").mkdir()
+    holder = hold_lock(busy)
+    try:
+        assert clean_if_unowned(done) and clean_if_unowned(busy) is False
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == [
+            ".s-0001.lock",
+            ".s-0001.partial-0badc0de",
+        ]
+    finally:
+        holder.kill()
+        holder.wait()
+    assert clean_if_unowned(busy)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s-0000", "s-0001"]
