@@ -164,28 +164,25 @@ class OutputLock:
 # -- the checks every writer makes ---------------------------------------------------
 
 
-def _is_same_or_ancestor(path: Path, of: Path) -> bool:
-    return path == of or path in of.parents
-
-
 def check_target(target: Path, inputs: tuple[Path, ...] = ()) -> Path:
     """The resolved target, refused when it is the working directory, an ancestor of it,
     an input, inside an input or a folder holding an input."""
     resolved = target.expanduser().resolve()
     cwd = Path.cwd().resolve()
-    if _is_same_or_ancestor(resolved, cwd):
+    if resolved == cwd or resolved in cwd.parents:
         what = "the current directory" if resolved == cwd else "an ancestor of the current directory"
         raise OutputError(f"{target}: is {what}; give a new folder for the output")
     for item in inputs:
         source = item.expanduser().resolve()
-        if _is_same_or_ancestor(resolved, source) or source in resolved.parents:
-            if resolved == source:
-                what = "is the input"
-            elif source in resolved.parents:
-                what = f"lies inside the input {item}"
-            else:
-                what = f"is a folder holding the input {item}"
-            raise OutputError(f"{target}: {what}; give a separate folder for the output")
+        if resolved == source:
+            what = "is the input"
+        elif resolved in source.parents:
+            what = f"is a folder holding the input {item}"
+        elif source in resolved.parents:
+            what = f"lies inside the input {item}"
+        else:
+            continue
+        raise OutputError(f"{target}: {what}; give a separate folder for the output")
     return resolved
 
 
@@ -309,6 +306,18 @@ def _os_error(path: Path, exc: OSError) -> OutputError:
 # -- the writers' context managers ---------------------------------------------------------
 
 
+def _claim(shown: Path, inputs: tuple[Path, ...]) -> tuple[Path, OutputLock]:
+    """Check a target, make its parent and take its lock: what every writer does first."""
+    target = check_target(shown, inputs)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _os_error(shown, exc) from None
+    lock = OutputLock(target)
+    lock.acquire()
+    return target, lock
+
+
 class StagedOutput:
     """A folder written beside its target and swapped into place by ``commit()``.
 
@@ -342,13 +351,7 @@ class StagedOutput:
         return self._path
 
     def __enter__(self) -> StagedOutput:
-        self.target = check_target(self.shown, self.inputs)
-        try:
-            self.target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise _os_error(self.shown, exc) from None
-        self._lock = OutputLock(self.target)
-        self._lock.acquire()
+        self.target, self._lock = _claim(self.shown, self.inputs)
         try:
             recover_and_clean(self.target)
             check_replaceable(self.target, self.shown, self.kind, self.overwrite)
@@ -403,13 +406,7 @@ class OutputContainer:
         self._lock: OutputLock | None = None
 
     def __enter__(self) -> OutputContainer:
-        self.path = check_target(self.shown, self.inputs)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise _os_error(self.shown, exc) from None
-        self._lock = OutputLock(self.path)
-        self._lock.acquire()
+        self.path, self._lock = _claim(self.shown, self.inputs)
         try:
             if self.path.exists() and not _is_empty_dir(self.path):
                 check_replaceable(self.path, self.shown, self.kind, overwrite=True)
