@@ -132,15 +132,14 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    import cv2
     import numpy as np
 
     from eval.harness import run_sequence
-    from eval.preview import preview
+    from eval.preview import preview, save_png
     from eval.report import format_table, summarise, write_report
     from scenes.generation import run_suite
     from scenes.suite import load_suite
-    from sim.output import OutputContainer, OutputKind, write_bytes_atomic
+    from sim.output import OutputContainer, OutputKind
     from sim.sequence import Sequence
     from slam.rejection import STRATEGIES
 
@@ -152,8 +151,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         index = run_suite(suite, suite_path, out / "sequences", args.workers)
         names = [s["name"] for s in index["sequences"]]
         last = Sequence.open(out / "sequences" / names[-1])
-        image = np.vstack([preview(last, i) for i in (0, len(last) - 1)])[:, :, ::-1]
-        write_bytes_atomic(out / "preview.png", cv2.imencode(".png", image)[1].tobytes())
+        save_png(out / "preview.png", np.vstack([preview(last, i) for i in (0, len(last) - 1)]))
         print(
             f"2/3 tracking {len(names)} sequences with {len(STRATEGIES)} strategies "
             f"(ground-truth boxes); results under {args.output / 'runs'}"
@@ -163,7 +161,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             name = entry["name"]
             label = f"{entry['knobs']['actors.0.count']} people"
             runs[label] = {}
-            (out / "runs" / name).mkdir(parents=True, exist_ok=True)
             for strategy in STRATEGIES:
                 runs[label][strategy] = run_sequence(
                     out / "sequences" / name,
@@ -372,11 +369,9 @@ def _add_preview(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_preview(args: argparse.Namespace) -> int:
-    import cv2
     import numpy as np
 
-    from eval.preview import preview
-    from sim.output import write_bytes_atomic
+    from eval.preview import preview, save_png
     from sim.sequence import Sequence
 
     if args.output.suffix.lower() != ".png":
@@ -392,7 +387,7 @@ def _cmd_preview(args: argparse.Namespace) -> int:
         raise InputError(f"{args.sequence}: frame {bad[0]} is out of range (0..{len(seq) - 1})")
     objects = seq.objects() if seq.is_generated else None
     image = np.vstack([preview(seq, i, objects=None if objects is None else objects[i]) for i in args.frames])
-    write_bytes_atomic(args.output, cv2.imencode(".png", image[:, :, ::-1])[1].tobytes())
+    save_png(args.output, image)
     print(f"wrote {args.output}")
     return 0
 

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
 from sim.ground_truth import ObjectState
+from sim.output import write_bytes_atomic
 from sim.sequence import Sequence
 
 DEPTH_RANGE_M = 8.0
@@ -50,3 +53,8 @@ def preview(
                 cv2.LINE_AA,
             )
     return np.hstack([rgb, depth_rgb, overlay])
+
+
+def save_png(path: Path, rgb: np.ndarray) -> None:
+    """Write an RGB image as a PNG, atomically (never seen half-written)."""
+    write_bytes_atomic(path, cv2.imencode(".png", rgb[:, :, ::-1])[1].tobytes())
