@@ -108,6 +108,7 @@ def test_run_overwrite_killed_at_random_moments(smoke_sequence: Path, tmp_path: 
         assert read_marker(out) is not None
         seen[holds[0]] += 1
     assert wait_until_gone(token) == []
+    print(f"{KILLS} kills of run --overwrite; the output held afterwards: {seen}")
     assert min(seen.values()) > 0, seen  # kills fell both before and after the swap
     finish(args("none", out), token)
     assert leftovers(tmp_path) == []
@@ -135,6 +136,8 @@ def test_suite_generation_killed_at_random_moments(tmp_path: Path):
     reference = {speed: {n: snapshot(tmp_path / f"ref-{speed}" / n) for n in names} for speed in versions}
     assert reference["0.6"]["k-0000"] != reference["1.4"]["k-0000"]
     out = tmp_path / "out"
+    held = dict.fromkeys(names, 0)
+    staged = 0
     rng = np.random.default_rng(11)
     for k, delay in enumerate(kill_moments(rng, lifetime, KILLS)):
         spec = versions[("1.4", "0.6")[k % 2]]
@@ -144,6 +147,13 @@ def test_suite_generation_killed_at_random_moments(tmp_path: Path):
             if (out / name).exists():
                 files = snapshot(out / name)
                 assert files in (reference["0.6"][name], reference["1.4"][name]), f"kill {k}: {name}"
+                held[name] += 1
+        if out.exists():
+            staged += sum(p.name.endswith(".lock") or ".partial-" in p.name for p in out.iterdir())
+    print(
+        f"{KILLS} kills of suite generation: complete sequences seen after them {held}, "
+        f"leftovers of killed writers seen {staged}"
+    )
     finish(["generate", str(versions["0.6"]), "-o", str(out)], token)
     for name in names:
         assert snapshot(out / name) == reference["0.6"][name]
