@@ -54,6 +54,8 @@ class TrackingConfig:
     baseline_fx: float = 40.0
     """ORB-SLAM's bf for RGB-D: turns depth into a virtual right-image coordinate."""
     match_radius_px: float = 15.0
+    """Search radius at pyramid level 0 for the last frame's points (ORB-SLAM's TrackWithMotionModel:
+    15 px for RGB-D, times scale_factor^octave of the point's keypoint in the last frame)."""
     match_max_hamming: int = 100
     """Largest descriptor distance of a projection match: ORB-SLAM2's TH_HIGH, which its
     SearchByProjection uses. 50 (TH_LOW, its bag-of-words threshold) halves the matches per
@@ -67,10 +69,15 @@ class TrackingConfig:
     ransac_reprojection_px: float = 4.0
     ransac_iterations: int = 100
     min_inliers: int = 30
-    keyframe_max_frames: int = 30
     keyframe_inlier_ratio: float = 0.75
     """A keyframe is due when inliers fall below this fraction of the reference keyframe's
     points (ORB-SLAM2 RGB-D: 0.75)."""
+    keyframe_points: int = 100
+    """A keyframe makes map points from its closest keypoints first: all closer than ThDepth,
+    and farther ones only until it holds this many (ORB-SLAM's CreateNewKeyFrame)."""
+    recent_point_keyframes: int = 3
+    """A new map point is culled for a poor found/visible ratio or too few observations only
+    while fewer than this many keyframes have followed its own (ORB-SLAM's MapPointCulling)."""
     local_keyframes: int = 10
     ba_window: int = 5
     ba_iterations: int = 10
@@ -96,8 +103,9 @@ class TrackingConfig:
                 "ransac_reprojection_px": (0.5, 50.0),
                 "ransac_iterations": (10, 10000),
                 "min_inliers": (6, 1000),
-                "keyframe_max_frames": (1, 10000),
                 "keyframe_inlier_ratio": (0.1, 1.0),
+                "keyframe_points": (0, 100000),
+                "recent_point_keyframes": (1, 100000),
                 "local_keyframes": (1, 100),
                 "ba_window": (2, 50),
                 "ba_iterations": (0, 200),

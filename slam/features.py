@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from slam.config import TrackingConfig
+from slam.types import PinholeCamera
 
 CANDIDATE_FACTOR = 5
 """OpenCV keeps this many times the budget of FAST candidates (best by score, per level) before
@@ -29,7 +30,10 @@ per frame than keeping all of them (person/background density 0.38 vs 0.42 on wa
 class FrameFeatures:
     grey: np.ndarray
     keypoints_px: np.ndarray
-    """(N, 2) float32 pixel positions at full resolution."""
+    """(N, 2) float32 pixel positions at full resolution, as in the image (boxes, flow, depth)."""
+    undistorted_px: np.ndarray
+    """(N, 2) float64 positions through a distortion-free lens: what geometry uses (equal to
+    ``keypoints_px`` for an undistorted camera)."""
     octaves: np.ndarray
     descriptors: np.ndarray
     """(N, 32) uint8 ORB descriptors."""
@@ -58,7 +62,7 @@ class FeatureExtractor:
         share = inverse ** np.arange(config.n_levels)
         self._per_level = np.round(config.n_features * share / share.sum()).astype(int)
 
-    def extract(self, rgb: np.ndarray, depth_m: np.ndarray) -> FrameFeatures:
+    def extract(self, rgb: np.ndarray, depth_m: np.ndarray, camera: PinholeCamera) -> FrameFeatures:
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
         keypoints = self._spread(self._orb.detect(grey, None))
         keypoints, descriptors = self._orb.compute(grey, keypoints)
@@ -66,6 +70,7 @@ class FeatureExtractor:
             return FrameFeatures(
                 grey,
                 np.zeros((0, 2), np.float32),
+                np.zeros((0, 2)),
                 np.zeros(0, int),
                 np.zeros((0, 32), np.uint8),
                 np.zeros(0),
@@ -79,7 +84,7 @@ class FeatureExtractor:
         depth = depth_m[rows, cols].astype(np.float64)
         depth[(depth < self.config.min_depth_m) | (depth > self.config.max_depth_m)] = 0.0
         angles = np.array([k.angle for k in keypoints], dtype=np.float64)
-        return FrameFeatures(grey, pts, octaves, descriptors, depth, angles)
+        return FrameFeatures(grey, pts, camera.undistort(pts), octaves, descriptors, depth, angles)
 
     def _spread(self, keypoints: tuple) -> list:
         """Per level: drop a cell's weak corners where it has strong ones, then take the

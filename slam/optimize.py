@@ -122,7 +122,12 @@ def refine_pose(
             weighted = flat * irls[:, None]
             hessian = weighted.T @ flat + 1e-9 * np.eye(6)
             gradient = weighted.T @ r.ravel()
-            delta = -np.linalg.solve(hessian, gradient)
+            try:
+                delta = -np.linalg.solve(hessian, gradient)
+            except np.linalg.LinAlgError:
+                break  # a degenerate start (e.g. a RANSAC pose with points behind it): no step
+            if not np.isfinite(delta).all():
+                break
             pose = exp_se3(delta) @ pose
             if np.linalg.norm(delta) < GN_STEP_TOLERANCE:
                 break

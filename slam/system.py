@@ -45,6 +45,8 @@ from slam.types import (
 
 MIN_INIT_POINTS = 50
 MIN_MATCHES = 15
+MOTION_MODEL_MIN_MATCHES = 20
+"""ORB-SLAM's TrackWithMotionModel widens its search below 20 matches and gives up below 20 again."""
 ROTATION_BINS = 30
 """Matches against the last frame keep the 3 most common keypoint-angle changes (ORB-SLAM)."""
 NEIGHBOURS = 8
@@ -93,7 +95,8 @@ class Slam:
         self._velocity = np.eye(4)
         self._last_point_ids = np.zeros(0, int)
         self._last_angles = np.zeros(0)
-        self._frames_since_keyframe = 0
+        self._last_octaves = np.zeros(0, int)
+        self._reference_keyframe = 0
         self.trajectory: list[tuple[float, np.ndarray]] = []
 
     # -- public -----------------------------------------------------------------
@@ -130,14 +133,15 @@ class Slam:
         times["tracking_total"] = times["extract"] + times["reject"] + times["track"]
         start = time.perf_counter()
         keyframe = False
+        carried = None
         if tracked is not None and self.state != TrackingState.NOT_INITIALIZED:
             if self._need_keyframe(features, usable, tracked):
-                self._insert_keyframe(features, usable, tracked)
+                carried = self._insert_keyframe(features, usable, tracked)
                 keyframe = True
         elif tracked is not None:
             keyframe = True  # the initial keyframe
         times["mapping"] = (time.perf_counter() - start) * 1e3
-        self._advance(features, tracked, state)
+        self._advance(features, tracked, state, carried)
         inlier = np.zeros(len(features), bool)
         pose = None
         if tracked is not None:
@@ -159,26 +163,38 @@ class Slam:
         return FrameResult(frame.timestamp_s, pose, state, diagnostics)
 
     def extract(self, frame: Frame) -> FrameFeatures:
-        return self.extractor.extract(frame.rgb, frame.depth_m)
+        return self.extractor.extract(frame.rgb, frame.depth_m, self.camera)
 
     # -- tracking ---------------------------------------------------------------
 
-    def _advance(self, features: FrameFeatures, tracked: _Tracked | None, state: TrackingState) -> None:
+    def _advance(
+        self,
+        features: FrameFeatures,
+        tracked: _Tracked | None,
+        state: TrackingState,
+        new_points: tuple[np.ndarray, np.ndarray] | None,
+    ) -> None:
+        """Make this frame the last one. Its map points are the pose inliers and, on a
+        keyframe, the points just made from it: ORB-SLAM puts those into the frame, so the
+        next frame searches them too (people close to the camera among them)."""
         if tracked is not None:
             if self._last_pose is not None and state == TrackingState.OK:
                 self._velocity = constant_velocity(self._last_pose, tracked.world_from_camera)
             else:
                 self._velocity = np.eye(4)
             self._last_pose = orthonormalize(tracked.world_from_camera)
-            self._last_point_ids = tracked.point_ids
-            self._last_angles = features.angles_deg[tracked.keypoints]
-            self._frames_since_keyframe += 1
+            keypoints, point_ids = tracked.keypoints, tracked.point_ids
+            if new_points is not None:
+                keypoints, point_ids = np.r_[keypoints, new_points[0]], np.r_[point_ids, new_points[1]]
+            self._last_point_ids = point_ids
+            self._last_angles = features.angles_deg[keypoints]
+            self._last_octaves = features.octaves[keypoints]
         self.state = state
         self._previous = features
         self.frame_index += 1
 
     def _observations(self, features: FrameFeatures, keypoints: np.ndarray) -> tuple[np.ndarray, ...]:
-        uv = features.keypoints_px[keypoints].astype(np.float64)
+        uv = features.undistorted_px[keypoints]
         depth = features.depth_m[keypoints]
         ur = np.where(depth > 0, uv[:, 0] - self.bf / np.where(depth > 0, depth, 1.0), np.nan)
         weight = 1.0 / self.tc.scale_factor ** features.octaves[keypoints]
@@ -200,18 +216,27 @@ class Slam:
         camera_from_world: np.ndarray,
         features: FrameFeatures,
         usable: np.ndarray,
-        radius: float,
+        radius: float | np.ndarray,
         exclude: np.ndarray | None = None,
         reference_angles: np.ndarray | None = None,
+        octave_window: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Matches (keypoint indices, point ids) of map points projected near usable keypoints;
-        also returns the ids that projected into the image (for visibility counts)."""
+        also returns the ids that projected into the image (for visibility counts).
+
+        ``radius`` is one value or one per point; ``octave_window`` (lowest, highest) per point
+        limits the pyramid levels a match may come from, as ORB-SLAM's search does.
+        """
         empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
         angles = reference_angles
+        per_point = {"radius": np.broadcast_to(np.asarray(radius, float), point_ids.shape)}
+        if octave_window is not None:
+            per_point["low"], per_point["high"] = octave_window
         if len(point_ids):
             alive = self.map.alive[point_ids]
             point_ids = point_ids[alive]
             angles = None if angles is None else angles[alive]
+            per_point = {k: v[alive] for k, v in per_point.items()}
         candidates = np.flatnonzero(usable)
         if exclude is not None:
             candidates = candidates[~exclude[candidates]]
@@ -221,6 +246,7 @@ class Slam:
         front = pc[:, 2] > self.tc.min_depth_m
         point_ids, pc = point_ids[front], pc[front]
         angles = None if angles is None else angles[front]
+        per_point = {k: v[front] for k, v in per_point.items()}
         uv = project(self.camera, pc)
         inside = (
             (uv[:, 0] >= 0)
@@ -230,15 +256,20 @@ class Slam:
         )
         point_ids, uv = point_ids[inside], uv[inside]
         angles = None if angles is None else angles[inside]
+        per_point = {k: v[inside] for k, v in per_point.items()}
         if len(point_ids) == 0:
             return empty
-        tree = cKDTree(features.keypoints_px[candidates])
-        _, nearest = tree.query(uv, k=NEIGHBOURS, distance_upper_bound=radius)
-        found = nearest < len(candidates)
+        tree = cKDTree(features.undistorted_px[candidates])
+        gap, nearest = tree.query(uv, k=NEIGHBOURS, distance_upper_bound=float(per_point["radius"].max()))
+        found = (nearest < len(candidates)) & (gap <= per_point["radius"][:, None])
         pairs_point = np.nonzero(found)[0]
         if len(pairs_point) == 0:
             return (*empty[:2], point_ids)
         pairs_kp = candidates[nearest[found]]
+        if octave_window is not None:
+            level = features.octaves[pairs_kp]
+            fits = (level >= per_point["low"][pairs_point]) & (level <= per_point["high"][pairs_point])
+            pairs_point, pairs_kp = pairs_point[fits], pairs_kp[fits]
         distance = hamming(self.map.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp])
         good = distance <= self.tc.match_max_hamming
         if not good.any():
@@ -297,30 +328,47 @@ class Slam:
         pose_cw[:3, 3] = tvec.ravel()
         return refine_pose(pose_cw, points_w, uv, ur, weight, self.camera, self.bf)
 
+    def _octave_window(self, octaves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pyramid levels where the last frame's points may be found (ORB-SLAM's
+        SearchByProjection): after moving forward by more than the baseline the camera sees
+        them larger (at their level or a coarser one), after moving back smaller (at their
+        level or a finer one), else within one level of theirs."""
+        forward = self._velocity[2, 3]
+        baseline = self.bf / self.camera.fx
+        if forward > baseline:
+            return octaves, np.full_like(octaves, self.tc.n_levels)
+        if -forward > baseline:
+            return np.zeros_like(octaves), octaves
+        return octaves - 1, octaves + 1
+
     def _track(self, features: FrameFeatures, usable: np.ndarray) -> _Tracked | None:
         assert self._last_pose is not None
         predicted_cw = invert(self._last_pose @ self._velocity)
         has_point = self._last_point_ids >= 0
         last_ids, last_angles = self._last_point_ids[has_point], self._last_angles[has_point]
-        kp, pid, _ = self._match_by_projection(
-            last_ids, predicted_cw, features, usable, self.tc.match_radius_px, reference_angles=last_angles
-        )
-        if len(kp) < 2 * MIN_MATCHES:
+        octaves = self._last_octaves[has_point]
+        radius = self.tc.match_radius_px * self.tc.scale_factor**octaves
+        window = self._octave_window(octaves)
+        for widen in (1, 2):  # ORB-SLAM searches again at twice the radius below 20 matches
             kp, pid, _ = self._match_by_projection(
                 last_ids,
                 predicted_cw,
                 features,
                 usable,
-                2 * self.tc.match_radius_px,
+                widen * radius,
                 reference_angles=last_angles,
+                octave_window=window,
             )
-        if len(kp) < MIN_MATCHES:
+            if len(kp) >= MOTION_MODEL_MIN_MATCHES:
+                break
+        if len(kp) < MOTION_MODEL_MIN_MATCHES:
             return None
         solved = self._solve(features, kp, pid, predicted_cw)
         if solved is None:
             return None
         pose_cw, inl = solved
         kp, pid = kp[inl], pid[inl]
+        self.map.visible[pid] += 1  # seen in this frame, as the local map's points below
         # Local map: points of the keyframes that see the tracked points.
         local_ids = self._local_points(pid)
         matched = np.zeros(len(features), bool)
@@ -346,11 +394,15 @@ class Slam:
         return _Tracked(invert(pose_cw), kp, pid, len(kp))
 
     def _local_points(self, point_ids: np.ndarray) -> np.ndarray:
+        """Points of the keyframes that see the frame's points, most shared first; the keyframe
+        sharing the most becomes the reference (ORB-SLAM's UpdateLocalKeyFrames)."""
         counts: dict[int, int] = {}
         for point in point_ids:
             for kf_id in self.map.observations.get(int(point), {}):
                 counts[kf_id] = counts.get(kf_id, 0) + 1
         local = sorted(counts, key=lambda k: (-counts[k], -k))[: self.tc.local_keyframes]
+        if local:
+            self._reference_keyframe = local[0]
         ids = [kf.point_ids[kf.point_ids >= 0] for kf in (self.map.keyframe(k) for k in local)]
         if not ids:
             return np.zeros(0, int)
@@ -388,28 +440,56 @@ class Slam:
     # -- mapping ----------------------------------------------------------------
 
     def _need_keyframe(self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked) -> bool:
+        """ORB-SLAM's NeedNewKeyFrame for RGB-D with an idle local mapper (mapping here is
+        synchronous, so always idle): a keyframe is due when the frame tracks fewer points than
+        keyframe_inlier_ratio of its reference keyframe's established points (0.4 while the
+        map has one keyframe), or when it tracks few close points and sees many untracked ones."""
         if not self.map.keyframes:
             return True
-        reference = self.map.keyframes[-1]
+        n_keyframes = len(self.map.keyframes)
+        reference = self.map.keyframe(min(self._reference_keyframe, n_keyframes - 1))
         ids = reference.point_ids[reference.point_ids >= 0]
         ids = ids[self.map.alive[ids]]
-        # ORB-SLAM counts only established points: seen by >= 3 keyframes (2 while the map is young).
-        min_observations = 3 if len(self.map.keyframes) > 2 else 2
-        ref_points = int(np.sum(self.map.n_observations[ids] >= min_observations))
+        # Established points: ORB-SLAM counts 2 observations per keyframe with depth.
+        min_observations = 3 if n_keyframes > 2 else 2
+        ref_points = int(np.sum(self.map.observation_weight[ids] >= min_observations))
         close = (features.depth_m > 0) & (features.depth_m < self.close_depth_m) & usable
         tracked_mask = np.zeros(len(features), bool)
         tracked_mask[tracked.keypoints] = True
         need_close = (close & tracked_mask).sum() < 100 and (close & ~tracked_mask).sum() > 70
-        weak = tracked.inliers < self.tc.keyframe_inlier_ratio * ref_points
-        timed_out = self._frames_since_keyframe >= self.tc.keyframe_max_frames
-        return (timed_out or weak or need_close) and tracked.inliers > MIN_MATCHES
+        ratio = self.tc.keyframe_inlier_ratio if n_keyframes >= 2 else 0.4
+        weak = tracked.inliers < ratio * ref_points
+        return (weak or need_close) and tracked.inliers > MIN_MATCHES
 
-    def _insert_keyframe(self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked) -> None:
+    def _new_point_mask(
+        self, features: FrameFeatures, usable: np.ndarray, point_ids: np.ndarray
+    ) -> np.ndarray:
+        """Keypoints that become map points at a keyframe (ORB-SLAM's CreateNewKeyFrame): the
+        first keyframe takes every keypoint with depth; later ones go through keypoints from
+        the closest, counting those already mapped, and stop at the first one farther than
+        ThDepth once keyframe_points are counted. Close points (people, often) come first."""
+        with_depth = usable & (features.depth_m > 0)
+        if not self.map.keyframes:
+            return with_depth & (point_ids < 0)
+        order = np.flatnonzero(with_depth)
+        order = order[np.argsort(features.depth_m[order], kind="stable")]
+        stop = (features.depth_m[order] > self.close_depth_m) & (
+            np.arange(len(order)) >= self.tc.keyframe_points
+        )
+        taken = order[: int(np.argmax(stop)) + 1] if stop.any() else order
+        new = np.zeros(len(features), bool)
+        new[taken] = True
+        return new & (point_ids < 0)
+
+    def _insert_keyframe(
+        self, features: FrameFeatures, usable: np.ndarray, tracked: _Tracked
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Add the frame as a keyframe with its new map points; returns them (keypoints, ids)."""
         kf_id = len(self.map.keyframes)
         point_ids = np.full(len(features), -1)
         point_ids[tracked.keypoints] = tracked.point_ids
-        new = usable & (point_ids < 0) & (features.depth_m > 0)
-        uv = features.keypoints_px[new].astype(np.float64)
+        new = self._new_point_mask(features, usable, point_ids)
+        uv = features.undistorted_px[new]
         positions = transform(tracked.world_from_camera, backproject(self.camera, uv, features.depth_m[new]))
         point_ids[new] = self.map.add_points(positions, features.descriptors[new], kf_id)
         keyframe = KeyFrame(
@@ -418,11 +498,13 @@ class Slam:
         self.map.keyframes.append(keyframe)
         for keypoint in np.flatnonzero(point_ids >= 0):
             self.map.observe(int(point_ids[keypoint]), kf_id, int(keypoint))
-        self._frames_since_keyframe = 0
+        self._reference_keyframe = kf_id
         if kf_id > 0:
             self._local_bundle_adjustment()
-            self.map.cull(kf_id)
+            self.map.cull(kf_id, self.tc.recent_point_keyframes)
             tracked.world_from_camera = self.map.keyframes[-1].world_from_camera.copy()
+        made = np.flatnonzero(new & (point_ids >= 0))
+        return made, point_ids[made]
 
     def _local_bundle_adjustment(self) -> None:
         window = [kf.id for kf in self.map.keyframes[-self.tc.ba_window :]]

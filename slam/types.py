@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+import cv2
 import numpy as np
 
 from detectors.detection import Detection
@@ -12,16 +13,31 @@ from detectors.detection import Detection
 
 @dataclass(frozen=True)
 class PinholeCamera:
+    """Pinhole intrinsics plus OpenCV's (k1, k2, p1, p2, k3) lens distortion (TUM fr1/fr2 have it)."""
+
     fx: float
     fy: float
     cx: float
     cy: float
     width: int
     height: int
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     @property
     def matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
+
+    @property
+    def distorted(self) -> bool:
+        return any(self.distortion)
+
+    def undistort(self, points_px: np.ndarray) -> np.ndarray:
+        """Where image points (N, 2) would lie through a distortion-free lens (ORB-SLAM's mvKeysUn)."""
+        if not self.distorted or len(points_px) == 0:
+            return np.asarray(points_px, dtype=np.float64)
+        points = np.asarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
+        undistorted = cv2.undistortPoints(points, self.matrix, np.array(self.distortion), P=self.matrix)
+        return undistorted.reshape(-1, 2)
 
 
 @dataclass(frozen=True, eq=False)

@@ -338,10 +338,13 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
     from sim.generate import generate
     from slam.config import TrackingConfig
     from slam.features import FeatureExtractor
+    from slam.types import PinholeCamera
 
     scenario = library.get("walking_static").model_copy(update={"frames": 40, "duration_s": None})
     seq = Sequence.open(generate(to_scenario(scenario), tmp_path / "seq", progress=False))
     extractor = FeatureExtractor(TrackingConfig())
+    k = seq.intrinsics
+    camera = PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
     objects = seq.objects()
     ratios = []
     for i in range(0, len(seq), 4):
@@ -349,7 +352,7 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
         people = np.isin(seq.instances(i), person_ids)
         if people.mean() < 0.05:
             continue
-        uv = np.rint(extractor.extract(seq.rgb(i), seq.depth_m(i)).keypoints_px).astype(int)
+        uv = np.rint(extractor.extract(seq.rgb(i), seq.depth_m(i), camera).keypoints_px).astype(int)
         on = people[np.clip(uv[:, 1], 0, people.shape[0] - 1), np.clip(uv[:, 0], 0, people.shape[1] - 1)]
         ratios.append((on.mean() / people.mean()) / ((~on).mean() / (~people).mean()))
     assert len(ratios) >= 5

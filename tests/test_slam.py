@@ -147,6 +147,7 @@ def _features(grey: np.ndarray, points: np.ndarray) -> FrameFeatures:
     return FrameFeatures(
         grey,
         points.astype(np.float32),
+        points.astype(np.float64),
         np.zeros(n, int),
         np.zeros((n, 32), np.uint8),
         np.ones(n),
