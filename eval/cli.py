@@ -51,6 +51,14 @@ def _workers(text: str) -> int:
     return value
 
 
+def _check_output_file(path: Path, overwrite: bool) -> None:
+    """An output file may replace only a file, and only when asked."""
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder")
+    if path.exists() and not overwrite:
+        raise InputError(f"{path}: already exists (pass --overwrite to replace it)")
+
+
 def _add_eval(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
@@ -284,12 +292,25 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from eval.harness import DETECTORS
-    from slam.rejection import STRATEGIES
+    from eval.harness import DETECTORS, STRATEGY_CHOICES
+    from eval.trackers.base import TrackerKind
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
     p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
-    p.add_argument("--strategy", choices=STRATEGIES, default="none", help="dynamic-feature rejection")
+    p.add_argument(
+        "--slam",
+        choices=[k.value for k in TrackerKind],
+        default="builtin",
+        help="the tracker: the built-in pipeline, ORB-SLAM3 (extra [orbslam3], GPL-3, run in a "
+        "subprocess) or any program through --command (default: builtin)",
+    )
+    p.add_argument(
+        "--strategy",
+        choices=STRATEGY_CHOICES,
+        default="none",
+        help="dynamic-feature rejection; 'mask' blanks dynamic boxes in RGB and depth before the "
+        "tracker sees the frames (any tracker); the others are the built-in tracker's",
+    )
     p.add_argument(
         "--detector",
         choices=DETECTORS,
@@ -304,6 +325,23 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help="override a threshold, e.g. --set k=2.5 --set epsilon_px=0.8 (repeatable)",
     )
     p.add_argument(
+        "--command",
+        metavar="TEMPLATE",
+        help="--slam cmd: the program and its arguments, with {sequence} {associations} {settings} "
+        "{vocabulary} {trajectory}, run without a shell",
+    )
+    p.add_argument(
+        "--vocabulary",
+        type=Path,
+        help="--slam orbslam3|cmd: a DBoW2 text vocabulary (default: the bench's, built once)",
+    )
+    p.add_argument(
+        "--timeout",
+        type=_positive_float,
+        default=3600.0,
+        help="--slam orbslam3|cmd: seconds before the program is stopped (default: 3600)",
+    )
+    p.add_argument(
         "-o",
         "--output",
         type=Path,
@@ -315,7 +353,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from eval.harness import run_sequence
+    from eval.harness import TrackerConfig, run_sequence
+    from eval.trackers.base import TrackerKind
 
     settings = {}
     for item in args.set:
@@ -323,17 +362,30 @@ def _cmd_run(args: argparse.Namespace) -> int:
         if not sep or not name:
             raise InputError(f"--set {item!r}: expected NAME=VALUE")
         settings[name.strip()] = value.strip()
+    kind = TrackerKind(args.slam)
+    if args.command is not None and kind is not TrackerKind.COMMAND:
+        raise InputError("--command applies to --slam cmd only")
+    if args.vocabulary is not None and kind is TrackerKind.BUILTIN:
+        raise InputError("--vocabulary applies to --slam orbslam3 and cmd only")
+    tracker = TrackerConfig(kind, args.command, args.vocabulary, args.timeout)
     metrics = run_sequence(
-        args.sequence, args.output, args.strategy, args.detector, settings, overwrite=args.overwrite
+        args.sequence,
+        args.output,
+        args.strategy,
+        args.detector,
+        settings,
+        overwrite=args.overwrite,
+        tracker=tracker,
     )
     print(format_run(metrics))
     return 0
 
 
 def format_run(metrics: dict) -> str:
+    keyframes = "" if metrics["keyframes"] is None else f", {metrics['keyframes']} keyframes"
     lines = [
-        f"{metrics['strategy']} on {metrics['sequence']}: tracked {metrics['tracked_frames']}/"
-        f"{metrics['frames']} frames ({metrics['lost_frames']} lost), {metrics['keyframes']} keyframes"
+        f"{metrics['tracker']} {metrics['strategy']} on {metrics['sequence']}: tracked "
+        f"{metrics['tracked_frames']}/{metrics['frames']} frames ({metrics['lost_frames']} lost){keyframes}"
     ]
     if "ate_m" in metrics:
         lines.append(
@@ -352,11 +404,62 @@ def format_run(metrics: dict) -> str:
             f"{rejection['moving_inliers']} ended as inliers)"
         )
     t = metrics["stage_time"]
-    lines.append(
-        f"tracking {t['tracking_total']['mean_ms']:.1f} ms mean, {t['tracking_total']['median_ms']:.1f} "
-        f"ms median per frame; local mapping {t['mapping']['mean_ms']:.1f} ms mean"
-    )
+    if t["tracking_total"]["mean_ms"] is None:
+        lines.append(f"{metrics['wall_time_s']:.1f} s in all (the tracker reports no per-frame time)")
+    else:
+        mapping = t.get("mapping")
+        mapping_text = "" if mapping is None else f"; local mapping {mapping['mean_ms']:.1f} ms mean"
+        lines.append(
+            f"tracking {t['tracking_total']['mean_ms']:.1f} ms mean, {t['tracking_total']['median_ms']:.1f} "
+            f"ms median per frame{mapping_text}"
+        )
     return "\n".join(lines)
+
+
+def _add_vocab(sub: argparse._SubParsersAction) -> None:
+    from eval.vocabulary import TRAINING_SCENES, VocabularySpec
+
+    default = VocabularySpec()
+    p = sub.add_parser(
+        "vocab",
+        help="build an ORB vocabulary (DBoW2 text, as ORB-SLAM reads) from generated frames",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        help="vocabulary file to write (default: the bench's cache, which --slam orbslam3 uses)",
+    )
+    p.add_argument("--branching", type=int, default=default.branching, help="children per node (k)")
+    p.add_argument("--levels", type=int, default=default.levels, help="depth of the tree (L)")
+    p.add_argument(
+        "--scenes",
+        nargs="+",
+        default=list(TRAINING_SCENES),
+        help="library scenes to train on (default: depot scenes the fidelity benchmark does not run)",
+    )
+    p.add_argument("--frames", type=int, default=default.frames, help="frames rendered per scene")
+    p.add_argument("--seed", type=int, default=default.seed, help="seed of the training scenes")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.set_defaults(handler=_cmd_vocab)
+
+
+def _cmd_vocab(args: argparse.Namespace) -> int:
+    from eval.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
+    from scenes import library
+
+    for name in args.scenes:
+        library.get(name)  # refuses an unknown scene by name, before any work
+    spec = VocabularySpec(args.branching, args.levels, tuple(args.scenes), args.frames, args.seed)
+    if args.output is None:
+        path = default_vocabulary(progress=True, spec=spec)
+    else:
+        _check_output_file(args.output, args.overwrite)
+        path = args.output
+        build_file(spec, path, progress=True)
+    words = read_text(path).words
+    print(f"{path}: {words} words (k={spec.branching}, L={spec.levels})")
+    return 0
 
 
 def _add_preview(sub: argparse._SubParsersAction) -> None:
@@ -376,9 +479,7 @@ def _cmd_preview(args: argparse.Namespace) -> int:
 
     if args.output.suffix.lower() != ".png":
         raise InputError(f"{args.output}: the preview is a PNG; give a file name ending in .png")
-    if args.output.is_dir() or (args.output.exists() and not args.overwrite):
-        what = "is a folder" if args.output.is_dir() else "already exists (pass --overwrite to replace it)"
-        raise InputError(f"{args.output}: {what}")
+    _check_output_file(args.output, args.overwrite)
     if len(args.frames) > MAX_PREVIEW_FRAMES:
         raise InputError(f"--frames: give at most {MAX_PREVIEW_FRAMES} frames, got {len(args.frames)}")
     seq = Sequence.open(args.sequence)
@@ -412,6 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenarios(sub)
     _add_run(sub)
     _add_preview(sub)
+    _add_vocab(sub)
     return parser
 
 

@@ -1,35 +1,59 @@
-"""Run a sequence through a detector and SLAM, and leave machine-readable results.
+"""Run a sequence through a detector and a tracker, and leave machine-readable results.
 
-``run_sequence`` is a pure function of (sequence, detector, strategy, settings):
-it writes ``trajectory.txt`` (TUM), ``diagnostics.npz`` (per keypoint and per
-stage) and ``metrics.json`` into a temporary folder renamed into place.
+``run_sequence`` is a pure function of (sequence, tracker, detector, strategy,
+settings) for the built-in tracker; it writes ``trajectory.txt`` (TUM),
+``frames.csv`` (per frame: state and tracking time), ``diagnostics.npz`` (the
+built-in tracker's per-keypoint facts) and ``metrics.json`` into a staged folder
+swapped into place when complete.
+
+Trackers: the built-in pipeline takes every rejection strategy; ORB-SLAM3 and
+external commands take no boxes, so they run with ``none`` or ``mask`` (dynamic
+boxes blanked in RGB and depth before the frames reach them).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors.groundtruth import GroundTruthDetector
 from eval.comparison import ComparisonOptions, compare
+from eval.frames import Detector, FrameSource, MaskSettings
+from eval.trackers.base import Tracker, TrackerKind, TrackerRun
+from eval.trackers.builtin import BuiltinTracker, camera_of
 from eval.trajectory import Trajectory, write_tum
 from sim.errors import InputError
 from sim.files import dumps_json
 from sim.output import OutputKind, StagedOutput
 from sim.sequence import Sequence
-from slam.config import ConfigError, SlamConfig
+from slam.config import ConfigError, SlamConfig, check_pyramid
 from slam.rejection import STRATEGIES
-from slam.system import Slam
-from slam.types import REJECTION_CODES, Frame, FrameResult, PinholeCamera, Rejection, TrackingState
+from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
 DETECTORS = ("groundtruth", "none")
+MASK = "mask"
+STRATEGY_CHOICES = (*STRATEGIES, MASK)
+EXTERNAL_STRATEGIES = ("none", MASK)
+MASK_SETTINGS = ("box_dilation_px", "min_confidence")
+"""The only settings that apply to external trackers: they shape the mask."""
 
 
-def make_detector(name: str, sequence: Sequence):
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Which tracker runs, and what an external one needs."""
+
+    kind: TrackerKind = TrackerKind.BUILTIN
+    command: str | None = None
+    """``cmd``: the command template (see ``eval.trackers.command``)."""
+    vocabulary: Path | None = None
+    """``orbslam3`` and ``cmd``: a DBoW2 text vocabulary; the bench's default one if None."""
+    timeout_s: float = 3600.0
+
+
+def make_detector(name: str, sequence: Sequence) -> Detector | None:
     if name == "groundtruth":
         return GroundTruthDetector(sequence)
     if name == "none":
@@ -37,30 +61,46 @@ def make_detector(name: str, sequence: Sequence):
     raise InputError(f"unknown detector {name!r}; choose one of {', '.join(DETECTORS)}")
 
 
-def camera_of(sequence: Sequence) -> PinholeCamera:
-    k = sequence.intrinsics
-    return PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+def make_tracker(tracker: TrackerConfig, config: SlamConfig, progress: bool) -> Tracker:
+    from eval.vocabulary import default_vocabulary
+
+    def vocabulary() -> Path:
+        return tracker.vocabulary or default_vocabulary(progress)
+
+    if tracker.kind is TrackerKind.BUILTIN:
+        return BuiltinTracker(config)
+    if tracker.kind is TrackerKind.ORBSLAM3:
+        from eval.trackers.orbslam3 import INSTALL_HINT, Orbslam3Tracker, available
+
+        if not available():  # before a vocabulary is built for nothing
+            raise InputError(f"--slam orbslam3: ORB-SLAM3 is not installed: {INSTALL_HINT}")
+        return Orbslam3Tracker(vocabulary(), tracker.timeout_s)
+    from eval.trackers.command import CommandTracker
+
+    if not tracker.command:
+        raise InputError("--slam cmd needs --command TEMPLATE")
+    return CommandTracker(tracker.command, vocabulary, tracker.timeout_s)
 
 
-def true_moving_labels(
-    sequence: Sequence, index: int, keypoints: np.ndarray, moving_ids: set[int]
-) -> np.ndarray:
-    """True where a keypoint lies on an instance that moves in this frame."""
-    instances = sequence.instances(index)
-    h, w = instances.shape
-    cols = np.clip(np.rint(keypoints[:, 0]).astype(int), 0, w - 1)
-    rows = np.clip(np.rint(keypoints[:, 1]).astype(int), 0, h - 1)
-    return np.isin(instances[rows, cols], list(moving_ids))
-
-
-def estimated_trajectory(results: list[FrameResult]) -> Trajectory | None:
-    """The poses of the tracked frames (lost frames have none), or None if no frame was tracked."""
-    tracked = [r for r in results if r.world_from_camera is not None]
-    if not tracked:
-        return None
-    return Trajectory.from_poses(
-        np.array([r.timestamp_s for r in tracked]), np.array([r.world_from_camera for r in tracked])
-    )
+def slam_config(strategy: str, settings: dict[str, str], tracker: TrackerKind) -> SlamConfig:
+    """The strategy and ``--set`` values, checked against what the tracker can use."""
+    if strategy not in STRATEGY_CHOICES:
+        raise InputError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGY_CHOICES)}")
+    if tracker is not TrackerKind.BUILTIN:
+        if strategy not in EXTERNAL_STRATEGIES:
+            raise InputError(
+                f"--strategy {strategy} needs the built-in tracker (it decides per keypoint); "
+                f"--slam {tracker.value} takes {' or '.join(EXTERNAL_STRATEGIES)}"
+            )
+        extra = sorted(set(settings) - set(MASK_SETTINGS))
+        if extra:
+            raise InputError(
+                f"--set {extra[0]}: --slam {tracker.value} takes only {', '.join(MASK_SETTINGS)}"
+            )
+    try:
+        return SlamConfig(strategy="none" if strategy == MASK else strategy).with_settings(settings)
+    except ConfigError as exc:
+        raise InputError(f"--set: {exc}") from None
 
 
 def run_sequence(
@@ -71,109 +111,114 @@ def run_sequence(
     settings: dict[str, str] | None = None,
     progress: bool = True,
     overwrite: bool = False,
+    tracker: TrackerConfig | None = None,
 ) -> dict[str, Any]:
     """Track a sequence; return (and write) its metrics."""
-    if strategy not in STRATEGIES:
-        raise InputError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
-    try:
-        config = SlamConfig(strategy=strategy).with_settings(settings or {})
-    except ConfigError as exc:
-        raise InputError(f"--set: {exc}") from None
+    tracker = tracker or TrackerConfig()
+    config = slam_config(strategy, settings or {}, tracker.kind)
     sequence = Sequence.open(sequence_dir)
     det = make_detector(detector, sequence)
+    if strategy == MASK and det is None:
+        raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
+    if tracker.kind is TrackerKind.BUILTIN:
+        camera = camera_of(sequence)
+        try:
+            check_pyramid(config.tracking, camera.width, camera.height)
+        except ConfigError as exc:
+            raise InputError(f"--set: {exc}") from None
+    mask = MaskSettings(config.rejection.box_dilation_px, config.rejection.min_confidence)
+    frames = FrameSource(sequence, det, mask if strategy == MASK else None)
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
-    try:
-        slam = Slam(config, camera_of(sequence))
-    except ConfigError as exc:
-        raise InputError(f"--set: {exc}") from None
     with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
-        objects = sequence.objects() if sequence.is_generated else None
-        results: list[FrameResult] = []
-        labels: list[np.ndarray] = []
-        frames = tqdm(
-            range(len(sequence)),
-            desc=f"slam {strategy}",
-            unit="frame",
-            disable=None if progress else True,  # None: only on a terminal
-            leave=False,
-        )
-        with frames:  # closed (and its line cleared) before an error is printed
-            for i in frames:
-                frame = Frame(
-                    sequence.frames[i].timestamp_s,
-                    sequence.rgb(i),
-                    sequence.depth_m(i),
-                    slam.camera,
-                    det.detect(i) if det else (),
-                )
-                result = slam.process(frame)
-                results.append(result)
-                if objects is not None:
-                    moving = {o.instance_id for o in objects[i] if o.moving}
-                    labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
-        metrics = _metrics(sequence, slam, results, labels, config, detector)
-        estimate = estimated_trajectory(results)
+        run = make_tracker(tracker, config, progress).run(frames, progress)
+        metrics = _metrics(sequence, run, config, strategy, detector, tracker)
+        estimate = run.trajectory()
         if estimate is not None:
             write_tum(
                 output.path / "trajectory.txt",
                 estimate,
-                header=f"depotbench slam, strategy {strategy}, detector {detector}",
+                header=f"depotbench {tracker.kind.value}, strategy {strategy}, detector {detector}",
             )
-        _write_diagnostics(output.path / "diagnostics.npz", results, labels)
+        _write_frames(output.path / "frames.csv", run)
+        if run.results is not None:
+            _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
         (output.path / "metrics.json").write_text(dumps_json(metrics) + "\n", encoding="utf-8")
         output.commit()
     return metrics
 
 
+def _time_stats(values_ms: np.ndarray) -> dict[str, float | None]:
+    finite = values_ms[np.isfinite(values_ms)]
+    if not len(finite):
+        return {"mean_ms": None, "median_ms": None}
+    return {"mean_ms": float(finite.mean()), "median_ms": float(np.median(finite))}
+
+
 def _metrics(
     sequence: Sequence,
-    slam: Slam,
-    results: list[FrameResult],
-    labels: list[np.ndarray],
+    run: TrackerRun,
     config: SlamConfig,
+    strategy: str,
     detector: str,
+    tracker: TrackerConfig,
 ) -> dict[str, Any]:
-    states = [r.state for r in results]
-    stage = {}
-    for key in ("extract", "reject", "track", "tracking_total", "mapping"):
-        values = np.array([r.diagnostics.stage_ms[key] for r in results])
-        stage[key] = {"mean_ms": float(values.mean()), "median_ms": float(np.median(values))}
+    states = run.states
+    stage = {name: _time_stats(values) for name, values in run.stage_ms.items()}
+    stage.setdefault("tracking_total", _time_stats(run.track_ms))
+    settings: dict[str, Any] = {"tracking": asdict(config.tracking), "rejection": asdict(config.rejection)}
+    if tracker.kind is not TrackerKind.BUILTIN:
+        settings = {"mask": {k: getattr(config.rejection, k) for k in MASK_SETTINGS}}
+        settings["command"] = tracker.command
     metrics: dict[str, Any] = {
         "sequence": str(sequence.root),
-        "strategy": config.strategy,
+        "tracker": tracker.kind.value,
+        "strategy": strategy,
         "detector": detector,
-        "config": {"tracking": asdict(config.tracking), "rejection": asdict(config.rejection)},
-        "frames": len(results),
-        "tracked_frames": sum(s in (TrackingState.OK, TrackingState.RELOCALIZED) for s in states),
+        "config": settings,
+        "frames": len(states),
+        "tracked_frames": int(run.tracked.sum()),
         "lost_frames": sum(s == TrackingState.LOST for s in states),
         "relocalized_frames": sum(s == TrackingState.RELOCALIZED for s in states),
-        "keyframes": len(slam.map.keyframes),
+        "keyframes": run.keyframes,
         "stage_time": stage,
+        "wall_time_s": run.total_s,
     }
-    estimate = estimated_trajectory(results)
+    estimate = run.trajectory()
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         gt = sequence.groundtruth
         reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
         comparison = compare(reference, estimate, ComparisonOptions()).to_dict()
         for key in ("ate_m", "rpe_translation_m", "rpe_rotation_deg"):
             metrics[key] = comparison[key]
-    if labels:
-        kept = REJECTION_CODES[Rejection.KEPT]
-        rejected = np.concatenate([r.diagnostics.rejection != kept for r in results])
-        moving = np.concatenate(labels)
-        true_positive = int((rejected & moving).sum())
-        metrics["rejection"] = {
-            "keypoints": int(len(moving)),
-            "moving_keypoints": int(moving.sum()),
-            "rejected_keypoints": int(rejected.sum()),
-            "precision": true_positive / int(rejected.sum()) if rejected.any() else None,
-            "recall": true_positive / int(moving.sum()) if moving.any() else None,
-            "moving_inliers": int(
-                sum((r.diagnostics.inlier & lab).sum() for r, lab in zip(results, labels, strict=True))
-            ),
-        }
+    if run.results is not None and run.labels:
+        metrics["rejection"] = _rejection(run.results, run.labels)
     return metrics
+
+
+def _rejection(results: list[FrameResult], labels: list[np.ndarray]) -> dict[str, Any]:
+    """Rejection as a classification of keypoints against their true moving labels."""
+    kept = REJECTION_CODES[Rejection.KEPT]
+    rejected = np.concatenate([r.diagnostics.rejection != kept for r in results])
+    moving = np.concatenate(labels)
+    true_positive = int((rejected & moving).sum())
+    return {
+        "keypoints": int(len(moving)),
+        "moving_keypoints": int(moving.sum()),
+        "rejected_keypoints": int(rejected.sum()),
+        "precision": true_positive / int(rejected.sum()) if rejected.any() else None,
+        "recall": true_positive / int(moving.sum()) if moving.any() else None,
+        "moving_inliers": int(
+            sum((r.diagnostics.inlier & lab).sum() for r, lab in zip(results, labels, strict=True))
+        ),
+    }
+
+
+def _write_frames(path: Path, run: TrackerRun) -> None:
+    rows = ["timestamp_s,state,track_ms"]
+    for t, state, ms in zip(run.timestamps_s, run.states, run.track_ms, strict=True):
+        rows.append(f"{t:.6f},{state.value},{'' if not np.isfinite(ms) else f'{ms:.3f}'}")
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
 def _write_diagnostics(path: Path, results: list[FrameResult], labels: list[np.ndarray]) -> None:

@@ -14,7 +14,6 @@ import json
 import multiprocessing as mp
 import os
 import signal
-import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
@@ -33,18 +32,10 @@ from sim.output import (
     read_marker,
     write_text_atomic,
 )
+from sim.processes import exit_with_parent
 from sim.spec import content_key
 
 INDEX_NAME = "index.json"
-PARENT_POLL_S = 0.2
-"""How often a worker checks that its parent is alive."""
-
-
-def _exit_with_parent(parent_pid: int) -> None:
-    while True:
-        time.sleep(PARENT_POLL_S)
-        if os.getppid() != parent_pid:
-            os._exit(1)  # orphaned: the parent was killed; its lock is gone, so must we be
 
 
 def _init_worker(parent_pid: int) -> None:
@@ -52,7 +43,7 @@ def _init_worker(parent_pid: int) -> None:
     os.environ["LP_NUM_THREADS"] = "1"
     # Ctrl-C reaches the whole process group: the parent alone handles it and stops us.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+    exit_with_parent(parent_pid)
 
 
 def generate_job(scenario_data: dict[str, Any], out: str) -> dict[str, Any]:

@@ -133,6 +133,13 @@ class OrbSlamSettings:
     )
 
 
+def _real(value: float) -> str:
+    """A number OpenCV's YAML reads as a real: ORB-SLAM3 refuses ``525`` where it wants a real
+    (it checks ``isReal()``), so a whole number is written ``525.0``."""
+    text = f"{value:.9g}"
+    return text if any(c in text for c in ".eEn") else f"{text}.0"
+
+
 def orbslam_yaml(intrinsics: Intrinsics, settings: OrbSlamSettings | None = None) -> str:
     """The camera as an ORB-SLAM2/3 (old-format) RGB-D settings file."""
     s = settings or OrbSlamSettings()
@@ -141,29 +148,29 @@ def orbslam_yaml(intrinsics: Intrinsics, settings: OrbSlamSettings | None = None
         "%YAML:1.0",
         "# Written by depotbench. ORB-SLAM2/3 RGB-D settings (TUM style).",
         'Camera.type: "PinHole"',
-        f"Camera.fx: {intrinsics.fx:.9g}",
-        f"Camera.fy: {intrinsics.fy:.9g}",
-        f"Camera.cx: {intrinsics.cx:.9g}",
-        f"Camera.cy: {intrinsics.cy:.9g}",
-        f"Camera.k1: {k1:.9g}",
-        f"Camera.k2: {k2:.9g}",
-        f"Camera.p1: {p1:.9g}",
-        f"Camera.p2: {p2:.9g}",
-        f"Camera.k3: {k3:.9g}",
+        f"Camera.fx: {_real(intrinsics.fx)}",
+        f"Camera.fy: {_real(intrinsics.fy)}",
+        f"Camera.cx: {_real(intrinsics.cx)}",
+        f"Camera.cy: {_real(intrinsics.cy)}",
+        f"Camera.k1: {_real(k1)}",
+        f"Camera.k2: {_real(k2)}",
+        f"Camera.p1: {_real(p1)}",
+        f"Camera.p2: {_real(p2)}",
+        f"Camera.k3: {_real(k3)}",
         f"Camera.width: {intrinsics.width}",
         f"Camera.height: {intrinsics.height}",
-        f"Camera.fps: {s.fps:.9g}",
-        f"Camera.bf: {s.baseline_times_fx:.9g}",
+        f"Camera.fps: {_real(s.fps)}",
+        f"Camera.bf: {_real(s.baseline_times_fx)}",
         "Camera.RGB: 1",
-        f"ThDepth: {s.close_depth_threshold:.9g}",
-        f"DepthMapFactor: {intrinsics.depth_scale:.9g}",
+        f"ThDepth: {_real(s.close_depth_threshold)}",
+        f"DepthMapFactor: {_real(intrinsics.depth_scale)}",
         f"ORBextractor.nFeatures: {s.n_features}",
-        f"ORBextractor.scaleFactor: {s.scale_factor:.9g}",
+        f"ORBextractor.scaleFactor: {_real(s.scale_factor)}",
         f"ORBextractor.nLevels: {s.n_levels}",
         f"ORBextractor.iniThFAST: {s.ini_th_fast}",
         f"ORBextractor.minThFAST: {s.min_th_fast}",
     ]
-    lines += [f"Viewer.{key}: {value:.9g}" for key, value in s.viewer.items()]
+    lines += [f"Viewer.{key}: {_real(value)}" for key, value in s.viewer.items()]
     return "\n".join(lines) + "\n"
 
 

@@ -106,9 +106,10 @@ def _describe_holder(text: str) -> str:
 class OutputLock:
     """An exclusive ``flock`` on ``.NAME.lock`` beside an output, with the holder written in it."""
 
-    def __init__(self, target: Path) -> None:
+    def __init__(self, target: Path, wait: bool = False) -> None:
         self.target = target
         self.path = lock_path(target)
+        self.wait = wait  # block until the holder lets go, instead of refusing
         self._fd: int | None = None
 
     def acquire(self) -> None:
@@ -118,7 +119,7 @@ class OutputLock:
             except OSError as exc:
                 raise OutputError(f"{self.target}: cannot write here ({exc.strerror})") from None
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if self.wait else fcntl.LOCK_NB))
             except BlockingIOError:
                 holder = os.pread(fd, 4096, 0).decode("utf-8", "replace")
                 os.close(fd)

@@ -414,10 +414,10 @@ def _sequence_cases() -> dict[str, Case]:
         "camera-garbage": sequence_case(set_bytes(cam, b"{{{{ not yaml"), "camera.yaml"),
         "camera-no-fx": sequence_case(replace_text(cam, "Camera.fx:", "Camera.fz:"), "missing key Camera.fx"),
         "camera-fx-text": sequence_case(
-            replace_text(cam, "Camera.fx: 50", "Camera.fx: fifty"), "Camera.fx must be a number"
+            replace_text(cam, "Camera.fx: 50.0", "Camera.fx: fifty"), "Camera.fx must be a number"
         ),
         "camera-fx-negative": sequence_case(
-            replace_text(cam, "Camera.fx: 50", "Camera.fx: -50"), "camera.yaml"
+            replace_text(cam, "Camera.fx: 50.0", "Camera.fx: -50"), "camera.yaml"
         ),
         "camera-width-zero": sequence_case(
             replace_text(cam, "Camera.width: 64", "Camera.width: 0"), "Camera.width"
@@ -433,10 +433,10 @@ def _sequence_cases() -> dict[str, Case]:
             "is 64x48, the camera is 128x48",
         ),
         "camera-depth-factor": sequence_case(
-            replace_text(cam, "DepthMapFactor: 5000", "DepthMapFactor: 0"), "DepthMapFactor = 0 is outside"
+            replace_text(cam, "DepthMapFactor: 5000.0", "DepthMapFactor: 0"), "DepthMapFactor = 0 is outside"
         ),
         "camera-fx-tiny": sequence_case(
-            replace_text(cam, "Camera.fx: 50", "Camera.fx: 1e-300"), "Camera.fx = 1e-300"
+            replace_text(cam, "Camera.fx: 50.0", "Camera.fx: 1e-300"), "Camera.fx = 1e-300"
         ),
         "camera-cx-huge": sequence_case(
             replace_text(cam, "Camera.cx: 31.5", "Camera.cx: 1e300"), "Camera.cx = 1e+300"
@@ -446,7 +446,7 @@ def _sequence_cases() -> dict[str, Case]:
             "image_size is [640, 48]",
         ),
         "camera-nested": sequence_case(
-            replace_text(cam, "Camera.fx: 50", "Camera.fx: " + "[" * 50_000 + "]" * 50_000),
+            replace_text(cam, "Camera.fx: 50.0", "Camera.fx: " + "[" * 50_000 + "]" * 50_000),
             "nested more than 16",
         ),
         "assoc-far-depth": sequence_case(
@@ -467,8 +467,8 @@ def _sequence_cases() -> dict[str, Case]:
             object_record(3, '"box_xyxy":[30,10,40,20]', '"box_xyxy":[30,10,40000,20]'),
             "exceeds the 64x48 frame",
         ),
-        "camera-fps": sequence_case(replace_text(cam, "Camera.fps: 30", "Camera.fps: -1"), "Camera.fps"),
-        "camera-k1-nan": sequence_case(replace_text(cam, "Camera.k1: 0", "Camera.k1: .nan"), "distortion"),
+        "camera-fps": sequence_case(replace_text(cam, "Camera.fps: 30.0", "Camera.fps: -1"), "Camera.fps"),
+        "camera-k1-nan": sequence_case(replace_text(cam, "Camera.k1: 0.0", "Camera.k1: .nan"), "distortion"),
         "camera-huge": sequence_case(set_bytes(cam, b"%YAML:1.0\n" + b"#" * (2 << 20)), "camera.yaml: is"),
         "meta-not-json": sequence_case(set_bytes("meta.json", b"{ nope"), "meta.json:1: not valid JSON"),
         "meta-list": sequence_case(set_bytes("meta.json", b"[1, 2]"), "meta.json: must hold a JSON object"),

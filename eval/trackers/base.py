@@ -1,0 +1,71 @@
+"""What every tracker gives back, whoever wrote it: per frame a state, a pose and a time.
+
+The built-in pipeline, ORB-SLAM3 (in a subprocess) and any external program all
+return a ``TrackerRun``; per-keypoint diagnostics come only from the built-in one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Protocol
+
+import numpy as np
+
+from eval.frames import FrameSource
+from eval.trajectory import Trajectory
+from sim.errors import InputError
+from slam.types import FrameResult, TrackingState
+
+
+class TrackerKind(StrEnum):
+    BUILTIN = "builtin"
+    ORBSLAM3 = "orbslam3"
+    COMMAND = "cmd"
+
+
+class TrackerError(InputError):
+    """An external tracker that is missing, failed, or gave output we cannot read."""
+
+
+@dataclass(frozen=True, eq=False)
+class TrackerRun:
+    timestamps_s: np.ndarray
+    states: tuple[TrackingState, ...]
+    poses: tuple[np.ndarray | None, ...]
+    """world_from_camera of each frame; None where the tracker gave none (lost, not started)."""
+    track_ms: np.ndarray
+    """Per-frame tracking time as the tracker measures it; NaN where it reports none."""
+    keyframes: int | None
+    total_s: float
+    """Wall time of the whole run, start-up included."""
+    results: list[FrameResult] | None = None
+    """The built-in pipeline's per-frame results (per-keypoint diagnostics)."""
+    labels: list[np.ndarray] | None = None
+    """True moving label of each keypoint of ``results`` (generated sequences)."""
+    stage_ms: dict[str, np.ndarray] = field(default_factory=dict)
+    """Per-frame time of each stage, where the tracker reports stages."""
+
+    def __post_init__(self) -> None:
+        n = len(self.timestamps_s)
+        if not (len(self.states) == len(self.poses) == len(self.track_ms) == n):
+            raise ValueError("a tracker run needs one state, pose and time per frame")
+
+    @property
+    def tracked(self) -> np.ndarray:
+        return np.array([s in (TrackingState.OK, TrackingState.RELOCALIZED) for s in self.states], bool)
+
+    def trajectory(self) -> Trajectory | None:
+        """The poses of the tracked frames, or None when no frame has one."""
+        keep = [i for i, pose in enumerate(self.poses) if pose is not None and self.tracked[i]]
+        if not keep:
+            return None
+        return Trajectory.from_poses(self.timestamps_s[keep], np.array([self.poses[i] for i in keep]))
+
+
+class Tracker(Protocol):
+    """Anything that turns frames into poses."""
+
+    name: str
+
+    def run(self, frames: FrameSource, progress: bool) -> TrackerRun: ...

@@ -1,0 +1,86 @@
+"""The real ORB-SLAM3 (``pyorbslam3``, GPL-3, an optional extra) behind the tracker interface.
+
+It runs in a child process (``orbslam3_worker``) on the sequence folder, or on a
+masked copy when ``mask`` rejection is on, with settings written from the
+sequence's camera and a DBoW2 vocabulary built by ``depotbench vocab``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from eval.frames import FrameSource
+from eval.trackers.base import TrackerError, TrackerRun
+from eval.trackers.external import run_child, write_settings
+from slam.types import TrackingState
+
+STATES = {
+    "OK": TrackingState.OK,
+    "OK_KLT": TrackingState.OK,
+    "RECENTLY_LOST": TrackingState.LOST,
+    "LOST": TrackingState.LOST,
+}
+"""ORB-SLAM3's tracking states; the others (not ready, no images yet, not initialised)
+mean not initialised. RECENTLY_LOST poses are predictions, not tracking: lost."""
+INSTALL_HINT = "pip install 'depotbench[orbslam3]' (the pyorbslam3 wheel, GPL-3)"
+
+
+def available() -> bool:
+    return importlib.util.find_spec("pyorbslam3") is not None
+
+
+class Orbslam3Tracker:
+    name = "orbslam3"
+
+    def __init__(self, vocabulary: Path, timeout_s: float = 3600.0) -> None:
+        self.vocabulary = vocabulary
+        self.timeout_s = timeout_s
+
+    def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
+        if not available():
+            raise TrackerError(f"ORB-SLAM3 is not installed: {INSTALL_HINT}")
+        if not self.vocabulary.is_file():
+            raise TrackerError(f"{self.vocabulary}: no such vocabulary (build one with `depotbench vocab`)")
+        sequence = frames.sequence
+        with tempfile.TemporaryDirectory(prefix="depotbench-orbslam3-") as scratch_dir:
+            scratch = Path(scratch_dir)
+            request = {
+                "vocabulary": str(self.vocabulary.resolve()),
+                "settings": str(write_settings(sequence, scratch / "settings.yaml")),
+                "sequence": str(frames.folder(scratch).resolve()),
+                "out": str(scratch),
+            }
+            (scratch / "request.json").write_text(json.dumps(request), encoding="utf-8")
+            total_s = run_child(
+                [sys.executable, "-m", "eval.trackers.orbslam3_worker", str(scratch / "request.json")],
+                what="orbslam3",
+                cwd=Path(__file__).resolve().parents[2],
+                timeout_s=self.timeout_s,
+                frames=len(sequence),
+                progress=progress,
+            )
+            records = [json.loads(line) for line in (scratch / "frames.jsonl").read_text().splitlines()]
+            keyframes_file = scratch / "keyframes.txt"
+            keyframes = (
+                sum(
+                    1 for line in keyframes_file.read_text().splitlines() if line and not line.startswith("#")
+                )
+                if keyframes_file.is_file()
+                else None
+            )
+        if len(records) != len(sequence):
+            raise TrackerError(f"orbslam3: reported {len(records)} frames of {len(sequence)}")
+        return TrackerRun(
+            timestamps_s=np.array([r["timestamp_s"] for r in records]),
+            states=tuple(STATES.get(r["state"], TrackingState.NOT_INITIALIZED) for r in records),
+            poses=tuple(None if r["pose"] is None else np.array(r["pose"]) for r in records),
+            track_ms=np.array([r["track_ms"] for r in records]),
+            keyframes=keyframes,
+            total_s=total_s,
+        )

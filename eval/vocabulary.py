@@ -1,0 +1,256 @@
+"""ORB vocabularies in DBoW2's text format (ORB-SLAM's ORBvoc.txt), built from generated frames.
+
+ORB-SLAM2/3 need a bag-of-words vocabulary and the official ORBvoc.txt cannot be
+downloaded here, so the bench builds its own, as DBoW2 builds one: ORB descriptors
+of training images, hierarchical k-majority clustering (k-means on binary
+descriptors: Hamming distance, bitwise-majority centres, k-means++ seeding) to
+``levels`` levels of ``branching`` children, and for each leaf (word) the inverse
+document frequency ln(N / n_i) over the N training images.
+
+The text format (DBoW2's ``saveToTextFile``, read by ``loadFromTextFile``): a header
+``k L scoring weighting`` (0 0: L1 norm, TF-IDF), then one line per node after the
+root, in id order, ``parent is_leaf d0 ... d31 weight``; a parent's id is lower than
+its children's. No newline follows the last line (ORB-SLAM's reader would take it
+for an empty node).
+
+The default vocabulary is trained on library scenes the fidelity benchmark does
+not evaluate, rendered with their own seed, and cached by content.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from sim.errors import InputError
+from sim.output import OutputLock, write_text_atomic
+from sim.version import generator_version
+
+BUILDER_VERSION = 1
+TRAINING_SCENES = (
+    "dog_and_cat_roaming",
+    "pig_pen",
+    "chair_pushing",
+    "robot_aisle_patrol",
+    "crowd",
+    "sitting_halfsphere",
+)
+"""Depot scenes the fidelity benchmark does not evaluate (it runs the walking and sitting
+analogs and static_depot), so no evaluated frame is in the vocabulary."""
+KMEANS_ITERATIONS = 10
+DESCRIPTOR_BYTES = 32
+
+
+@dataclass(frozen=True)
+class VocabularySpec:
+    branching: int = 10
+    levels: int = 5
+    scenes: tuple[str, ...] = TRAINING_SCENES
+    frames: int = 150
+    seed: int = 101
+
+    def __post_init__(self) -> None:
+        # ORB-SLAM's loader refuses k > 20 and L outside 1..10 (DBoW2's limits).
+        if not 2 <= self.branching <= 20:
+            raise InputError(f"--branching must lie in 2..20, got {self.branching}")
+        if not 1 <= self.levels <= 10:
+            raise InputError(f"--levels must lie in 1..10, got {self.levels}")
+        if self.branching ** (self.levels + 1) > 2 * 10**7:
+            raise InputError(f"{self.branching}^{self.levels} words is too many to build here")
+        if not 1 <= self.frames <= 100_000:
+            raise InputError(f"--frames must lie in 1..100000, got {self.frames}")
+        if not self.scenes:
+            raise InputError("--scenes: name at least one library scene")
+
+    def key(self) -> str:
+        data = {**asdict(self), "builder": BUILDER_VERSION, "generator": generator_version()}
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass(eq=False)
+class Vocabulary:
+    branching: int
+    levels: int
+    parents: list[int] = field(default_factory=lambda: [-1])
+    """Parent id of each node; node 0 is the root."""
+    descriptors: list[np.ndarray] = field(default_factory=lambda: [np.zeros(DESCRIPTOR_BYTES, np.uint8)])
+    leaf: list[bool] = field(default_factory=lambda: [False])
+    weights: list[float] = field(default_factory=lambda: [0.0])
+
+    @property
+    def words(self) -> int:
+        return sum(self.leaf)
+
+    def add(self, parent: int, descriptor: np.ndarray, leaf: bool) -> int:
+        self.parents.append(parent)
+        self.descriptors.append(descriptor)
+        self.leaf.append(leaf)
+        self.weights.append(0.0)
+        return len(self.parents) - 1
+
+    def to_text(self) -> str:
+        lines = [f"{self.branching} {self.levels} 0 0"]
+        for node in range(1, len(self.parents)):
+            values = " ".join(str(int(b)) for b in self.descriptors[node])
+            lines.append(f"{self.parents[node]} {int(self.leaf[node])} {values} {self.weights[node]:.10g}")
+        return "\n".join(lines)
+
+
+def _distances(descriptors: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Hamming distances (n, k) between packed descriptors (n, 4) and centres (k, 4), as uint64."""
+    return np.stack([np.bitwise_count(descriptors ^ c).sum(axis=1, dtype=np.int32) for c in centres], axis=1)
+
+
+def _majority(descriptors: np.ndarray) -> np.ndarray:
+    """The bitwise majority of packed descriptors (ties set the bit, as DBoW2's meanValue)."""
+    bits = np.unpackbits(descriptors.view(np.uint8).reshape(len(descriptors), DESCRIPTOR_BYTES), axis=1)
+    counts = bits.sum(axis=0, dtype=np.int64)
+    centre = np.packbits(2 * counts >= len(descriptors))
+    return centre.view(np.uint64)
+
+
+def kmajority(descriptors: np.ndarray, k: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """k-means on packed binary descriptors: (centres (k', 4), labels); k' <= k (no empty cluster)."""
+    n = len(descriptors)
+    chosen = [int(rng.integers(n))]
+    nearest = _distances(descriptors, descriptors[chosen]).min(axis=1).astype(np.float64)
+    while len(chosen) < k:  # k-means++ seeding, by distance
+        total = nearest.sum()
+        if total == 0:
+            break  # fewer distinct descriptors than k
+        pick = int(rng.choice(n, p=nearest / total))
+        chosen.append(pick)
+        nearest = np.minimum(nearest, _distances(descriptors, descriptors[[pick]])[:, 0])
+    centres = descriptors[chosen]
+    labels = np.full(n, -1)
+    for _ in range(KMEANS_ITERATIONS):
+        new_labels = np.argmin(_distances(descriptors, centres), axis=1)
+        if np.array_equal(new_labels, labels):
+            break
+        labels = new_labels
+        kept = np.unique(labels)
+        centres = np.stack([_majority(descriptors[labels == c]) for c in kept])
+        labels = np.searchsorted(kept, labels)
+    return centres, labels
+
+
+def build(images: list[np.ndarray], branching: int, levels: int, seed: int = 0) -> Vocabulary:
+    """The vocabulary of ORB descriptors grouped by training image ((m_i, 32) uint8 each)."""
+    rng = np.random.default_rng(seed)
+    if not images or not any(len(d) for d in images):
+        raise InputError("no ORB descriptors to build a vocabulary from")
+    packed = np.concatenate([np.ascontiguousarray(d, np.uint8) for d in images]).view(np.uint64)
+    image_of = np.repeat(np.arange(len(images)), [len(d) for d in images])
+    vocabulary = Vocabulary(branching, levels)
+    word_of = np.full(len(packed), -1)
+    pending: deque[tuple[int, np.ndarray, int]] = deque([(0, np.arange(len(packed)), 0)])
+    while pending:  # breadth first: every parent is written before its children
+        node, members, level = pending.popleft()
+        subset = packed[members]
+        distinct, inverse = np.unique(subset, axis=0, return_inverse=True)
+        if len(distinct) <= branching:
+            centres, labels = distinct, inverse.ravel()  # too few to cluster: each is a word
+            final = True
+        else:
+            centres, labels = kmajority(subset, branching, rng)
+            final = level + 1 >= levels
+        for c, centre in enumerate(centres):
+            child = vocabulary.add(node, centre.view(np.uint8), final)
+            mine = members[labels == c]
+            if final:
+                word_of[mine] = child
+            else:
+                pending.append((child, mine, level + 1))
+    n_images = len(images)
+    for word in np.unique(word_of):
+        images_with = len(np.unique(image_of[word_of == word]))
+        vocabulary.weights[word] = math.log(n_images / images_with)
+    return vocabulary
+
+
+def read_text(path: Path) -> Vocabulary:
+    """A vocabulary written by ``to_text`` (for checks; ORB-SLAM reads the file itself)."""
+    lines = path.read_text(encoding="utf-8").split("\n")
+    k, levels, _, _ = (int(v) for v in lines[0].split())
+    vocabulary = Vocabulary(k, levels)
+    for line in lines[1:]:
+        values = line.split()
+        vocabulary.add(int(values[0]), np.array([int(v) for v in values[2:34]], np.uint8), values[1] == "1")
+        vocabulary.weights[-1] = float(values[34])
+    return vocabulary
+
+
+def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarray]:
+    """ORB descriptors (the built-in extractor's, which chooses as ORB-SLAM does) of every
+    frame of the training scenes, rendered into a temporary folder."""
+    from scenes import library
+    from scenes.schema import to_scenario
+    from sim.generate import generate
+    from sim.sequence import Sequence
+    from slam.config import TrackingConfig
+    from slam.features import FeatureExtractor
+    from slam.types import PinholeCamera
+
+    extractor = FeatureExtractor(TrackingConfig())
+    images = []
+    with tempfile.TemporaryDirectory(prefix="depotbench-vocab-") as scratch:
+        for name in spec.scenes:
+            scenario = library.get(name).model_copy(
+                update={"frames": spec.frames, "duration_s": None, "seed": spec.seed}
+            )
+            sequence = Sequence.open(generate(to_scenario(scenario), Path(scratch) / name, progress=progress))
+            k = sequence.intrinsics
+            camera = PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+            for i in tqdm(
+                range(len(sequence)),
+                desc=f"ORB {name}",
+                unit="frame",
+                disable=None if progress else True,
+                leave=False,
+            ):
+                images.append(extractor.extract(sequence.rgb(i), sequence.depth_m(i), camera).descriptors)
+    return images
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("DEPOTBENCH_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "depotbench"
+    )
+    return Path(base)
+
+
+def build_file(spec: VocabularySpec, path: Path, progress: bool) -> tuple[Vocabulary, float]:
+    """Build ``spec``'s vocabulary into ``path`` (atomically); return it and the seconds taken."""
+    started = time.perf_counter()
+    images = training_descriptors(spec, progress)
+    if progress:
+        print(f"clustering {sum(len(d) for d in images)} descriptors of {len(images)} frames", flush=True)
+    vocabulary = build(images, spec.branching, spec.levels, spec.seed)
+    write_text_atomic(path, vocabulary.to_text())
+    return vocabulary, time.perf_counter() - started
+
+
+def default_vocabulary(progress: bool = True, spec: VocabularySpec | None = None) -> Path:
+    """The cached vocabulary of ``spec`` (the default one), built first if missing."""
+    spec = spec or VocabularySpec()
+    folder = cache_dir() / "vocabulary"
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"orb-k{spec.branching}-L{spec.levels}-{spec.key()}.txt"
+    if path.is_file():
+        return path
+    with OutputLock(path, wait=True):  # one builder at a time; the others then find it built
+        if not path.is_file():
+            if progress:
+                print(f"building the ORB vocabulary once into {path} (a few minutes)", flush=True)
+            build_file(spec, path, progress)
+    return path
