@@ -694,6 +694,43 @@ def _command_cases() -> dict[str, Case]:
             nothing, ("__argparse__", "demo", "-o", "{tmp}/out", "--workers", "-3"), "--workers"
         ),
         "unknown-command": Case(nothing, ("__argparse__", "frobnicate"), "frobnicate"),
+        "run-external-strategy": Case(
+            seq, (*run, "--slam", "orbslam3", "--strategy", "box_rule"), "needs the built-in tracker"
+        ),
+        "run-external-set": Case(
+            seq, (*run, "--slam", "cmd", "--command", "x", "--set", "k=2"), "--set k: --slam cmd takes only"
+        ),
+        "run-command-without-cmd": Case(
+            seq, (*run, "--command", "slam {sequence}"), "--command applies to --slam cmd only"
+        ),
+        "run-cmd-without-command": Case(seq, (*run, "--slam", "cmd"), "--slam cmd needs --command"),
+        "run-cmd-placeholder": Case(
+            seq,
+            (*run, "--slam", "cmd", "--command", "slam {calibration}"),
+            "unknown placeholder {calibration}",
+        ),
+        "run-cmd-empty": Case(seq, (*run, "--slam", "cmd", "--command", "  "), "the template is empty"),
+        "run-mask-without-boxes": Case(
+            seq, (*run, "--strategy", "mask", "--detector", "none"), "needs boxes"
+        ),
+        "run-vocabulary-builtin": Case(seq, (*run, "--vocabulary", "{tmp}/v.txt"), "--vocabulary applies"),
+        "run-timeout-zero": Case(
+            seq, ("__argparse__", *run, "--slam", "cmd", "--command", "x", "--timeout", "0"), "--timeout"
+        ),
+        "vocab-branching": Case(
+            nothing, ("vocab", "-o", "{tmp}/v.txt", "--branching", "50"), "--branching must lie in 2..20"
+        ),
+        "vocab-levels": Case(
+            nothing, ("vocab", "-o", "{tmp}/v.txt", "--levels", "0"), "--levels must lie in 1..10"
+        ),
+        "vocab-scene": Case(
+            nothing,
+            ("vocab", "-o", "{tmp}/v.txt", "--scenes", "atlantis"),
+            "no library scenario named 'atlantis'",
+        ),
+        "vocab-exists": Case(
+            write("v.txt", "x"), ("vocab", "-o", "{tmp}/v.txt", "--levels", "2"), "already exists"
+        ),
     }
     return {f"command-{name}": case for name, case in cases.items()}
 

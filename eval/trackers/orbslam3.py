@@ -35,6 +35,13 @@ def available() -> bool:
     return importlib.util.find_spec("pyorbslam3") is not None
 
 
+def _data_lines(path: Path) -> int | None:
+    """Poses in a TUM file ORB-SLAM3 wrote (its keyframe trajectory), None if it wrote none."""
+    if not path.is_file():
+        return None
+    return sum(1 for line in path.read_text().splitlines() if line.strip() and not line.startswith("#"))
+
+
 class Orbslam3Tracker:
     name = "orbslam3"
 
@@ -60,20 +67,13 @@ class Orbslam3Tracker:
             total_s = run_child(
                 [sys.executable, "-m", "eval.trackers.orbslam3_worker", str(scratch / "request.json")],
                 what="orbslam3",
-                cwd=Path(__file__).resolve().parents[2],
+                cwd=scratch,
                 timeout_s=self.timeout_s,
                 frames=len(sequence),
                 progress=progress,
             )
             records = [json.loads(line) for line in (scratch / "frames.jsonl").read_text().splitlines()]
-            keyframes_file = scratch / "keyframes.txt"
-            keyframes = (
-                sum(
-                    1 for line in keyframes_file.read_text().splitlines() if line and not line.startswith("#")
-                )
-                if keyframes_file.is_file()
-                else None
-            )
+            keyframes = _data_lines(scratch / "keyframes.txt")
         if len(records) != len(sequence):
             raise TrackerError(f"orbslam3: reported {len(records)} frames of {len(sequence)}")
         return TrackerRun(
