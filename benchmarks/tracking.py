@@ -23,8 +23,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from detectors.config import DetectorConfig  # noqa: E402
+from eval.detections import detect_sequence  # noqa: E402
 from eval.frames import FrameSource  # noqa: E402
-from eval.harness import make_detector  # noqa: E402
 from eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from scenes import library  # noqa: E402
 from scenes.schema import to_scenario  # noqa: E402
@@ -55,7 +56,7 @@ def main() -> None:
             update["seed"] = args.seed
         scenario = library.get(args.scenario).model_copy(update=update)
         seq = Sequence.open(generate(to_scenario(scenario), Path(tmp) / "seq", progress=False))
-        frames = FrameSource(seq, make_detector("groundtruth", seq))
+        frames = FrameSource(seq, detect_sequence(seq, DetectorConfig()).per_frame)
         print(
             f"{args.scenario} (seed {scenario.seed}), {len(seq)} frames, 640x480, 1000 ORB features; "
             f"built-in on core {min(every_core)}, cv2 threads {cv2.getNumThreads()}"

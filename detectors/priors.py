@@ -1,10 +1,20 @@
-"""Class priors of method 1: which classes move (dynamic) and which may (potential)."""
+"""Class priors of method 1: which classes move (dynamic) and which may (potential).
+
+A detector's class names reach SLAM through a ``PriorTable``. The default table
+knows COCO's names and the bench's own; ``--class-prior NAME=PRIOR`` changes a
+row. COCO has no pig: YOLOX-nano calls the bench's pigs dog, sheep or person
+(dynamic here, so they are still rejected) or teddy bear (static by default).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from detectors.detection import Prior
 
-DYNAMIC_CLASSES = frozenset({"person", "dog", "cat", "bird", "pig", "horse", "sheep", "cow"})
+DYNAMIC_CLASSES = frozenset(
+    {"person", "dog", "cat", "bird", "pig", "horse", "sheep", "cow", "elephant", "bear", "zebra", "giraffe"}
+)
 POTENTIAL_CLASSES = frozenset(
     {
         "chair",
@@ -20,13 +30,47 @@ POTENTIAL_CLASSES = frozenset(
         "backpack",
         "handbag",
         "suitcase",
+        "bicycle",
+        "car",
+        "motorcycle",
+        "truck",
+        "bus",
+        "cell phone",
+        "remote",
+        "umbrella",
     }
 )
 
 
 def prior_of(class_name: str) -> Prior:
-    if class_name in DYNAMIC_CLASSES:
-        return Prior.DYNAMIC
-    if class_name in POTENTIAL_CLASSES:
-        return Prior.POTENTIAL
-    return Prior.STATIC
+    return DEFAULT_PRIORS.prior(class_name)
+
+
+@dataclass(frozen=True)
+class PriorTable:
+    """Class name to prior: the default sets, with overrides on top."""
+
+    overrides: tuple[tuple[str, Prior], ...] = ()
+
+    def prior(self, class_name: str) -> Prior:
+        for name, prior in self.overrides:
+            if name == class_name:
+                return prior
+        if class_name in DYNAMIC_CLASSES:
+            return Prior.DYNAMIC
+        if class_name in POTENTIAL_CLASSES:
+            return Prior.POTENTIAL
+        return Prior.STATIC
+
+    def with_overrides(self, settings: dict[str, str]) -> PriorTable:
+        rows = dict(self.overrides)
+        for name, text in settings.items():
+            try:
+                rows[name] = Prior(text)
+            except ValueError:
+                choices = ", ".join(p.value for p in Prior)
+                raise ValueError(f"--class-prior {name}={text!r}: choose one of {choices}") from None
+        return PriorTable(tuple(sorted(rows.items())))
+
+
+DEFAULT_PRIORS = PriorTable()

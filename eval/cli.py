@@ -16,6 +16,13 @@ from pathlib import Path
 from typing import NoReturn
 
 from eval.alignment import Alignment
+from eval.cli_detectors import (
+    add_detect_eval,
+    add_detector_options,
+    add_export_dataset,
+    detector_config,
+    pairs,
+)
 from eval.comparison import Comparison, ComparisonOptions, compare
 from eval.metrics import DeltaUnit, Statistics
 from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
@@ -292,7 +299,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from eval.harness import DETECTORS, STRATEGY_CHOICES
+    from eval.harness import STRATEGY_CHOICES
     from eval.trackers.base import TrackerKind
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
@@ -311,12 +318,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help="dynamic-feature rejection; 'mask' blanks dynamic boxes in RGB and depth before the "
         "tracker sees the frames (any tracker); the others are the built-in tracker's",
     )
-    p.add_argument(
-        "--detector",
-        choices=DETECTORS,
-        default="groundtruth",
-        help="where boxes come from ('none' for real TUM folders without ground truth)",
-    )
+    add_detector_options(p)
     p.add_argument(
         "--set",
         action="append",
@@ -353,15 +355,12 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from eval.cache import StageCache
     from eval.harness import TrackerConfig, run_sequence
     from eval.trackers.base import TrackerKind
 
-    settings = {}
-    for item in args.set:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise InputError(f"--set {item!r}: expected NAME=VALUE")
-        settings[name.strip()] = value.strip()
+    settings = pairs(args.set, "--set")
+    detector = detector_config(args)
     kind = TrackerKind(args.slam)
     if args.command is not None and kind is not TrackerKind.COMMAND:
         raise InputError("--command applies to --slam cmd only")
@@ -372,10 +371,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         args.sequence,
         args.output,
         args.strategy,
-        args.detector,
+        detector,
         settings,
         overwrite=args.overwrite,
         tracker=tracker,
+        cache=StageCache.from_env(),
     )
     print(format_run(metrics))
     return 0
@@ -505,7 +505,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="depotbench",
         description="Simulation-backed test bench for dynamic visual SLAM.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=Parser)
+    sub = parser.add_subparsers(dest="verb", required=True, metavar="COMMAND", parser_class=Parser)
     _add_demo(sub)
     _add_eval(sub)
     _add_generate(sub)
@@ -514,6 +514,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run(sub)
     _add_preview(sub)
     _add_vocab(sub)
+    add_detect_eval(sub)
+    add_export_dataset(sub)
     return parser
 
 
@@ -542,7 +544,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         return int(args.handler(args))
     except (InputError, EnvironmentProblem) as exc:
-        print(f"depotbench {args.command}: error: {exc}", file=sys.stderr)
+        print(f"depotbench {args.verb}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT_ERROR
     except BrokenPipeError:
         # The reader went away (``depotbench scenarios | head``): say nothing more.
@@ -552,13 +554,13 @@ def _run(args: argparse.Namespace) -> int:
         if exc.filename is None:
             raise
         # A path the system refused (missing, unreadable, full disk): the user's to fix.
-        print(f"depotbench {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        print(f"depotbench {args.verb}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
         return EXIT_INPUT_ERROR
     except KeyboardInterrupt as exc:
         fresh_line = "\n" if sys.stderr.isatty() else ""  # after a progress bar
         what = "terminated" if isinstance(exc, Terminated) else "interrupted"
         print(
-            f"{fresh_line}depotbench {args.command}: {what}; "
+            f"{fresh_line}depotbench {args.verb}: {what}; "
             "finished outputs are kept and nothing is half-written",
             file=sys.stderr,
         )

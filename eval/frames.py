@@ -9,9 +9,9 @@ frames as a plain TUM sequence when masking is on.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Sequence as Sequence_
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
 
 import cv2
 import numpy as np
@@ -20,12 +20,6 @@ from detectors.detection import Detection, Prior
 from sim.camera import OrbSlamSettings, orbslam_yaml
 from sim.sequence import Sequence, timestamp_name
 from sim.tum_files import write_frame_list
-
-
-class Detector(Protocol):
-    name: str
-
-    def detect(self, index: int) -> tuple[Detection, ...]: ...
 
 
 @dataclass(frozen=True)
@@ -52,13 +46,20 @@ def box_mask(shape: tuple[int, int], detections: tuple[Detection, ...], settings
 
 
 class FrameSource:
+    """A sequence's frames with their (precomputed) detections, masked or not."""
+
     def __init__(
-        self, sequence: Sequence, detector: Detector | None = None, mask: MaskSettings | None = None
+        self,
+        sequence: Sequence,
+        detections: Sequence_[tuple[Detection, ...]] | None = None,
+        mask: MaskSettings | None = None,
     ) -> None:
-        if mask is not None and detector is None:
-            raise ValueError("masking needs a detector")
+        if mask is not None and detections is None:
+            raise ValueError("masking needs detections")
+        if detections is not None and len(detections) != len(sequence):
+            raise ValueError(f"{len(detections)} frames of detections for {len(sequence)} frames")
         self.sequence = sequence
-        self.detector = detector
+        self._detections = detections
         self.mask = mask
 
     def __len__(self) -> int:
@@ -68,7 +69,7 @@ class FrameSource:
         return self.sequence.frames[index].timestamp_s
 
     def detections(self, index: int) -> tuple[Detection, ...]:
-        return self.detector.detect(index) if self.detector is not None else ()
+        return self._detections[index] if self._detections is not None else ()
 
     def _blank(self, index: int) -> np.ndarray | None:
         if self.mask is None:

@@ -19,9 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from detectors.groundtruth import GroundTruthDetector
+from detectors.config import DetectorConfig, DetectorKind
+from eval.cache import StageCache
 from eval.comparison import ComparisonOptions, compare
-from eval.frames import Detector, FrameSource, MaskSettings
+from eval.detections import SequenceDetections, detect_sequence
+from eval.frames import FrameSource, MaskSettings
 from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
 from eval.trajectory import Trajectory, write_tum
@@ -33,7 +35,6 @@ from slam.config import ConfigError, SlamConfig, check_pyramid
 from slam.rejection import STRATEGIES
 from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
-DETECTORS = ("groundtruth", "none")
 MASK = "mask"
 STRATEGY_CHOICES = (*STRATEGIES, MASK)
 EXTERNAL_STRATEGIES = ("none", MASK)
@@ -51,14 +52,6 @@ class TrackerConfig:
     vocabulary: Path | None = None
     """``orbslam3`` and ``cmd``: a DBoW2 text vocabulary; the bench's default one if None."""
     timeout_s: float = 3600.0
-
-
-def make_detector(name: str, sequence: Sequence) -> Detector | None:
-    if name == "groundtruth":
-        return GroundTruthDetector(sequence)
-    if name == "none":
-        return None
-    raise InputError(f"unknown detector {name!r}; choose one of {', '.join(DETECTORS)}")
 
 
 def make_tracker(tracker: TrackerConfig, config: SlamConfig, progress: bool) -> Tracker:
@@ -107,18 +100,23 @@ def run_sequence(
     sequence_dir: Path,
     out_dir: Path,
     strategy: str,
-    detector: str = "groundtruth",
+    detector: DetectorConfig | None = None,
     settings: dict[str, str] | None = None,
     progress: bool = True,
     overwrite: bool = False,
     tracker: TrackerConfig | None = None,
+    cache: StageCache | None = None,
 ) -> dict[str, Any]:
-    """Track a sequence; return (and write) its metrics."""
+    """Track a sequence; return (and write) its metrics.
+
+    ``detector`` defaults to the ground-truth boxes; ``cache`` holds detections
+    between runs (``StageCache.from_env()`` is the default on the command line).
+    """
     tracker = tracker or TrackerConfig()
+    detector = detector or DetectorConfig()
     config = slam_config(strategy, settings or {}, tracker.kind)
     sequence = Sequence.open(sequence_dir)
-    det = make_detector(detector, sequence)
-    if strategy == MASK and det is None:
+    if strategy == MASK and detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
     if tracker.kind is TrackerKind.BUILTIN:
         camera = camera_of(sequence)
@@ -127,18 +125,20 @@ def run_sequence(
         except ConfigError as exc:
             raise InputError(f"--set: {exc}") from None
     mask = MaskSettings(config.rejection.box_dilation_px, config.rejection.min_confidence)
-    frames = FrameSource(sequence, det, mask if strategy == MASK else None)
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
     with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
+        detections = detect_sequence(sequence, detector, cache, progress)
+        boxes = detections.per_frame if detections is not None else None
+        frames = FrameSource(sequence, boxes, mask if strategy == MASK else None)
         run = make_tracker(tracker, config, progress).run(frames, progress)
-        metrics = _metrics(sequence, run, config, strategy, detector, tracker)
+        metrics = _metrics(sequence, run, config, strategy, detector, detections, tracker)
         estimate = run.trajectory()
         if estimate is not None:
             write_tum(
                 output.path / "trajectory.txt",
                 estimate,
-                header=f"depotbench {tracker.kind.value}, strategy {strategy}, detector {detector}",
+                header=f"depotbench {tracker.kind.value}, strategy {strategy}, detector {detector.label}",
             )
         _write_frames(output.path / "frames.csv", run)
         if run.results is not None:
@@ -160,7 +160,8 @@ def _metrics(
     run: TrackerRun,
     config: SlamConfig,
     strategy: str,
-    detector: str,
+    detector: DetectorConfig,
+    detections: SequenceDetections | None,
     tracker: TrackerConfig,
 ) -> dict[str, Any]:
     states = run.states
@@ -174,7 +175,8 @@ def _metrics(
         "sequence": str(sequence.root),
         "tracker": tracker.kind.value,
         "strategy": strategy,
-        "detector": detector,
+        "detector": detector.label,
+        "detector_config": detector.to_dict(),
         "config": settings,
         "frames": len(states),
         "tracked_frames": int(run.tracked.sum()),
@@ -184,6 +186,8 @@ def _metrics(
         "stage_time": stage,
         "wall_time_s": run.total_s,
     }
+    if detections is not None:
+        metrics["detector_time"] = _time_stats(detections.latency_ms) | {"cached": detections.from_cache}
     estimate = run.trajectory()
     if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
         gt = sequence.groundtruth

@@ -50,6 +50,7 @@ class OutputKind(StrEnum):
     RUN = "run"
     SUITE = "suite"
     DEMO = "demo"
+    DATASET = "dataset"
 
 
 class OutputError(InputError):

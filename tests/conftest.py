@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -16,3 +17,15 @@ def tum_trajectories() -> Path:
     if not TUM_TRAJECTORIES.is_dir():
         pytest.skip(f"{TUM_TRAJECTORIES} is not present (it sits beside the checkout in CI)")
     return TUM_TRAJECTORIES
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_stage_cache(tmp_path_factory: pytest.TempPathFactory):
+    """Tests never read or fill the user's stage cache (~/.cache/depotbench/stages)."""
+    previous = os.environ.get("DEPOTBENCH_CACHE_DIR")
+    os.environ["DEPOTBENCH_CACHE_DIR"] = str(tmp_path_factory.mktemp("stage-cache"))
+    yield
+    if previous is None:
+        os.environ.pop("DEPOTBENCH_CACHE_DIR", None)
+    else:
+        os.environ["DEPOTBENCH_CACHE_DIR"] = previous

@@ -59,6 +59,8 @@ def check_refused(tmp: Path, capfd, case: Case) -> None:
     assert "Traceback" not in err
     needle = case.needle.replace("{tmp}", str(tmp))
     assert needle in lines[0], f"{needle!r} not in {lines[0]!r}"
+    if args[0] != "__argparse__":  # the line names the command (it once said "depotbench None")
+        assert lines[0].startswith(f"depotbench {args[0]}: "), lines[0]
     assert snapshot(tmp) == before, "the input changed"
     assert sorted(p.name for p in tmp.rglob("*")) == listing, "something was written"
 
@@ -663,7 +665,43 @@ def _command_cases() -> dict[str, Case]:
         ),
         "run-set-fast": Case(seq, (*run, "--set", "fast_threshold_min=30"), "fast_threshold_min"),
         "run-strategy": Case(seq, ("__argparse__", *run, "--strategy", "magic"), "--strategy"),
-        "run-detector": Case(seq, ("__argparse__", *run, "--detector", "yolo99"), "--detector"),
+        "run-detector": Case(seq, (*run, "--detector", "yolo99"), "unknown detector 'yolo99'"),
+        "run-detector-path-gt": Case(
+            seq, (*run, "--detector", "groundtruth:x.onnx"), "only onnx takes a model path"
+        ),
+        "run-onnx-missing": Case(seq, (*run, "--detector", "onnx:{tmp}/no.onnx"), "no.onnx does not exist"),
+        "run-onnx-empty-path": Case(seq, (*run, "--detector", "onnx:"), "empty model path"),
+        "run-onnx-not-a-model": Case(
+            lambda tmp: (seq(tmp), write("m.onnx", "not a model")(tmp)),
+            (*run, "--detector", "onnx:{tmp}/m.onnx"),
+            "m.onnx: not a usable ONNX model",
+        ),
+        "run-fault-unknown": Case(seq, (*run, "--fault", "gremlins=1"), "unknown fault 'gremlins'"),
+        "run-fault-range": Case(seq, (*run, "--fault", "miss=1.5"), "fault miss = 1.5 is out of range"),
+        "run-fault-nan": Case(seq, (*run, "--fault", "jitter=nan"), "fault jitter = nan is out of range"),
+        "run-fault-text": Case(seq, (*run, "--fault", "latency=soon"), "not a number"),
+        "run-fault-no-equals": Case(seq, (*run, "--fault", "miss"), "--fault 'miss': expected NAME=VALUE"),
+        "run-fault-confusion": Case(
+            seq, (*run, "--fault", "confusion=person->dog"), "not 'true class->reported class:probability'"
+        ),
+        "run-fault-confusion-sum": Case(
+            seq, (*run, "--fault", "confusion=person->dog:0.7;person->cat:0.6"), "sum to 1.3 > 1"
+        ),
+        "run-fault-without-detector": Case(
+            seq, (*run, "--detector", "none", "--fault", "miss=0.1"), "--fault needs a detector"
+        ),
+        "run-detector-set-gt": Case(
+            seq, (*run, "--detector-set", "confidence=0.5"), "only --detector onnx takes it"
+        ),
+        "run-detector-set-unknown": Case(
+            seq, (*run, "--detector", "onnx", "--detector-set", "anchors=3"), "unknown detector setting"
+        ),
+        "run-detector-set-range": Case(
+            seq, (*run, "--detector", "onnx", "--detector-set", "confidence=2"), "out of range [0, 1]"
+        ),
+        "run-class-prior": Case(
+            seq, (*run, "--class-prior", "pig=sometimes"), "choose one of dynamic, potential, static"
+        ),
         "run-exists": Case(
             lambda tmp: (seq(tmp), write("out/x", "x")(tmp)), run, "not written by depotbench"
         ),

@@ -101,17 +101,10 @@ def test_mask_blanks_dilated_dynamic_boxes_only():
     assert edge[35:, 55:].all() and edge.sum() == 13 * 9  # clipped at the image border
 
 
-class _FixedDetector:
-    name = "fixed"
-
-    def detect(self, index: int) -> tuple[Detection, ...]:
-        return (_person((8.0, 8.0, 24.0, 20.0)),)
-
-
 def test_a_masked_folder_is_a_readable_tum_sequence_with_the_boxes_blanked(tmp_path: Path):
     write_sequence(tmp_path / "seq", n=3, with_flow=False)
     sequence = Sequence.open(tmp_path / "seq")
-    frames = FrameSource(sequence, _FixedDetector(), MaskSettings())
+    frames = FrameSource(sequence, [(_person((8.0, 8.0, 24.0, 20.0)),)] * 3, MaskSettings())
     folder = frames.folder(tmp_path / "scratch")
     masked = Sequence.open(folder)
     assert len(masked) == 3 and not masked.is_generated

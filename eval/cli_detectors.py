@@ -1,0 +1,171 @@
+"""Command-line words for detectors: the --detector options, detect-eval, export-dataset."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from sim.errors import InputError
+from sim.files import dumps_json
+
+
+def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth") -> None:
+    p.add_argument(
+        "--detector",
+        default=default,
+        metavar="DETECTOR",
+        help="where boxes come from: groundtruth (true visible boxes), onnx (the shipped "
+        "YOLOX-nano), onnx:PATH (another YOLOX/YOLOv5/YOLOv8 ONNX model) or none "
+        f"(default: {default})",
+    )
+    p.add_argument(
+        "--detector-set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a detector setting: confidence, nms_iou, threads, layout, names (onnx); "
+        "min_visible_pixels (groundtruth)",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="inject a detector fault, e.g. --fault miss=0.3 --fault latency=2 (see README: "
+        "miss, miss_small, miss_occluded, miss_blurred, jitter, scale, false_positives, "
+        "confusion, latency, confidence_noise, drop, every, seed)",
+    )
+    p.add_argument(
+        "--class-prior",
+        action="append",
+        default=[],
+        metavar="CLASS=PRIOR",
+        help="map a detector class to dynamic, potential or static, e.g. --class-prior 'teddy bear=dynamic'",
+    )
+
+
+def pairs(items: list[str], flag: str) -> dict[str, str]:
+    """NAME=VALUE arguments as a dict (the last of a repeated name wins)."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise InputError(f"{flag} {item!r}: expected NAME=VALUE")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def detector_config(args: argparse.Namespace):
+    from detectors.config import DetectorConfigError, parse_detector
+
+    try:
+        return parse_detector(
+            args.detector,
+            pairs(args.detector_set, "--detector-set"),
+            pairs(args.fault, "--fault"),
+            pairs(args.class_prior, "--class-prior"),
+        )
+    except DetectorConfigError as exc:
+        raise InputError(f"--detector: {exc}") from None
+
+
+def add_detect_eval(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "detect-eval",
+        help="precision, recall and AP50 of a detector against the true boxes of generated sequences",
+    )
+    p.add_argument("sequences", nargs="+", type=Path, help="generated sequence folders")
+    add_detector_options(p, default="onnx")
+    p.add_argument(
+        "--min-pixels",
+        type=int,
+        default=1000,
+        help="objects with fewer visible pixels are ignored: found or missed, they do not count "
+        "(default 1000)",
+    )
+    p.add_argument("--json", type=Path, help="also write the full report here")
+    p.set_defaults(handler=_cmd_detect_eval)
+
+
+def _cmd_detect_eval(args: argparse.Namespace) -> int:
+    from detectors.config import DetectorKind
+    from eval.cache import StageCache
+    from eval.detection_eval import evaluate_detector, format_evaluation
+    from sim.output import check_target, write_text_atomic
+    from sim.sequence import Sequence
+
+    config = detector_config(args)
+    if config.kind is DetectorKind.NONE:
+        raise InputError("detect-eval needs a detector (not --detector none)")
+    if args.min_pixels < 1:
+        raise InputError(f"--min-pixels must be at least 1, got {args.min_pixels}")
+    if args.json is not None:
+        check_target(args.json, tuple(args.sequences))
+    sequences = [Sequence.open(root) for root in args.sequences]
+    for seq in sequences:
+        if not seq.is_generated:
+            raise InputError(f"{seq.root}: detect-eval needs generated sequences (true boxes)")
+    report = evaluate_detector(
+        sequences, config, StageCache.from_env(), progress=True, min_visible_pixels=args.min_pixels
+    )
+    print(
+        f"detector {config.label} on {len(sequences)} sequence(s), IoU >= 0.5, "
+        f"objects >= {args.min_pixels} px"
+    )
+    print(format_evaluation(report))
+    if args.json is not None:
+        write_text_atomic(args.json, dumps_json(report) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def add_export_dataset(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "export-dataset",
+        help="generated sequences as a YOLO and COCO training set, split by sequence",
+    )
+    p.add_argument("sequences", nargs="+", type=Path, help="generated sequence folders")
+    p.add_argument("-o", "--output", type=Path, required=True, help="the dataset folder")
+    p.add_argument("--val-fraction", type=float, default=0.2, help="share of sequences for validation (0.2)")
+    p.add_argument(
+        "--val", nargs="+", default=[], metavar="NAME", help="these sequences are the validation set"
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the sequence split (0)")
+    p.add_argument("--every", type=int, default=1, help="take every n-th frame (1)")
+    p.add_argument("--min-pixels", type=int, default=100, help="objects with fewer visible pixels get no box")
+    p.add_argument("--names", type=Path, help="class names in id order, one a line (e.g. COCO's)")
+    p.add_argument("--overwrite", action="store_true", help="replace a dataset depotbench wrote")
+    p.set_defaults(handler=_cmd_export_dataset)
+
+
+def _cmd_export_dataset(args: argparse.Namespace) -> int:
+    from eval.dataset import ExportOptions, export_dataset
+    from sim.files import read_text
+
+    if not 0.0 <= args.val_fraction < 1.0:
+        raise InputError(f"--val-fraction must lie in [0, 1), got {args.val_fraction}")
+    if args.every < 1:
+        raise InputError(f"--every must be at least 1, got {args.every}")
+    if args.min_pixels < 1:
+        raise InputError(f"--min-pixels must be at least 1, got {args.min_pixels}")
+    names: tuple[str, ...] = ()
+    if args.names is not None:
+        names = tuple(
+            line.strip()
+            for line in read_text(args.names, 1 << 20, "class names").splitlines()
+            if line.strip()
+        )
+        if not names or len(set(names)) != len(names):
+            raise InputError(f"{args.names}: needs distinct class names, one a line")
+    options = ExportOptions(args.val_fraction, args.seed, tuple(args.val), args.every, args.min_pixels, names)
+    summary = export_dataset(args.sequences, args.output, options, overwrite=args.overwrite)
+    c = summary["counts"]
+    print(
+        f"exported {c['train']['images']} train and {c['val']['images']} val images "
+        f"({c['train']['boxes']} / {c['val']['boxes']} boxes, {len(summary['classes'])} classes) "
+        f"to {args.output}"
+    )
+    if summary["skipped_classes"]:
+        skipped = ", ".join(f"{k} ({v})" for k, v in sorted(summary["skipped_classes"].items()))
+        print(f"boxes of classes not in --names were left out: {skipped}")
+    return 0

@@ -1,0 +1,173 @@
+"""A sequence's detections, computed once per (sequence, detector) and cached.
+
+The detector itself (ground truth or a network) runs once per sequence and
+detector configuration; its boxes and per-frame latency are cached on disk
+(``eval.cache``) keyed by a fingerprint of the sequence's files and the
+detector's content key. Faults are applied on top, after the cache: they are
+cheap and seeded, so changing a fault setting never re-runs a network.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from detectors.base import DetectorFrame
+from detectors.config import DetectorConfig, DetectorKind
+from detectors.detection import Detection, Prior
+from detectors.faults import Difficulty, inject
+from detectors.groundtruth import GroundTruthDetector
+from eval.cache import StageCache, content_hash
+from sim.errors import InputError
+from sim.sequence import Sequence
+
+CACHE_STAGE = "detections"
+CACHE_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class SequenceDetections:
+    per_frame: tuple[tuple[Detection, ...], ...]
+    latency_ms: np.ndarray
+    """The detector's own time per frame, as measured when it ran (faults add none)."""
+    from_cache: bool
+
+
+def sequence_fingerprint(sequence: Sequence) -> str:
+    """What a sequence's detections depend on: its generator key, lists and image files.
+
+    File sizes and modification times stand for the images' bytes, so editing or
+    replacing a frame invalidates what was cached for it.
+    """
+    root = sequence.root
+    parts: list[object] = []
+    for name in ("associations.txt", "rgb.txt", "meta.json", "camera.yaml", "gt/objects.jsonl"):
+        path = root / name
+        if path.is_file():
+            st = path.stat()
+            parts.append((name, st.st_size, st.st_mtime_ns))
+    for frame in sequence.frames:
+        st = frame.rgb_path.stat()
+        parts.append((st.st_size, st.st_mtime_ns))
+    return content_hash(*parts)
+
+
+def build_detector(config: DetectorConfig, sequence: Sequence):
+    if config.kind is DetectorKind.GROUNDTRUTH:
+        return GroundTruthDetector(sequence, config.min_visible_pixels, config.priors)
+    if config.kind is DetectorKind.ONNX:
+        from detectors.onnx import OnnxDetector, OnnxModelError
+
+        path = config.model_path
+        if not path.is_file():
+            raise InputError(f"--detector onnx: model file {path} does not exist")
+        try:
+            return OnnxDetector(path, config.onnx, config.priors)
+        except OnnxModelError as exc:
+            raise InputError(str(exc)) from None
+    raise ValueError(f"no detector for {config.kind}")
+
+
+def detect_sequence(
+    sequence: Sequence,
+    config: DetectorConfig,
+    cache: StageCache | None = None,
+    progress: bool = False,
+) -> SequenceDetections | None:
+    """Every frame's detections (None for ``--detector none``), faults applied."""
+    if config.kind is DetectorKind.NONE:
+        return None
+    base = config.base()
+    if config.kind is DetectorKind.ONNX and not config.model_path.is_file():
+        raise InputError(f"--detector onnx: model file {config.model_path} does not exist")
+    # The ground-truth detector is cheap and refuses a sequence it cannot serve, so it is
+    # built first; a network is loaded only when the cache does not have its boxes.
+    detector = build_detector(base, sequence) if config.kind is DetectorKind.GROUNDTRUTH else None
+    key = content_hash(CACHE_FORMAT, sequence_fingerprint(sequence), base.key(), base.priors.overrides)
+    raw = _load(cache.get(CACHE_STAGE, key)) if cache is not None else None
+    from_cache = raw is not None
+    if raw is None:
+        detector = detector or build_detector(base, sequence)
+        raw = _run(detector, sequence, progress)
+        if cache is not None:
+            cache.put(CACHE_STAGE, key, _dump(*raw))
+    per_frame, latency = raw
+    if config.faults.active:
+        difficulties = None
+        if isinstance(detector, GroundTruthDetector) and _needs_difficulty(config):
+            difficulties = [detector.difficulties(i) for i in range(len(sequence))]
+        k = sequence.intrinsics
+        per_frame = inject(
+            list(per_frame),
+            config.faults,
+            (k.width, k.height),
+            config.priors,
+            sequence_seed=_sequence_seed(sequence),
+            difficulties=difficulties,
+        )
+    return SequenceDetections(tuple(per_frame), latency, from_cache)
+
+
+def _needs_difficulty(config: DetectorConfig) -> bool:
+    f = config.faults
+    return bool(f.miss_small or f.miss_occluded or f.miss_blurred)
+
+
+def _sequence_seed(sequence: Sequence) -> int:
+    seed = (sequence.meta or {}).get("seed", 0) if sequence.is_generated else 0
+    return int(seed) if isinstance(seed, int) and seed >= 0 else 0
+
+
+def _run(detector, sequence: Sequence, progress: bool) -> tuple[list[tuple[Detection, ...]], np.ndarray]:
+    needs_image = not isinstance(detector, GroundTruthDetector)
+    empty = np.zeros((0, 0, 3), np.uint8)
+    per_frame, latency = [], []
+    bar = tqdm(
+        range(len(sequence)),
+        desc=f"detect {detector.name}",
+        unit="frame",
+        disable=None if progress else True,
+        leave=False,
+    )
+    with bar:
+        for i in bar:
+            frame = DetectorFrame(
+                i, sequence.frames[i].timestamp_s, sequence.rgb(i) if needs_image else empty
+            )
+            started = time.perf_counter()
+            per_frame.append(detector.detect(frame))
+            latency.append((time.perf_counter() - started) * 1e3)
+    return per_frame, np.array(latency)
+
+
+def _dump(per_frame: list[tuple[Detection, ...]], latency: np.ndarray) -> bytes:
+    frames = [
+        [[*d.box_xyxy, d.class_name, d.prior.value, d.confidence] for d in boxes] for boxes in per_frame
+    ]
+    return json.dumps({"frames": frames, "latency_ms": latency.tolist()}).encode("utf-8")
+
+
+def _load(data: bytes | None) -> tuple[list[tuple[Detection, ...]], np.ndarray] | None:
+    if data is None:
+        return None
+    try:
+        doc = json.loads(data)
+        per_frame = [
+            tuple(
+                Detection((x0, y0, x1, y1), name, Prior(prior), conf)
+                for x0, y0, x1, y1, name, prior, conf in f
+            )
+            for f in doc["frames"]
+        ]
+        return per_frame, np.array(doc["latency_ms"], float)
+    except (ValueError, KeyError, TypeError):
+        return None  # a damaged entry is recomputed, and overwritten
+
+
+def difficulties_of(sequence: Sequence, min_visible_pixels: int = 20) -> list[tuple[Difficulty, ...]]:
+    detector = GroundTruthDetector(sequence, min_visible_pixels)
+    return [detector.difficulties(i) for i in range(len(sequence))]
