@@ -23,7 +23,7 @@ import numpy as np
 from detectors.base import DetectorFrame
 from detectors.config import OnnxSettings
 from detectors.detection import Detection
-from detectors.priors import DEFAULT_PRIORS, PriorTable
+from detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
 
 COCO_NAMES = Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "coco.names"
 STRIDES = (8, 16, 32)
@@ -160,7 +160,7 @@ class OnnxDetector:
             if not all(isinstance(d, int) for d in shape):
                 shape = self._run(np.zeros((1, 3, *self.size_hw), np.float32)).shape
             self.layout = recognise_layout(tuple(shape), self.size_hw)
-        self.names = self._class_names(model)
+        self.names = [bench_name(n) for n in self._class_names(model)]
         self.last_ms = 0.0
 
     def _class_names(self, model: Path) -> list[str]:

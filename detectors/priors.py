@@ -1,6 +1,8 @@
 """Class priors of method 1: which classes move (dynamic) and which may (potential).
 
-A detector's class names reach SLAM through a ``PriorTable``. The default table
+A detector's class names reach SLAM through a ``PriorTable``, after
+``CLASS_ALIASES`` turned a model's spellings into the bench's ('tvmonitor' is
+'tv'; COCO's 'dining table' is the bench's 'desk'). The default table
 knows COCO's names and the bench's own; ``--class-prior NAME=PRIOR`` changes a
 row. COCO has no pig: YOLOX-nano calls the bench's pigs dog, sheep or person
 (dynamic here, so they are still rejected) or teddy bear (static by default).
@@ -40,6 +42,24 @@ POTENTIAL_CLASSES = frozenset(
         "umbrella",
     }
 )
+
+
+CLASS_ALIASES = {
+    # Darknet's spellings of COCO classes (the shipped coco.names uses them) ...
+    "tvmonitor": "tv",
+    "motorbike": "motorcycle",
+    "aeroplane": "airplane",
+    "sofa": "couch",
+    "pottedplant": "potted plant",
+    # ... and COCO's nearest class to the bench's own: its desks are tables.
+    "diningtable": "desk",
+    "dining table": "desk",
+}
+"""A detector's class name as the bench names it (applied to ONNX models' names)."""
+
+
+def bench_name(class_name: str) -> str:
+    return CLASS_ALIASES.get(class_name, class_name)
 
 
 def prior_of(class_name: str) -> Prior:

@@ -248,6 +248,16 @@ def test_yolov8_channels_first_without_objectness_with_names_from_metadata(tmp_p
     assert pig.box_xyxy == pytest.approx((22.0, 27.0, 42.0, 37.0))
 
 
+def test_darknet_spellings_become_the_bench_class_names(tmp_path: Path):
+    """The shipped coco.names says 'tvmonitor' and 'diningtable': without the aliases a
+    detected screen or desk was a static unknown class and never matched the truth."""
+    out = np.zeros((1, 6, 84), np.float32)
+    model = _constant_model(tmp_path / "v8.onnx", out, names="{0: 'tvmonitor', 1: 'diningtable'}")
+    detector = OnnxDetector(model)
+    assert detector.names == ["tv", "desk"]
+    assert [DEFAULT_PRIORS.prior(n) for n in detector.names] == [Prior.POTENTIAL, Prior.POTENTIAL]
+
+
 def test_unknown_layouts_are_refused_by_name():
     assert recognise_layout((1, 3549, 85), (416, 416)) == "yolox"
     assert recognise_layout((1, 84, 8400), (640, 640)) == "yolov8"
