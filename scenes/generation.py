@@ -32,7 +32,7 @@ from sim.output import (
     read_marker,
     write_text_atomic,
 )
-from sim.processes import exit_with_parent
+from sim.processes import children_ignore_sigint, exit_with_parent
 from sim.spec import content_key
 
 INDEX_NAME = "index.json"
@@ -92,7 +92,9 @@ def _generate_all(pending: list[tuple[str, Scenario]], out_dir: Path, workers: i
         while queue or running:
             while queue and len(running) < workers:
                 name, sc = queue.pop(0)
-                running[pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))] = sc
+                with children_ignore_sigint():  # the first submit spawns the workers
+                    future = pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))
+                running[future] = sc
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
                 sc = running.pop(future)

@@ -716,6 +716,61 @@ def _command_cases() -> dict[str, Case]:
             run,
             "needs a generated sequence",
         ),
+        "detect-eval-real-tum": Case(
+            lambda tmp: (
+                seq(tmp),
+                (tmp / "seq" / "meta.json").unlink(),
+                (tmp / "seq" / "groundtruth.txt").unlink(),
+            ),
+            ("detect-eval", "{tmp}/seq", "--detector", "groundtruth"),
+            "needs generated sequences",
+        ),
+        "detect-eval-none": Case(seq, ("detect-eval", "{tmp}/seq", "--detector", "none"), "needs a detector"),
+        "detect-eval-min-pixels": Case(
+            seq, ("detect-eval", "{tmp}/seq", "--min-pixels", "0"), "--min-pixels must be at least 1"
+        ),
+        "detect-eval-json-onto-input": Case(
+            seq,
+            ("detect-eval", "{tmp}/seq", "--detector", "groundtruth", "--json", "{tmp}/seq"),
+            "is the input",
+        ),
+        "detect-eval-missing": Case(nothing, ("detect-eval", "{tmp}/nope"), "nope"),
+        "export-onto-input": Case(seq, ("export-dataset", "{tmp}/seq", "-o", "{tmp}/seq"), "is the input"),
+        "export-into-existing": Case(
+            lambda tmp: (seq(tmp), write("ds/x", "x")(tmp)),
+            ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds"),
+            "not written by depotbench",
+        ),
+        "export-val-fraction": Case(
+            seq, ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds", "--val-fraction", "1.5"), "--val-fraction"
+        ),
+        "export-every": Case(
+            seq,
+            ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds", "--every", "0"),
+            "--every must be at least 1",
+        ),
+        "export-val-unknown": Case(
+            seq, ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds", "--val", "other"), "--val other: not among"
+        ),
+        "export-same-name": Case(
+            lambda tmp: (seq(tmp), write_sequence(tmp / "b" / "seq", n=3, with_flow=False)),
+            ("export-dataset", "{tmp}/seq", "{tmp}/b/seq", "-o", "{tmp}/ds"),
+            "two sequences are named 'seq'",
+        ),
+        "export-names-empty": Case(
+            lambda tmp: (seq(tmp), write("names.txt", "\n\n")(tmp)),
+            ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds", "--names", "{tmp}/names.txt"),
+            "needs distinct class names",
+        ),
+        "export-real-tum": Case(
+            lambda tmp: (
+                seq(tmp),
+                (tmp / "seq" / "meta.json").unlink(),
+                (tmp / "seq" / "groundtruth.txt").unlink(),
+            ),
+            ("export-dataset", "{tmp}/seq", "-o", "{tmp}/ds"),
+            "export needs generated sequences",
+        ),
         "preview-range": Case(
             seq, ("preview", "{tmp}/seq", "--frames", "9", "-o", "{tmp}/p.png"), "frame 9 is out of range"
         ),

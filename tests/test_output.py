@@ -416,10 +416,17 @@ def test_suite_expansion_is_counted_before_it_is_built(tmp_path: Path, capsys):
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("how", ["ctrl-c", "sigterm"])
-def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(tmp_path: Path, how: str):
+@pytest.mark.parametrize(
+    ("how", "settle_s"),
+    [("ctrl-c", 1.0), ("sigterm", 1.0), ("ctrl-c", 0.0)],
+    ids=["ctrl-c", "sigterm", "ctrl-c-at-start"],
+)
+def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(
+    tmp_path: Path, how: str, settle_s: float
+):
     """Ctrl-C reaches the whole process group; SIGTERM (``timeout``, a cancelled CI job) the
-    parent alone. Either way the workers are stopped mid-sequence, not waited for."""
+    parent alone. Either way the workers are stopped mid-sequence, not waited for. At start,
+    a worker still importing once printed its own KeyboardInterrupt traceback."""
     suite = tmp_path / "s.yaml"
     suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 900}\nseeds: [1, 2, 3, 4]\n")
     token = f"depotbench-test-{os.getpid()}-{time.time_ns()}"
@@ -436,7 +443,7 @@ def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(tmp_path: 
     deadline = time.time() + 60
     while time.time() < deadline and len(processes_with(token, exclude=proc.pid)) < 2:
         time.sleep(0.1)  # wait for the workers to start
-    time.sleep(1.0)  # and to be well into their first sequences (each takes tens of seconds)
+    time.sleep(settle_s)  # and to be well into their first sequences (each takes tens of seconds)
     signalled = time.perf_counter()
     if how == "ctrl-c":
         os.killpg(proc.pid, signal.SIGINT)
