@@ -23,6 +23,7 @@ from eval.cli_detectors import (
     detector_config,
     pairs,
 )
+from eval.cli_sweep import add_sweep
 from eval.comparison import Comparison, ComparisonOptions, compare
 from eval.metrics import DeltaUnit, Statistics
 from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
@@ -516,6 +517,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vocab(sub)
     add_detect_eval(sub)
     add_export_dataset(sub)
+    add_sweep(sub)
     return parser
 
 

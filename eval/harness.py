@@ -13,7 +13,7 @@ boxes blanked in RGB and depth before the frames reach them).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,65 @@ def slam_config(strategy: str, settings: dict[str, str], tracker: TrackerKind) -
         raise InputError(f"--set: {exc}") from None
 
 
+@dataclass(frozen=True)
+class RunJob:
+    """One run: a sequence through a detector and a tracker with a strategy and settings.
+
+    Everything here is parsed and typed; the CLI, the demo, sweeps and benchmarks
+    build these, and ``track`` / ``run_sequence`` execute them.
+    """
+
+    sequence: Path
+    strategy: str
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    settings: tuple[tuple[str, str], ...] = ()
+    """Threshold overrides by name (``--set``), sorted."""
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+
+@dataclass(frozen=True)
+class Tracked:
+    """What ``track`` returns: the metrics and the run they came from."""
+
+    metrics: dict[str, Any]
+    run: TrackerRun
+    header: str
+
+
+def _prepare(job: RunJob) -> tuple[Sequence, SlamConfig]:
+    """Open and check everything before any work: the sequence, settings, detector use."""
+    config = slam_config(job.strategy, dict(job.settings), job.tracker.kind)
+    sequence = Sequence.open(job.sequence)
+    if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
+        raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
+    if job.tracker.kind is TrackerKind.BUILTIN:
+        camera = camera_of(sequence)
+        try:
+            check_pyramid(config.tracking, camera.width, camera.height)
+        except ConfigError as exc:
+            raise InputError(f"--set: {exc}") from None
+    return sequence, config
+
+
+def _execute(
+    job: RunJob, sequence: Sequence, config: SlamConfig, cache: StageCache | None, progress: bool
+) -> Tracked:
+    mask = MaskSettings(config.rejection.box_dilation_px, config.rejection.min_confidence)
+    detections = detect_sequence(sequence, job.detector, cache, progress)
+    boxes = detections.per_frame if detections is not None else None
+    frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
+    run = make_tracker(job.tracker, config, progress).run(frames, progress)
+    metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
+    header = f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
+    return Tracked(metrics, run, header)
+
+
+def track(job: RunJob, cache: StageCache | None = None, progress: bool = False) -> Tracked:
+    """Run a job and return its metrics, writing nothing (sweeps keep rows, not folders)."""
+    sequence, config = _prepare(job)
+    return _execute(job, sequence, config, cache, progress)
+
+
 def run_sequence(
     sequence_dir: Path,
     out_dir: Path,
@@ -112,40 +171,28 @@ def run_sequence(
     ``detector`` defaults to the ground-truth boxes; ``cache`` holds detections
     between runs (``StageCache.from_env()`` is the default on the command line).
     """
-    tracker = tracker or TrackerConfig()
-    detector = detector or DetectorConfig()
-    config = slam_config(strategy, settings or {}, tracker.kind)
-    sequence = Sequence.open(sequence_dir)
-    if strategy == MASK and detector.kind is DetectorKind.NONE:
-        raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
-    if tracker.kind is TrackerKind.BUILTIN:
-        camera = camera_of(sequence)
-        try:
-            check_pyramid(config.tracking, camera.width, camera.height)
-        except ConfigError as exc:
-            raise InputError(f"--set: {exc}") from None
-    mask = MaskSettings(config.rejection.box_dilation_px, config.rejection.min_confidence)
+    job = RunJob(
+        Path(sequence_dir),
+        strategy,
+        detector or DetectorConfig(),
+        tuple(sorted((settings or {}).items())),
+        tracker or TrackerConfig(),
+    )
+    sequence, config = _prepare(job)
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
     with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
-        detections = detect_sequence(sequence, detector, cache, progress)
-        boxes = detections.per_frame if detections is not None else None
-        frames = FrameSource(sequence, boxes, mask if strategy == MASK else None)
-        run = make_tracker(tracker, config, progress).run(frames, progress)
-        metrics = _metrics(sequence, run, config, strategy, detector, detections, tracker)
+        tracked = _execute(job, sequence, config, cache, progress)
+        run = tracked.run
         estimate = run.trajectory()
         if estimate is not None:
-            write_tum(
-                output.path / "trajectory.txt",
-                estimate,
-                header=f"depotbench {tracker.kind.value}, strategy {strategy}, detector {detector.label}",
-            )
+            write_tum(output.path / "trajectory.txt", estimate, header=tracked.header)
         _write_frames(output.path / "frames.csv", run)
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
-        (output.path / "metrics.json").write_text(dumps_json(metrics) + "\n", encoding="utf-8")
+        (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
         output.commit()
-    return metrics
+    return tracked.metrics
 
 
 def _time_stats(values_ms: np.ndarray) -> dict[str, float | None]:

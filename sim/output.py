@@ -51,6 +51,7 @@ class OutputKind(StrEnum):
     SUITE = "suite"
     DEMO = "demo"
     DATASET = "dataset"
+    SWEEP = "sweep"
 
 
 class OutputError(InputError):

@@ -1,0 +1,92 @@
+"""One run's result as a typed, versioned row: what sweeps store and compare.
+
+``RunRecord.from_metrics`` is the one place that reads the harness's metrics
+dictionary for results; stores, exports and plots use these fields by name.
+Timing fields vary from run to run; ``DETERMINISTIC_FIELDS`` are the ones that
+must be equal when a job runs twice (the built-in tracker is deterministic).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+RECORD_VERSION = 1
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    key: str
+    """Content hash of the job (sequence files, tracker, detector, strategy, settings, versions)."""
+    family: str
+    """The scenario family (the generated scenario's name, or the folder name)."""
+    sequence: str
+    tracker: str
+    detector: str
+    strategy: str
+    settings: str
+    """The job's threshold overrides, as sorted JSON."""
+    frames: int
+    tracked_fraction: float
+    lost_frames: int
+    keyframes: int | None
+    ate_rmse_m: float | None
+    ate_mean_m: float | None
+    ate_max_m: float | None
+    rpe_translation_rmse_m: float | None
+    rpe_rotation_rmse_deg: float | None
+    rejection_precision: float | None
+    rejection_recall: float | None
+    moving_inliers: int | None
+    track_ms_mean: float | None
+    track_ms_median: float | None
+    detector_ms_mean: float | None
+    wall_time_s: float
+    bench_version: str
+    record_version: int = RECORD_VERSION
+
+    @classmethod
+    def from_metrics(
+        cls, key: str, family: str, settings: dict[str, Any], metrics: dict[str, Any], bench_version: str
+    ) -> RunRecord:
+        ate = metrics.get("ate_m") or {}
+        rpe_t = metrics.get("rpe_translation_m") or {}
+        rpe_r = metrics.get("rpe_rotation_deg") or {}
+        rejection = metrics.get("rejection") or {}
+        total = metrics["stage_time"]["tracking_total"]
+        detector_time = metrics.get("detector_time") or {}
+        return cls(
+            key=key,
+            family=family,
+            sequence=metrics["sequence"],
+            tracker=metrics["tracker"],
+            detector=metrics["detector"],
+            strategy=metrics["strategy"],
+            settings=json.dumps(settings, sort_keys=True),
+            frames=metrics["frames"],
+            tracked_fraction=metrics["tracked_frames"] / max(1, metrics["frames"]),
+            lost_frames=metrics["lost_frames"],
+            keyframes=metrics["keyframes"],
+            ate_rmse_m=ate.get("rmse"),
+            ate_mean_m=ate.get("mean"),
+            ate_max_m=ate.get("max"),
+            rpe_translation_rmse_m=rpe_t.get("rmse"),
+            rpe_rotation_rmse_deg=rpe_r.get("rmse"),
+            rejection_precision=rejection.get("precision"),
+            rejection_recall=rejection.get("recall"),
+            moving_inliers=rejection.get("moving_inliers"),
+            track_ms_mean=total.get("mean_ms"),
+            track_ms_median=total.get("median_ms"),
+            detector_ms_mean=detector_time.get("mean_ms"),
+            wall_time_s=metrics["wall_time_s"],
+            bench_version=bench_version,
+        )
+
+    def to_row(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+FIELDS = tuple(f.name for f in fields(RunRecord))
+TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s")
+DETERMINISTIC_FIELDS = tuple(f for f in FIELDS if f not in TIMING_FIELDS)

@@ -1,0 +1,214 @@
+"""Run a sweep: expand its spec into jobs, run the missing ones, keep rows in SQLite.
+
+The parent process owns the database and writes each finished job's row in one
+transaction; workers (spawned processes that ignore Ctrl-C and die with their
+parent) only compute. So a sweep killed at any moment keeps every finished row,
+and running it again does exactly the jobs that are missing.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import re
+import signal
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from detectors.config import DetectorConfig
+from eval.cache import StageCache, content_hash
+from eval.detections import sequence_fingerprint
+from eval.harness import RunJob, TrackerConfig, track
+from eval.record import RECORD_VERSION, RunRecord
+from eval.store import ResultStore
+from eval.sweep_spec import (
+    MAX_JOBS,
+    SweepSpec,
+    check_variants,
+    detector_configs,
+    resolve,
+    tracker_configs,
+    variants,
+)
+from eval.trackers.base import TrackerKind
+from scenes.schema import SpecError
+from sim.errors import InputError
+from sim.processes import children_ignore_sigint, exit_with_parent
+from sim.sequence import Sequence
+from sim.version import generator_version
+
+DATABASE = "results.sqlite"
+
+
+@dataclass(frozen=True)
+class SweepJob:
+    key: str
+    family: str
+    job: RunJob
+
+
+def _family(sequence: Sequence) -> str:
+    """A sequence's scenario name (a suite variation's number dropped), or its folder's name."""
+    scenario = (sequence.meta or {}).get("scenario") or {}
+    name = scenario.get("name") if isinstance(scenario, dict) else None
+    return re.sub(r"-\d{4}$", "", str(name)) if name else sequence.root.name
+
+
+def job_key(
+    fingerprint: str, tracker: TrackerConfig, detector: DetectorConfig, strategy: str, settings
+) -> str:
+    return content_hash(
+        RECORD_VERSION,
+        generator_version(),
+        fingerprint,
+        tracker.kind.value,
+        detector.key(),
+        detector.faults.to_dict(),
+        strategy,
+        list(settings),
+    )
+
+
+def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) -> list[SweepJob]:
+    """Every job of the sweep, in a stable order."""
+    source = str(spec_path)
+    trackers = tracker_configs(spec, source)
+    detectors = detector_configs(spec, source)
+    found = variants(spec)
+    check_variants(spec, found, trackers, source)
+    total = len(sequences) * len(trackers) * len(detectors) * len(found)
+    if total > MAX_JOBS:
+        raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
+    jobs = []
+    for root, family in sequences:
+        fingerprint = sequence_fingerprint(Sequence.open(root))
+        for tracker in trackers:
+            for detector in detectors:
+                for v in found:
+                    if tracker.kind is not TrackerKind.BUILTIN and v.strategy not in ("none", "mask"):
+                        continue
+                    key = job_key(fingerprint, tracker, detector, v.strategy, v.settings)
+                    jobs.append(
+                        SweepJob(key, family, RunJob(root, v.strategy, detector, v.settings, tracker))
+                    )
+    return jobs
+
+
+def sequences_of(
+    spec: SweepSpec, spec_path: Path, out: Path, workers: int, progress: bool
+) -> list[tuple[Path, str]]:
+    """The spec's sequence folders and their families, its suite generated (and resumed)
+    under OUT/sequences. A suite's family is its name with the knobs other than the seed,
+    so seeds of one setting are averaged together."""
+    roots = []
+    for i, name in enumerate(spec.sequences):
+        root = resolve(spec, spec_path, name)
+        if not root.is_dir():
+            raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
+        roots.append((root, _family(Sequence.open(root))))
+    if spec.suite is not None:
+        from scenes.generation import run_suite
+        from scenes.suite import load_suite
+
+        suite_path = resolve(spec, spec_path, spec.suite)
+        if not suite_path.is_file():
+            raise InputError(f"{spec_path}: suite: {suite_path} is not a file")
+        index = run_suite(load_suite(suite_path), suite_path, out / "sequences", workers, progress=progress)
+        for entry in index["sequences"]:
+            knobs = " ".join(f"{k}={v}" for k, v in sorted(entry["knobs"].items()) if k != "seed")
+            roots.append((out / "sequences" / entry["name"], f"{index['suite']} {knobs}".strip()))
+    return roots
+
+
+def _init_worker(parent_pid: int) -> None:
+    os.environ["OMP_NUM_THREADS"] = "1"
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent_pid)
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def run_job(job: SweepJob, bench_version: str) -> RunRecord:
+    """Worker entry point: track, and make the row."""
+    tracked = track(job.job, StageCache.from_env())
+    settings = dict(job.job.settings)
+    return RunRecord.from_metrics(job.key, job.family, settings, tracked.metrics, bench_version)
+
+
+def run_jobs(
+    jobs: list[SweepJob],
+    store: ResultStore,
+    workers: int,
+    progress: bool = True,
+    on_row: Callable[[RunRecord], None] | None = None,
+) -> int:
+    """Run the jobs whose rows are missing; returns how many ran."""
+    done = store.keys()
+    pending = [j for j in jobs if j.key not in done]
+    version = generator_version()
+    bar = tqdm(
+        total=len(jobs),
+        initial=len(jobs) - len(pending),
+        desc="sweep",
+        unit="run",
+        disable=None if progress else True,
+        smoothing=0.1,
+    )
+    with bar:
+        if workers <= 1:
+            for job in pending:
+                record = run_job(job, version)
+                store.add(record)
+                bar.update()
+                if on_row:
+                    on_row(record)
+            return len(pending)
+        pool = ProcessPoolExecutor(
+            workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
+        )
+        try:
+            running: dict[Future, SweepJob] = {}
+            queue = list(pending)
+            while queue or running:
+                while queue and len(running) < 2 * workers:
+                    job = queue.pop(0)
+                    with children_ignore_sigint():
+                        running[pool.submit(run_job, job, version)] = job
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    running.pop(future)
+                    record = future.result()
+                    store.add(record)
+                    bar.update()
+                    if on_row:
+                        on_row(record)
+        except BaseException:
+            for process in list(getattr(pool, "_processes", {}).values()):
+                process.kill()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
+    return len(pending)
+
+
+def open_store(out: Path, spec: SweepSpec) -> ResultStore:
+    out.mkdir(parents=True, exist_ok=True)
+    store = ResultStore(out / DATABASE)
+    text = spec.model_dump_json()
+    previous = store.meta("spec")
+    if previous is None:
+        store.set_meta("spec", text)
+    elif previous != text:
+        store.set_meta("spec", text)  # rows are keyed by content: old ones stay valid, new ones add
+    store.set_meta("bench_version", generator_version())
+    return store
+
+
+def summary_json(rows: list[dict]) -> str:
+    return json.dumps(rows, indent=2, sort_keys=True)

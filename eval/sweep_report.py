@@ -1,0 +1,184 @@
+"""What a sweep shows: rho per run, the best configuration per family, the
+accuracy/time Pareto set, and curves of ATE and rejection precision/recall
+against each swept threshold.
+
+A configuration is (tracker, detector, strategy, settings); its score in a
+family is the mean over the family's sequences. rho compares each run with the
+``none`` run of the same sequence, tracker and detector.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eval.metrics import improvement_rate
+
+
+def with_rho(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    baseline = {
+        (r["sequence"], r["tracker"], r["detector"]): r["ate_rmse_m"]
+        for r in rows
+        if r["strategy"] == "none" and r["settings"] == "{}"
+    }
+    out = []
+    for r in rows:
+        base = baseline.get((r["sequence"], r["tracker"], r["detector"]))
+        rho = None
+        if base is not None and r["ate_rmse_m"] is not None and base > 0:
+            rho = improvement_rate(base, r["ate_rmse_m"])
+        out.append({**r, "rho_percent": rho})
+    return out
+
+
+def _mean(values: list[float | None]) -> float | None:
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+
+
+def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per family and configuration: means over its sequences."""
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in with_rho(rows):
+        groups[(r["family"], r["tracker"], r["detector"], r["strategy"], r["settings"])].append(r)
+    out = []
+    for (family, tracker, detector, strategy, settings), members in sorted(groups.items()):
+        out.append(
+            {
+                "family": family,
+                "tracker": tracker,
+                "detector": detector,
+                "strategy": strategy,
+                "settings": json.loads(settings),
+                "sequences": len(members),
+                "ate_rmse_m": _mean([m["ate_rmse_m"] for m in members]),
+                "rho_percent": _mean([m["rho_percent"] for m in members]),
+                "rejection_precision": _mean([m["rejection_precision"] for m in members]),
+                "rejection_recall": _mean([m["rejection_recall"] for m in members]),
+                "tracked_fraction": _mean([m["tracked_fraction"] for m in members]),
+                "track_ms_median": _mean([m["track_ms_median"] for m in members]),
+            }
+        )
+    return out
+
+
+def best_per_family(configs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    best: dict[str, dict[str, Any]] = {}
+    for c in configs:
+        if c["ate_rmse_m"] is None:
+            continue
+        current = best.get(c["family"])
+        if current is None or c["ate_rmse_m"] < current["ate_rmse_m"]:
+            best[c["family"]] = c
+    return best
+
+
+def pareto(configs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per family, the configurations no other beats on both mean ATE and tracking time."""
+    out = []
+    by_family: dict[str, list[dict]] = defaultdict(list)
+    for c in configs:
+        if c["ate_rmse_m"] is not None and c["track_ms_median"] is not None:
+            by_family[c["family"]].append(c)
+    for members in by_family.values():
+        for c in members:
+            dominated = any(
+                o["ate_rmse_m"] <= c["ate_rmse_m"]
+                and o["track_ms_median"] <= c["track_ms_median"]
+                and (o["ate_rmse_m"] < c["ate_rmse_m"] or o["track_ms_median"] < c["track_ms_median"])
+                for o in members
+            )
+            if not dominated:
+                out.append(c)
+    return sorted(out, key=lambda c: (c["family"], c["ate_rmse_m"]))
+
+
+def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
+    """Curves per swept threshold and the Pareto picture; [] without matplotlib (extra [viz])."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return []
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    swept: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for c in configs:
+        for name in c["settings"]:
+            swept[(c["strategy"], name)].append(c)
+    for (strategy, name), members in sorted(swept.items()):
+        fig, (ax_ate, ax_rej) = plt.subplots(1, 2, figsize=(10, 3.8))
+        for family in sorted({m["family"] for m in members}):
+            for detector in sorted({m["detector"] for m in members}):
+                pts = sorted(
+                    (float(m["settings"][name]), m)
+                    for m in members
+                    if m["family"] == family and m["detector"] == detector
+                )
+                if not pts:
+                    continue
+                xs = [x for x, _ in pts]
+                label = f"{family} / {detector}"
+                ax_ate.plot(xs, [m["ate_rmse_m"] for _, m in pts], "o-", label=label)
+                ax_rej.plot(xs, [m["rejection_precision"] for _, m in pts], "o-", label=f"{label} precision")
+                ax_rej.plot(xs, [m["rejection_recall"] for _, m in pts], "s--", label=f"{label} recall")
+        ax_ate.set(xlabel=name, ylabel="mean ATE RMSE (m)", title=f"{strategy}: ATE against {name}")
+        ax_rej.set(xlabel=name, ylabel="rejection", ylim=(0, 1.05), title="precision / recall")
+        ax_ate.legend(fontsize=7)
+        ax_rej.legend(fontsize=6)
+        fig.tight_layout()
+        path = out / f"{strategy}-{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    front = pareto(configs)
+    usable = [c for c in configs if c["ate_rmse_m"] is not None and c["track_ms_median"] is not None]
+    if usable:
+        fig, ax = plt.subplots(figsize=(6, 4.5))
+        ax.scatter(
+            [c["track_ms_median"] for c in usable],
+            [c["ate_rmse_m"] for c in usable],
+            s=12,
+            c="0.6",
+            label="all",
+        )
+        ax.scatter(
+            [c["track_ms_median"] for c in front],
+            [c["ate_rmse_m"] for c in front],
+            s=30,
+            c="C3",
+            label="Pareto",
+        )
+        positive = all(c["ate_rmse_m"] > 0 for c in usable)
+        ax.set(
+            xlabel="median tracking ms per frame",
+            ylabel="mean ATE RMSE (m)",
+            yscale="log" if positive else "linear",
+        )
+        ax.set_title("accuracy against time, per configuration and family")
+        ax.legend()
+        fig.tight_layout()
+        path = out / "pareto.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def format_best(best: dict[str, dict[str, Any]]) -> str:
+    lines = [f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"]
+    for family, c in sorted(best.items()):
+        settings = ",".join(f"{k}={v}" for k, v in c["settings"].items())
+        name = f"{c['strategy']} {settings} ({c['detector']})"
+        rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
+        prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
+        rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"
+        lines.append(f"{family:24s}{name[:51]:52s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}")
+    return "\n".join(lines)

@@ -1,0 +1,219 @@
+"""Sweep specs: what to run, and which threshold values, as validated YAML.
+
+```yaml
+sweep: epsilon
+description: How far from its epipolar line a point may be.
+suite: walking.yaml          # a suite file (relative to this file), generated into OUT/sequences
+sequences: [runs/walk]       # and/or sequence folders
+trackers: [builtin]
+detectors:
+  - groundtruth
+  - {detector: groundtruth, faults: {miss: 0.3, latency: 2}}
+strategies: [none, box_epipolar_flow]
+thresholds:
+  box_epipolar_flow:
+    epsilon_px: {grid: [0.5, 1.0, 2.0]}
+    l_thr1_px: {range: [0.5, 2.0, 0.5]}            # start, stop (inclusive), step
+  prior_flow:
+    k: {random: {low: 1.0, high: 4.0, samples: 8, seed: 0}}
+```
+
+Each strategy's thresholds form a grid (their cross product); ``none`` always
+runs too, as every rho's baseline. Values are checked against the SLAM
+configuration before anything runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field, ValidationError, model_validator
+
+from detectors.config import DetectorConfig, DetectorConfigError, parse_detector
+from eval.harness import STRATEGY_CHOICES, TrackerConfig, slam_config
+from eval.trackers.base import TrackerKind
+from scenes.schema import SpecError, Strict, format_validation_error, read_yaml
+from sim.errors import InputError
+
+MAX_JOBS = 100_000
+
+
+class Grid(Strict):
+    grid: list[float] = Field(min_length=1, max_length=10_000)
+
+
+class Range(Strict):
+    range: tuple[float, float, float]
+
+    @model_validator(mode="after")
+    def _steps(self) -> Range:
+        start, stop, step = self.range
+        if not all(math.isfinite(v) for v in self.range) or step <= 0 or stop < start:
+            raise ValueError("range is [start, stop, step] with start <= stop and step > 0")
+        if (stop - start) / step > 10_000:
+            raise ValueError("range has more than 10,000 values")
+        return self
+
+    def values(self) -> list[float]:
+        start, stop, step = self.range
+        count = int(math.floor((stop - start) / step + 1e-9)) + 1
+        return [round(start + i * step, 12) for i in range(count)]
+
+
+class RandomDraw(Strict):
+    low: float
+    high: float
+    samples: int = Field(ge=1, le=10_000)
+    seed: int = Field(default=0, ge=0)
+    log: bool = False
+
+    @model_validator(mode="after")
+    def _bounds(self) -> RandomDraw:
+        if not (math.isfinite(self.low) and math.isfinite(self.high)) or self.high <= self.low:
+            raise ValueError("random needs finite low < high")
+        if self.log and self.low <= 0:
+            raise ValueError("a log-uniform draw needs low > 0")
+        return self
+
+    def values(self) -> list[float]:
+        rng = np.random.default_rng(self.seed)
+        if self.log:
+            drawn = np.exp(rng.uniform(np.log(self.low), np.log(self.high), self.samples))
+        else:
+            drawn = rng.uniform(self.low, self.high, self.samples)
+        return [float(v) for v in drawn]
+
+
+class Random(Strict):
+    random: RandomDraw
+
+
+class DetectorEntry(Strict):
+    detector: str = "groundtruth"
+    settings: dict[str, str | float | int] = Field(default_factory=dict)
+    faults: dict[str, str | float | int] = Field(default_factory=dict)
+    class_priors: dict[str, str] = Field(default_factory=dict)
+
+
+class SweepSpec(Strict):
+    sweep: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    description: str = ""
+    suite: str | None = None
+    sequences: list[str] = Field(default_factory=list, max_length=10_000)
+    trackers: list[str] = Field(default_factory=lambda: ["builtin"], min_length=1)
+    detectors: list[str | DetectorEntry] = Field(default_factory=lambda: ["groundtruth"], min_length=1)
+    strategies: list[str] = Field(default_factory=lambda: ["none"], min_length=1)
+    thresholds: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _something_to_run(self) -> SweepSpec:
+        if self.suite is None and not self.sequences:
+            raise ValueError("give a suite or sequences")
+        unknown = [s for s in self.strategies if s not in STRATEGY_CHOICES]
+        if unknown:
+            raise ValueError(f"unknown strategy {unknown[0]!r}; choose from {', '.join(STRATEGY_CHOICES)}")
+        stray = sorted(set(self.thresholds) - set(self.strategies))
+        if stray:
+            raise ValueError(f"thresholds for {stray[0]!r}, which is not among the strategies")
+        return self
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One strategy with one set of threshold values."""
+
+    strategy: str
+    settings: tuple[tuple[str, str], ...]
+
+
+def _text(value: float) -> str:
+    """A value as ``--set`` takes it: integers without a point (integer fields refuse '2.0')."""
+    v = float(value)
+    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
+
+
+def variants(spec: SweepSpec) -> list[Variant]:
+    """Every (strategy, thresholds) to run; ``none`` first, always once."""
+    out = [Variant("none", ())]
+    for strategy in spec.strategies:
+        if strategy == "none":
+            continue
+        axes = spec.thresholds.get(strategy, {})
+        names = sorted(axes)
+        values = [_values(axes[n]) for n in names]
+        for combo in itertools.product(*values) if names else [()]:
+            out.append(Variant(strategy, tuple((n, _text(v)) for n, v in zip(names, combo, strict=True))))
+    return out
+
+
+def _values(axis: Grid | Range | Random) -> list[float]:
+    if isinstance(axis, Grid):
+        return list(axis.grid)
+    if isinstance(axis, Range):
+        return axis.values()
+    return axis.random.values()
+
+
+def detector_configs(spec: SweepSpec, source: str) -> list[DetectorConfig]:
+    configs = []
+    for i, entry in enumerate(spec.detectors):
+        e = DetectorEntry(detector=entry) if isinstance(entry, str) else entry
+        try:
+            configs.append(
+                parse_detector(
+                    e.detector,
+                    {k: str(v) for k, v in e.settings.items()},
+                    {k: str(v) for k, v in e.faults.items()},
+                    e.class_priors,
+                )
+            )
+        except DetectorConfigError as exc:
+            raise SpecError(f"{source}: detectors.{i}: {exc}") from None
+    return configs
+
+
+def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
+    out = []
+    for i, name in enumerate(spec.trackers):
+        try:
+            kind = TrackerKind(name)
+        except ValueError:
+            raise SpecError(f"{source}: trackers.{i}: {name!r} is not builtin or orbslam3") from None
+        if kind is TrackerKind.COMMAND:
+            raise SpecError(f"{source}: trackers.{i}: cmd trackers are not supported in sweeps yet")
+        out.append(TrackerConfig(kind))
+    return out
+
+
+def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[TrackerConfig], source: str) -> None:
+    """Every value against the SLAM configuration and the trackers, before anything runs."""
+    for variant in found:
+        for tracker in trackers:
+            if tracker.kind is not TrackerKind.BUILTIN and variant.strategy not in ("none", "mask"):
+                continue  # external trackers only take none and mask: those jobs are skipped
+            try:
+                slam_config(variant.strategy, dict(variant.settings), tracker.kind)
+            except InputError as exc:
+                raise SpecError(f"{source}: thresholds.{variant.strategy}: {exc}") from None
+
+
+def load_sweep(path: Path) -> SweepSpec:
+    data = read_yaml(path)
+    try:
+        return SweepSpec.model_validate(data)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(str(path), exc)) from None
+
+
+def resolve(spec: SweepSpec, path: Path, name: str) -> Path:
+    """A path of the spec, relative to the spec's folder."""
+    candidate = Path(name).expanduser()
+    return candidate if candidate.is_absolute() else path.parent / candidate
+
+
+def count_jobs(n_sequences: int, spec: SweepSpec) -> int:
+    return n_sequences * len(spec.trackers) * len(spec.detectors) * len(variants(spec))

@@ -1,0 +1,251 @@
+"""Sweeps: spec expansion and validation, the SQLite store, resuming, and SIGKILL safety."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.cli import main
+from eval.record import DETERMINISTIC_FIELDS
+from eval.store import ResultStore
+from eval.sweep_spec import SweepSpec, load_sweep, variants
+from scenes.schema import SpecError
+from tests.sequences import write_sequence
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _spec(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "sweep.yaml"
+    path.write_text(text)
+    return path
+
+
+def test_thresholds_expand_into_grids_ranges_and_seeded_draws(tmp_path: Path):
+    spec = load_sweep(
+        _spec(
+            tmp_path,
+            "sweep: s\nsequences: [x]\nstrategies: [none, prior_flow, box_epipolar_flow]\n"
+            "thresholds:\n"
+            "  prior_flow: {k: {random: {low: 1.0, high: 4.0, samples: 3, seed: 7}}}\n"
+            "  box_epipolar_flow:\n"
+            "    epsilon_px: {grid: [0.5, 2]}\n"
+            "    l_thr1_px: {range: [0.5, 1.5, 0.5]}\n",
+        )
+    )
+    found = variants(spec)
+    assert found[0].strategy == "none" and found[0].settings == ()
+    draws = np.random.default_rng(7).uniform(1.0, 4.0, 3)
+    assert [dict(v.settings)["k"] for v in found if v.strategy == "prior_flow"] == [
+        repr(float(d)) for d in draws
+    ]
+    epipolar = [dict(v.settings) for v in found if v.strategy == "box_epipolar_flow"]
+    assert epipolar == [
+        {"epsilon_px": e, "l_thr1_px": t} for e in ("0.5", "2") for t in ("0.5", "1", "1.5")
+    ]  # integers are written without a point: integer settings refuse "2.0"
+    assert variants(spec) == found  # seeded
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("sweep: s\nstrategies: [none]\n", "give a suite or sequences"),
+        ("sweep: s\nsequences: [x]\nstrategies: [magic]\n", "unknown strategy 'magic'"),
+        (
+            "sweep: s\nsequences: [x]\nthresholds: {prior_flow: {k: {grid: [2]}}}\n",
+            "not among the strategies",
+        ),
+        (
+            "sweep: s\nsequences: [x]\nstrategies: [prior_flow]\n"
+            "thresholds: {prior_flow: {k: {range: [3, 1, 1]}}}\n",
+            "start <= stop",
+        ),
+        (
+            "sweep: s\nsequences: [x]\nstrategies: [prior_flow]\nthresholds: {prior_flow: {k: {grid: []}}}\n",
+            "at least 1",
+        ),
+        ("sweep: 's/../x'\nsequences: [x]\n", "sweep"),
+        ("sweep: s\nsequences: [x]\nfrobnicate: 1\n", "frobnicate"),
+    ],
+)
+def test_bad_sweep_specs_are_refused_with_the_field(tmp_path: Path, text: str, needle: str):
+    with pytest.raises(SpecError, match=None) as info:
+        load_sweep(_spec(tmp_path, text))
+    assert needle in str(info.value) and "sweep.yaml" in str(info.value)
+
+
+def test_thresholds_are_checked_against_the_slam_configuration_before_anything_runs(tmp_path: Path, capsys):
+    write_sequence(tmp_path / "a", n=3, with_flow=False)
+    spec = _spec(
+        tmp_path,
+        f"sweep: s\nsequences: [{tmp_path / 'a'}]\nstrategies: [prior_flow]\n"
+        "thresholds: {prior_flow: {kk: {grid: [2]}}}\n",
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "out"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "thresholds.prior_flow" in err and "unknown setting 'kk'" in err
+    assert not (tmp_path / "out" / "results.sqlite").exists()
+
+
+SWEEP = """\
+sweep: kill
+sequences: [{a}, {b}]
+detectors: [groundtruth, {{detector: groundtruth, faults: {{miss: 0.5}}}}]
+strategies: [none, box_rule, prior_flow, box_epipolar_flow]
+thresholds:
+  prior_flow: {{k: {{grid: [1.5, 2.5, 3.5]}}}}
+  box_epipolar_flow: {{epsilon_px: {{grid: [0.5, 1.0]}}}}
+"""
+"""2 sequences x 2 detectors x (none, box_rule, 3 k, 2 epsilon) = 28 runs."""
+
+
+def _sweep_setup(tmp_path: Path) -> Path:
+    for name, seed in (("a", 0), ("b", 1)):
+        write_sequence(tmp_path / name, n=12, seed=seed, with_flow=False)
+    return _spec(tmp_path, SWEEP.format(a=tmp_path / "a", b=tmp_path / "b"))
+
+
+def _table(out: Path) -> list[dict]:
+    with ResultStore(out / "results.sqlite") as store:
+        return [{k: r[k] for k in DETERMINISTIC_FIELDS} for r in store.rows()]
+
+
+def _command(spec: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "eval.cli", "sweep", str(spec), "-o", str(out), "--workers", "2"]
+
+
+def test_a_sweep_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one(tmp_path: Path):
+    spec = _sweep_setup(tmp_path)
+    env = {**os.environ, "DEPOTBENCH_CACHE": "off"}
+    whole = subprocess.run(
+        _command(spec, tmp_path / "whole"), cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert whole.returncode == 0, whole.stderr
+    reference = _table(tmp_path / "whole")
+    assert len(reference) == 28
+    rng = np.random.default_rng(2026)
+    counts = []
+    for moment in rng.uniform(1.5, 6.0, 5):
+        proc = subprocess.Popen(
+            _command(spec, tmp_path / "killed"),
+            cwd=REPO,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        time.sleep(moment)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        database = tmp_path / "killed" / "results.sqlite"
+        counts.append(len(_table(tmp_path / "killed")) if database.exists() else 0)
+    print(f"rows after each of 5 SIGKILLs: {counts}")
+    resumed = subprocess.run(
+        _command(spec, tmp_path / "killed"), cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert _table(tmp_path / "killed") == reference  # row for row
+    assert counts == sorted(counts)  # no finished row was ever lost
+    # Every row is whole: SQLite's own check, and no NULL key.
+    with sqlite3.connect(tmp_path / "killed" / "results.sqlite") as db:
+        assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+
+
+def test_rerunning_a_finished_sweep_runs_nothing_and_exports_rho(tmp_path: Path, capsys):
+    spec = _sweep_setup(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0
+    assert "ran 28 runs" in capsys.readouterr().out
+    assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0
+    assert "ran 0 runs" in capsys.readouterr().out
+    header, *lines = (out / "results.csv").read_text().splitlines()
+    assert len(lines) == 28 and "rho_percent" in header.split(",")
+    assert {line.split(",")[1] for line in lines} == {"test"}  # the sequences' scenario family
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["configurations"]) == 14  # 2 detectors x 7 variants, averaged over 2 sequences
+
+
+def _config(family: str, strategy: str, ate: float, ms: float, k: str = "2") -> dict:
+    return {
+        "family": family,
+        "tracker": "builtin",
+        "detector": "groundtruth",
+        "strategy": strategy,
+        "settings": {"k": k},
+        "ate_rmse_m": ate,
+        "track_ms_median": ms,
+        "rho_percent": None,
+        "rejection_precision": None,
+        "rejection_recall": None,
+    }
+
+
+def test_best_and_pareto_on_a_closed_case():
+    from eval.sweep_report import best_per_family, pareto
+
+    configs = [
+        _config("a", "x", 0.010, 30.0, "1"),  # fastest
+        _config("a", "x", 0.005, 35.0, "2"),  # best ATE
+        _config("a", "x", 0.008, 40.0, "3"),  # dominated by the one above
+        _config("a", "x", 0.005, 36.0, "4"),  # as accurate, slower: dominated
+        _config("b", "y", 0.100, 20.0),
+    ]
+    assert best_per_family(configs)["a"]["settings"] == {"k": "2"}
+    assert best_per_family(configs)["b"]["strategy"] == "y"
+    front = pareto(configs)
+    assert [(c["family"], c["settings"]["k"]) for c in front] == [("a", "2"), ("a", "1"), ("b", "2")]
+
+
+def test_rho_is_taken_against_the_none_run_of_the_same_sequence_and_detector():
+    from eval.sweep_report import with_rho
+
+    rows = [
+        {
+            "sequence": "s",
+            "tracker": "builtin",
+            "detector": "d",
+            "strategy": "none",
+            "settings": "{}",
+            "ate_rmse_m": 0.4,
+        },
+        {
+            "sequence": "s",
+            "tracker": "builtin",
+            "detector": "d",
+            "strategy": "x",
+            "settings": "{}",
+            "ate_rmse_m": 0.1,
+        },
+        {
+            "sequence": "s",
+            "tracker": "builtin",
+            "detector": "e",
+            "strategy": "x",
+            "settings": "{}",
+            "ate_rmse_m": 0.1,
+        },
+    ]
+    assert [r["rho_percent"] for r in with_rho(rows)] == [0.0, pytest.approx(75.0), None]
+
+
+def test_the_sweep_folder_is_not_somebody_elses(tmp_path: Path, capsys):
+    spec = _sweep_setup(tmp_path)
+    (tmp_path / "theirs").mkdir()
+    (tmp_path / "theirs" / "notes.txt").write_text("mine")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "theirs"), "--workers", "1"]) == 2
+    assert "not written by depotbench" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "theirs").iterdir()) == ["notes.txt"]
+
+
+def test_spec_model_defaults():
+    spec = SweepSpec(sweep="s", sequences=["x"])
+    assert spec.trackers == ["builtin"] and spec.detectors == ["groundtruth"] and spec.strategies == ["none"]
