@@ -23,6 +23,11 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
     p.add_argument("spec", type=Path, help="the sweep spec (see assets/sweeps/)")
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
     p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1), help="worker processes")
+    p.add_argument(
+        "--no-dedupe",
+        action="store_true",
+        help="track every job, even where another keeps the same keypoints in every frame",
+    )
     p.set_defaults(handler=_cmd_sweep)
 
 
@@ -44,7 +49,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                 f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
             )
             started = time.perf_counter()
-            ran = run_jobs(jobs, store, args.workers)
+            ran, written = run_jobs(jobs, store, args.workers, dedupe=not args.no_dedupe)
             elapsed = time.perf_counter() - started
             # A family is how this sweep groups sequences, not part of a run's content:
             # rows carry the family of the sweep that asked for them now.
@@ -56,8 +61,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         summary = {"best": best, "pareto": pareto(configs), "configurations": configs}
         write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
         plots = plot(configs, out / "plots")
-    rate = f", {ran / elapsed * 60:.1f} runs/min" if ran and elapsed > 0 else ""
-    print(f"ran {ran} runs in {elapsed:.1f} s{rate}")
+    rate = f", {written / elapsed * 60:.1f} rows/min" if written and elapsed > 0 else ""
+    print(
+        f"wrote {written} rows in {elapsed:.1f} s{rate}; tracked {ran} of them "
+        "(the others keep the same keypoints in every frame as a tracked one)"
+    )
     print(format_best(best))
     shown = f", plots in {args.output / 'plots'}" if plots else " (pip install 'depotbench[viz]' for plots)"
     print(f"wrote {args.output / 'results.sqlite'}, results.csv, summary.json{shown}")

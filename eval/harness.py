@@ -24,6 +24,7 @@ from eval.cache import StageCache
 from eval.comparison import ComparisonOptions, compare
 from eval.detections import SequenceDetections, detect_sequence
 from eval.frames import FrameSource, MaskSettings
+from eval.stages import FrameStages, sequence_stages
 from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
 from eval.trajectory import Trajectory, write_tum
@@ -38,6 +39,7 @@ from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 MASK = "mask"
 STRATEGY_CHOICES = (*STRATEGIES, MASK)
 EXTERNAL_STRATEGIES = ("none", MASK)
+FLOW_STRATEGIES = ("prior_flow", "box_epipolar_flow")
 MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
 
@@ -54,14 +56,16 @@ class TrackerConfig:
     timeout_s: float = 3600.0
 
 
-def make_tracker(tracker: TrackerConfig, config: SlamConfig, progress: bool) -> Tracker:
+def make_tracker(
+    tracker: TrackerConfig, config: SlamConfig, progress: bool, stages: list[FrameStages] | None = None
+) -> Tracker:
     from eval.vocabulary import default_vocabulary
 
     def vocabulary() -> Path:
         return tracker.vocabulary or default_vocabulary(progress)
 
     if tracker.kind is TrackerKind.BUILTIN:
-        return BuiltinTracker(config)
+        return BuiltinTracker(config, stages)
     if tracker.kind is TrackerKind.ORBSLAM3:
         from eval.trackers.orbslam3 import INSTALL_HINT, Orbslam3Tracker, available
 
@@ -121,7 +125,7 @@ class Tracked:
     header: str
 
 
-def _prepare(job: RunJob) -> tuple[Sequence, SlamConfig]:
+def prepare(job: RunJob) -> tuple[Sequence, SlamConfig]:
     """Open and check everything before any work: the sequence, settings, detector use."""
     config = slam_config(job.strategy, dict(job.settings), job.tracker.kind)
     sequence = Sequence.open(job.sequence)
@@ -143,7 +147,12 @@ def _execute(
     detections = detect_sequence(sequence, job.detector, cache, progress)
     boxes = detections.per_frame if detections is not None else None
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
-    run = make_tracker(job.tracker, config, progress).run(frames, progress)
+    stages = None
+    if job.tracker.kind is TrackerKind.BUILTIN and job.strategy != MASK and cache is not None:
+        # Features and flow do not depend on rejection thresholds: computed once, cached.
+        need_flow = config.strategy in FLOW_STRATEGIES
+        stages = sequence_stages(sequence, config.tracking, config.rejection, need_flow, cache, progress)
+    run = make_tracker(job.tracker, config, progress, stages).run(frames, progress)
     metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
     header = f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
     return Tracked(metrics, run, header)
@@ -151,7 +160,7 @@ def _execute(
 
 def track(job: RunJob, cache: StageCache | None = None, progress: bool = False) -> Tracked:
     """Run a job and return its metrics, writing nothing (sweeps keep rows, not folders)."""
-    sequence, config = _prepare(job)
+    sequence, config = prepare(job)
     return _execute(job, sequence, config, cache, progress)
 
 
@@ -178,7 +187,7 @@ def run_sequence(
         tuple(sorted((settings or {}).items())),
         tracker or TrackerConfig(),
     )
-    sequence, config = _prepare(job)
+    sequence, config = prepare(job)
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
     with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:

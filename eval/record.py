@@ -44,11 +44,22 @@ class RunRecord:
     detector_ms_mean: float | None
     wall_time_s: float
     bench_version: str
+    signature: str | None = None
+    """Which keypoints the run kept in every frame (a hash); None where not computed."""
+    computed_by: str = ""
+    """The key of the job whose tracking made this row: itself, or an earlier job of this
+    sweep with the same signature (the same run, so it was tracked once)."""
     record_version: int = RECORD_VERSION
 
     @classmethod
     def from_metrics(
-        cls, key: str, family: str, settings: dict[str, Any], metrics: dict[str, Any], bench_version: str
+        cls,
+        key: str,
+        family: str,
+        settings: dict[str, Any],
+        metrics: dict[str, Any],
+        bench_version: str,
+        signature: str | None = None,
     ) -> RunRecord:
         ate = metrics.get("ate_m") or {}
         rpe_t = metrics.get("rpe_translation_m") or {}
@@ -81,6 +92,8 @@ class RunRecord:
             detector_ms_mean=detector_time.get("mean_ms"),
             wall_time_s=metrics["wall_time_s"],
             bench_version=bench_version,
+            signature=signature,
+            computed_by=key,
         )
 
     def to_row(self) -> dict[str, Any]:

@@ -25,7 +25,18 @@ _TYPES = {
     "moving_inliers": "INTEGER",
     "record_version": "INTEGER",
 }
-_TEXT = {"key", "family", "sequence", "tracker", "detector", "strategy", "settings", "bench_version"}
+_TEXT = {
+    "key",
+    "family",
+    "sequence",
+    "tracker",
+    "detector",
+    "strategy",
+    "settings",
+    "bench_version",
+    "signature",
+    "computed_by",
+}
 
 
 def _column(name: str) -> str:
@@ -71,6 +82,15 @@ class ResultStore:
             self._db.execute(
                 f"INSERT OR REPLACE INTO runs ({names}) VALUES ({marks})", [row[f] for f in FIELDS]
             )
+
+    def by_signature(self, signature: str) -> RunRecord | None:
+        """A tracked row with this decision signature, if the store has one."""
+        cursor = self._db.execute(
+            f"SELECT {', '.join(FIELDS)} FROM runs WHERE signature = ? AND computed_by = key LIMIT 1",
+            (signature,),
+        )
+        row = cursor.fetchone()
+        return None if row is None else RunRecord(**dict(zip(FIELDS, row, strict=True)))
 
     def set_meta(self, name: str, value: str) -> None:
         with self._db:

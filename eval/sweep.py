@@ -13,18 +13,18 @@ import multiprocessing as mp
 import os
 import re
 import signal
-from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from tqdm import tqdm
 
 from detectors.config import DetectorConfig
 from eval.cache import StageCache, content_hash
-from eval.detections import sequence_fingerprint
-from eval.harness import RunJob, TrackerConfig, track
+from eval.detections import detect_sequence, sequence_fingerprint
+from eval.harness import FLOW_STRATEGIES, MASK, RunJob, TrackerConfig, prepare, track
 from eval.record import RECORD_VERSION, RunRecord
+from eval.stages import decision_signature, features_key, sequence_stages
 from eval.store import ResultStore
 from eval.sweep_spec import (
     MAX_JOBS,
@@ -134,11 +134,80 @@ def _init_worker(parent_pid: int) -> None:
     cv2.setNumThreads(1)
 
 
-def run_job(job: SweepJob, bench_version: str) -> RunRecord:
-    """Worker entry point: track, and make the row."""
+def signature_job(job: SweepJob) -> tuple[str, str | None]:
+    """Worker entry point of phase 1: which keypoints the job keeps, frame by frame, as a hash.
+
+    None for jobs that are not deduplicated (external trackers, ``mask``).
+    """
+    run = job.job
+    if run.tracker.kind is not TrackerKind.BUILTIN or run.strategy == MASK:
+        return job.key, None
+    cache = StageCache.from_env()
+    sequence, config = prepare(run)
+    detections = detect_sequence(sequence, run.detector, cache)
+    need_flow = config.strategy in FLOW_STRATEGIES
+    stages = sequence_stages(sequence, config.tracking, config.rejection, need_flow, cache)
+    boxes = list(detections.per_frame) if detections is not None else None
+    decided = decision_signature(stages, boxes, config, config.tracking.seed)
+    return job.key, content_hash(features_key(sequence, config.tracking), decided)
+
+
+def run_job(job: SweepJob, bench_version: str, signature: str | None) -> RunRecord:
+    """Worker entry point of phase 2: track, and make the row."""
     tracked = track(job.job, StageCache.from_env())
     settings = dict(job.job.settings)
-    return RunRecord.from_metrics(job.key, job.family, settings, tracked.metrics, bench_version)
+    return RunRecord.from_metrics(job.key, job.family, settings, tracked.metrics, bench_version, signature)
+
+
+def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:
+    """The row of a job whose run is ``record``'s run (same kept keypoints in every frame)."""
+    return replace(
+        record,
+        key=job.key,
+        family=job.family,
+        detector=job.job.detector.label,
+        settings=json.dumps(dict(job.job.settings), sort_keys=True),
+        computed_by=record.computed_by,
+    )
+
+
+class _Pool:
+    """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        self.pool = None
+        if workers > 1:
+            self.pool = ProcessPoolExecutor(
+                workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
+            )
+
+    def map_unordered(self, fn, items):
+        """(item, result) as results arrive; at most 2 per worker queued."""
+        if self.pool is None:
+            for item in items:
+                yield item, fn(*item)
+            return
+        running: dict[Future, tuple] = {}
+        queue = list(items)
+        while queue or running:
+            while queue and len(running) < 2 * self.workers:
+                item = queue.pop(0)
+                with children_ignore_sigint():
+                    running[self.pool.submit(fn, *item)] = item
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in finished:
+                yield running.pop(future), future.result()
+
+    def close(self, failed: bool) -> None:
+        if self.pool is None:
+            return
+        if failed:
+            for process in list(getattr(self.pool, "_processes", {}).values()):
+                process.kill()
+            self.pool.shutdown(wait=False, cancel_futures=True)
+        else:
+            self.pool.shutdown(wait=True)
 
 
 def run_jobs(
@@ -146,55 +215,64 @@ def run_jobs(
     store: ResultStore,
     workers: int,
     progress: bool = True,
-    on_row: Callable[[RunRecord], None] | None = None,
-) -> int:
-    """Run the jobs whose rows are missing; returns how many ran."""
+    dedupe: bool = True,
+) -> tuple[int, int]:
+    """Run the jobs whose rows are missing; returns (runs tracked, rows written).
+
+    Phase 1 finds, per job, which keypoints it keeps (cheap: no tracking); phase 2
+    tracks one job per distinct decision and writes the others' rows from it.
+    """
     done = store.keys()
     pending = [j for j in jobs if j.key not in done]
     version = generator_version()
-    bar = tqdm(
-        total=len(jobs),
-        initial=len(jobs) - len(pending),
-        desc="sweep",
-        unit="run",
-        disable=None if progress else True,
-        smoothing=0.1,
-    )
-    with bar:
-        if workers <= 1:
-            for job in pending:
-                record = run_job(job, version)
-                store.add(record)
-                bar.update()
-                if on_row:
-                    on_row(record)
-            return len(pending)
-        pool = ProcessPoolExecutor(
-            workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
-        )
-        try:
-            running: dict[Future, SweepJob] = {}
-            queue = list(pending)
-            while queue or running:
-                while queue and len(running) < 2 * workers:
-                    job = queue.pop(0)
-                    with children_ignore_sigint():
-                        running[pool.submit(run_job, job, version)] = job
-                finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                for future in finished:
-                    running.pop(future)
-                    record = future.result()
-                    store.add(record)
+    pool = _Pool(workers)
+    failed = True
+    try:
+        signatures: dict[str, str | None] = {j.key: None for j in pending}
+        if dedupe and pending:
+            bar = tqdm(total=len(pending), desc="decisions", unit="run", disable=None if progress else True)
+            with bar:
+                for _, (key, signature) in pool.map_unordered(signature_job, [(j,) for j in pending]):
+                    signatures[key] = signature
                     bar.update()
-                    if on_row:
-                        on_row(record)
-        except BaseException:
-            for process in list(getattr(pool, "_processes", {}).values()):
-                process.kill()
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
-    return len(pending)
+        groups: dict[str, list[SweepJob]] = {}
+        order: list[tuple[SweepJob, list[SweepJob]]] = []
+        for job in pending:
+            signature = signatures[job.key]
+            if signature is None:
+                order.append((job, []))
+                continue
+            existing = store.by_signature(signature)
+            if existing is not None:
+                store.add(_same_run(existing, job))
+                continue
+            if signature in groups:
+                groups[signature].append(job)
+            else:
+                groups[signature] = []
+                order.append((job, groups[signature]))
+        bar = tqdm(
+            total=len(jobs),
+            initial=len(jobs) - sum(1 + len(rest) for _, rest in order),
+            desc="sweep",
+            unit="run",
+            disable=None if progress else True,
+            smoothing=0.1,
+        )
+        tracked = 0
+        with bar:
+            items = [(job, version, signatures[job.key]) for job, _ in order]
+            followers = {job.key: rest for job, rest in order}
+            for (job, _, _), record in pool.map_unordered(run_job, items):
+                store.add(record)
+                tracked += 1
+                for other in followers[job.key]:
+                    store.add(_same_run(record, other))
+                bar.update(1 + len(followers[job.key]))
+        failed = False
+    finally:
+        pool.close(failed)
+    return tracked, len(pending)
 
 
 def open_store(out: Path, spec: SweepSpec) -> ResultStore:

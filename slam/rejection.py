@@ -48,6 +48,16 @@ def box_classes(points: np.ndarray, detections: list[Detection], dilation: float
     return tuple(names[best])
 
 
+Flow = tuple[np.ndarray, np.ndarray]
+"""LK flow of every keypoint of a frame into the previous one: (previous positions (N, 2), ok (N,)).
+LK tracks each point on its own, so any subset of it equals LK run on that subset."""
+
+
+def flow_to_previous(previous: FrameFeatures, current: FrameFeatures, config: RejectionConfig) -> Flow:
+    """The flow stage: computed once per frame, it serves every flow-based strategy."""
+    return track_to_previous(previous, current, current.keypoints_px, config)
+
+
 def track_to_previous(
     previous: FrameFeatures, current: FrameFeatures, points: np.ndarray, config: RejectionConfig
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -80,8 +90,9 @@ def classify(
     previous: FrameFeatures | None,
     detections: tuple[Detection, ...],
     config: RejectionConfig,
+    flow: Flow | None = None,
 ) -> np.ndarray:
-    """A ``Rejection`` code per keypoint of ``current``."""
+    """A ``Rejection`` code per keypoint of ``current``; ``flow`` is the flow stage when cached."""
     if strategy not in STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
     n = len(current)
@@ -100,8 +111,8 @@ def classify(
     if previous is None:
         return codes
     if strategy == "prior_flow":
-        return _prior_flow(codes, current, previous, in_dynamic, hits, priors, config)
-    return _epipolar_flow(codes, current, previous, in_dynamic, config)
+        return _prior_flow(codes, current, previous, in_dynamic, hits, priors, config, flow)
+    return _epipolar_flow(codes, current, previous, in_dynamic, config, flow)
 
 
 def _prior_flow(
@@ -112,13 +123,14 @@ def _prior_flow(
     hits: np.ndarray,
     priors: np.ndarray,
     config: RejectionConfig,
+    flow_stage: Flow | None = None,
 ) -> np.ndarray:
     in_potential = (
         hits[:, priors == Prior.POTENTIAL].any(axis=1) if hits.shape[1] else np.zeros(len(codes), bool)
     )
     q = in_potential & ~in_dynamic
     p = ~in_potential & ~in_dynamic
-    prev, ok = track_to_previous(previous, current, current.keypoints_px, config)
+    prev, ok = flow_stage if flow_stage is not None else flow_to_previous(previous, current, config)
     flow = current.keypoints_px - prev
     if not (p & ok).any():
         codes[q] = REJECTION_CODES[Rejection.MOVING_FLOW]  # no camera-flow reference: Q stays unverified
@@ -136,11 +148,15 @@ def _epipolar_flow(
     previous: FrameFeatures,
     in_dynamic: np.ndarray,
     config: RejectionConfig,
+    flow: Flow | None = None,
 ) -> np.ndarray:
     rest = np.flatnonzero(~in_dynamic)
     if len(rest) < 8:
         return codes
-    prev, ok = track_to_previous(previous, current, current.keypoints_px[rest], config)
+    if flow is not None:
+        prev, ok = flow[0][rest], flow[1][rest]
+    else:
+        prev, ok = track_to_previous(previous, current, current.keypoints_px[rest], config)
     tracked = rest[ok]
     if len(tracked) < 8:
         return codes

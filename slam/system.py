@@ -32,7 +32,7 @@ from slam.geometry import (
 )
 from slam.map import KeyFrame, Map
 from slam.optimize import local_bundle_adjustment, refine_pose
-from slam.rejection import box_classes, classify
+from slam.rejection import Flow, box_classes, classify
 from slam.types import (
     REJECTION_CODES,
     Frame,
@@ -101,8 +101,12 @@ class Slam:
 
     # -- public -----------------------------------------------------------------
 
-    def process(self, frame: Frame, features: FrameFeatures | None = None) -> FrameResult:
-        """Track one frame. ``features`` may come from a cache (see ``extract``)."""
+    def process(
+        self, frame: Frame, features: FrameFeatures | None = None, flow: Flow | None = None
+    ) -> FrameResult:
+        """Track one frame. ``features`` (see ``extract``) and ``flow`` (LK of every keypoint
+        into the previous frame, ``rejection.flow_to_previous``) may come from a cache; then
+        the frame's images are not read."""
         cv2.setRNGSeed(self.tc.seed + self.frame_index)
         times: dict[str, float] = {}
         start = time.perf_counter()
@@ -111,7 +115,7 @@ class Slam:
         times["extract"] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
         codes = classify(
-            self.config.strategy, features, self._previous, frame.detections, self.config.rejection
+            self.config.strategy, features, self._previous, frame.detections, self.config.rejection, flow
         )
         usable = codes == REJECTION_CODES[Rejection.KEPT]
         times["reject"] = (time.perf_counter() - start) * 1e3

@@ -164,9 +164,9 @@ def test_rerunning_a_finished_sweep_runs_nothing_and_exports_rho(tmp_path: Path,
     spec = _sweep_setup(tmp_path)
     out = tmp_path / "out"
     assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0
-    assert "ran 28 runs" in capsys.readouterr().out
+    assert "wrote 28 rows" in capsys.readouterr().out
     assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0
-    assert "ran 0 runs" in capsys.readouterr().out
+    assert "wrote 0 rows" in capsys.readouterr().out
     header, *lines = (out / "results.csv").read_text().splitlines()
     assert len(lines) == 28 and "rho_percent" in header.split(",")
     assert {line.split(",")[1] for line in lines} == {"test"}  # the sequences' scenario family

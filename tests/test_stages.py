@@ -1,0 +1,104 @@
+"""Cached features and flow give bit-identical runs, and are reused across strategies and thresholds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eval.cache import StageCache
+from eval.harness import RunJob, track
+from scenes import library
+from scenes.schema import to_scenario
+from slam.rejection import STRATEGIES
+
+pytestmark = pytest.mark.render
+
+
+@pytest.fixture(scope="module")
+def walking(tmp_path_factory) -> Path:
+    from sim.generate import generate
+
+    scenario = library.get("walking_static").model_copy(update={"frames": 30, "duration_s": None})
+    return generate(to_scenario(scenario), tmp_path_factory.mktemp("walk") / "walking", progress=False)
+
+
+def _fingerprint(tracked) -> tuple:
+    run = tracked.run
+    poses = np.array([p if p is not None else np.full((4, 4), np.nan) for p in run.poses])
+    codes = np.concatenate([r.diagnostics.rejection for r in run.results])
+    inliers = np.concatenate([r.diagnostics.inlier for r in run.results])
+    return poses.tobytes(), codes.tobytes(), inliers.tobytes(), tuple(run.states)
+
+
+@pytest.mark.parametrize("strategy", STRATEGIES)
+def test_a_run_on_cached_stages_is_bit_identical_to_a_live_one(walking: Path, tmp_path: Path, strategy: str):
+    settings = (("k", "2.5"),) if strategy == "prior_flow" else ()
+    job = RunJob(walking, strategy, settings=settings)
+    live = track(job)  # no cache: extracts and runs LK itself
+    cache = StageCache(tmp_path / "cache")
+    first = track(job, cache)  # computes the stages, then tracks on them
+    again = track(job, cache)  # reads them
+    assert _fingerprint(first) == _fingerprint(live) == _fingerprint(again)
+    assert (
+        first.metrics["ate_m"] == live.metrics["ate_m"]
+        and first.metrics["rejection"] == live.metrics["rejection"]
+    )
+    assert again.metrics["stage_time"]["extract"]["mean_ms"] > 1.0  # the cached stage's own time is reported
+
+
+def test_one_flow_stage_serves_every_flow_strategy_and_threshold(walking: Path, tmp_path: Path):
+    cache = StageCache(tmp_path / "cache")
+    track(RunJob(walking, "none"), cache)
+    assert sorted(p.parent.name for p in (tmp_path / "cache").rglob("*") if p.is_file()) == [
+        "detections",
+        "features",
+        "flow",
+    ]
+    entries = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*") if p.is_file()}
+    misses = cache.misses
+    for job in (
+        RunJob(walking, "prior_flow", settings=(("k", "1.5"),)),
+        RunJob(walking, "prior_flow", settings=(("k", "3.5"),)),
+        RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", "0.5"),)),
+    ):
+        track(job, cache)
+    assert cache.misses == misses  # every stage came from the cache
+    assert {p for p in (tmp_path / "cache").rglob("*") if p.is_file()} == set(entries)
+    # A tracking setting changes the features: a new entry.
+    track(RunJob(walking, "none", settings=(("n_features", "800"),)), cache)
+    assert len([p for p in (tmp_path / "cache" / "features").iterdir()]) == 2
+
+
+def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_path: Path):
+    """Jobs that keep the same keypoints in every frame are tracked once; their rows equal
+    those of tracking each job (here l_thr2_px 50/60/70 decide alike: the flow's std is
+    always below them)."""
+    from eval.record import DETERMINISTIC_FIELDS
+    from eval.store import ResultStore
+    from eval.sweep import expand, run_jobs
+    from eval.sweep_spec import load_sweep
+
+    spec_path = tmp_path / "s.yaml"
+    spec_path.write_text(
+        f"sweep: d\nsequences: [{walking}]\nstrategies: [none, prior_flow, box_epipolar_flow]\n"
+        "thresholds:\n  prior_flow: {k: {grid: [2.0, 3.0]}}\n"
+        "  box_epipolar_flow: {l_thr2_px: {grid: [50, 60, 70]}}\n"
+    )
+    jobs = expand(load_sweep(spec_path), spec_path, [(walking, "walking")])
+    fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
+    tables = {}
+    for dedupe in (True, False):
+        with ResultStore(tmp_path / f"{dedupe}.sqlite") as store:
+            tracked, written = run_jobs(jobs, store, workers=1, progress=False, dedupe=dedupe)
+            tables[dedupe] = [{k: r[k] for k in fields} for r in store.rows()]
+            if dedupe:
+                assert written == 6 and tracked <= 4  # the three l_thr2_px values are one run
+                rows = store.rows()
+                epipolar = [r for r in rows if r["strategy"] == "box_epipolar_flow"]
+                assert len({r["computed_by"] for r in epipolar}) == 1
+                assert len({r["signature"] for r in rows}) == tracked
+            else:
+                assert tracked == written == 6
+    assert tables[True] == tables[False]
