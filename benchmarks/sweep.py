@@ -3,9 +3,10 @@
 Usage: python benchmarks/sweep.py [--frames 40] [--seeds 1 2 3 4] [--configs 20] [--workers 2]
 
 Generates a walking_static suite (one sequence per seed), then runs the same jobs
-twice through the engine, each time on a fresh cache folder:
+three times through the engine, each time on a fresh cache folder:
 - naive: no stage cache (every run detects, extracts ORB features and runs LK itself);
-- cached: the stage cache (detections, features and flow computed once per sequence).
+- cache: the stage cache (detections, features and flow computed once per sequence);
+- cache + dedupe: and jobs that keep the same keypoints in every frame tracked once.
 The jobs: ``none`` plus ``--configs`` box_epipolar_flow configurations (a grid over
 epsilon_px x l_thr1_px x l_thr2_px, first N). Prints runs per minute of each and the
 speed-up, and checks that both gave the same rows (timings aside).
@@ -46,15 +47,17 @@ def _sequences(out: Path, frames: int, seeds: list[int], workers: int) -> list[t
     return [(out / "sequences" / e["name"], "walking_static") for e in index["sequences"]]
 
 
-def _timed(jobs, out: Path, workers: int, cache: bool) -> tuple[float, list[dict]]:
+def _timed(jobs, out: Path, workers: int, cache: bool, dedupe: bool) -> tuple[float, int, list[dict]]:
     os.environ["DEPOTBENCH_CACHE_DIR"] = str(out / "cache")
     os.environ["DEPOTBENCH_CACHE"] = "on" if cache else "off"
+    fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
+    out.mkdir(parents=True)
     with ResultStore(out / "results.sqlite") as store:
         started = time.perf_counter()
-        run_jobs(jobs, store, workers, progress=True)
+        tracked, _ = run_jobs(jobs, store, workers, progress=True, dedupe=dedupe)
         elapsed = time.perf_counter() - started
-        rows = [{k: r[k] for k in DETERMINISTIC_FIELDS} for r in store.rows()]
-    return elapsed, rows
+        rows = [{k: r[k] for k in fields} for r in store.rows()]
+    return elapsed, tracked, rows
 
 
 def main() -> None:
@@ -86,12 +89,26 @@ def main() -> None:
             f"{len(sequences)} walking_static sequences x {args.frames} frames; {len(work)} runs "
             f"(none + {len(combos)} box_epipolar_flow configurations each), {args.workers} workers"
         )
-        cached_s, cached_rows = _timed(work, root / "cached", args.workers, cache=True)
-        print(f"cached: {cached_s:7.1f} s, {len(work) / cached_s * 60:7.1f} runs/min")
+        results = {}
+        modes = [("cache + dedupe", True, True), ("cache", True, False)]
         if not args.skip_naive:
-            naive_s, naive_rows = _timed(work, root / "naive", args.workers, cache=False)
-            print(f"naive:  {naive_s:7.1f} s, {len(work) / naive_s * 60:7.1f} runs/min")
-            print(f"speed-up of the cache: {naive_s / cached_s:.2f}x; same rows: {naive_rows == cached_rows}")
+            modes.append(("naive", False, False))
+        for label, cache, dedupe in modes:
+            folder = root / label.replace(" ", "").replace("+", "_")
+            elapsed, tracked, rows = _timed(work, folder, args.workers, cache, dedupe)
+            results[label] = (elapsed, rows)
+            print(
+                f"{label:16s}{elapsed:8.1f} s {len(work) / elapsed * 60:9.1f} runs/min "
+                f"({tracked} tracked, {len(work) - tracked} shared)"
+            )
+        if "naive" in results:
+            naive_s, naive_rows = results["naive"]
+            for label in ("cache", "cache + dedupe"):
+                elapsed, rows = results[label]
+                print(
+                    f"speed-up of {label} over naive: {naive_s / elapsed:.2f}x; "
+                    f"same rows: {rows == naive_rows}"
+                )
 
 
 if __name__ == "__main__":

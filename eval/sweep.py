@@ -9,11 +9,7 @@ and running it again does exactly the jobs that are missing.
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-import os
 import re
-import signal
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -22,6 +18,7 @@ from tqdm import tqdm
 from detectors.config import DetectorConfig
 from eval.cache import StageCache, content_hash
 from eval.detections import detect_sequence, sequence_fingerprint
+from eval.executors import make_pool
 from eval.harness import FLOW_STRATEGIES, MASK, RunJob, TrackerConfig, prepare, track
 from eval.record import RECORD_VERSION, RunRecord
 from eval.stages import decision_signature, features_key, sequence_stages
@@ -29,6 +26,7 @@ from eval.store import ResultStore
 from eval.sweep_spec import (
     MAX_JOBS,
     SweepSpec,
+    Variant,
     check_variants,
     detector_configs,
     resolve,
@@ -38,7 +36,6 @@ from eval.sweep_spec import (
 from eval.trackers.base import TrackerKind
 from scenes.schema import SpecError
 from sim.errors import InputError
-from sim.processes import children_ignore_sigint, exit_with_parent
 from sim.sequence import Sequence
 from sim.version import generator_version
 
@@ -84,6 +81,16 @@ def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) 
     total = len(sequences) * len(trackers) * len(detectors) * len(found)
     if total > MAX_JOBS:
         raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
+    return jobs_for(found, trackers, detectors, sequences)
+
+
+def jobs_for(
+    found: list[Variant],
+    trackers: list[TrackerConfig],
+    detectors: list[DetectorConfig],
+    sequences: list[tuple[Path, str]],
+) -> list[SweepJob]:
+    """Sequences x trackers x detectors x variants, in this order (external trackers: none/mask)."""
     jobs = []
     for root, family in sequences:
         fingerprint = sequence_fingerprint(Sequence.open(root))
@@ -125,15 +132,6 @@ def sequences_of(
     return roots
 
 
-def _init_worker(parent_pid: int) -> None:
-    os.environ["OMP_NUM_THREADS"] = "1"
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    exit_with_parent(parent_pid)
-    import cv2
-
-    cv2.setNumThreads(1)
-
-
 def signature_job(job: SweepJob) -> tuple[str, str | None]:
     """Worker entry point of phase 1: which keypoints the job keeps, frame by frame, as a hash.
 
@@ -171,51 +169,14 @@ def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:
     )
 
 
-class _Pool:
-    """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error."""
-
-    def __init__(self, workers: int) -> None:
-        self.workers = workers
-        self.pool = None
-        if workers > 1:
-            self.pool = ProcessPoolExecutor(
-                workers, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
-            )
-
-    def map_unordered(self, fn, items):
-        """(item, result) as results arrive; at most 2 per worker queued."""
-        if self.pool is None:
-            for item in items:
-                yield item, fn(*item)
-            return
-        running: dict[Future, tuple] = {}
-        queue = list(items)
-        while queue or running:
-            while queue and len(running) < 2 * self.workers:
-                item = queue.pop(0)
-                with children_ignore_sigint():
-                    running[self.pool.submit(fn, *item)] = item
-            finished, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in finished:
-                yield running.pop(future), future.result()
-
-    def close(self, failed: bool) -> None:
-        if self.pool is None:
-            return
-        if failed:
-            for process in list(getattr(self.pool, "_processes", {}).values()):
-                process.kill()
-            self.pool.shutdown(wait=False, cancel_futures=True)
-        else:
-            self.pool.shutdown(wait=True)
-
-
 def run_jobs(
     jobs: list[SweepJob],
     store: ResultStore,
     workers: int,
     progress: bool = True,
     dedupe: bool = True,
+    backend: str = "local",
+    address: str | None = None,
 ) -> tuple[int, int]:
     """Run the jobs whose rows are missing; returns (runs tracked, rows written).
 
@@ -225,7 +186,7 @@ def run_jobs(
     done = store.keys()
     pending = [j for j in jobs if j.key not in done]
     version = generator_version()
-    pool = _Pool(workers)
+    pool = make_pool(backend, workers, address)
     failed = True
     try:
         signatures: dict[str, str | None] = {j.key: None for j in pending}

@@ -92,6 +92,39 @@ class Random(Strict):
     random: RandomDraw
 
 
+class Interval(Strict):
+    low: float
+    high: float
+    log: bool = False
+
+    @model_validator(mode="after")
+    def _bounds(self) -> Interval:
+        if not (math.isfinite(self.low) and math.isfinite(self.high)) or self.high <= self.low:
+            raise ValueError("a search interval needs finite low < high")
+        if self.log and self.low <= 0:
+            raise ValueError("a log interval needs low > 0")
+        return self
+
+
+class Search(Strict):
+    """An Optuna search over one strategy's thresholds (extra [search])."""
+
+    strategy: str
+    space: dict[str, Interval] = Field(min_length=1)
+    trials: int = Field(default=30, ge=1, le=10_000)
+    seed: int = Field(default=0, ge=0)
+    objective: str = Field(default="mean_ate", pattern="^(mean_ate|ate_time)$")
+    """mean_ate: mean ATE RMSE (m) over the sweep's runs of a trial; ate_time: that plus
+    ``time_weight`` x the mean of their median tracking ms."""
+    time_weight: float = Field(default=0.0001, ge=0.0)
+
+    @model_validator(mode="after")
+    def _strategy(self) -> Search:
+        if self.strategy not in STRATEGY_CHOICES or self.strategy in ("none", "mask"):
+            raise ValueError(f"search.strategy {self.strategy!r} has no thresholds to search")
+        return self
+
+
 class DetectorEntry(Strict):
     detector: str = "groundtruth"
     settings: dict[str, str | float | int] = Field(default_factory=dict)
@@ -108,6 +141,7 @@ class SweepSpec(Strict):
     detectors: list[str | DetectorEntry] = Field(default_factory=lambda: ["groundtruth"], min_length=1)
     strategies: list[str] = Field(default_factory=lambda: ["none"], min_length=1)
     thresholds: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
+    search: Search | None = None
 
     @model_validator(mode="after")
     def _something_to_run(self) -> SweepSpec:
@@ -130,7 +164,7 @@ class Variant:
     settings: tuple[tuple[str, str], ...]
 
 
-def _text(value: float) -> str:
+def setting_text(value: float) -> str:
     """A value as ``--set`` takes it: integers without a point (integer fields refuse '2.0')."""
     v = float(value)
     return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
@@ -146,7 +180,9 @@ def variants(spec: SweepSpec) -> list[Variant]:
         names = sorted(axes)
         values = [_values(axes[n]) for n in names]
         for combo in itertools.product(*values) if names else [()]:
-            out.append(Variant(strategy, tuple((n, _text(v)) for n, v in zip(names, combo, strict=True))))
+            out.append(
+                Variant(strategy, tuple((n, setting_text(v)) for n, v in zip(names, combo, strict=True)))
+            )
     return out
 
 

@@ -68,6 +68,7 @@ def _run_every_strategy(sequence: Path, out: Path) -> dict[str, dict]:
     return runs
 
 
+@pytest.mark.slow  # 55 s with its sequence; walking_static covers the same claim in the default run
 def test_crowd_degrades_the_baseline_and_every_strategy_improves_on_it(crowd_seq: Path, tmp_path: Path):
     runs = _run_every_strategy(crowd_seq, tmp_path)
     ate = {s: m["ate_m"]["rmse"] for s, m in runs.items()}

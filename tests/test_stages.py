@@ -102,3 +102,30 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
             else:
                 assert tracked == written == 6
     assert tables[True] == tables[False]
+
+
+def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Path, tmp_path: Path, capsys):
+    pytest.importorskip("optuna")
+    import json
+
+    from eval.cli import main
+
+    spec = tmp_path / "search.yaml"
+    spec.write_text(
+        f"sweep: search\nsequences: [{walking}]\nstrategies: [none]\n"
+        "search:\n  strategy: prior_flow\n  trials: 4\n  seed: 3\n"
+        "  space: {k: {low: 1.0, high: 4.0}}\n"
+    )
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    search = summary["search"]
+    assert search["trials"] == 4 and search["strategy"] == "prior_flow"
+    trials = [c for c in summary["configurations"] if c["strategy"] == "prior_flow"]
+    assert len(trials) == 4  # each trial is a row of the sweep (one sequence, one detector)
+    assert search["value"] == pytest.approx(min(c["ate_rmse_m"] for c in trials))
+    assert 1.0 <= float(search["settings"]["k"]) <= 4.0 and (out / "optuna.sqlite").is_file()
+    capsys.readouterr()
+    assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0  # resumed: nothing left
+    assert "wrote 0 rows" in capsys.readouterr().out
+    assert json.loads((out / "summary.json").read_text())["search"]["trials"] == 4

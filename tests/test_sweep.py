@@ -249,3 +249,23 @@ def test_the_sweep_folder_is_not_somebody_elses(tmp_path: Path, capsys):
 def test_spec_model_defaults():
     spec = SweepSpec(sweep="s", sequences=["x"])
     assert spec.trackers == ["builtin"] and spec.detectors == ["groundtruth"] and spec.strategies == ["none"]
+
+
+def test_ray_and_local_backends_give_identical_rows(tmp_path: Path):
+    """A local Ray instance, started by the test (extra [ray])."""
+    pytest.importorskip("ray")
+    from eval.sweep import expand, run_jobs
+
+    spec = _sweep_setup(tmp_path)
+    jobs = expand(load_sweep(spec), spec, [(tmp_path / "a", "test"), (tmp_path / "b", "test")])
+    tables = {}
+    for backend in ("local", "ray"):
+        with ResultStore(tmp_path / f"{backend}.sqlite") as store:
+            run_jobs(jobs, store, workers=2, progress=False, backend=backend)
+        tables[backend] = _table_of(tmp_path / f"{backend}.sqlite")
+    assert len(tables["local"]) == 28 and tables["ray"] == tables["local"]
+
+
+def _table_of(database: Path) -> list[dict]:
+    with ResultStore(database) as store:
+        return [{k: r[k] for k in DETERMINISTIC_FIELDS} for r in store.rows()]

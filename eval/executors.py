@@ -1,0 +1,131 @@
+"""Where sweep jobs run: local worker processes (the default) or a Ray cluster.
+
+Both map a function over items and yield (item, result) as results arrive, at
+most two jobs per worker in flight; the caller (the process that owns the
+results database) writes what comes back. Jobs compute the same bytes wherever
+they run, so both backends give identical rows.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from typing import Any
+
+from sim.errors import InputError
+from sim.processes import children_ignore_sigint, exit_with_parent
+
+BACKENDS = ("local", "ray")
+
+
+def single_threaded() -> None:
+    """One thread per worker process: the workers are the parallelism."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def _init_local_worker(parent_pid: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    exit_with_parent(parent_pid)
+    single_threaded()
+
+
+class LocalPool:
+    """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error.
+    With one worker, jobs run in this process."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        self.pool = None
+        if workers > 1:
+            self.pool = ProcessPoolExecutor(
+                workers,
+                mp_context=mp.get_context("spawn"),
+                initializer=_init_local_worker,
+                initargs=(os.getpid(),),
+            )
+
+    def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
+        if self.pool is None:
+            for item in items:
+                yield item, fn(*item)
+            return
+        running: dict[Future, tuple] = {}
+        queue = list(items)
+        while queue or running:
+            while queue and len(running) < 2 * self.workers:
+                item = queue.pop(0)
+                with children_ignore_sigint():  # the first submit spawns the workers
+                    running[self.pool.submit(fn, *item)] = item
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in finished:
+                yield running.pop(future), future.result()
+
+    def close(self, failed: bool) -> None:
+        if self.pool is None:
+            return
+        if failed:
+            for process in list(getattr(self.pool, "_processes", {}).values()):
+                process.kill()
+            self.pool.shutdown(wait=False, cancel_futures=True)
+        else:
+            self.pool.shutdown(wait=True)
+
+
+def _on_ray(fn: Callable, *args: Any) -> Any:
+    single_threaded()
+    return fn(*args)
+
+
+class RayPool:
+    """Jobs as Ray tasks: a local Ray instance with ``workers`` CPUs, or the cluster at
+    ``address``. Every node must see the sequences and the stage cache at the same paths
+    (a shared file system), and run the same depotbench."""
+
+    def __init__(self, workers: int, address: str | None) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise InputError("--backend ray: Ray is not installed: pip install 'depotbench[ray]'") from None
+        self.ray = ray
+        self.started = not ray.is_initialized()
+        if self.started:
+            options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+            if address:
+                options["address"] = address
+            else:
+                options |= {"num_cpus": workers, "object_store_memory": 200 * 1024 * 1024}
+            env = {k: v for k, v in os.environ.items() if k.startswith("DEPOTBENCH_")}
+            ray.init(runtime_env={"env_vars": env} if env else None, **options)
+        self.workers = workers if not address else max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self.remote = ray.remote(num_cpus=1, max_retries=0)(_on_ray)
+
+    def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
+        running: dict[Any, tuple] = {}
+        queue = list(items)
+        while queue or running:
+            while queue and len(running) < 2 * self.workers:
+                item = queue.pop(0)
+                running[self.remote.remote(fn, *item)] = item
+            finished, _ = self.ray.wait(list(running), num_returns=1)
+            for ref in finished:
+                yield running.pop(ref), self.ray.get(ref)
+
+    def close(self, failed: bool) -> None:
+        if self.started:
+            self.ray.shutdown()
+
+
+def make_pool(backend: str, workers: int, address: str | None = None) -> LocalPool | RayPool:
+    if backend == "local":
+        if address:
+            raise InputError("--address applies to --backend ray only")
+        return LocalPool(workers)
+    if backend == "ray":
+        return RayPool(workers, address)
+    raise InputError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")

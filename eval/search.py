@@ -1,0 +1,115 @@
+"""An Optuna search for the thresholds that minimise a sweep objective.
+
+Each trial is one setting of the searched strategy's thresholds, run on every
+sequence, tracker and detector of the sweep through the same engine, so its runs
+are ordinary rows of ``results.sqlite`` (and a value tried twice is not run
+twice). The study lives beside them in ``optuna.sqlite``; a killed search
+resumes with the trials it completed (a trial cut short is marked failed). TPE
+is seeded, but a resumed study does not replay the sampler's state, and with the
+``ate_time`` objective timings enter the value: trials are reproducible run by
+run, the search path only from a fresh start with ``mean_ate``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eval.store import ResultStore
+from eval.sweep import jobs_for, run_jobs
+from eval.sweep_spec import (
+    Search,
+    SweepSpec,
+    Variant,
+    check_variants,
+    detector_configs,
+    setting_text,
+    tracker_configs,
+)
+from sim.errors import InputError
+
+STUDY = "optuna.sqlite"
+
+
+def _optuna():
+    try:
+        import optuna
+    except ImportError:
+        raise InputError("search: Optuna is not installed: pip install 'depotbench[search]'") from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
+def objective(rows: list[dict[str, Any]], search: Search) -> float:
+    ates = [r["ate_rmse_m"] for r in rows]
+    if not rows or any(a is None or not np.isfinite(a) for a in ates):
+        return float("inf")  # a run without a trajectory is the worst outcome
+    value = float(np.mean(ates))
+    if search.objective == "ate_time":
+        times = [r["track_ms_median"] for r in rows if r["track_ms_median"] is not None]
+        value += search.time_weight * float(np.mean(times)) if times else 0.0
+    return value
+
+
+def run_search(
+    spec: SweepSpec,
+    spec_path: Path,
+    sequences: list[tuple[Path, str]],
+    store: ResultStore,
+    out: Path,
+    workers: int,
+    progress: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> dict[str, Any]:
+    """Run the missing trials; return the best one (settings, value, trial count) and
+    ``families``: the sweep family of every row the trials own."""
+    search = spec.search
+    assert search is not None
+    optuna = _optuna()
+    source = str(spec_path)
+    trackers, detectors = tracker_configs(spec, source), detector_configs(spec, source)
+    study = optuna.create_study(
+        study_name=spec.sweep,
+        storage=f"sqlite:///{out / STUDY}",
+        sampler=optuna.samplers.TPESampler(seed=search.seed),
+        direction="minimize",
+        load_if_exists=True,
+    )
+    for stale in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)  # cut short by a kill
+    complete = optuna.trial.TrialState.COMPLETE
+    families: dict[str, str] = {}
+    for trial in study.get_trials(deepcopy=False, states=(complete,)):  # earlier trials' rows
+        variant = Variant(
+            search.strategy, tuple((n, setting_text(v)) for n, v in sorted(trial.params.items()))
+        )
+        families |= {j.key: j.family for j in jobs_for([variant], trackers, detectors, sequences)}
+    while len(study.get_trials(deepcopy=False, states=(complete,))) < search.trials:
+        trial = study.ask()
+        values = {
+            name: trial.suggest_float(name, interval.low, interval.high, log=interval.log)
+            for name, interval in sorted(search.space.items())
+        }
+        variant = Variant(search.strategy, tuple((n, setting_text(v)) for n, v in sorted(values.items())))
+        check_variants(spec, [variant], trackers, source)
+        jobs = jobs_for([variant], trackers, detectors, sequences)
+        families |= {j.key: j.family for j in jobs}
+        run_jobs(jobs, store, workers, progress=False, backend=backend, address=address)
+        keys = {j.key for j in jobs}
+        rows = [r for r in store.rows() if r["key"] in keys]
+        value = objective(rows, search)
+        study.tell(trial, value)
+        if progress:
+            print(f"trial {trial.number}: {dict(variant.settings)} -> {search.objective} {value:.5f}")
+    best = study.best_trial
+    return {
+        "strategy": search.strategy,
+        "objective": search.objective,
+        "value": best.value,
+        "settings": {n: setting_text(v) for n, v in sorted(best.params.items())},
+        "trials": len(study.get_trials(deepcopy=False, states=(complete,))),
+        "families": families,
+    }
