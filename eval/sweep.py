@@ -239,15 +239,7 @@ def run_jobs(
 def open_store(out: Path, spec: SweepSpec) -> ResultStore:
     out.mkdir(parents=True, exist_ok=True)
     store = ResultStore(out / DATABASE)
-    text = spec.model_dump_json()
-    previous = store.meta("spec")
-    if previous is None:
-        store.set_meta("spec", text)
-    elif previous != text:
-        store.set_meta("spec", text)  # rows are keyed by content: old ones stay valid, new ones add
+    # Rows are keyed by content: after a change of spec the old ones stay valid and new ones add.
+    store.set_meta("spec", spec.model_dump_json())
     store.set_meta("bench_version", generator_version())
     return store
-
-
-def summary_json(rows: list[dict]) -> str:
-    return json.dumps(rows, indent=2, sort_keys=True)
