@@ -216,6 +216,13 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
         default=max(1, os.cpu_count() or 1),
         help="parallel worker processes for a suite (default: one per core)",
     )
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="a suite's workers: local processes, or Ray (extra [ray]; local, or --address)",
+    )
+    p.add_argument("--address", help="--backend ray: the cluster's address (default: start a local Ray)")
     p.set_defaults(handler=_cmd_generate)
 
 
@@ -240,10 +247,20 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from sim.spec import default_scenario
 
     path = Path(args.spec)
+    if args.address and args.backend != "ray":
+        raise InputError("--address applies to --backend ray only")
     if path.is_file() and is_suite_file(path):
         if args.frames is not None or args.seed is not None or args.flow:
             raise InputError("--frames, --seed and --flow apply to one scenario; set them in the suite")
-        index = run_suite(load_suite(path), path, args.output, args.workers, overwrite=args.overwrite)
+        index = run_suite(
+            load_suite(path),
+            path,
+            args.output,
+            args.workers,
+            overwrite=args.overwrite,
+            backend=args.backend,
+            address=args.address,
+        )
         print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
         return 0
     changes = {

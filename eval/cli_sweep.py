@@ -54,7 +54,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     spec = load_sweep(args.spec)
     with OutputContainer(args.output, OutputKind.SWEEP, inputs=(args.spec,)) as container:
         out = container.path
-        sequences = sequences_of(spec, args.spec, out, args.workers, progress=True)
+        backend = {"backend": args.backend, "address": args.address}
+        sequences = sequences_of(spec, args.spec, out, args.workers, progress=True, **backend)
         jobs = expand(spec, args.spec, sequences)
         with open_store(out, spec) as store:
             done = len(store.keys() & {j.key for j in jobs})
@@ -62,7 +63,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                 f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
             )
             started = time.perf_counter()
-            backend = {"backend": args.backend, "address": args.address}
             ran, written = run_jobs(jobs, store, args.workers, dedupe=not args.no_dedupe, **backend)
             elapsed = time.perf_counter() - started
             # A family is how this sweep groups sequences, not part of a run's content:

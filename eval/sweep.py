@@ -18,7 +18,6 @@ from tqdm import tqdm
 from detectors.config import DetectorConfig
 from eval.cache import StageCache, content_hash
 from eval.detections import detect_sequence, sequence_fingerprint
-from eval.executors import make_pool
 from eval.harness import FLOW_STRATEGIES, MASK, RunJob, TrackerConfig, prepare, track
 from eval.record import RECORD_VERSION, RunRecord
 from eval.stages import decision_signature, features_key, sequence_stages
@@ -36,6 +35,7 @@ from eval.sweep_spec import (
 from eval.trackers.base import TrackerKind
 from scenes.schema import SpecError
 from sim.errors import InputError
+from sim.executors import make_pool
 from sim.sequence import Sequence
 from sim.version import generator_version
 
@@ -107,7 +107,13 @@ def jobs_for(
 
 
 def sequences_of(
-    spec: SweepSpec, spec_path: Path, out: Path, workers: int, progress: bool
+    spec: SweepSpec,
+    spec_path: Path,
+    out: Path,
+    workers: int,
+    progress: bool,
+    backend: str = "local",
+    address: str | None = None,
 ) -> list[tuple[Path, str]]:
     """The spec's sequence folders and their families, its suite generated (and resumed)
     under OUT/sequences. A suite's family is its name with the knobs other than the seed,
@@ -125,7 +131,15 @@ def sequences_of(
         suite_path = resolve(spec, spec_path, spec.suite)
         if not suite_path.is_file():
             raise InputError(f"{spec_path}: suite: {suite_path} is not a file")
-        index = run_suite(load_suite(suite_path), suite_path, out / "sequences", workers, progress=progress)
+        index = run_suite(
+            load_suite(suite_path),
+            suite_path,
+            out / "sequences",
+            workers,
+            progress=progress,
+            backend=backend,
+            address=address,
+        )
         for entry in index["sequences"]:
             knobs = " ".join(f"{k}={v}" for k, v in sorted(entry["knobs"].items()) if k != "seed")
             roots.append((out / "sequences" / entry["name"], f"{index['suite']} {knobs}".strip()))

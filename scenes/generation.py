@@ -11,11 +11,7 @@ it, and workers die with their parent.
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
-import os
-import signal
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +19,7 @@ from tqdm import tqdm
 
 from scenes.schema import Scenario, to_scenario
 from scenes.suite import Suite, variations
+from sim.executors import make_pool
 from sim.files import dumps_json
 from sim.output import (
     OutputContainer,
@@ -32,18 +29,9 @@ from sim.output import (
     read_marker,
     write_text_atomic,
 )
-from sim.processes import children_ignore_sigint, exit_with_parent
 from sim.spec import content_key
 
 INDEX_NAME = "index.json"
-
-
-def _init_worker(parent_pid: int) -> None:
-    # With one process per core, Mesa's llvmpipe should not spawn threads of its own.
-    os.environ["LP_NUM_THREADS"] = "1"
-    # Ctrl-C reaches the whole process group: the parent alone handles it and stops us.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    exit_with_parent(parent_pid)
 
 
 def generate_job(scenario_data: dict[str, Any], out: str) -> dict[str, Any]:
@@ -66,44 +54,25 @@ def is_complete(sequence: Path, key: str) -> bool:
     return marker is not None and marker.kind is OutputKind.SEQUENCE and marker.content_key == key
 
 
-def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel what has not started and terminate what runs (shutdown alone would wait for it)."""
-    terminate = getattr(pool, "terminate_workers", None)  # Python >= 3.14
-    if terminate is not None:
-        terminate()
-        return
-    # The pool forgets its processes on shutdown: take them first.
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        process.terminate()
-    for process in processes:
-        process.join(timeout=5)
-
-
-def _generate_all(pending: list[tuple[str, Scenario]], out_dir: Path, workers: int, bar: tqdm) -> None:
-    context = mp.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
-    )
+def _generate_all(
+    pending: list[tuple[str, Scenario]],
+    out_dir: Path,
+    workers: int,
+    bar: tqdm,
+    backend: str = "local",
+    address: str | None = None,
+) -> None:
+    # Always in worker processes (even one): rendering stays out of the caller's process.
+    pool = make_pool(backend, workers, address, in_process=False)
+    failed = True
     try:
-        running: dict[Future, Scenario] = {}
-        queue = list(pending)
-        while queue or running:
-            while queue and len(running) < workers:
-                name, sc = queue.pop(0)
-                with children_ignore_sigint():  # the first submit spawns the workers
-                    future = pool.submit(generate_job, sc.model_dump(mode="json"), str(out_dir / name))
-                running[future] = sc
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in done:
-                sc = running.pop(future)
-                future.result()  # a failed sequence stops the suite with its own error
-                bar.update(sc.n_frames)
-    except BaseException:
-        _stop_workers(pool)
-        raise
-    pool.shutdown(wait=True)
+        items = [(sc.model_dump(mode="json"), str(out_dir / name)) for name, sc in pending]
+        frames = {str(out_dir / name): sc.n_frames for name, sc in pending}
+        for (_, out), _ in pool.map_unordered(generate_job, items):  # a failure raises its own error
+            bar.update(frames[out])
+        failed = False
+    finally:
+        pool.close(failed)
 
 
 def run_suite(
@@ -113,8 +82,12 @@ def run_suite(
     workers: int,
     progress: bool = True,
     overwrite: bool = False,
+    backend: str = "local",
+    address: str | None = None,
 ) -> dict:
     """Generate every variation whose sequence is missing or stale; write ``index.json``.
+
+    ``backend`` ``ray`` generates on a Ray cluster (``sim.executors``); the bytes are the same.
 
     ``overwrite`` regenerates every sequence, even those that are up to date.
     """
@@ -144,7 +117,7 @@ def run_suite(
         start = time.perf_counter()
         try:
             if pending:
-                _generate_all(pending, root, workers, bar)
+                _generate_all(pending, root, workers, bar, backend, address)
         finally:
             bar.close()
         index = {

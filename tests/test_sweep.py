@@ -269,3 +269,23 @@ def test_ray_and_local_backends_give_identical_rows(tmp_path: Path):
 def _table_of(database: Path) -> list[dict]:
     with ResultStore(database) as store:
         return [{k: r[k] for k in DETERMINISTIC_FIELDS} for r in store.rows()]
+
+
+@pytest.mark.render
+def test_ray_and_local_generate_a_suite_byte_for_byte(tmp_path: Path):
+    pytest.importorskip("ray")
+    from scenes.generation import run_suite
+    from scenes.suite import load_suite
+
+    suite = tmp_path / "s.yaml"
+    suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 4}\nseeds: [1, 2]\n")
+    trees = {}
+    for backend in ("local", "ray"):
+        run_suite(load_suite(suite), suite, tmp_path / backend, workers=2, progress=False, backend=backend)
+        root = tmp_path / backend
+        trees[backend] = {
+            str(p.relative_to(root)): p.read_bytes()
+            for p in sorted(root.rglob("*"))
+            if p.is_file() and "lock" not in p.name
+        }
+    assert len(trees["local"]) > 20 and trees["ray"] == trees["local"]

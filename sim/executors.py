@@ -1,4 +1,5 @@
-"""Where sweep jobs run: local worker processes (the default) or a Ray cluster.
+"""Where long jobs run (suite generation, sweeps): local worker processes (the
+default) or a Ray cluster.
 
 Both map a function over items and yield (item, result) as results arrive, at
 most two jobs per worker in flight; the caller (the process that owns the
@@ -22,8 +23,10 @@ BACKENDS = ("local", "ray")
 
 
 def single_threaded() -> None:
-    """One thread per worker process: the workers are the parallelism."""
+    """One thread per worker process: the workers are the parallelism (Mesa's llvmpipe,
+    OpenMP and OpenCV would each start a thread per core)."""
     os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["LP_NUM_THREADS"] = "1"
     import cv2
 
     cv2.setNumThreads(1)
@@ -37,12 +40,12 @@ def _init_local_worker(parent_pid: int) -> None:
 
 class LocalPool:
     """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error.
-    With one worker, jobs run in this process."""
+    With one worker and ``in_process``, jobs run in this process instead."""
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, in_process: bool = True) -> None:
         self.workers = workers
         self.pool = None
-        if workers > 1:
+        if workers > 1 or not in_process:
             self.pool = ProcessPoolExecutor(
                 workers,
                 mp_context=mp.get_context("spawn"),
@@ -121,11 +124,13 @@ class RayPool:
             self.ray.shutdown()
 
 
-def make_pool(backend: str, workers: int, address: str | None = None) -> LocalPool | RayPool:
+def make_pool(
+    backend: str, workers: int, address: str | None = None, in_process: bool = True
+) -> LocalPool | RayPool:
     if backend == "local":
         if address:
             raise InputError("--address applies to --backend ray only")
-        return LocalPool(workers)
+        return LocalPool(workers, in_process)
     if backend == "ray":
         return RayPool(workers, address)
     raise InputError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
