@@ -43,7 +43,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from eval.search import run_search
-    from eval.sweep import expand, open_store, run_jobs, sequences_of
+    from eval.sweep import expand, open_store, run_jobs, sequences_of, validate
     from eval.sweep_report import best_per_family, configurations, format_best, pareto, plot, with_rho
     from eval.sweep_spec import load_sweep
     from sim.files import dumps_json
@@ -52,6 +52,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     spec = load_sweep(args.spec)
+    validate(spec, args.spec)  # before the output folder is made
     with OutputContainer(args.output, OutputKind.SWEEP, inputs=(args.spec,)) as container:
         out = container.path
         backend = {"backend": args.backend, "address": args.address}

@@ -106,6 +106,27 @@ def jobs_for(
     return jobs
 
 
+def validate(spec: SweepSpec, spec_path: Path) -> None:
+    """Everything that can be checked before an output folder is made: trackers,
+    detectors, threshold values, the sequence folders and the suite file."""
+    source = str(spec_path)
+    trackers = tracker_configs(spec, source)
+    detector_configs(spec, source)
+    check_variants(spec, variants(spec), trackers, source)
+    for i, name in enumerate(spec.sequences):
+        root = resolve(spec, spec_path, name)
+        if not root.is_dir():
+            raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
+        Sequence.open(root)
+    if spec.suite is not None:
+        from scenes.suite import load_suite
+
+        suite_path = resolve(spec, spec_path, spec.suite)
+        if not suite_path.is_file():
+            raise InputError(f"{spec_path}: suite: {suite_path} is not a file")
+        load_suite(suite_path)
+
+
 def sequences_of(
     spec: SweepSpec,
     spec_path: Path,

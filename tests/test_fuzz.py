@@ -816,6 +816,67 @@ def _command_cases() -> dict[str, Case]:
         "vocab-levels": Case(
             nothing, ("vocab", "-o", "{tmp}/v.txt", "--levels", "0"), "--levels must lie in 1..10"
         ),
+        "sweep-missing-spec": Case(nothing, ("sweep", "{tmp}/none.yaml", "-o", "{tmp}/out"), "none.yaml"),
+        "sweep-bad-yaml": Case(
+            write("s.yaml", "sweep: [unclosed\n"), ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"), "s.yaml"
+        ),
+        "sweep-missing-sequence": Case(
+            write("s.yaml", "sweep: s\nsequences: [nowhere]\n"),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "sequences.0:",
+        ),
+        "sweep-missing-suite": Case(
+            write("s.yaml", "sweep: s\nsuite: gone.yaml\n"),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "gone.yaml is not a file",
+        ),
+        "sweep-bad-detector": Case(
+            lambda tmp: (
+                seq(tmp),
+                write("s.yaml", f"sweep: s\nsequences: [{tmp}/seq]\ndetectors: [yolo9]\n")(tmp),
+            ),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "detectors.0: unknown detector 'yolo9'",
+        ),
+        "sweep-bad-tracker": Case(
+            lambda tmp: (
+                seq(tmp),
+                write("s.yaml", f"sweep: s\nsequences: [{tmp}/seq]\ntrackers: [cmd]\n")(tmp),
+            ),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "cmd trackers are not supported in sweeps",
+        ),
+        "sweep-bad-threshold": Case(
+            lambda tmp: (
+                seq(tmp),
+                write(
+                    "s.yaml",
+                    f"sweep: s\nsequences: [{tmp}/seq]\nstrategies: [prior_flow]\n"
+                    "thresholds: {prior_flow: {k: {grid: [-1]}}}\n",
+                )(tmp),
+            ),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "thresholds.prior_flow",
+        ),
+        "sweep-address-local": Case(
+            write("s.yaml", "sweep: s\nsequences: [x]\n"),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out", "--address", "ray://h:1"),
+            "--address applies to --backend ray only",
+        ),
+        "sweep-onto-foreign": Case(
+            lambda tmp: (
+                seq(tmp),
+                write("s.yaml", f"sweep: s\nsequences: [{tmp}/seq]\n")(tmp),
+                write("out/x", "x")(tmp),
+            ),
+            ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
+            "not written by depotbench",
+        ),
+        "sweep-workers": Case(
+            nothing,
+            ("__argparse__", "sweep", "{tmp}/s.yaml", "-o", "{tmp}/out", "--workers", "0"),
+            "--workers",
+        ),
         "vocab-scene": Case(
             nothing,
             ("vocab", "-o", "{tmp}/v.txt", "--scenes", "atlantis"),
