@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 from dataclasses import dataclass, field, fields, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from detectors.detection import Prior
-from detectors.faults import Faults
+from detectors.faults import Faults, check_range
 from detectors.priors import DEFAULT_PRIORS, PriorTable
 
 SHIPPED_MODEL = (
@@ -175,8 +174,7 @@ def _number(name: str, text: str, kind: Any) -> int | float:
 
 
 def _in_range(name: str, value: float, low: float, high: float) -> None:
-    if not (isinstance(value, int | float) and math.isfinite(value) and low <= value <= high):
-        raise DetectorConfigError(f"detector setting {name} = {value!r} is out of range [{low:g}, {high:g}]")
+    check_range(f"detector setting {name}", value, low, high, DetectorConfigError)
 
 
 __all__ = ["DetectorConfig", "DetectorConfigError", "DetectorKind", "OnnxSettings", "Prior", "parse_detector"]

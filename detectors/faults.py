@@ -112,9 +112,16 @@ class Faults:
         return out
 
 
-def _in_range(name: str, value: float, low: float, high: float) -> None:
+def check_range(
+    label: str, value: float, low: float, high: float, error: type[ValueError] = FaultError
+) -> None:
+    """``value`` a finite number in [low, high], or ``error`` naming ``label``."""
     if not (isinstance(value, int | float) and math.isfinite(value) and low <= value <= high):
-        raise FaultError(f"fault {name} = {value!r} is out of range [{low:g}, {high:g}]")
+        raise error(f"{label} = {value!r} is out of range [{low:g}, {high:g}]")
+
+
+def _in_range(name: str, value: float, low: float, high: float) -> None:
+    check_range(f"fault {name}", value, low, high)
 
 
 def _parse_value(name: str, text: str, kind: Any) -> Any:

@@ -13,7 +13,6 @@ class probability); each box keeps its best class; then class-wise NMS.
 from __future__ import annotations
 
 import ast
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,7 +160,6 @@ class OnnxDetector:
                 shape = self._run(np.zeros((1, 3, *self.size_hw), np.float32)).shape
             self.layout = recognise_layout(tuple(shape), self.size_hw)
         self.names = [bench_name(n) for n in self._class_names(model)]
-        self.last_ms = 0.0
 
     def _class_names(self, model: Path) -> list[str]:
         if self.settings.names:
@@ -188,7 +186,6 @@ class OnnxDetector:
         return (tensor if yolox else tensor / np.float32(255.0)), fit
 
     def detect(self, frame: DetectorFrame) -> tuple[Detection, ...]:
-        started = time.perf_counter()
         tensor, fit = self.preprocess(frame.rgb)
         output = self._run(tensor)
         boxes, scores, classes = decode(output, self.layout, self.size_hw)
@@ -210,7 +207,6 @@ class OnnxDetector:
             out.append(
                 Detection((float(x0), float(y0), float(x1), float(y1)), name, self.priors.prior(name), score)
             )
-        self.last_ms = (time.perf_counter() - started) * 1e3
         return tuple(out)
 
 

@@ -10,14 +10,9 @@ from pathlib import Path
 from sim.errors import InputError
 
 
-def _workers(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
 def add_sweep(sub: argparse._SubParsersAction) -> None:
+    from eval.cli import _workers  # the CLI's own --workers type (eval.cli imports this module)
+
     p = sub.add_parser(
         "sweep",
         help="run a threshold sweep (a YAML spec) into a resumable SQLite database, with CSV and plots",

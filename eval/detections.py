@@ -19,7 +19,7 @@ from tqdm import tqdm
 from detectors.base import DetectorFrame
 from detectors.config import DetectorConfig, DetectorKind
 from detectors.detection import Detection, Prior
-from detectors.faults import Difficulty, inject
+from detectors.faults import inject
 from detectors.groundtruth import GroundTruthDetector
 from eval.cache import StageCache, content_hash
 from sim.errors import InputError
@@ -62,11 +62,8 @@ def build_detector(config: DetectorConfig, sequence: Sequence):
     if config.kind is DetectorKind.ONNX:
         from detectors.onnx import OnnxDetector, OnnxModelError
 
-        path = config.model_path
-        if not path.is_file():
-            raise InputError(f"--detector onnx: model file {path} does not exist")
         try:
-            return OnnxDetector(path, config.onnx, config.priors)
+            return OnnxDetector(config.model_path, config.onnx, config.priors)
         except OnnxModelError as exc:
             raise InputError(str(exc)) from None
     raise ValueError(f"no detector for {config.kind}")
@@ -166,8 +163,3 @@ def _load(data: bytes | None) -> tuple[list[tuple[Detection, ...]], np.ndarray] 
         return per_frame, np.array(doc["latency_ms"], float)
     except (ValueError, KeyError, TypeError):
         return None  # a damaged entry is recomputed, and overwritten
-
-
-def difficulties_of(sequence: Sequence, min_visible_pixels: int = 20) -> list[tuple[Difficulty, ...]]:
-    detector = GroundTruthDetector(sequence, min_visible_pixels)
-    return [detector.difficulties(i) for i in range(len(sequence))]

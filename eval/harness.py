@@ -147,15 +147,25 @@ def _execute(
     detections = detect_sequence(sequence, job.detector, cache, progress)
     boxes = detections.per_frame if detections is not None else None
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
-    stages = None
-    if job.tracker.kind is TrackerKind.BUILTIN and job.strategy != MASK and cache is not None:
-        # Features and flow do not depend on rejection thresholds: computed once, cached.
-        need_flow = config.strategy in FLOW_STRATEGIES
-        stages = sequence_stages(sequence, config.tracking, config.rejection, need_flow, cache, progress)
+    stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
     run = make_tracker(job.tracker, config, progress, stages).run(frames, progress)
     metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
     header = f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
     return Tracked(metrics, run, header)
+
+
+def uses_stages(job: RunJob) -> bool:
+    """Whether the run can take cached features and flow (the built-in tracker, not ``mask``)."""
+    return job.tracker.kind is TrackerKind.BUILTIN and job.strategy != MASK
+
+
+def stages_for(
+    sequence: Sequence, config: SlamConfig, cache: StageCache | None, progress: bool = False
+) -> list[FrameStages]:
+    """The features (and, for flow strategies, the flow) of every frame; they do not depend
+    on rejection thresholds, so the cache computes them once."""
+    need_flow = config.strategy in FLOW_STRATEGIES
+    return sequence_stages(sequence, config.tracking, config.rejection, need_flow, cache, progress)
 
 
 def track(job: RunJob, cache: StageCache | None = None, progress: bool = False) -> Tracked:

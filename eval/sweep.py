@@ -18,9 +18,9 @@ from tqdm import tqdm
 from detectors.config import DetectorConfig
 from eval.cache import StageCache, content_hash
 from eval.detections import detect_sequence, sequence_fingerprint
-from eval.harness import FLOW_STRATEGIES, MASK, RunJob, TrackerConfig, prepare, track
+from eval.harness import RunJob, TrackerConfig, prepare, stages_for, track, uses_stages
 from eval.record import RECORD_VERSION, RunRecord
-from eval.stages import decision_signature, features_key, sequence_stages
+from eval.stages import decision_signature, features_key
 from eval.store import ResultStore
 from eval.sweep_spec import (
     MAX_JOBS,
@@ -173,13 +173,12 @@ def signature_job(job: SweepJob) -> tuple[str, str | None]:
     None for jobs that are not deduplicated (external trackers, ``mask``).
     """
     run = job.job
-    if run.tracker.kind is not TrackerKind.BUILTIN or run.strategy == MASK:
+    if not uses_stages(run):
         return job.key, None
     cache = StageCache.from_env()
     sequence, config = prepare(run)
+    stages = stages_for(sequence, config, cache)
     detections = detect_sequence(sequence, run.detector, cache)
-    need_flow = config.strategy in FLOW_STRATEGIES
-    stages = sequence_stages(sequence, config.tracking, config.rejection, need_flow, cache)
     boxes = list(detections.per_frame) if detections is not None else None
     decided = decision_signature(stages, boxes, config, config.tracking.seed)
     return job.key, content_hash(features_key(sequence, config.tracking), decided)

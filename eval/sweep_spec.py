@@ -249,7 +249,3 @@ def resolve(spec: SweepSpec, path: Path, name: str) -> Path:
     """A path of the spec, relative to the spec's folder."""
     candidate = Path(name).expanduser()
     return candidate if candidate.is_absolute() else path.parent / candidate
-
-
-def count_jobs(n_sequences: int, spec: SweepSpec) -> int:
-    return n_sequences * len(spec.trackers) * len(spec.detectors) * len(variants(spec))
