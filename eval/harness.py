@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from detectors.config import DetectorConfig, DetectorKind
-from eval.cache import StageCache
+from eval.cache import StageCache, content_hash
 from eval.comparison import ComparisonOptions, compare
 from eval.detections import SequenceDetections, detect_sequence
 from eval.frames import FrameSource, MaskSettings
-from eval.stages import FrameStages, sequence_stages
+from eval.stages import FrameStages, features_key, sequence_stages
 from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
 from eval.trajectory import Trajectory, write_tum
@@ -150,8 +150,7 @@ def _execute(
     stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
     run = make_tracker(job.tracker, config, progress, stages).run(frames, progress)
     metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
-    header = f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
-    return Tracked(metrics, run, header)
+    return Tracked(metrics, run, _header(job))
 
 
 def uses_stages(job: RunJob) -> bool:
@@ -172,6 +171,47 @@ def track(job: RunJob, cache: StageCache | None = None, progress: bool = False) 
     """Run a job and return its metrics, writing nothing (sweeps keep rows, not folders)."""
     sequence, config = prepare(job)
     return _execute(job, sequence, config, cache, progress)
+
+
+def branch_root(job: RunJob, sequence: Sequence, config: SlamConfig) -> str:
+    """What jobs must share to be tracked as one branching run (``track_tree``): the
+    sequence, detector (with faults), strategy, tracking settings and flow stage; they
+    may differ in rejection thresholds only."""
+    flow = (config.rejection.lk_window_px, config.rejection.lk_levels)
+    return content_hash(
+        features_key(sequence, config.tracking),
+        job.detector.key(),
+        job.detector.faults.to_dict(),
+        job.strategy,
+        flow,
+    )
+
+
+def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCache) -> list[Tracked]:
+    """Track jobs of one ``branch_root`` together: once while they keep the same keypoints
+    (``paths``: per job and frame, ``eval.stages.decision_path``), forked where they part.
+    Each result equals the job's own ``track``, timings aside."""
+    prepared = [prepare(job) for job in jobs]
+    sequence, first = prepared[0]
+    roots = {branch_root(job, seq, config) for job, (seq, config) in zip(jobs, prepared, strict=True)}
+    if len(roots) != 1 or not all(uses_stages(job) for job in jobs):
+        raise ValueError("track_tree takes built-in jobs that differ in rejection thresholds only")
+    configs = [config for _, config in prepared]
+    detections = detect_sequence(sequence, jobs[0].detector, cache)
+    frames = FrameSource(sequence, detections.per_frame if detections is not None else None)
+    runs = BuiltinTracker(first, stages_for(sequence, first, cache)).run_tree(frames, configs, paths)
+    return [
+        Tracked(
+            _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker),
+            run,
+            _header(job),
+        )
+        for job, config, run in zip(jobs, configs, runs, strict=True)
+    ]
+
+
+def _header(job: RunJob) -> str:
+    return f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
 
 
 def run_sequence(

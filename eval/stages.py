@@ -158,24 +158,31 @@ def _load(data: bytes | None) -> dict[str, np.ndarray] | None:
         return None  # a damaged entry is recomputed
 
 
-def decision_signature(
+def decision_path(
     stages: list[FrameStages], detections: list[tuple] | None, config: SlamConfig, seed_base: int
-) -> str:
-    """A hash of which keypoints the strategy keeps in every frame, computed without tracking.
+) -> tuple[str, ...]:
+    """Per frame, a hash of which keypoints the strategy keeps, computed without tracking.
 
     Rejection depends on the frame, the previous frame, the boxes and the flow, never on
     the tracker's state; tracking sees only the kept keypoints. So two threshold settings
-    of one strategy that keep the same keypoints in every frame give the same run, and a
-    sweep tracks it once (``tests/test_sweep.py`` checks this against tracking each).
+    of one strategy whose paths are equal give the same run, and a sweep tracks it once;
+    settings whose paths agree up to some frame share the run up to there and fork
+    (``tests/test_sweep.py`` checks both against tracking each job alone).
     """
-    digest = hashlib.sha256(f"{config.strategy}|{STAGE_FORMAT}".encode())
     kept = REJECTION_CODES[Rejection.KEPT]
+    path = []
     previous = None
     for i, stage in enumerate(stages):
         cv2.setRNGSeed(seed_base + i)  # as Slam.process does before rejection
         boxes = detections[i] if detections is not None else ()
         codes = classify(config.strategy, stage.features, previous, boxes, config.rejection, stage.flow)
-        digest.update(np.packbits(codes == kept).tobytes())
+        digest = hashlib.sha256(np.packbits(codes == kept).tobytes())
         digest.update(len(codes).to_bytes(4, "little"))
+        path.append(digest.hexdigest()[:16])
         previous = stage.features
-    return digest.hexdigest()[:32]
+    return tuple(path)
+
+
+def decision_signature(path: tuple[str, ...], features: str, strategy: str) -> str:
+    """One hash of a whole decision path: jobs with equal signatures are one run."""
+    return content_hash(STAGE_FORMAT, features, strategy, list(path))

@@ -18,9 +18,18 @@ from tqdm import tqdm
 from detectors.config import DetectorConfig
 from eval.cache import StageCache, content_hash
 from eval.detections import detect_sequence, sequence_fingerprint
-from eval.harness import RunJob, TrackerConfig, prepare, stages_for, track, uses_stages
+from eval.harness import (
+    RunJob,
+    TrackerConfig,
+    branch_root,
+    prepare,
+    stages_for,
+    track,
+    track_tree,
+    uses_stages,
+)
 from eval.record import RECORD_VERSION, RunRecord
-from eval.stages import decision_signature, features_key
+from eval.stages import decision_path, decision_signature, features_key
 from eval.store import ResultStore
 from eval.sweep_spec import (
     MAX_JOBS,
@@ -167,28 +176,68 @@ def sequences_of(
     return roots
 
 
-def signature_job(job: SweepJob) -> tuple[str, str | None]:
-    """Worker entry point of phase 1: which keypoints the job keeps, frame by frame, as a hash.
+@dataclass(frozen=True)
+class Decision:
+    """Phase 1's answer for a job: which keypoints it keeps, per frame and in all."""
 
-    None for jobs that are not deduplicated (external trackers, ``mask``).
-    """
-    run = job.job
-    if not uses_stages(run):
-        return job.key, None
+    key: str
+    signature: str | None
+    """Hash of the whole path; None for jobs that are not shared (external trackers, ``mask``)."""
+    root: str | None
+    """``harness.branch_root``: jobs with one root can be tracked as one branching run."""
+    path: tuple[str, ...] | None
+
+
+def decide(jobs: list[SweepJob]) -> list[Decision]:
+    """Worker entry point of phase 1: each job's decision path (cheap: no tracking).
+
+    Jobs come in expansion order, so those of one sequence and detector are neighbours
+    and the stages are loaded once for them."""
     cache = StageCache.from_env()
-    sequence, config = prepare(run)
-    stages = stages_for(sequence, config, cache)
-    detections = detect_sequence(sequence, run.detector, cache)
-    boxes = list(detections.per_frame) if detections is not None else None
-    decided = decision_signature(stages, boxes, config, config.tracking.seed)
-    return job.key, content_hash(features_key(sequence, config.tracking), decided)
+    loaded: dict[str, tuple] = {}
+    decisions = []
+    for job in jobs:
+        run = job.job
+        if not uses_stages(run):
+            decisions.append(Decision(job.key, None, None, None))
+            continue
+        sequence, config = prepare(run)
+        root = branch_root(run, sequence, config)
+        if root not in loaded:
+            detections = detect_sequence(sequence, run.detector, cache)
+            boxes = list(detections.per_frame) if detections is not None else None
+            loaded = {root: (stages_for(sequence, config, cache), boxes)}  # one at a time
+        stages, boxes = loaded[root]
+        path = decision_path(stages, boxes, config, config.tracking.seed)
+        signature = decision_signature(path, features_key(sequence, config.tracking), run.strategy)
+        decisions.append(Decision(job.key, signature, root, path))
+    return decisions
 
 
-def run_job(job: SweepJob, bench_version: str, signature: str | None) -> RunRecord:
-    """Worker entry point of phase 2: track, and make the row."""
+def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
+    """Worker entry point of phase 2 for a job tracked alone."""
     tracked = track(job.job, StageCache.from_env())
+    return [_record(job, tracked.metrics, bench_version, None)]
+
+
+def run_branches(
+    jobs: list[SweepJob], paths: list[tuple[str, ...]], signatures: list[str], bench_version: str
+) -> list[RunRecord]:
+    """Worker entry point of phase 2 for jobs of one branch root, tracked as one branching run."""
+    tracked = track_tree([j.job for j in jobs], paths, StageCache.from_env())
+    return [
+        _record(job, t.metrics, bench_version, signature)
+        for job, t, signature in zip(jobs, tracked, signatures, strict=True)
+    ]
+
+
+def _dispatch(fn, args: tuple):
+    return fn(*args)
+
+
+def _record(job: SweepJob, metrics: dict, bench_version: str, signature: str | None) -> RunRecord:
     settings = dict(job.job.settings)
-    return RunRecord.from_metrics(job.key, job.family, settings, tracked.metrics, bench_version, signature)
+    return RunRecord.from_metrics(job.key, job.family, settings, metrics, bench_version, signature)
 
 
 def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:
@@ -203,6 +252,30 @@ def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:
     )
 
 
+def _chunks(items: list, count: int) -> list[list]:
+    size = max(1, -(-len(items) // max(1, count)))
+    return [items[i : i + size] for i in range(0, len(items), size)]
+
+
+def _split(tasks: list[list[Decision]], target: int) -> list[list[Decision]]:
+    """Split the largest branching tasks where their paths first part, until there are
+    ``target`` tasks (so every worker has work and progress moves). A part re-runs the
+    shared frames before the split: cheap, since paths part early or not at all."""
+    tasks = [list(t) for t in tasks]
+    while len(tasks) < target:
+        splittable = [t for t in tasks if len(t) > 1]
+        if not splittable:
+            break
+        task = max(splittable, key=len)
+        depth = next(i for i in range(len(task[0].path)) if len({d.path[i] for d in task}) > 1)
+        parts: dict[str, list[Decision]] = {}
+        for decision in task:
+            parts.setdefault(decision.path[depth], []).append(decision)
+        tasks.remove(task)
+        tasks.extend(parts.values())
+    return tasks
+
+
 def run_jobs(
     jobs: list[SweepJob],
     store: ResultStore,
@@ -214,41 +287,61 @@ def run_jobs(
 ) -> tuple[int, int]:
     """Run the jobs whose rows are missing; returns (runs tracked, rows written).
 
-    Phase 1 finds, per job, which keypoints it keeps (cheap: no tracking); phase 2
-    tracks one job per distinct decision and writes the others' rows from it.
+    Phase 1 finds, per job, which keypoints it keeps in every frame (cheap: no
+    tracking). Phase 2 tracks one job per distinct decision path, the jobs of one
+    sequence and strategy together, sharing the frames where their paths agree;
+    jobs with a path already tracked get its row. ``dedupe=False`` tracks every job
+    alone (the reference the tests compare against).
     """
     done = store.keys()
     pending = [j for j in jobs if j.key not in done]
+    by_key = {j.key: j for j in pending}
     version = generator_version()
     pool = make_pool(backend, workers, address)
     failed = True
     try:
-        signatures: dict[str, str | None] = {j.key: None for j in pending}
+        decisions = [Decision(j.key, None, None, None) for j in pending]
         if dedupe and pending:
             bar = tqdm(total=len(pending), desc="decisions", unit="run", disable=None if progress else True)
+            decisions = []
             with bar:
-                for _, (key, signature) in pool.map_unordered(signature_job, [(j,) for j in pending]):
-                    signatures[key] = signature
-                    bar.update()
-        groups: dict[str, list[SweepJob]] = {}
-        order: list[tuple[SweepJob, list[SweepJob]]] = []
-        for job in pending:
-            signature = signatures[job.key]
-            if signature is None:
-                order.append((job, []))
+                for _, answer in pool.map_unordered(decide, [(c,) for c in _chunks(pending, 4 * workers)]):
+                    decisions.extend(answer)
+                    bar.update(len(answer))
+            order = {j.key: i for i, j in enumerate(pending)}
+            decisions.sort(key=lambda d: order[d.key])
+        alone: list[SweepJob] = []
+        leaders: dict[str, Decision] = {}
+        followers: dict[str, list[SweepJob]] = {}
+        for decision in decisions:
+            job = by_key[decision.key]
+            if decision.signature is None:
+                alone.append(job)
                 continue
-            existing = store.by_signature(signature)
+            existing = store.by_signature(decision.signature)
             if existing is not None:
                 store.add(_same_run(existing, job))
-                continue
-            if signature in groups:
-                groups[signature].append(job)
+            elif decision.signature in leaders:
+                followers[leaders[decision.signature].key].append(job)
             else:
-                groups[signature] = []
-                order.append((job, groups[signature]))
+                leaders[decision.signature] = decision
+                followers[decision.key] = []
+        roots: dict[str, list[Decision]] = {}
+        for decision in leaders.values():
+            roots.setdefault(decision.root, []).append(decision)
+        trees = _split(list(roots.values()), 4 * workers - len(alone))
+        trees.sort(key=len, reverse=True)  # the longest first: the workers finish together
+        tasks = [(run_job, (job, version)) for job in alone] + [
+            (
+                run_branches,
+                ([by_key[d.key] for d in tree], [d.path for d in tree], [d.signature for d in tree], version),
+            )
+            for tree in trees
+        ]
+        remaining = len(alone) + sum(1 + len(followers[d.key]) for d in leaders.values())
         bar = tqdm(
             total=len(jobs),
-            initial=len(jobs) - sum(1 + len(rest) for _, rest in order),
+            initial=len(jobs) - remaining,
             desc="sweep",
             unit="run",
             disable=None if progress else True,
@@ -256,14 +349,13 @@ def run_jobs(
         )
         tracked = 0
         with bar:
-            items = [(job, version, signatures[job.key]) for job, _ in order]
-            followers = {job.key: rest for job, rest in order}
-            for (job, _, _), record in pool.map_unordered(run_job, items):
-                store.add(record)
-                tracked += 1
-                for other in followers[job.key]:
-                    store.add(_same_run(record, other))
-                bar.update(1 + len(followers[job.key]))
+            for _, records in pool.map_unordered(_dispatch, tasks):
+                for record in records:
+                    store.add(record)
+                    tracked += 1
+                    for other in followers.get(record.key, []):
+                        store.add(_same_run(record, other))
+                    bar.update(1 + len(followers.get(record.key, [])))
         failed = False
     finally:
         pool.close(failed)

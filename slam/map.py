@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -69,6 +69,28 @@ class Map:
             self.n_observations[point_id] -= 1
             self.observation_weight[point_id] -= self._weight(keyframe_id, keypoint)
             self.keyframes[keyframe_id].point_ids[keypoint] = -1
+
+    def copy(self) -> Map:
+        """An independent copy (features are shared: nothing changes them)."""
+        arrays = {
+            name: getattr(self, name).copy()
+            for name in (
+                "positions",
+                "descriptors",
+                "alive",
+                "first_keyframe",
+                "visible",
+                "found",
+                "n_observations",
+                "observation_weight",
+            )
+        }
+        keyframes = [
+            replace(kf, world_from_camera=kf.world_from_camera.copy(), point_ids=kf.point_ids.copy())
+            for kf in self.keyframes
+        ]
+        observations = {point: dict(seen) for point, seen in self.observations.items()}
+        return Map(**arrays, keyframes=keyframes, observations=observations)
 
     def keyframe(self, keyframe_id: int) -> KeyFrame:
         return self.keyframes[keyframe_id]

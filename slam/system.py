@@ -11,6 +11,7 @@ reports them. Rejection decides which keypoints tracking and mapping may use.
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 
@@ -100,6 +101,24 @@ class Slam:
         self.trajectory: list[tuple[float, np.ndarray]] = []
 
     # -- public -----------------------------------------------------------------
+
+    def fork(self, config: SlamConfig) -> Slam:
+        """An independent copy of this system's state that goes on with ``config``.
+
+        Sweeps run configurations that keep the same keypoints up to some frame once up
+        to there and fork (``eval.trackers.builtin.BuiltinTracker.run_tree``). Only the
+        rejection settings may differ: tracking with other settings is another run.
+        """
+        if config.tracking != self.tc:
+            raise ValueError("a fork may change rejection settings only, not tracking settings")
+        twin = copy.copy(self)  # the extractor and camera are shared; they hold no state
+        twin.config = config
+        twin.map = self.map.copy()
+        twin.trajectory = list(self.trajectory)
+        for name in ("_last_pose", "_velocity", "_last_point_ids", "_last_angles", "_last_octaves"):
+            value = getattr(self, name)
+            setattr(twin, name, None if value is None else value.copy())
+        return twin
 
     def process(
         self, frame: Frame, features: FrameFeatures | None = None, flow: Flow | None = None

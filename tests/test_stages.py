@@ -104,6 +104,35 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
     assert tables[True] == tables[False]
 
 
+def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tmp_path: Path):
+    """Thresholds whose decisions agree for some frames and then part are tracked once up
+    to there and forked; every configuration's run is bit for bit its run alone."""
+    from eval.detections import detect_sequence
+    from eval.harness import prepare, stages_for, track_tree
+    from eval.stages import decision_path
+
+    cache = StageCache(tmp_path / "cache")
+    jobs = [
+        RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", eps),))
+        for eps in ("0.25", "0.5", "1.0", "2.0", "8.0")
+    ]
+    paths = []
+    for job in jobs:
+        sequence, config = prepare(job)
+        boxes = list(detect_sequence(sequence, job.detector, cache).per_frame)
+        paths.append(decision_path(stages_for(sequence, config, cache), boxes, config, config.tracking.seed))
+    parted = [
+        next((i for i, (a, b) in enumerate(zip(p, q)) if a != b), None) for p, q in zip(paths, paths[1:])
+    ]
+    assert any(i is not None and i > 1 for i in parted), parted  # some fork after shared frames
+    together = track_tree(jobs, paths, cache)
+    for job, shared in zip(jobs, together, strict=True):
+        alone = track(job, cache)
+        assert _fingerprint(shared) == _fingerprint(alone)
+        assert shared.metrics["ate_m"] == alone.metrics["ate_m"]
+        assert shared.metrics["rejection"] == alone.metrics["rejection"]
+
+
 def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Path, tmp_path: Path, capsys):
     pytest.importorskip("optuna")
     import json

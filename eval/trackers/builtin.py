@@ -49,6 +49,7 @@ class BuiltinTracker:
         """``stages``: per frame, cached features (and flow) from ``eval.stages``."""
         self.config = config
         self.stages = stages
+        self._blank: tuple[np.ndarray, np.ndarray] | None = None
 
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         sequence = frames.sequence
@@ -56,12 +57,7 @@ class BuiltinTracker:
         slam = Slam(self.config, camera_of(sequence))
         if self.stages is not None and len(self.stages) != len(frames):
             raise ValueError(f"{len(self.stages)} frames of stages for {len(frames)} frames")
-        k = sequence.intrinsics
-        blank_rgb, blank_depth = (
-            np.zeros((k.height, k.width, 3), np.uint8),
-            np.zeros((k.height, k.width), np.float32),
-        )
-        objects = sequence.objects() if sequence.is_generated else None
+        objects = sequence.objects() if sequence.is_generated and self.stages is None else None
         results, labels = [], []
         bar = tqdm(
             range(len(frames)),
@@ -73,15 +69,9 @@ class BuiltinTracker:
         with bar:  # closed (and its line cleared) before an error is printed
             for i in bar:
                 if self.stages is not None:
-                    stage = self.stages[i]
-                    frame = Frame(
-                        frames.timestamp_s(i), blank_rgb, blank_depth, slam.camera, frames.detections(i)
-                    )
-                    result = slam.process(frame, stage.features, stage.flow)
-                    _charge(result, stage)
-                    results.append(result)
-                    if stage.labels is not None:
-                        labels.append(stage.labels)
+                    results.append(self._step(slam, frames, i))
+                    if self.stages[i].labels is not None:
+                        labels.append(self.stages[i].labels)
                     continue
                 rgb, depth_raw = frames.images(i)
                 depth_m = depth_raw.astype(np.float32) / np.float32(sequence.intrinsics.depth_scale)
@@ -91,15 +81,73 @@ class BuiltinTracker:
                 if objects is not None:
                     moving = {o.instance_id for o in objects[i] if o.moving}
                     labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
-        stage_ms = {s: np.array([r.diagnostics.stage_ms[s] for r in results]) for s in STAGES}
-        return TrackerRun(
-            timestamps_s=np.array([r.timestamp_s for r in results]),
-            states=tuple(r.state for r in results),
-            poses=tuple(r.world_from_camera for r in results),
-            track_ms=stage_ms["tracking_total"],
-            keyframes=len(slam.map.keyframes),
-            total_s=time.perf_counter() - started,
-            results=results,
-            labels=labels or None,
-            stage_ms=stage_ms,
-        )
+        return _tracker_run(results, labels, len(slam.map.keyframes), time.perf_counter() - started)
+
+    def _step(self, slam: Slam, frames: FrameSource, i: int):
+        """Track frame ``i`` from its cached stages (no image is read)."""
+        stage = self.stages[i]
+        k = frames.sequence.intrinsics
+        if self._blank is None:
+            self._blank = (
+                np.zeros((k.height, k.width, 3), np.uint8),
+                np.zeros((k.height, k.width), np.float32),
+            )
+        frame = Frame(frames.timestamp_s(i), *self._blank, slam.camera, frames.detections(i))
+        result = slam.process(frame, stage.features, stage.flow)
+        _charge(result, stage)
+        return result
+
+    def run_tree(
+        self, frames: FrameSource, configs: list[SlamConfig], paths: list[tuple[str, ...]]
+    ) -> list[TrackerRun]:
+        """Runs of several configurations that keep the same keypoints up to some frame.
+
+        ``paths[j]`` names, per frame, which keypoints configuration j keeps (a hash,
+        ``eval.stages.decision_path``). While configurations agree they are one run;
+        where they part, the system is forked (``Slam.fork``) and each branch goes
+        on. Each run equals, bit for bit, the run of its configuration alone
+        (``tests/test_sweep.py``); its per-frame times are those of the shared run
+        up to where it parted. Needs the cached stages.
+        """
+        if self.stages is None:
+            raise ValueError("run_tree needs the cached stages")
+        if len(configs) != len(paths) or any(len(p) != len(frames) for p in paths):
+            raise ValueError("one decision path of every frame per configuration")
+        runs: list[TrackerRun | None] = [None] * len(configs)
+        labels = [s.labels for s in self.stages if s.labels is not None]
+        # Depth-first over the branches: (system, next frame, members, results, seconds so far).
+        pending = [(Slam(configs[0], camera_of(frames.sequence)), 0, list(range(len(configs))), [], 0.0)]
+        while pending:
+            slam, i, members, results, elapsed = pending.pop()
+            while i < len(frames):
+                groups: dict[str, list[int]] = {}
+                for m in members:
+                    groups.setdefault(paths[m][i], []).append(m)
+                if len(groups) > 1:
+                    break
+                started = time.perf_counter()
+                results.append(self._step(slam, frames, i))
+                elapsed += time.perf_counter() - started
+                i += 1
+            if i == len(frames):
+                for m in members:
+                    runs[m] = _tracker_run(results, labels, len(slam.map.keyframes), elapsed)
+                continue
+            for group in reversed(list(groups.values())):
+                pending.append((slam.fork(configs[group[0]]), i, group, list(results), elapsed))
+        return runs
+
+
+def _tracker_run(results: list, labels: list, keyframes: int, total_s: float) -> TrackerRun:
+    stage_ms = {s: np.array([r.diagnostics.stage_ms[s] for r in results]) for s in STAGES}
+    return TrackerRun(
+        timestamps_s=np.array([r.timestamp_s for r in results]),
+        states=tuple(r.state for r in results),
+        poses=tuple(r.world_from_camera for r in results),
+        track_ms=stage_ms["tracking_total"],
+        keyframes=keyframes,
+        total_s=total_s,
+        results=results,
+        labels=labels or None,
+        stage_ms=stage_ms,
+    )
