@@ -7,12 +7,12 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test test-slow lint bench system-deps clean
+.PHONY: demo test test-slow lint bench system-deps browser clean
 
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
 
-test: $(VENV)/.installed
+test: $(VENV)/.installed browser
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
@@ -31,11 +31,21 @@ system-deps:
 		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libegl1 libgl1-mesa-dri libglx-mesa0 >/dev/null; \
 	else echo "error: libEGL.so.1 not found; install your distribution's libegl1 and Mesa DRI drivers" >&2; exit 1; fi
 
+# The HTML report's test opens it in headless Chromium: Debian's package, driven by Playwright
+# (Playwright's own browser download cannot reach its servers from CI machines here).
+browser:
+	@if command -v chromium >/dev/null || command -v chromium-browser >/dev/null; then :; \
+	elif command -v apt-get >/dev/null; then \
+		echo "installing Chromium (the HTML report test opens the page in it)"; \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq chromium >/dev/null; \
+	else echo "error: chromium not found; install your distribution's chromium package" >&2; exit 1; fi
+
 $(VENV)/.installed: pyproject.toml | system-deps
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "depotbench needs Python >= 3.11"'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[dev,orbslam3]'
+	$(BIN)/python -m pip install -q -e '.[dev,viz,orbslam3]'
 	touch $@
 
 clean:

@@ -11,6 +11,7 @@ import math
 import os
 import signal
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -23,6 +24,8 @@ from eval.cli_detectors import (
     detector_config,
     pairs,
 )
+from eval.cli_gates import add_check
+from eval.cli_report import add_report
 from eval.cli_sweep import add_sweep
 from eval.comparison import Comparison, ComparisonOptions, compare
 from eval.metrics import DeltaUnit, Statistics
@@ -141,55 +144,47 @@ def format_comparison(result: Comparison) -> str:
 
 
 def _add_demo(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="the quick-start job: generate a small suite, run SLAM, report")
+    p = sub.add_parser(
+        "demo",
+        help="the main job in small: generate a suite, sweep every strategy, gate, write the HTML report",
+    )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
     p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1))
     p.set_defaults(handler=_cmd_demo)
 
 
+DEMO_GATES = Path(__file__).resolve().parent / "demo_gates.yaml"
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
-    import numpy as np
+    """The README's first command: the sweep, the gates and the report of eval/demo_gates.yaml."""
+    from eval.gates import evaluate, format_report, junit_xml, load_gates
+    from eval.html_report import write_report
+    from eval.sweep_report import format_best
+    from eval.sweep_run import execute_sweep
+    from sim.output import OutputContainer, OutputKind, write_text_atomic
 
-    from eval.harness import run_sequence
-    from eval.preview import preview, save_png
-    from eval.report import format_table, summarise, write_report
-    from scenes.generation import run_suite
-    from scenes.suite import load_suite
-    from sim.output import OutputContainer, OutputKind
-    from sim.sequence import Sequence
-    from slam.rejection import STRATEGIES
-
-    suite_path = Path(__file__).resolve().parents[1] / "scenes" / "suites" / "demo.yaml"
-    suite = load_suite(suite_path)
+    gates = load_gates(DEMO_GATES)
+    started = time.perf_counter()
     with OutputContainer(args.output, OutputKind.DEMO) as container:
         out = container.path
-        print(f"1/3 generating the demo suite ({suite.description})")
-        index = run_suite(suite, suite_path, out / "sequences", args.workers)
-        names = [s["name"] for s in index["sequences"]]
-        last = Sequence.open(out / "sequences" / names[-1])
-        save_png(out / "preview.png", np.vstack([preview(last, i) for i in (0, len(last) - 1)]))
-        print(
-            f"2/3 tracking {len(names)} sequences with {len(STRATEGIES)} strategies "
-            f"(ground-truth boxes); results under {args.output / 'runs'}"
-        )
-        runs: dict[str, dict[str, dict]] = {}
-        for entry in index["sequences"]:
-            name = entry["name"]
-            label = f"{entry['knobs']['actors.0.count']} people"
-            runs[label] = {}
-            for strategy in STRATEGIES:
-                runs[label][strategy] = run_sequence(
-                    out / "sequences" / name,
-                    out / "runs" / name / strategy,
-                    strategy,
-                    overwrite=True,
-                )
-        rows = summarise(runs)
-        write_report(rows, out)
-    print("3/3 report (rho: ATE improvement over the no-rejection baseline)\n")
-    print(format_table(rows))
-    print(f"\nwrote {args.output / 'report.txt'}, report.json, ate.png and preview.png")
-    return 0
+        print(f"1/4 the demo suite and its sweep ({DEMO_GATES.name}): generating, then tracking")
+        outcome = execute_sweep(gates.run, DEMO_GATES, out, args.workers)
+        print(f"2/4 best configuration per family (of {outcome.jobs} runs; rho: ATE improvement over none)")
+        print(format_best(outcome.summary["best"]))
+        report = evaluate(gates, outcome.rows)
+        print("3/4 gates")
+        print(format_report(report))
+        write_text_atomic(out / "gates.xml", junit_xml(report))
+        print("4/4 HTML report (plots, trajectories, frames with keypoints by decision)")
+        page = write_report(out, out / "report")
+    print(
+        f"\ndone in {time.perf_counter() - started:.0f} s. Open {args.output / page.relative_to(out)}; "
+        f"rows in {args.output / 'results.csv'}, JUnit in {args.output / 'gates.xml'}"
+    )
+    for failure in report.failures:
+        print(f"FAILED {failure}")
+    return 0 if report.passed else 1
 
 
 def _add_generate(sub: argparse._SubParsersAction) -> None:
@@ -535,6 +530,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_detect_eval(sub)
     add_export_dataset(sub)
     add_sweep(sub)
+    add_check(sub)
+    add_report(sub)
     return parser
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from pathlib import Path
 
 from sim.errors import InputError
@@ -37,55 +36,41 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from eval.search import run_search
-    from eval.sweep import expand, open_store, run_jobs, sequences_of, validate
-    from eval.sweep_report import best_per_family, configurations, format_best, pareto, plot, with_rho
+    from eval.sweep import validate
+    from eval.sweep_report import format_best
+    from eval.sweep_run import execute_sweep
     from eval.sweep_spec import load_sweep
-    from sim.files import dumps_json
-    from sim.output import OutputContainer, OutputKind, write_text_atomic
+    from sim.output import OutputContainer, OutputKind
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     spec = load_sweep(args.spec)
     validate(spec, args.spec)  # before the output folder is made
     with OutputContainer(args.output, OutputKind.SWEEP, inputs=(args.spec,)) as container:
-        out = container.path
-        backend = {"backend": args.backend, "address": args.address}
-        sequences = sequences_of(spec, args.spec, out, args.workers, progress=True, **backend)
-        jobs = expand(spec, args.spec, sequences)
-        with open_store(out, spec) as store:
-            done = len(store.keys() & {j.key for j in jobs})
-            print(
-                f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
-            )
-            started = time.perf_counter()
-            ran, written = run_jobs(jobs, store, args.workers, dedupe=not args.no_dedupe, **backend)
-            elapsed = time.perf_counter() - started
-            # A family is how this sweep groups sequences, not part of a run's content:
-            # rows carry the family of the sweep that asked for them now.
-            family = {j.key: j.family for j in jobs}
-            search = None
-            if spec.search is not None:
-                search = run_search(spec, args.spec, sequences, store, out, args.workers, **backend)
-                family |= search.pop("families")
-            rows = [r | {"family": family[r["key"]]} for r in store.rows() if r["key"] in family]
-            store.export_csv(out / "results.csv", with_rho(rows))
-        configs = configurations(rows)
-        best = best_per_family(configs)
-        summary = {"best": best, "pareto": pareto(configs), "configurations": configs, "search": search}
-        write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
-        plots = plot(configs, out / "plots")
+        outcome = execute_sweep(
+            spec,
+            args.spec,
+            container.path,
+            args.workers,
+            dedupe=not args.no_dedupe,
+            backend=args.backend,
+            address=args.address,
+        )
+    written, elapsed = outcome.written, outcome.seconds
     rate = f", {written / elapsed * 60:.1f} rows/min" if written and elapsed > 0 else ""
     print(
-        f"wrote {written} rows in {elapsed:.1f} s{rate}; tracked {ran} of them "
+        f"wrote {written} rows in {elapsed:.1f} s{rate}; tracked {outcome.tracked} of them "
         "(the others keep the same keypoints in every frame as a tracked one)"
     )
-    print(format_best(best))
+    print(format_best(outcome.summary["best"]))
+    search = outcome.search
     if search is not None:
         print(
             f"search ({search['trials']} trials, {search['objective']}): best {search['strategy']} "
             f"{search['settings']} -> {search['value']:.5f}; study in {args.output / 'optuna.sqlite'}"
         )
-    shown = f", plots in {args.output / 'plots'}" if plots else " (pip install 'depotbench[viz]' for plots)"
-    print(f"wrote {args.output / 'results.sqlite'}, results.csv, summary.json{shown}")
+    print(
+        f"wrote {args.output / 'results.sqlite'}, results.csv, summary.json, plots in {args.output / 'plots'}"
+    )
+    print(f"the HTML page: depotbench report {args.output} -o REPORT_FOLDER")
     return 0

@@ -125,10 +125,12 @@ class Tracked:
     header: str
 
 
-def prepare(job: RunJob) -> tuple[Sequence, SlamConfig]:
-    """Open and check everything before any work: the sequence, settings, detector use."""
+def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, SlamConfig]:
+    """Open and check everything before any work: the sequence (unless given, already
+    open), settings, detector use."""
     config = slam_config(job.strategy, dict(job.settings), job.tracker.kind)
-    sequence = Sequence.open(job.sequence)
+    if sequence is None or sequence.root != Path(job.sequence):
+        sequence = Sequence.open(job.sequence)
     if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
     if job.tracker.kind is TrackerKind.BUILTIN:
@@ -191,8 +193,9 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
     """Track jobs of one ``branch_root`` together: once while they keep the same keypoints
     (``paths``: per job and frame, ``eval.stages.decision_path``), forked where they part.
     Each result equals the job's own ``track``, timings aside."""
-    prepared = [prepare(job) for job in jobs]
-    sequence, first = prepared[0]
+    sequence = Sequence.open(jobs[0].sequence)
+    prepared = [prepare(job, sequence) for job in jobs]
+    first = prepared[0][1]
     roots = {branch_root(job, seq, config) for job, (seq, config) in zip(jobs, prepared, strict=True)}
     if len(roots) != 1 or not all(uses_stages(job) for job in jobs):
         raise ValueError("track_tree takes built-in jobs that differ in rejection thresholds only")
@@ -332,6 +335,11 @@ def _write_frames(path: Path, run: TrackerRun) -> None:
 
 
 def _write_diagnostics(path: Path, results: list[FrameResult], labels: list[np.ndarray]) -> None:
+    np.savez_compressed(path, **diagnostics_arrays(results, labels))
+
+
+def diagnostics_arrays(results: list[FrameResult], labels: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """Per-keypoint decisions of a run as flat arrays (``diagnostics.npz``; the report reads them)."""
     counts = np.array([len(r.diagnostics.keypoints_px) for r in results])
     classes = sorted({c for r in results for c in r.diagnostics.keypoint_classes})
     class_index = {c: i for i, c in enumerate(classes)}
@@ -358,4 +366,4 @@ def _write_diagnostics(path: Path, results: list[FrameResult], labels: list[np.n
     }
     if labels:
         arrays["moving"] = np.concatenate(labels)
-    np.savez_compressed(path, **arrays)
+    return arrays

@@ -196,12 +196,13 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
     cache = StageCache.from_env()
     loaded: dict[str, tuple] = {}
     decisions = []
+    sequence = None
     for job in jobs:
         run = job.job
         if not uses_stages(run):
             decisions.append(Decision(job.key, None, None, None))
             continue
-        sequence, config = prepare(run)
+        sequence, config = prepare(run, sequence)
         root = branch_root(run, sequence, config)
         if root not in loaded:
             detections = detect_sequence(sequence, run.detector, cache)

@@ -98,74 +98,86 @@ def pareto(configs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(out, key=lambda c: (c["family"], c["ate_rmse_m"]))
 
 
-def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
-    """Curves per swept threshold and the Pareto picture; [] without matplotlib (extra [viz])."""
-    try:
-        import matplotlib
+def _pyplot():
+    import matplotlib
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return []
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
+    """Per (strategy, swept threshold): mean ATE and rejection precision/recall against
+    the value, a curve per family and detector. Returns (name, figure) pairs."""
+    plt = _pyplot()
     swept: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for c in configs:
         for name in c["settings"]:
             swept[(c["strategy"], name)].append(c)
+    figures = []
     for (strategy, name), members in sorted(swept.items()):
         fig, (ax_ate, ax_rej) = plt.subplots(1, 2, figsize=(10, 3.8))
         for family in sorted({m["family"] for m in members}):
             for detector in sorted({m["detector"] for m in members}):
                 pts = sorted(
-                    (float(m["settings"][name]), m)
-                    for m in members
+                    (float(m["settings"][name]), i, m)
+                    for i, m in enumerate(members)
                     if m["family"] == family and m["detector"] == detector
                 )
                 if not pts:
                     continue
-                xs = [x for x, _ in pts]
+                xs = [x for x, _, _ in pts]
                 label = f"{family} / {detector}"
-                ax_ate.plot(xs, [m["ate_rmse_m"] for _, m in pts], "o-", label=label)
-                ax_rej.plot(xs, [m["rejection_precision"] for _, m in pts], "o-", label=f"{label} precision")
-                ax_rej.plot(xs, [m["rejection_recall"] for _, m in pts], "s--", label=f"{label} recall")
+                ax_ate.plot(xs, [m["ate_rmse_m"] for *_, m in pts], "o-", label=label)
+                ax_rej.plot(xs, [m["rejection_precision"] for *_, m in pts], "o-", label=f"{label} precision")
+                ax_rej.plot(xs, [m["rejection_recall"] for *_, m in pts], "s--", label=f"{label} recall")
         ax_ate.set(xlabel=name, ylabel="mean ATE RMSE (m)", title=f"{strategy}: ATE against {name}")
         ax_rej.set(xlabel=name, ylabel="rejection", ylim=(0, 1.05), title="precision / recall")
         ax_ate.legend(fontsize=7)
         ax_rej.legend(fontsize=6)
         fig.tight_layout()
-        path = out / f"{strategy}-{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    front = pareto(configs)
+        figures.append((f"{strategy}-{name}", fig))
+    return figures
+
+
+def pareto_figure(configs: list[dict[str, Any]]):
+    """Mean ATE against median tracking time, the Pareto set marked; None if nothing to plot."""
     usable = [c for c in configs if c["ate_rmse_m"] is not None and c["track_ms_median"] is not None]
-    if usable:
-        fig, ax = plt.subplots(figsize=(6, 4.5))
-        ax.scatter(
-            [c["track_ms_median"] for c in usable],
-            [c["ate_rmse_m"] for c in usable],
-            s=12,
-            c="0.6",
-            label="all",
-        )
-        ax.scatter(
-            [c["track_ms_median"] for c in front],
-            [c["ate_rmse_m"] for c in front],
-            s=30,
-            c="C3",
-            label="Pareto",
-        )
-        positive = all(c["ate_rmse_m"] > 0 for c in usable)
-        ax.set(
-            xlabel="median tracking ms per frame",
-            ylabel="mean ATE RMSE (m)",
-            yscale="log" if positive else "linear",
-        )
-        ax.set_title("accuracy against time, per configuration and family")
-        ax.legend()
-        fig.tight_layout()
-        path = out / "pareto.png"
+    if not usable:
+        return None
+    plt = _pyplot()
+    front = pareto(configs)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    ax.scatter(
+        [c["track_ms_median"] for c in usable], [c["ate_rmse_m"] for c in usable], s=12, c="0.6", label="all"
+    )
+    ax.scatter(
+        [c["track_ms_median"] for c in front], [c["ate_rmse_m"] for c in front], s=30, c="C3", label="Pareto"
+    )
+    positive = all(c["ate_rmse_m"] > 0 for c in usable)
+    ax.set(
+        xlabel="median tracking ms per frame",
+        ylabel="mean ATE RMSE (m)",
+        yscale="log" if positive else "linear",
+    )
+    ax.set_title("accuracy against time, per configuration and family")
+    ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
+    """The threshold curves and the Pareto picture as PNG files under ``out``."""
+    plt = _pyplot()
+    out.mkdir(parents=True, exist_ok=True)
+    figures = threshold_figures(configs)
+    front = pareto_figure(configs)
+    if front is not None:
+        figures.append(("pareto", front))
+    written = []
+    for name, fig in figures:
+        path = out / f"{name}.png"
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)

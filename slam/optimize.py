@@ -44,8 +44,10 @@ def _residuals(
     u = camera.fx * points_c[:, 0] / safe_z + camera.cx
     v = camera.fy * points_c[:, 1] / safe_z + camera.cy
     has_depth = np.isfinite(ur)
-    r_right = np.where(has_depth, np.nan_to_num(ur) - (u - bf / safe_z), 0.0)
-    return np.stack([uv[:, 0] - u, uv[:, 1] - v, r_right], axis=1) * weight[:, None]
+    r_right = np.where(has_depth, np.where(has_depth, ur, 0.0) - (u - bf / safe_z), 0.0)
+    out = np.empty((len(points_c), 3))
+    out[:, 0], out[:, 1], out[:, 2] = uv[:, 0] - u, uv[:, 1] - v, r_right
+    return out * weight[:, None]
 
 
 def is_inlier(
@@ -66,24 +68,28 @@ def _pose_jacobian(
 ) -> np.ndarray:
     """d(residual)/d(delta) (N, 3, 6) for a left perturbation exp(delta) of camera_from_world.
 
-    delta = (rotation vector, translation); residual = observation - prediction.
+    delta = (rotation vector, translation); residual = observation - prediction. Written
+    out per entry (d prediction / d point times d point / d delta = [-[p]x | I]) rather
+    than as a batched matrix product: this runs in every Gauss-Newton step of tracking.
     """
-    x, y, z = points_c[:, 0], points_c[:, 1], np.maximum(points_c[:, 2], 1e-6)
+    x, y, z_raw = points_c[:, 0], points_c[:, 1], points_c[:, 2]
+    inv = 1.0 / np.maximum(z_raw, 1e-6)
     n = len(points_c)
-    d_pred = np.zeros((n, 3, 3))
-    d_pred[:, 0, 0] = camera.fx / z
-    d_pred[:, 0, 2] = -camera.fx * x / z**2
-    d_pred[:, 1, 1] = camera.fy / z
-    d_pred[:, 1, 2] = -camera.fy * y / z**2
-    d_pred[:, 2] = d_pred[:, 0]
-    d_pred[:, 2, 2] += bf / z**2
-    d_pred[~has_depth, 2] = 0.0
-    d_point = np.zeros((n, 3, 6))
-    d_point[:, 0, 1], d_point[:, 0, 2] = points_c[:, 2], -points_c[:, 1]
-    d_point[:, 1, 0], d_point[:, 1, 2] = -points_c[:, 2], points_c[:, 0]
-    d_point[:, 2, 0], d_point[:, 2, 1] = points_c[:, 1], -points_c[:, 0]
-    d_point[:, :, 3:] = np.eye(3)
-    return -np.matmul(d_pred, d_point)
+    jac = np.empty((n, 3, 6))
+    # u = fx x / z + cx: d/dp = (a0, 0, a2)
+    a0, a2 = camera.fx * inv, -camera.fx * x * inv * inv
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 2] = -a2 * y, a2 * x - a0 * z_raw, a0 * y
+    jac[:, 0, 3], jac[:, 0, 4], jac[:, 0, 5] = -a0, 0.0, -a2
+    # v = fy y / z + cy: d/dp = (0, b1, b2)
+    b1, b2 = camera.fy * inv, -camera.fy * y * inv * inv
+    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = b1 * z_raw - b2 * y, b2 * x, -b1 * x
+    jac[:, 1, 3], jac[:, 1, 4], jac[:, 1, 5] = 0.0, -b1, -b2
+    # u_r = u - bf / z: d/dp = (a0, 0, a2 + bf / z^2); none without depth
+    c2 = a2 + bf * inv * inv
+    jac[:, 2, 0], jac[:, 2, 1], jac[:, 2, 2] = -c2 * y, c2 * x - a0 * z_raw, a0 * y
+    jac[:, 2, 3], jac[:, 2, 4], jac[:, 2, 5] = -a0, 0.0, -c2
+    jac[~has_depth, 2] = 0.0
+    return jac
 
 
 def refine_pose(
@@ -107,6 +113,7 @@ def refine_pose(
     has_depth = np.isfinite(ur)
     active = np.ones(len(points_w), dtype=bool)
     huber = np.sqrt(CHI2_STEREO)
+    damping = 1e-9 * np.eye(6)
     for round_index in range(rounds):
         if active.sum() < 3:
             break
@@ -116,12 +123,15 @@ def refine_pose(
             pc = pw @ pose[:3, :3].T + pose[:3, 3]
             r = _residuals(pc, obs, right, w, camera, bf)
             jac = _pose_jacobian(pc, camera, bf, depth) * w[:, None, None]
-            norm = np.linalg.norm(r, axis=1)
-            irls = np.repeat(np.where(robust & (norm > huber), huber / np.maximum(norm, 1e-12), 1.0), 3)
-            flat = jac.reshape(-1, 6)
-            weighted = flat * irls[:, None]
-            hessian = weighted.T @ flat + 1e-9 * np.eye(6)
-            gradient = weighted.T @ r.ravel()
+            if robust:
+                norm = np.sqrt(np.einsum("ij,ij->i", r, r))
+                irls = np.where(norm > huber, huber / np.maximum(norm, 1e-12), 1.0)
+                weighted = jac * irls[:, None, None]
+            else:
+                weighted = jac
+            flat, flat_weighted = jac.reshape(-1, 6), weighted.reshape(-1, 6)
+            hessian = flat_weighted.T @ flat + damping
+            gradient = flat_weighted.T @ r.ravel()
             try:
                 delta = -np.linalg.solve(hessian, gradient)
             except np.linalg.LinAlgError:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytest_plugins = ["pytester"]  # the depotbench pytest plugin is tested in a child session
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 TUM_TRAJECTORIES = SHARED / "data" / "tum-trajectories"

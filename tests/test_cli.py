@@ -20,13 +20,15 @@ EST = EXAMPLES / "fr1_xyz_rgbdslam.txt"
 
 
 @pytest.mark.slow
-def test_demo_generates_tracks_and_reports(capsys, tmp_path: Path):
+def test_demo_generates_sweeps_gates_and_reports(capsys, tmp_path: Path):
+    """The README's main job end to end (make demo runs exactly this)."""
     assert main(["demo", "-o", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    for name in ("report.txt", "report.json", "preview.png", "ate.png"):
+    for name in ("results.sqlite", "results.csv", "summary.json", "gates.xml", "report/index.html"):
         assert (tmp_path / name).is_file(), name
-    rows = json.loads((tmp_path / "report.json").read_text())
-    assert len(rows) == 12 and "12 people" in out
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert len(summary["best"]) == 3  # 0, 6 and 12 people
+    assert "all budgets held" in out
 
 
 def test_report_table_and_rho():

@@ -122,7 +122,8 @@ def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tm
         boxes = list(detect_sequence(sequence, job.detector, cache).per_frame)
         paths.append(decision_path(stages_for(sequence, config, cache), boxes, config, config.tracking.seed))
     parted = [
-        next((i for i, (a, b) in enumerate(zip(p, q)) if a != b), None) for p, q in zip(paths, paths[1:])
+        next((i for i, (a, b) in enumerate(zip(p, q, strict=False)) if a != b), None)
+        for p, q in zip(paths, paths[1:], strict=False)
     ]
     assert any(i is not None and i > 1 for i in parted), parted  # some fork after shared frames
     together = track_tree(jobs, paths, cache)

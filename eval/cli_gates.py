@@ -1,0 +1,64 @@
+"""``depotbench check``: robustness gates for CI (exit 1 naming each failed budget)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+EXIT_FAILED = 1
+
+
+def add_check(sub: argparse._SubParsersAction) -> None:
+    from eval.cli import _workers  # the CLI's own --workers type (eval.cli imports this module)
+
+    p = sub.add_parser(
+        "check",
+        help="run a gate file's matrix and check its budgets (exit 1 naming each failed budget)",
+    )
+    p.add_argument("gates", type=Path, help="the gate file (see assets/gates/)")
+    p.add_argument("--junit", type=Path, help="also write JUnit XML here")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        help="the run matrix's folder, resumed if it exists (default: runs/check-NAME)",
+    )
+    p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1), help="worker processes")
+    p.add_argument("--backend", choices=("local", "ray"), default="local", help="where runs execute")
+    p.add_argument("--address", help="--backend ray: the cluster's address")
+    p.set_defaults(handler=_cmd_check)
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from eval.gates import format_report, junit_xml, load_gates
+    from eval.sweep import validate
+    from sim.errors import InputError
+    from sim.output import OutputContainer, OutputKind, write_text_atomic
+
+    if args.address and args.backend != "ray":
+        raise InputError("--address applies to --backend ray only")
+    gates = load_gates(args.gates)
+    validate(gates.run, args.gates)  # before any folder is made
+    if args.junit is not None and args.junit.is_dir():
+        raise InputError(f"--junit {args.junit}: is a folder; give a file name")
+    out = args.output or Path("runs") / f"check-{gates.gates}"
+    with OutputContainer(out, OutputKind.SWEEP, inputs=(args.gates,)) as container:
+        report = run_gates(gates, args.gates, container.path, args.workers, args.backend, args.address)
+    print(format_report(report))
+    if args.junit is not None:
+        args.junit.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(args.junit, junit_xml(report))
+        print(f"wrote {args.junit}")
+    for failure in report.failures:
+        print(f"FAILED {failure}")
+    return 0 if report.passed else EXIT_FAILED
+
+
+def run_gates(gates, gates_path: Path, out: Path, workers: int, backend: str = "local", address=None):
+    """The gate file's matrix through the sweep engine (cache and stored rows reused), checked."""
+    from eval.gates import evaluate
+    from eval.sweep_run import execute_sweep
+
+    outcome = execute_sweep(gates.run, gates_path, out, workers, backend=backend, address=address)
+    return evaluate(gates, outcome.rows)

@@ -1,0 +1,316 @@
+"""Robustness gates: budgets on a run matrix's rows, for CI.
+
+```yaml
+gates: crowd-ci
+run:                                  # a sweep spec (eval/sweep_spec.py): what to run
+  suite: ../../scenes/suites/demo.yaml
+  strategies: [none, box_epipolar_flow]
+  thresholds: {box_epipolar_flow: {epsilon_px: {grid: [1.0]}}}
+reference: none                       # time_ratio: time per frame over this strategy's run
+checks:
+  - name: crowd-keeps-tracking
+    families: ["demo*"]               # globs over scenario families (default: all)
+    tags: [crowd]                     # and/or the scenarios' tags
+    strategies: [box_epipolar_flow]   # trackers, detectors, strategies: default all
+    settings: {epsilon_px: 1.0}       # only rows with these threshold values
+    budgets:
+      ate_rmse_m: {max: 0.05}
+      rho_percent: {min: 20}
+      rejection_recall: {min: 0.8}
+      lost_fraction: {max: 0.1}
+      time_ratio: {max: 3.0}
+```
+
+Every selected row (one sequence through one configuration) is checked against
+every budget of its check; a failure names the check, the row and the budget.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, ValidationError, model_validator
+
+from eval.sweep_report import with_rho
+from eval.sweep_spec import SweepSpec
+from scenes.schema import SpecError, Strict, format_validation_error, read_yaml
+from sim.sequence import Sequence
+
+METRICS: dict[str, str] = {
+    "ate_rmse_m": "ATE RMSE (m)",
+    "ate_max_m": "largest ATE (m)",
+    "rpe_translation_rmse_m": "RPE translation RMSE (m)",
+    "rpe_rotation_rmse_deg": "RPE rotation RMSE (deg)",
+    "rho_percent": "ATE improvement over the none run (%)",
+    "rejection_recall": "rejection recall",
+    "rejection_precision": "rejection precision",
+    "lost_fraction": "fraction of frames not tracked",
+    "time_ratio": "tracking time per frame over the reference run's",
+    "track_ms_mean": "tracking time per frame (ms)",
+}
+"""What a budget may bound, with what the failure message calls it."""
+
+
+class Bound(Strict):
+    min: float | None = None
+    max: float | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> Bound:
+        if self.min is None and self.max is None:
+            raise ValueError("a budget needs min or max")
+        for value in (self.min, self.max):
+            if value is not None and not math.isfinite(value):
+                raise ValueError("budget bounds must be finite")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError("min is above max")
+        return self
+
+
+class Check(Strict):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    families: list[str] = Field(default_factory=list)
+    tags: list[str] = Field(default_factory=list)
+    trackers: list[str] = Field(default_factory=list)
+    detectors: list[str] = Field(default_factory=list)
+    strategies: list[str] = Field(default_factory=list)
+    settings: dict[str, float] = Field(default_factory=dict)
+    budgets: dict[str, Bound] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _known(self) -> Check:
+        unknown = sorted(set(self.budgets) - set(METRICS))
+        if unknown:
+            raise ValueError(f"unknown budget {unknown[0]!r}; choose from {', '.join(METRICS)}")
+        return self
+
+
+class GateFile(Strict):
+    gates: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    description: str = ""
+    run: SweepSpec
+    reference: str = "none"
+    checks: list[Check] = Field(min_length=1)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _run_name(cls, data: Any) -> Any:
+        """The run needs no name of its own: it is the gate file's."""
+        if isinstance(data, dict) and isinstance(data.get("run"), dict) and "sweep" not in data["run"]:
+            data = {**data, "run": {**data["run"], "sweep": str(data.get("gates", "gates"))}}
+        return data
+
+    @model_validator(mode="after")
+    def _names(self) -> GateFile:
+        names = [c.name for c in self.checks]
+        if len(set(names)) != len(names):
+            raise ValueError("check names must be unique")
+        if self.reference != "none" and self.reference not in self.run.strategies:
+            raise ValueError(f"reference {self.reference!r} is not among run.strategies")
+        return self
+
+
+def load_gates(path: Path) -> GateFile:
+    data = read_yaml(path)
+    try:
+        return GateFile.model_validate(data)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(str(path), exc)) from None
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One budget on one row."""
+
+    check: str
+    row: str
+    """Which run: family, sequence, tracker, detector, strategy, settings."""
+    metric: str
+    value: float | None
+    bound: Bound
+    passed: bool
+
+    @property
+    def message(self) -> str:
+        shown = "missing" if self.value is None else f"{self.value:.4g}"
+        limits = []
+        if self.bound.min is not None:
+            limits.append(f">= {self.bound.min:g}")
+        if self.bound.max is not None:
+            limits.append(f"<= {self.bound.max:g}")
+        return f"{self.metric} ({METRICS[self.metric]}) = {shown}, budget {' and '.join(limits)}"
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    check: str
+    row: str
+    verdicts: tuple[Verdict, ...]
+    seconds: float
+
+    @property
+    def passed(self) -> bool:
+        return all(v.passed for v in self.verdicts)
+
+
+@dataclass(frozen=True)
+class GateReport:
+    gates: str
+    results: tuple[CheckResult, ...]
+    empty_checks: tuple[str, ...]
+    """Checks that selected no row: they fail (a gate that checks nothing guards nothing)."""
+
+    @property
+    def failures(self) -> list[str]:
+        out = [f"{c}: no run matches this check" for c in self.empty_checks]
+        for result in self.results:
+            out += [f"{v.check} [{v.row}]: {v.message}" for v in result.verdicts if not v.passed]
+        return out
+
+    @property
+    def passed(self) -> bool:
+        return not self.failures
+
+
+def _row_name(row: dict[str, Any]) -> str:
+    settings = json.loads(row["settings"])
+    shown = " ".join(f"{k}={v}" for k, v in sorted(settings.items()))
+    name = Path(row["sequence"]).name
+    return " ".join(
+        part
+        for part in (row["family"], name, row["tracker"], row["detector"], row["strategy"], shown)
+        if part
+    )
+
+
+def _tags(sequence: str, cache: dict[str, set[str]]) -> set[str]:
+    if sequence not in cache:
+        scenario = (Sequence.open(Path(sequence)).meta or {}).get("scenario") or {}
+        cache[sequence] = set(scenario.get("tags") or []) if isinstance(scenario, dict) else set()
+    return cache[sequence]
+
+
+def _selects(check: Check, row: dict[str, Any], tags: dict[str, set[str]]) -> bool:
+    if check.families and not any(fnmatch.fnmatchcase(row["family"], g) for g in check.families):
+        return False
+    if check.tags and not set(check.tags) & _tags(row["sequence"], tags):
+        return False
+    for field, allowed in (
+        ("tracker", check.trackers),
+        ("detector", check.detectors),
+        ("strategy", check.strategies),
+    ):
+        if allowed and row[field] not in allowed:
+            return False
+    settings = json.loads(row["settings"])
+    return all(
+        k in settings and math.isclose(float(settings[k]), v, rel_tol=1e-9, abs_tol=1e-12)
+        for k, v in check.settings.items()
+    )
+
+
+def derived_rows(rows: list[dict[str, Any]], reference: str) -> list[dict[str, Any]]:
+    """Rows with rho, the fraction of frames not tracked and the time ratio."""
+    times = {
+        (r["sequence"], r["tracker"], r["detector"]): r["track_ms_mean"]
+        for r in rows
+        if r["strategy"] == reference and (reference != "none" or r["settings"] == "{}")
+    }
+    out = []
+    for r in with_rho(rows):
+        base = times.get((r["sequence"], r["tracker"], r["detector"]))
+        ratio = r["track_ms_mean"] / base if base and r["track_ms_mean"] is not None else None
+        out.append(r | {"lost_fraction": 1.0 - r["tracked_fraction"], "time_ratio": ratio})
+    return out
+
+
+def _within(value: float | None, bound: Bound) -> bool:
+    if value is None or not math.isfinite(value):
+        return False
+    return (bound.min is None or value >= bound.min) and (bound.max is None or value <= bound.max)
+
+
+def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
+    """Check every row each check selects against each of its budgets."""
+    rows = derived_rows(rows, gates.reference)
+    tags: dict[str, set[str]] = {}
+    results, empty = [], []
+    for check in gates.checks:
+        selected = [r for r in rows if _selects(check, r, tags)]
+        if not selected:
+            empty.append(check.name)
+        for row in sorted(selected, key=_row_name):
+            name = _row_name(row)
+            verdicts = tuple(
+                Verdict(check.name, name, metric, row.get(metric), bound, _within(row.get(metric), bound))
+                for metric, bound in check.budgets.items()
+            )
+            results.append(CheckResult(check.name, name, verdicts, float(row["wall_time_s"] or 0.0)))
+    return GateReport(gates.gates, tuple(results), tuple(empty))
+
+
+def format_report(report: GateReport) -> str:
+    lines = [f"{'check':24s} {'result':6s} {'metric':24s} {'value':>10s}  budget   run"]
+    for result in report.results:
+        for v in result.verdicts:
+            value = "missing" if v.value is None else f"{v.value:.4g}"
+            limits = "/".join(
+                s
+                for s in (
+                    f">={v.bound.min:g}" if v.bound.min is not None else "",
+                    f"<={v.bound.max:g}" if v.bound.max is not None else "",
+                )
+                if s
+            )
+            lines.append(
+                f"{v.check[:24]:24s} {'pass' if v.passed else 'FAIL':6s} {v.metric:24s} {value:>10s}  "
+                f"{limits:8s} {v.row}"
+            )
+    for check in report.empty_checks:
+        lines.append(f"{check[:24]:24s} FAIL   (no run matches this check)")
+    failed = len(report.failures)
+    lines.append(
+        f"{report.gates}: {sum(r.passed for r in report.results)}/{len(report.results)} runs within budget"
+        + (f"; {failed} budget(s) failed" if failed else "; all budgets held")
+    )
+    return "\n".join(lines)
+
+
+def junit_xml(report: GateReport) -> str:
+    """JUnit XML as CI systems read it: a testcase per (check, run), a failure per budget."""
+    from xml.etree import ElementTree as ET
+
+    cases = len(report.results) + len(report.empty_checks)
+    failures = sum(not r.passed for r in report.results) + len(report.empty_checks)
+    suite = ET.Element(
+        "testsuite",
+        name=f"depotbench.{report.gates}",
+        tests=str(cases),
+        failures=str(failures),
+        errors="0",
+        time=f"{sum(r.seconds for r in report.results):.3f}",
+    )
+    for result in report.results:
+        case = ET.SubElement(
+            suite,
+            "testcase",
+            classname=f"depotbench.{report.gates}.{result.check}",
+            name=result.row,
+            time=f"{result.seconds:.3f}",
+        )
+        failed = [v for v in result.verdicts if not v.passed]
+        if failed:
+            failure = ET.SubElement(case, "failure", message="; ".join(v.message for v in failed))
+            failure.text = "\n".join(v.message for v in failed)
+    for check in report.empty_checks:
+        case = ET.SubElement(suite, "testcase", classname=f"depotbench.{report.gates}.{check}", name="(none)")
+        ET.SubElement(case, "failure", message="no run matches this check")
+    root = ET.Element("testsuites", tests=str(cases), failures=str(failures))
+    root.append(suite)
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

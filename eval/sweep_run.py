@@ -1,0 +1,80 @@
+"""A whole sweep into a folder: sequences, rows, CSV, summary and plots.
+
+``depotbench sweep``, ``depotbench check`` and ``depotbench demo`` all run their
+matrix through this one function (and so through ``eval.sweep.run_jobs``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from eval.sweep import expand, open_store, run_jobs, sequences_of
+from eval.sweep_report import best_per_family, configurations, pareto, plot, with_rho
+from eval.sweep_spec import SweepSpec
+from sim.files import dumps_json
+from sim.output import write_text_atomic
+
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    rows: list[dict[str, Any]]
+    """This sweep's rows (with this sweep's families), as stored."""
+    summary: dict[str, Any]
+    jobs: int
+    written: int
+    tracked: int
+    seconds: float
+    plots: list[Path]
+    search: dict[str, Any] | None
+
+
+def execute_sweep(
+    spec: SweepSpec,
+    spec_path: Path,
+    out: Path,
+    workers: int,
+    *,
+    progress: bool = True,
+    dedupe: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+    announce: bool = True,
+) -> SweepOutcome:
+    """Generate (or resume) the sequences, run the missing rows, write results.csv,
+    summary.json and plots under ``out`` (a folder the caller owns)."""
+    from eval.search import run_search
+
+    where = {"backend": backend, "address": address}
+    sequences = sequences_of(spec, spec_path, out, workers, progress=progress, **where)
+    jobs = expand(spec, spec_path, sequences)
+    with open_store(out, spec) as store:
+        done = len(store.keys() & {j.key for j in jobs})
+        if announce:
+            print(
+                f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
+            )
+        started = time.perf_counter()
+        tracked, written = run_jobs(jobs, store, workers, progress=progress, dedupe=dedupe, **where)
+        elapsed = time.perf_counter() - started
+        # A family is how this sweep groups sequences, not part of a run's content:
+        # rows carry the family of the sweep that asked for them now.
+        family = {j.key: j.family for j in jobs}
+        search = None
+        if spec.search is not None:
+            search = run_search(spec, spec_path, sequences, store, out, workers, **where)
+            family |= search.pop("families")
+        rows = [r | {"family": family[r["key"]]} for r in store.rows() if r["key"] in family]
+        store.export_csv(out / "results.csv", with_rho(rows))
+    configs = configurations(rows)
+    summary = {
+        "best": best_per_family(configs),
+        "pareto": pareto(configs),
+        "configurations": configs,
+        "search": search,
+    }
+    write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
+    plots = plot(configs, out / "plots")
+    return SweepOutcome(rows, summary, len(jobs), written, tracked, elapsed, plots, search)
