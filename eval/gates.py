@@ -254,23 +254,26 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
     return GateReport(gates.gates, tuple(results), tuple(empty))
 
 
+def _limits(bound: Bound) -> str:
+    parts = []
+    if bound.min is not None:
+        parts.append(f">={bound.min:g}")
+    if bound.max is not None:
+        parts.append(f"<={bound.max:g}")
+    return ",".join(parts)
+
+
 def format_report(report: GateReport) -> str:
-    lines = [f"{'check':24s} {'result':6s} {'metric':24s} {'value':>10s}  budget   run"]
+    """One line per (check, run): each budget as metric value (limit), failures marked."""
+    lines = [f"{'check':24s} {'result':6s} run / budgets"]
     for result in report.results:
-        for v in result.verdicts:
-            value = "missing" if v.value is None else f"{v.value:.4g}"
-            limits = "/".join(
-                s
-                for s in (
-                    f">={v.bound.min:g}" if v.bound.min is not None else "",
-                    f"<={v.bound.max:g}" if v.bound.max is not None else "",
-                )
-                if s
-            )
-            lines.append(
-                f"{v.check[:24]:24s} {'pass' if v.passed else 'FAIL':6s} {v.metric:24s} {value:>10s}  "
-                f"{limits:8s} {v.row}"
-            )
+        budgets = "  ".join(
+            f"{'' if v.passed else '!!'}{v.metric} {'missing' if v.value is None else f'{v.value:.4g}'} "
+            f"({_limits(v.bound)})"
+            for v in result.verdicts
+        )
+        lines.append(f"{result.check[:24]:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")
+        lines.append(f"{'':31s} {budgets}")
     for check in report.empty_checks:
         lines.append(f"{check[:24]:24s} FAIL   (no run matches this check)")
     failed = len(report.failures)

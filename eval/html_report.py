@@ -220,7 +220,7 @@ def _strip_frames(view: RunView) -> list[int]:
 
 
 def frame_strip(view: RunView) -> bytes | None:
-    """Frames with keypoints coloured by decision (top row) and by true label (bottom row)."""
+    """Frames with keypoints coloured by decision (top row) and by true label (bottom row), as JPEG."""
     d, sequence = view.diagnostics, view.sequence
     if d is None or sequence is None or len(d["keypoint_counts"]) != len(sequence):
         return None
@@ -249,8 +249,9 @@ def frame_strip(view: RunView) -> bytes | None:
     rows = [np.hstack(tiles_decision)]
     if "moving" in d:
         rows.append(np.hstack(tiles_truth))
-    ok, png = cv2.imencode(".png", np.vstack(rows)[:, :, ::-1])
-    return png.tobytes() if ok else None
+    # JPEG: rendered frames are photographs to the codec (a PNG strip weighs ~1 MB).
+    ok, jpeg = cv2.imencode(".jpg", np.vstack(rows)[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 88])
+    return jpeg.tobytes() if ok else None
 
 
 # -- page ----------------------------------------------------------------------
@@ -270,9 +271,10 @@ border-radius:50%;margin-right:4px;vertical-align:-1px}.fail{color:#b91c1c;font-
 """
 
 
-def _img(png: bytes, alt: str) -> str:
-    data = base64.b64encode(png).decode("ascii")
-    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+def _img(data: bytes, alt: str) -> str:
+    kind = "jpeg" if data[:2] == b"\xff\xd8" else "png"
+    encoded = base64.b64encode(data).decode("ascii")
+    return f'<img alt="{html.escape(alt)}" src="data:image/{kind};base64,{encoded}">'
 
 
 def _fmt(value: Any, digits: int = 4) -> str:
@@ -400,7 +402,10 @@ def _featured_runs(folder: Path, rows: list[dict[str, Any]], best: dict[str, dic
     from eval.sweep_spec import SweepSpec, detector_configs, tracker_configs, variants
 
     with ResultStore(folder / "results.sqlite") as store:
-        spec = SweepSpec.model_validate_json(store.get_meta("spec"))
+        stored = store.meta("spec")
+    if stored is None:
+        return []
+    spec = SweepSpec.model_validate_json(stored)
     source = str(folder / "results.sqlite")
     trackers, detectors, found = tracker_configs(spec, source), detector_configs(spec, source), variants(spec)
     views = []
