@@ -23,9 +23,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from eval.detections import sequence_fingerprint
+from eval.harness import job_key
 from eval.record import DETERMINISTIC_FIELDS
 from eval.store import ResultStore
-from eval.sweep import SweepJob, expand, job_key, run_jobs
+from eval.sweep import SweepJob, expand, run_jobs
 from eval.sweep_spec import SweepSpec
 from sim.sequence import Sequence
 
@@ -84,7 +85,7 @@ def main() -> None:
             for combo in combos:
                 settings = tuple(zip(GRID, (repr(float(v)) for v in combo), strict=True))
                 key = job_key(fingerprint, base.job.tracker, base.job.detector, "box_epipolar_flow", settings)
-                work.append(SweepJob(key, base.family, replace(base.job, settings=settings)))
+                work.append(SweepJob(key, base.family, replace(base.job, settings=settings), fingerprint))
         print(
             f"{len(sequences)} walking_static sequences x {args.frames} frames; {len(work)} runs "
             f"(none + {len(combos)} box_epipolar_flow configurations each), {args.workers} workers"

@@ -13,6 +13,7 @@ boxes blanked in RGB and depth before the frames reach them).
 
 from __future__ import annotations
 
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,8 +23,9 @@ import numpy as np
 from detectors.config import DetectorConfig, DetectorKind
 from eval.cache import StageCache, content_hash
 from eval.comparison import ComparisonOptions, compare
-from eval.detections import SequenceDetections, detect_sequence
+from eval.detections import SequenceDetections, detect_sequence, sequence_fingerprint
 from eval.frames import FrameSource, MaskSettings
+from eval.record import RECORD_VERSION, RunRecord
 from eval.stages import FrameStages, features_key, sequence_stages
 from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
@@ -32,6 +34,7 @@ from sim.errors import InputError
 from sim.files import dumps_json
 from sim.output import OutputKind, StagedOutput
 from sim.sequence import Sequence
+from sim.version import generator_version
 from slam.config import ConfigError, SlamConfig, check_pyramid
 from slam.rejection import STRATEGIES
 from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
@@ -217,6 +220,39 @@ def _header(job: RunJob) -> str:
     return f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
 
 
+def job_key(
+    fingerprint: str, tracker: TrackerConfig, detector: DetectorConfig, strategy: str, settings
+) -> str:
+    """A run's identity: its inputs' content (the sequence fingerprint), the tracker,
+    detector with faults, strategy, settings and the bench's version."""
+    return content_hash(
+        RECORD_VERSION,
+        generator_version(),
+        fingerprint,
+        tracker.kind.value,
+        detector.key(),
+        detector.faults.to_dict(),
+        strategy,
+        list(settings),
+    )
+
+
+def family_of(sequence: Sequence) -> str:
+    """A sequence's scenario name (a suite variation's number dropped), or its folder's name."""
+    scenario = (sequence.meta or {}).get("scenario") or {}
+    name = scenario.get("name") if isinstance(scenario, dict) else None
+    return re.sub(r"-\d{4}$", "", str(name)) if name else sequence.root.name
+
+
+def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
+    """The typed row of a single run (what a sweep stores for it)."""
+    fingerprint = sequence_fingerprint(sequence)
+    key = job_key(fingerprint, job.tracker, job.detector, job.strategy, job.settings)
+    return RunRecord.from_metrics(
+        key, family_of(sequence), dict(job.settings), metrics, generator_version(), fingerprint
+    )
+
+
 def run_sequence(
     sequence_dir: Path,
     out_dir: Path,
@@ -253,6 +289,8 @@ def run_sequence(
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
+        record = record_of(job, sequence, tracked.metrics)
+        (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
         output.commit()
     return tracked.metrics
 

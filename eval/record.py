@@ -12,7 +12,8 @@ import json
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-RECORD_VERSION = 1
+RECORD_VERSION = 2
+"""2: adds the sequence fingerprint and relocalised frames."""
 
 
 @dataclass(frozen=True)
@@ -22,6 +23,8 @@ class RunRecord:
     family: str
     """The scenario family (the generated scenario's name, or the folder name)."""
     sequence: str
+    sequence_fingerprint: str
+    """The sequence's content (file list, sizes and times, generator key) when it ran."""
     tracker: str
     detector: str
     strategy: str
@@ -30,6 +33,7 @@ class RunRecord:
     frames: int
     tracked_fraction: float
     lost_frames: int
+    relocalized_frames: int
     keyframes: int | None
     ate_rmse_m: float | None
     ate_mean_m: float | None
@@ -59,6 +63,7 @@ class RunRecord:
         settings: dict[str, Any],
         metrics: dict[str, Any],
         bench_version: str,
+        fingerprint: str,
         signature: str | None = None,
     ) -> RunRecord:
         ate = metrics.get("ate_m") or {}
@@ -71,6 +76,7 @@ class RunRecord:
             key=key,
             family=family,
             sequence=metrics["sequence"],
+            sequence_fingerprint=fingerprint,
             tracker=metrics["tracker"],
             detector=metrics["detector"],
             strategy=metrics["strategy"],
@@ -78,6 +84,7 @@ class RunRecord:
             frames=metrics["frames"],
             tracked_fraction=metrics["tracked_frames"] / max(1, metrics["frames"]),
             lost_frames=metrics["lost_frames"],
+            relocalized_frames=metrics["relocalized_frames"],
             keyframes=metrics["keyframes"],
             ate_rmse_m=ate.get("rmse"),
             ate_mean_m=ate.get("mean"),

@@ -9,26 +9,27 @@ and running it again does exactly the jobs that are missing.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from tqdm import tqdm
 
 from detectors.config import DetectorConfig
-from eval.cache import StageCache, content_hash
+from eval.cache import StageCache
 from eval.detections import detect_sequence, sequence_fingerprint
 from eval.harness import (
     RunJob,
     TrackerConfig,
     branch_root,
+    family_of,
+    job_key,
     prepare,
     stages_for,
     track,
     track_tree,
     uses_stages,
 )
-from eval.record import RECORD_VERSION, RunRecord
+from eval.record import RunRecord
 from eval.stages import decision_path, decision_signature, features_key
 from eval.store import ResultStore
 from eval.sweep_spec import (
@@ -56,28 +57,8 @@ class SweepJob:
     key: str
     family: str
     job: RunJob
-
-
-def _family(sequence: Sequence) -> str:
-    """A sequence's scenario name (a suite variation's number dropped), or its folder's name."""
-    scenario = (sequence.meta or {}).get("scenario") or {}
-    name = scenario.get("name") if isinstance(scenario, dict) else None
-    return re.sub(r"-\d{4}$", "", str(name)) if name else sequence.root.name
-
-
-def job_key(
-    fingerprint: str, tracker: TrackerConfig, detector: DetectorConfig, strategy: str, settings
-) -> str:
-    return content_hash(
-        RECORD_VERSION,
-        generator_version(),
-        fingerprint,
-        tracker.kind.value,
-        detector.key(),
-        detector.faults.to_dict(),
-        strategy,
-        list(settings),
-    )
+    fingerprint: str
+    """``detections.sequence_fingerprint`` of the job's sequence when it was expanded."""
 
 
 def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) -> list[SweepJob]:
@@ -109,9 +90,8 @@ def jobs_for(
                     if tracker.kind is not TrackerKind.BUILTIN and v.strategy not in ("none", "mask"):
                         continue
                     key = job_key(fingerprint, tracker, detector, v.strategy, v.settings)
-                    jobs.append(
-                        SweepJob(key, family, RunJob(root, v.strategy, detector, v.settings, tracker))
-                    )
+                    run = RunJob(root, v.strategy, detector, v.settings, tracker)
+                    jobs.append(SweepJob(key, family, run, fingerprint))
     return jobs
 
 
@@ -153,7 +133,7 @@ def sequences_of(
         root = resolve(spec, spec_path, name)
         if not root.is_dir():
             raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
-        roots.append((root, _family(Sequence.open(root))))
+        roots.append((root, family_of(Sequence.open(root))))
     if spec.suite is not None:
         from scenes.generation import run_suite
         from scenes.suite import load_suite
@@ -238,7 +218,9 @@ def _dispatch(fn, args: tuple):
 
 def _record(job: SweepJob, metrics: dict, bench_version: str, signature: str | None) -> RunRecord:
     settings = dict(job.job.settings)
-    return RunRecord.from_metrics(job.key, job.family, settings, metrics, bench_version, signature)
+    return RunRecord.from_metrics(
+        job.key, job.family, settings, metrics, bench_version, job.fingerprint, signature
+    )
 
 
 def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:

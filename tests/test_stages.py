@@ -159,3 +159,27 @@ def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Pat
     assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0  # resumed: nothing left
     assert "wrote 0 rows" in capsys.readouterr().out
     assert json.loads((out / "summary.json").read_text())["search"]["trials"] == 4
+
+
+def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: Path, tmp_path: Path):
+    """`depotbench run` and sweeps go through one engine: the run's record.json is the
+    sweep's row for that job (deterministic fields; the sweep adds its signature)."""
+    import json
+
+    from eval.harness import run_sequence
+    from eval.record import DETERMINISTIC_FIELDS
+    from eval.store import ResultStore
+    from eval.sweep import expand, run_jobs
+    from eval.sweep_spec import load_sweep
+
+    run_sequence(walking, tmp_path / "run", "box_rule", progress=False)
+    record = json.loads((tmp_path / "run" / "record.json").read_text())
+    spec_path = tmp_path / "s.yaml"
+    spec_path.write_text(f"sweep: one\nsequences: [{walking}]\nstrategies: [box_rule]\n")
+    jobs = expand(load_sweep(spec_path), spec_path, [(walking, "walking_static")])
+    with ResultStore(tmp_path / "r.sqlite") as store:
+        run_jobs(jobs, store, workers=1, progress=False)
+        row = next(r for r in store.rows() if r["strategy"] == "box_rule")
+    fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
+    assert {k: record[k] for k in fields} == {k: row[k] for k in fields}
+    assert record["key"] == row["key"] and record["record_version"] == 2
