@@ -64,25 +64,37 @@ class RunView:
 
 
 def load_run(folder: Path) -> RunView:
-    """A run folder written by ``depotbench run``."""
+    """A run folder written by ``depotbench run``; a missing or damaged file is named."""
     metrics_path = folder / "metrics.json"
     try:
         metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{metrics_path}: cannot read the run's metrics ({exc})") from None
-    frames = np.genfromtxt(folder / "frames.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
-    frames = np.atleast_1d(frames)
+        title = f"{metrics['tracker']} · {metrics['strategy']} · {metrics['detector']}"
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{metrics_path}: cannot read the run's metrics ({exc!r})") from None
+    frames_path = folder / "frames.csv"
+    try:
+        frames = np.atleast_1d(
+            np.genfromtxt(frames_path, delimiter=",", names=True, dtype=None, encoding="utf-8")
+        )
+        timestamps = np.asarray(frames["timestamp_s"], float)
+        states = tuple(str(s) for s in frames["state"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{frames_path}: cannot read the run's frames ({exc!r})") from None
     trajectory = folder / "trajectory.txt"
     estimate = read_tum(trajectory) if trajectory.is_file() else None
     diagnostics = None
-    if (folder / "diagnostics.npz").is_file():
-        with np.load(folder / "diagnostics.npz") as data:
-            diagnostics = {k: data[k] for k in data.files}
+    diagnostics_path = folder / "diagnostics.npz"
+    if diagnostics_path.is_file():
+        try:
+            with np.load(diagnostics_path) as data:
+                diagnostics = {k: data[k] for k in data.files}
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{diagnostics_path}: cannot read the run's diagnostics ({exc!r})") from None
     return RunView(
-        title=f"{metrics['tracker']} · {metrics['strategy']} · {metrics['detector']}",
+        title=title,
         metrics=metrics,
-        timestamps_s=np.asarray(frames["timestamp_s"], float),
-        states=tuple(str(s) for s in frames["state"]),
+        timestamps_s=timestamps,
+        states=states,
         estimate=estimate,
         sequence=_open_sequence(metrics.get("sequence")),
         diagnostics=diagnostics,

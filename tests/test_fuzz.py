@@ -876,6 +876,85 @@ def _command_cases() -> dict[str, Case]:
             ("__argparse__", "sweep", "{tmp}/s.yaml", "-o", "{tmp}/out", "--workers", "0"),
             "--workers",
         ),
+        "check-missing-gates": Case(nothing, ("check", "{tmp}/none.yaml", "-o", "{tmp}/out"), "none.yaml"),
+        "check-bad-yaml": Case(
+            write("g.yaml", "gates: [unclosed\n"), ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"), "g.yaml"
+        ),
+        "check-no-checks": Case(
+            write("g.yaml", "gates: g\nrun: {sequences: [x]}\nchecks: []\n"),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "checks",
+        ),
+        "check-unknown-budget": Case(
+            write(
+                "g.yaml", "gates: g\nrun: {sequences: [x]}\nchecks: [{name: c, budgets: {speed: {max: 1}}}]\n"
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "unknown budget 'speed'",
+        ),
+        "check-inverted-bound": Case(
+            write(
+                "g.yaml",
+                "gates: g\nrun: {sequences: [x]}\nchecks: [{name: c, budgets: {ate_rmse_m: {min: 2, max: 1}}}]\n",
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "min is above max",
+        ),
+        "check-nan-bound": Case(
+            write(
+                "g.yaml",
+                "gates: g\nrun: {sequences: [x]}\nchecks: [{name: c, budgets: {ate_rmse_m: {max: .nan}}}]\n",
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "finite",
+        ),
+        "check-missing-sequence": Case(
+            write(
+                "g.yaml",
+                "gates: g\nrun: {sequences: [nowhere]}\nchecks: [{name: c, budgets: {ate_rmse_m: {max: 1}}}]\n",
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "sequences.0:",
+        ),
+        "check-bad-threshold": Case(
+            write(
+                "g.yaml",
+                "gates: g\nrun: {sequences: [x], strategies: [prior_flow], thresholds: {prior_flow: {k: {grid: [-1]}}}}\n"
+                "checks: [{name: c, budgets: {ate_rmse_m: {max: 1}}}]\n",
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "thresholds.prior_flow",
+        ),
+        "check-duplicate-names": Case(
+            write(
+                "g.yaml",
+                "gates: g\nrun: {sequences: [x]}\n"
+                "checks: [{name: c, budgets: {ate_rmse_m: {max: 1}}}, {name: c, budgets: {ate_rmse_m: {max: 1}}}]\n",
+            ),
+            ("check", "{tmp}/g.yaml", "-o", "{tmp}/out"),
+            "unique",
+        ),
+        "report-missing": Case(
+            nothing, ("report", "{tmp}/nothing", "-o", "{tmp}/out"), "nothing: no such folder"
+        ),
+        "report-neither": Case(
+            write("folder/readme.txt", "x"),
+            ("report", "{tmp}/folder", "-o", "{tmp}/out"),
+            "neither a run folder",
+        ),
+        "report-bad-metrics": Case(
+            write("run/metrics.json", "{not json"), ("report", "{tmp}/run", "-o", "{tmp}/out"), "metrics.json"
+        ),
+        "report-no-frames": Case(
+            write("run/metrics.json", '{"tracker": "builtin", "strategy": "none", "detector": "none"}'),
+            ("report", "{tmp}/run", "-o", "{tmp}/out"),
+            "frames.csv",
+        ),
+        "report-rerun-not-a-run": Case(
+            write("folder/readme.txt", "x"),
+            ("report", "{tmp}/folder", "-o", "{tmp}/out", "--rerun", "{tmp}/x.rrd"),
+            "not a run folder",
+        ),
         "vocab-scene": Case(
             nothing,
             ("vocab", "-o", "{tmp}/v.txt", "--scenes", "atlantis"),
