@@ -249,6 +249,7 @@ def test_suite_expands_and_validates_each_variation(tmp_path: Path):
 
 
 @pytest.mark.render
+@pytest.mark.slow  # 45 s; suites are also byte-compared across backends (test_sweep) in the default run
 def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Path):
     path = tmp_path / "tiny.yaml"
     path.write_text(SUITE)
