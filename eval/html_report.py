@@ -163,7 +163,7 @@ def _aligned(view: RunView) -> tuple[Trajectory, Trajectory] | None:
 def trajectory_figure(view: RunView):
     """Top view: the two axes along which the ground truth moves most."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(5.2, 4.6))
+    fig, ax = plt.subplots(figsize=(4.6, 4.2))
     reference = _reference(view.sequence)
     pair = _aligned(view)
     if reference is not None:
@@ -178,6 +178,8 @@ def trajectory_figure(view: RunView):
             ax.plot(est[0, a], est[0, b], "o", c="C3", ms=5)
         names = "xyz"
         ax.set(xlabel=f"{names[a]} (m)", ylabel=f"{names[b]} (m)", aspect="equal")
+        ax.xaxis.set_major_locator(plt.MaxNLocator(5))
+        ax.yaxis.set_major_locator(plt.MaxNLocator(6))
     elif view.estimate is not None:
         ax.plot(
             view.estimate.positions_m[:, 0], view.estimate.positions_m[:, 1], "-", c="C3", label="estimate"
@@ -191,7 +193,7 @@ def trajectory_figure(view: RunView):
 def error_figure(view: RunView):
     """Translational error per tracked frame, with the tracking state shaded behind it."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 3.0))
+    fig, ax = plt.subplots(figsize=(7.0, 3.0))
     t0 = float(view.timestamps_s[0]) if len(view.timestamps_s) else 0.0
     times = view.timestamps_s - t0
     step = float(np.median(np.diff(times))) if len(times) > 1 else 1.0
