@@ -1,6 +1,7 @@
 """Sweep throughput, and what the stage cache saves over a naive sweep of the same work.
 
 Usage: python benchmarks/sweep.py [--frames 40] [--seeds 1 2 3 4] [--configs 20] [--workers 2]
+                                  [--detector groundtruth|onnx]
 
 Generates a walking_static suite (one sequence per seed), then runs the same jobs
 three times through the engine, each time on a fresh cache folder:
@@ -70,12 +71,22 @@ def main() -> None:
     parser.add_argument("--configs", type=int, default=20)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--skip-naive", action="store_true", help="only the cached sweep")
+    parser.add_argument(
+        "--detector",
+        default="groundtruth",
+        help="the boxes: groundtruth (free) or onnx (the shipped YOLOX-nano, ~31 ms a frame)",
+    )
     args = parser.parse_args()
     combos = list(itertools.product(*GRID.values()))[: args.configs]
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         sequences = _sequences(root, args.frames, args.seeds, args.workers)
-        spec = SweepSpec(sweep="bench", sequences=["-"], strategies=["none", "box_epipolar_flow"])
+        spec = SweepSpec(
+            sweep="bench",
+            sequences=["-"],
+            detectors=[args.detector],
+            strategies=["none", "box_epipolar_flow"],
+        )
         jobs = expand(spec, root / "spec.yaml", sequences)
         none_jobs = [j for j in jobs if j.job.strategy == "none"]
         template = [j for j in jobs if j.job.strategy == "box_epipolar_flow"]
@@ -88,7 +99,8 @@ def main() -> None:
                 work.append(SweepJob(key, base.family, replace(base.job, settings=settings), fingerprint))
         print(
             f"{len(sequences)} walking_static sequences x {args.frames} frames; {len(work)} runs "
-            f"(none + {len(combos)} box_epipolar_flow configurations each), {args.workers} workers"
+            f"(none + {len(combos)} box_epipolar_flow configurations each), {args.workers} workers, "
+            f"{args.detector} boxes"
         )
         results = {}
         modes = [("cache + dedupe", True, True), ("cache", True, False)]

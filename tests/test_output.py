@@ -439,6 +439,9 @@ def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(
         stdout=subprocess.DEVNULL,
         text=True,
         start_new_session=True,
+        # As from a terminal: a test run started in the background (``make test &``) has
+        # SIGINT ignored, and an ignored signal stays ignored across exec.
+        preexec_fn=_default_sigint,
     )
     deadline = time.time() + 60
     while time.time() < deadline and len(processes_with(token, exclude=proc.pid)) < 2:
@@ -458,6 +461,10 @@ def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(
     assert wait_until_gone(token) == []
     assert not [p for p in out.iterdir() if p.name.startswith("s-")]  # no sequence was finished
     assert stopped_after_s < 20, stopped_after_s  # generous: finishing one sequence takes ~40 s
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def processes_with(token: str, exclude: int | None = None) -> list[int]:
