@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from eval.gates import GateFile, GateReport
 
 EXIT_FAILED = 1
 
@@ -55,7 +59,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return 0 if report.passed else EXIT_FAILED
 
 
-def run_gates(gates, gates_path: Path, out: Path, workers: int, backend: str = "local", address=None):
+def run_gates(
+    gates: GateFile,
+    gates_path: Path,
+    out: Path,
+    workers: int,
+    backend: str = "local",
+    address: str | None = None,
+) -> GateReport:
     """The gate file's matrix through the sweep engine (cache and stored rows reused), checked."""
     from eval.gates import evaluate
     from eval.sweep_run import execute_sweep

@@ -151,7 +151,8 @@ def _reference(sequence: Sequence | None) -> Trajectory | None:
     return Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
 
 
-def _aligned(view: RunView) -> tuple[Trajectory, Trajectory] | None:
+def aligned_trajectories(view: RunView) -> tuple[Trajectory, Trajectory] | None:
+    """Ground truth and the estimate associated with it, SE(3)-aligned as ATE aligns them."""
     reference = _reference(view.sequence)
     if reference is None or view.estimate is None or len(view.estimate) < 3:
         return None
@@ -165,7 +166,7 @@ def trajectory_figure(view: RunView):
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(4.6, 4.2))
     reference = _reference(view.sequence)
-    pair = _aligned(view)
+    pair = aligned_trajectories(view)
     if reference is not None:
         extent = np.ptp(reference.positions_m, axis=0)
         a, b = sorted(np.argsort(-extent)[:2])
@@ -201,7 +202,7 @@ def error_figure(view: RunView):
         colour = STATE_COLOURS.get(state)
         if colour:
             ax.axvspan(time - step / 2, time + step / 2, color=colour, lw=0)
-    pair = _aligned(view)
+    pair = aligned_trajectories(view)
     if pair is not None:
         ref, est = pair
         errors = np.linalg.norm(est.positions_m - ref.positions_m, axis=1)

@@ -16,7 +16,7 @@ from eval.html_report import (
     MOVING_COLOUR,
     STATIC_COLOUR,
     RunView,
-    _aligned,
+    aligned_trajectories,
 )
 from sim.errors import InputError
 
@@ -28,7 +28,7 @@ def write_recording(view: RunView, path: Path) -> None:
         raise InputError("--rerun needs the Rerun SDK: pip install 'depotbench[viz]'") from None
     recording = rr.RecordingStream("depotbench", recording_id=str(path.stem))
     recording.save(str(path))
-    pair = _aligned(view)
+    pair = aligned_trajectories(view)
     if pair is not None:
         ref, est = pair
         truth = rr.LineStrips3D([ref.positions_m], colors=[(90, 90, 90)])
