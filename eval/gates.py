@@ -34,11 +34,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
-from eval.sweep_report import with_rho
+from eval.sweep_report import settings_text, with_rho
 from eval.sweep_spec import SweepSpec
-from scenes.schema import SpecError, Strict, format_validation_error, read_yaml
+from scenes.schema import Strict, load_model
 from sim.sequence import Sequence
 
 METRICS: dict[str, str] = {
@@ -70,6 +70,12 @@ class Bound(Strict):
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueError("min is above max")
         return self
+
+    def limits(self, space: str = " ") -> list[str]:
+        """The bounds as ``>= min`` and ``<= max`` (those that are set)."""
+        return [
+            f"{op}{space}{value:g}" for op, value in ((">=", self.min), ("<=", self.max)) if value is not None
+        ]
 
 
 class Check(Strict):
@@ -116,11 +122,7 @@ class GateFile(Strict):
 
 
 def load_gates(path: Path) -> GateFile:
-    data = read_yaml(path)
-    try:
-        return GateFile.model_validate(data)
-    except ValidationError as exc:
-        raise SpecError(format_validation_error(str(path), exc)) from None
+    return load_model(GateFile, path)
 
 
 @dataclass(frozen=True)
@@ -138,12 +140,7 @@ class Verdict:
     @property
     def message(self) -> str:
         shown = "missing" if self.value is None else f"{self.value:.4g}"
-        limits = []
-        if self.bound.min is not None:
-            limits.append(f">= {self.bound.min:g}")
-        if self.bound.max is not None:
-            limits.append(f"<= {self.bound.max:g}")
-        return f"{self.metric} ({METRICS[self.metric]}) = {shown}, budget {' and '.join(limits)}"
+        return f"{self.metric} ({METRICS[self.metric]}) = {shown}, budget {' and '.join(self.bound.limits())}"
 
 
 @dataclass(frozen=True)
@@ -179,7 +176,7 @@ class GateReport:
 
 def _row_name(row: dict[str, Any]) -> str:
     settings = json.loads(row["settings"])
-    shown = " ".join(f"{k}={v}" for k, v in sorted(settings.items()))
+    shown = settings_text(dict(sorted(settings.items())))
     name = Path(row["sequence"]).name
     return " ".join(
         part
@@ -254,22 +251,13 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
     return GateReport(gates.gates, tuple(results), tuple(empty))
 
 
-def _limits(bound: Bound) -> str:
-    parts = []
-    if bound.min is not None:
-        parts.append(f">={bound.min:g}")
-    if bound.max is not None:
-        parts.append(f"<={bound.max:g}")
-    return ",".join(parts)
-
-
 def format_report(report: GateReport) -> str:
     """One line per (check, run): each budget as metric value (limit), failures marked."""
     lines = [f"{'check':24s} {'result':6s} run / budgets"]
     for result in report.results:
         budgets = "  ".join(
             f"{'' if v.passed else '!!'}{v.metric} {'missing' if v.value is None else f'{v.value:.4g}'} "
-            f"({_limits(v.bound)})"
+            f"({','.join(v.bound.limits(space=''))})"
             for v in result.verdicts
         )
         lines.append(f"{result.check[:24]:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")

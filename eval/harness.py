@@ -35,7 +35,7 @@ from sim.files import dumps_json
 from sim.output import OutputKind, StagedOutput
 from sim.sequence import Sequence
 from sim.version import generator_version
-from slam.config import ConfigError, SlamConfig, check_pyramid
+from slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
 from slam.rejection import STRATEGIES
 from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
@@ -178,13 +178,13 @@ def track(job: RunJob, cache: StageCache | None = None, progress: bool = False) 
     return _execute(job, sequence, config, cache, progress)
 
 
-def branch_root(job: RunJob, sequence: Sequence, config: SlamConfig) -> str:
+def branch_root(job: RunJob, features: str, config: SlamConfig) -> str:
     """What jobs must share to be tracked as one branching run (``track_tree``): the
-    sequence, detector (with faults), strategy, tracking settings and flow stage; they
-    may differ in rejection thresholds only."""
+    sequence and tracking settings (``features``, ``stages.features_key``), detector (with
+    faults), strategy and flow stage; they may differ in rejection thresholds only."""
     flow = (config.rejection.lk_window_px, config.rejection.lk_levels)
     return content_hash(
-        features_key(sequence, config.tracking),
+        features,
         job.detector.key(),
         job.detector.faults.to_dict(),
         job.strategy,
@@ -199,8 +199,16 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
     sequence = Sequence.open(jobs[0].sequence)
     prepared = [prepare(job, sequence) for job in jobs]
     first = prepared[0][1]
-    roots = {branch_root(job, seq, config) for job, (seq, config) in zip(jobs, prepared, strict=True)}
-    if len(roots) != 1 or not all(uses_stages(job) for job in jobs):
+    features: dict[TrackingConfig, str] = {}
+    for _, config in prepared:  # a fingerprint stats every frame file: once per tracking setting
+        if config.tracking not in features:
+            features[config.tracking] = features_key(sequence, config.tracking)
+    roots = {
+        branch_root(job, features[config.tracking], config)
+        for job, (_, config) in zip(jobs, prepared, strict=True)
+    }
+    same_sequence = all(seq is sequence for seq, _ in prepared)
+    if not same_sequence or len(roots) != 1 or not all(uses_stages(job) for job in jobs):
         raise ValueError("track_tree takes built-in jobs that differ in rejection thresholds only")
     configs = [config for _, config in prepared]
     detections = detect_sequence(sequence, jobs[0].detector, cache)

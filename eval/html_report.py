@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from eval.alignment import Alignment, align
+from eval.sweep_report import pareto_figure, pyplot, settings_text, threshold_figures, with_rho
 from eval.trajectory import Trajectory, associate, read_tum
 from sim.errors import InputError
 from sim.sequence import Sequence
@@ -126,21 +127,12 @@ def _open_sequence(path: str | None) -> Sequence | None:
 # -- figures -----------------------------------------------------------------
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def figure_png(fig) -> bytes:
     from io import BytesIO
 
     buffer = BytesIO()
     fig.savefig(buffer, format="png", dpi=100)
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return buffer.getvalue()
 
 
@@ -163,7 +155,7 @@ def aligned_trajectories(view: RunView) -> tuple[Trajectory, Trajectory] | None:
 
 def trajectory_figure(view: RunView):
     """Top view: the two axes along which the ground truth moves most."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(4.6, 4.2))
     reference = _reference(view.sequence)
     pair = aligned_trajectories(view)
@@ -193,7 +185,7 @@ def trajectory_figure(view: RunView):
 
 def error_figure(view: RunView):
     """Translational error per tracked frame, with the tracking state shaded behind it."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.0, 3.0))
     t0 = float(view.timestamps_s[0]) if len(view.timestamps_s) else 0.0
     times = view.timestamps_s - t0
@@ -461,7 +453,7 @@ def _featured_runs(folder: Path, rows: list[dict[str, Any]], best: dict[str, dic
                 continue  # e.g. a search trial's settings: not in the spec's grid
             tracked = track(job.job, StageCache.from_env())
             label = "best" if key == chosen["key"] else "baseline (none)"
-            shown = " ".join(f"{k}={v}" for k, v in config["settings"].items()) if label == "best" else ""
+            shown = settings_text(config["settings"]) if label == "best" else ""
             views.append(
                 view_of(
                     f"{family}: {label} — {job.job.tracker.kind.value} · {job.job.strategy} {shown} · "
@@ -474,7 +466,6 @@ def _featured_runs(folder: Path, rows: list[dict[str, Any]], best: dict[str, dic
 
 def sweep_page(folder: Path, featured: int = 3) -> str:
     from eval.store import ResultStore
-    from eval.sweep_report import pareto_figure, threshold_figures, with_rho
 
     summary_path = folder / "summary.json"
     try:
@@ -489,7 +480,7 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
     best_rows = [
         [
             family,
-            f"{c['strategy']} " + " ".join(f"{k}={v}" for k, v in c["settings"].items()),
+            f"{c['strategy']} " + settings_text(c["settings"]),
             c["detector"],
             c["sequences"],
             c["ate_rmse_m"],
@@ -522,7 +513,7 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
         pareto_rows = [
             [
                 c["family"],
-                f"{c['strategy']} " + " ".join(f"{k}={v}" for k, v in c["settings"].items()),
+                f"{c['strategy']} " + settings_text(c["settings"]),
                 c["detector"],
                 c["ate_rmse_m"],
                 c["track_ms_median"],
@@ -542,7 +533,7 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
         [
             c["family"],
             c["strategy"],
-            " ".join(f"{k}={v}" for k, v in c["settings"].items()),
+            settings_text(c["settings"]),
             c["detector"],
             c["ate_rmse_m"],
             c["rho_percent"],

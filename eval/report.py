@@ -1,14 +1,10 @@
-"""Compare strategies over sequences: a table, machine-readable JSON and a plot."""
+"""Compare strategies over sequences as a text table (``benchmarks/strategies.py``)."""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 from typing import Any
 
 from eval.metrics import improvement_rate
-from sim.files import dumps_json
-from sim.output import write_text_atomic
 
 
 def summarise(runs: dict[str, dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:
@@ -52,45 +48,3 @@ def format_table(rows: list[dict[str, Any]]) -> str:
             f"{show(r['recall'], '7.3f')} {show(r['tracking_ms'], '9.1f')}"
         )
     return "\n".join(lines)
-
-
-def plot(rows: list[dict[str, Any]], path: Path) -> bool:
-    """Bar chart of ATE per sequence and strategy; False when matplotlib is not installed."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
-    sequences = list(dict.fromkeys(r["sequence"] for r in rows))
-    strategies = list(dict.fromkeys(r["strategy"] for r in rows))
-    fig, ax = plt.subplots(figsize=(8, 4))
-    width = 0.8 / len(strategies)
-    for k, strategy in enumerate(strategies):
-        values = [
-            next(
-                (r["ate_rmse_m"] or 0.0 for r in rows if r["sequence"] == s and r["strategy"] == strategy),
-                0.0,
-            )
-            for s in sequences
-        ]
-        ax.bar([i + k * width for i in range(len(sequences))], values, width, label=strategy)
-    ax.set_xticks([i + 0.4 - width / 2 for i in range(len(sequences))], sequences)
-    ax.set_ylabel("ATE RMSE (m)")
-    ax.set_yscale("log")
-    ax.set_title("Dynamic-feature rejection: ATE per sequence")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return True
-
-
-def write_report(rows: list[dict[str, Any]], out_dir: Path) -> None:
-    """report.json, report.txt and ate.png, each replaced whole (never seen half-written)."""
-    write_text_atomic(out_dir / "report.json", dumps_json(rows) + "\n")
-    write_text_atomic(out_dir / "report.txt", format_table(rows) + "\n")
-    staged = out_dir / ".ate.png.tmp.png"
-    if plot(rows, staged):
-        os.replace(staged, out_dir / "ate.png")

@@ -48,6 +48,7 @@ from sim.errors import InputError
 from sim.executors import make_pool
 from sim.sequence import Sequence
 from sim.version import generator_version
+from slam.config import TrackingConfig
 
 DATABASE = "results.sqlite"
 
@@ -175,6 +176,7 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
     and the stages are loaded once for them."""
     cache = StageCache.from_env()
     loaded: dict[str, tuple] = {}
+    features: dict[tuple[Path, TrackingConfig], str] = {}
     decisions = []
     sequence = None
     for job in jobs:
@@ -183,14 +185,17 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
             decisions.append(Decision(job.key, None, None, None))
             continue
         sequence, config = prepare(run, sequence)
-        root = branch_root(run, sequence, config)
+        at = (sequence.root, config.tracking)
+        if at not in features:  # a fingerprint stats every frame file: once per sequence and setting
+            features[at] = features_key(sequence, config.tracking)
+        root = branch_root(run, features[at], config)
         if root not in loaded:
             detections = detect_sequence(sequence, run.detector, cache)
             boxes = list(detections.per_frame) if detections is not None else None
             loaded = {root: (stages_for(sequence, config, cache), boxes)}  # one at a time
         stages, boxes = loaded[root]
         path = decision_path(stages, boxes, config, config.tracking.seed)
-        signature = decision_signature(path, features_key(sequence, config.tracking), run.strategy)
+        signature = decision_signature(path, features[at], run.strategy)
         decisions.append(Decision(job.key, signature, root, path))
     return decisions
 

@@ -98,7 +98,8 @@ def pareto(configs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return sorted(out, key=lambda c: (c["family"], c["ate_rmse_m"]))
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (no display; plots are files or inlined PNGs)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -110,7 +111,7 @@ def _pyplot():
 def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
     """Per (strategy, swept threshold): mean ATE and rejection precision/recall against
     the value, a curve per family and detector. Returns (name, figure) pairs."""
-    plt = _pyplot()
+    plt = pyplot()
     swept: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for c in configs:
         for name in c["settings"]:
@@ -146,7 +147,7 @@ def pareto_figure(configs: list[dict[str, Any]]):
     usable = [c for c in configs if c["ate_rmse_m"] is not None and c["track_ms_median"] is not None]
     if not usable:
         return None
-    plt = _pyplot()
+    plt = pyplot()
     front = pareto(configs)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     ax.scatter(
@@ -169,7 +170,7 @@ def pareto_figure(configs: list[dict[str, Any]]):
 
 def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
     """The threshold curves and the Pareto picture as PNG files under ``out``."""
-    plt = _pyplot()
+    plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
     figures = threshold_figures(configs)
     front = pareto_figure(configs)
@@ -182,6 +183,11 @@ def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
         plt.close(fig)
         written.append(path)
     return written
+
+
+def settings_text(settings: dict[str, Any]) -> str:
+    """Threshold values as ``name=value`` words, as tables and plots show them."""
+    return " ".join(f"{k}={v}" for k, v in settings.items())
 
 
 def format_best(best: dict[str, dict[str, Any]]) -> str:

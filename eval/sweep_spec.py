@@ -31,12 +31,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from detectors.config import DetectorConfig, DetectorConfigError, parse_detector
 from eval.harness import STRATEGY_CHOICES, TrackerConfig, slam_config
 from eval.trackers.base import TrackerKind
-from scenes.schema import SpecError, Strict, format_validation_error, read_yaml
+from scenes.schema import SpecError, Strict, load_model
 from sim.errors import InputError
 
 MAX_JOBS = 100_000
@@ -238,11 +238,7 @@ def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[Tracker
 
 
 def load_sweep(path: Path) -> SweepSpec:
-    data = read_yaml(path)
-    try:
-        return SweepSpec.model_validate(data)
-    except ValidationError as exc:
-        raise SpecError(format_validation_error(str(path), exc)) from None
+    return load_model(SweepSpec, path)
 
 
 def resolve(spec: SweepSpec, path: Path, name: str) -> Path:

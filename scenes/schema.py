@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import numpy as np
 import yaml
@@ -29,6 +29,8 @@ from sim import spec as sim_spec
 from sim.errors import FileError, InputError
 from sim.files import MAX_SPEC_BYTES, read_text
 from sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
+
+M = TypeVar("M", bound=BaseModel)
 
 MAX_FRAMES = 100_000
 MAX_ACTORS = 40
@@ -450,11 +452,22 @@ def check_option(field: str, value: Any, option: str) -> Any:
         raise SpecError(f"{option} {value}: {exc.errors()[0]['msg']} (the scenario's {field})") from None
 
 
-def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
+def validate_model(model: type[M], data: Any, source: str) -> M:
+    """``data`` as ``model``, or one SpecError line per problem, each naming ``source`` and the field."""
     try:
-        return Scenario.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         raise SpecError(format_validation_error(source, exc)) from None
+
+
+def load_model(model: type[M], path: Path) -> M:
+    """A YAML file (read safely, ``read_yaml``) validated as ``model``: scenarios, suites,
+    sweep specs and gate files all load this way."""
+    return validate_model(model, read_yaml(path), str(path))
+
+
+def parse_scenario(data: dict[str, Any], source: str) -> Scenario:
+    return validate_model(Scenario, data, source)
 
 
 def load_scenario(path: Path) -> Scenario:

@@ -15,14 +15,14 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from scenes import library
 from scenes.schema import (
     Scenario,
     SpecError,
     Strict,
-    format_validation_error,
+    load_model,
     parse_scenario,
     read_yaml,
 )
@@ -166,11 +166,7 @@ def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any]
 
 
 def load_suite(path: Path) -> Suite:
-    data = read_yaml(path)
-    try:
-        return Suite.model_validate(data)
-    except ValidationError as exc:
-        raise SpecError(format_validation_error(str(path), exc)) from None
+    return load_model(Suite, path)
 
 
 def is_suite_file(path: Path) -> bool:
