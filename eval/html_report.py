@@ -566,16 +566,20 @@ def _difficulty_rows(rows: list[dict[str, Any]]) -> str:
     return table(["sequence", *[c.replace("_", " ") for c in columns]], table_rows) if table_rows else ""
 
 
+def render_report(source: Path) -> str:
+    """The page for a run folder or a sweep folder."""
+    if (source / "results.sqlite").is_file() and (source / "summary.json").is_file():
+        return sweep_page(source)
+    if (source / "metrics.json").is_file():
+        return run_page(load_run(source))
+    raise InputError(f"{source}: neither a run folder (metrics.json) nor a sweep folder (results.sqlite)")
+
+
 def write_report(source: Path, out: Path) -> Path:
-    """The page for a run folder or a sweep folder, written atomically as OUT/index.html."""
+    """The page written atomically as OUT/index.html (OUT: a folder the caller owns)."""
     from sim.output import write_text_atomic
 
-    if (source / "results.sqlite").is_file() and (source / "summary.json").is_file():
-        text = sweep_page(source)
-    elif (source / "metrics.json").is_file():
-        text = run_page(load_run(source))
-    else:
-        raise InputError(f"{source}: neither a run folder (metrics.json) nor a sweep folder (results.sqlite)")
+    text = render_report(source)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "index.html"
     write_text_atomic(path, text)

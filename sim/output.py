@@ -52,6 +52,7 @@ class OutputKind(StrEnum):
     DEMO = "demo"
     DATASET = "dataset"
     SWEEP = "sweep"
+    REPORT = "report"
 
 
 class OutputError(InputError):

@@ -950,6 +950,11 @@ def _command_cases() -> dict[str, Case]:
             ("report", "{tmp}/run", "-o", "{tmp}/out"),
             "frames.csv",
         ),
+        "report-rerun-exists": Case(
+            lambda tmp: (write("run/metrics.json", "{}")(tmp), write("x.rrd", "mine")(tmp)),
+            ("report", "{tmp}/run", "-o", "{tmp}/out", "--rerun", "{tmp}/x.rrd"),
+            "x.rrd already exists",
+        ),
         "report-rerun-not-a-run": Case(
             write("folder/readme.txt", "x"),
             ("report", "{tmp}/folder", "-o", "{tmp}/out", "--rerun", "{tmp}/x.rrd"),

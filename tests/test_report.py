@@ -90,6 +90,19 @@ def test_sweep_report_shows_thresholds_pareto_and_the_best_runs(walking: Path, t
     assert "Scenario difficulty" in shown["headings"]
 
 
+def test_report_never_writes_into_someone_elses_folder(run_folder: Path, tmp_path: Path, capsys):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "index.html").write_text("my own page")
+    assert main(["report", str(run_folder), "-o", str(mine)]) == 2
+    assert "mine" in capsys.readouterr().err
+    assert (mine / "index.html").read_text() == "my own page"
+    # Its own report folder is refreshed in place.
+    assert main(["report", str(run_folder), "-o", str(tmp_path / "report")]) == 0
+    assert main(["report", str(run_folder), "-o", str(tmp_path / "report")]) == 0
+    assert (tmp_path / "report" / "index.html").stat().st_size > 100_000
+
+
 def test_report_refuses_a_folder_that_is_neither(tmp_path: Path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["report", str(tmp_path / "empty"), "-o", str(tmp_path / "out")]) == 2
