@@ -5,28 +5,20 @@ coordinate u_r = u - bf / z, weighted by the keypoint's pyramid level, under a
 Huber loss. The pose-only refinement is a small Gauss-Newton on the analytic
 Jacobian (6 unknowns; a solver call would cost more than the solve).
 
-Local BA uses GTSAM (Georgia Tech, maintained, the standard factor-graph library
-of the field): its stereo factor is exactly ORB-SLAM's RGB-D edge and its sparse
-multifrontal Cholesky eliminates the points as a Schur complement does. On windows
-captured from walking_xyz it reached the same cost as SciPy's least_squares
-(trust-region, sparse finite-difference Jacobian, LSMR) about 4x faster on one
-core: 2,000 / 8,100 / 15,000 observations in 89 / 243 / 281 ms instead of
-356 / 957 / 1,236 ms.
+Local BA (``slam.bundle``) minimises the same edges over a keyframe window.
 """
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 
-from slam.geometry import exp_se3, invert
+from slam.bundle import bundle_adjust
+from slam.geometry import exp_se3
 from slam.types import PinholeCamera
 
 CHI2_STEREO = 7.815
 """95 % quantile of chi-square with 3 dof (ORB-SLAM's RGB-D outlier threshold)."""
 CHI2_MONO = 5.991
-FIXED_POSE_SIGMA = 1e-6
-"""Prior sigma (rad, m) that holds the keyframes outside the local window in place."""
 GN_STEP_TOLERANCE = 1e-6
 """Gauss-Newton stops once a step moves the pose by less than 1 micrometre / microradian."""
 
@@ -161,46 +153,13 @@ def local_bundle_adjustment(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimise free keyframe poses (camera_from_world, (K, 4, 4)) and all points (P, 3).
 
-    GTSAM's Levenberg-Marquardt on stereo factors (u_left, u_right, v), which are
-    ORB-SLAM's RGB-D edges, and monocular factors where a keypoint had no depth; Huber
-    loss; sigma = scale_factor^octave. Fixed keyframes get a tight prior rather than a
-    hard equality, which would force a slow QR elimination. Returns new poses, new points
-    and the inlier mask of the observations (chi-square test at the result).
+    Levenberg-Marquardt on ORB-SLAM's RGB-D edges (``slam.bundle``); fixed keyframes stay
+    where they are. Returns new poses, new points and the inlier mask of the observations
+    (chi-square test at the result).
     """
-    calibration = gtsam.Cal3_S2Stereo(camera.fx, camera.fy, 0.0, camera.cx, camera.cy, bf / camera.fx)
-    mono_calibration = gtsam.Cal3_S2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy)
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(CHI2_STEREO))
-    fixed_noise = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_POSE_SIGMA)
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    for i, camera_from_world in enumerate(poses):
-        world_from_camera = gtsam.Pose3(invert(camera_from_world))
-        values.insert(gtsam.symbol("x", i), world_from_camera)
-        if not free[i]:
-            graph.add(gtsam.PriorFactorPose3(gtsam.symbol("x", i), world_from_camera, fixed_noise))
-    for j, point in enumerate(points):
-        values.insert(gtsam.symbol("l", j), point.astype(np.float64))
-    stereo = np.isfinite(ur)
-    noise: dict[tuple[float, bool], gtsam.noiseModel.Base] = {}
-    for k in range(len(obs_pose)):
-        key = (float(weight[k]), bool(stereo[k]))
-        if key not in noise:
-            base = gtsam.noiseModel.Isotropic.Sigma(3 if key[1] else 2, 1.0 / key[0])
-            noise[key] = gtsam.noiseModel.Robust.Create(huber, base)
-        pose_key, point_key = gtsam.symbol("x", int(obs_pose[k])), gtsam.symbol("l", int(obs_point[k]))
-        if key[1]:
-            measured = gtsam.StereoPoint2(uv[k, 0], ur[k], uv[k, 1])
-            graph.add(gtsam.GenericStereoFactor3D(measured, noise[key], pose_key, point_key, calibration))
-        else:
-            graph.add(
-                gtsam.GenericProjectionFactorCal3_S2(uv[k], noise[key], pose_key, point_key, mono_calibration)
-            )
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max(1, iterations))
-    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    new_poses = np.array([invert(result.atPose3(gtsam.symbol("x", i)).matrix()) for i in range(len(poses))])
-    new_poses[~free] = poses[~free]
-    new_points = np.array([result.atPoint3(gtsam.symbol("l", j)) for j in range(len(points))]).reshape(-1, 3)
+    new_poses, new_points, _, _ = bundle_adjust(
+        poses, free, points, obs_pose, obs_point, uv, ur, weight, camera, bf, iterations
+    )
     pc = (
         np.einsum("nij,nj->ni", new_poses[obs_pose, :3, :3], new_points[obs_point])
         + new_poses[obs_pose, :3, 3]
