@@ -24,12 +24,18 @@ BACKENDS = ("local", "ray")
 
 def single_threaded() -> None:
     """One thread per worker process: the workers are the parallelism (Mesa's llvmpipe,
-    OpenMP and OpenCV would each start a thread per core)."""
+    OpenMP, OpenBLAS and OpenCV would each start a thread per core).
+
+    A spawned worker has imported numpy (through the parent's main module) before this
+    runs, so OpenBLAS has read its environment already: its pool is limited at run time.
+    Two workers with a BLAS thread per core each ran the sweep benchmark 2x slower."""
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["LP_NUM_THREADS"] = "1"
     import cv2
+    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)
+    threadpool_limits(1)
 
 
 def _init_local_worker(parent_pid: int) -> None:
