@@ -159,7 +159,11 @@ def _load(data: bytes | None) -> dict[str, np.ndarray] | None:
 
 
 def decision_path(
-    stages: list[FrameStages], detections: list[tuple] | None, config: SlamConfig, seed_base: int
+    stages: list[FrameStages],
+    detections: list[tuple] | None,
+    config: SlamConfig,
+    seed_base: int,
+    memos: list[dict] | None = None,
 ) -> tuple[str, ...]:
     """Per frame, a hash of which keypoints the strategy keeps, computed without tracking.
 
@@ -167,7 +171,8 @@ def decision_path(
     the tracker's state; tracking sees only the kept keypoints. So two threshold settings
     of one strategy whose paths are equal give the same run, and a sweep tracks it once;
     settings whose paths agree up to some frame share the run up to there and fork
-    (``tests/test_sweep.py`` checks both against tracking each job alone).
+    (``tests/test_sweep.py`` checks both against tracking each job alone). ``memos`` (a
+    dict per frame) carry ``classify``'s shared work from one setting's path to the next.
     """
     kept = REJECTION_CODES[Rejection.KEPT]
     path = []
@@ -175,7 +180,8 @@ def decision_path(
     for i, stage in enumerate(stages):
         cv2.setRNGSeed(seed_base + i)  # as Slam.process does before rejection
         boxes = detections[i] if detections is not None else ()
-        codes = classify(config.strategy, stage.features, previous, boxes, config.rejection, stage.flow)
+        memo = memos[i] if memos is not None else None
+        codes = classify(config.strategy, stage.features, previous, boxes, config.rejection, stage.flow, memo)
         digest = hashlib.sha256(np.packbits(codes == kept).tobytes())
         digest.update(len(codes).to_bytes(4, "little"))
         path.append(digest.hexdigest()[:16])

@@ -192,9 +192,10 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
         if root not in loaded:
             detections = detect_sequence(sequence, run.detector, cache)
             boxes = list(detections.per_frame) if detections is not None else None
-            loaded = {root: (stages_for(sequence, config, cache), boxes)}  # one at a time
-        stages, boxes = loaded[root]
-        path = decision_path(stages, boxes, config, config.tracking.seed)
+            stages = stages_for(sequence, config, cache)
+            loaded = {root: (stages, boxes, [{} for _ in stages])}  # one at a time
+        stages, boxes, memos = loaded[root]
+        path = decision_path(stages, boxes, config, config.tracking.seed, memos)
         signature = decision_signature(path, features[at], run.strategy)
         decisions.append(Decision(job.key, signature, root, path))
     return decisions

@@ -91,8 +91,14 @@ def classify(
     detections: tuple[Detection, ...],
     config: RejectionConfig,
     flow: Flow | None = None,
+    memo: dict | None = None,
 ) -> np.ndarray:
-    """A ``Rejection`` code per keypoint of ``current``; ``flow`` is the flow stage when cached."""
+    """A ``Rejection`` code per keypoint of ``current``; ``flow`` is the flow stage when cached.
+
+    ``memo``, one dict per frame and set of boxes kept across calls, lets settings share
+    what does not depend on them: the box tests, and the fundamental-matrix RANSAC with its
+    epipolar distances for the same points (a sweep decides many settings of one frame; the
+    RANSAC is seeded per frame, so its result is a function of its input)."""
     if strategy not in STRATEGIES:
         raise ValueError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGIES)}")
     n = len(current)
@@ -100,7 +106,13 @@ def classify(
     if strategy == "none" or n == 0:
         return codes
     dets = [d for d in detections if d.confidence >= config.min_confidence]
-    hits = inside(current.keypoints_px, dets, config.box_dilation_px)
+    box_key = ("inside", config.min_confidence, config.box_dilation_px)
+    if memo is not None and box_key in memo:
+        hits = memo[box_key]
+    else:
+        hits = inside(current.keypoints_px, dets, config.box_dilation_px)
+        if memo is not None:
+            memo[box_key] = hits
     priors = np.array([d.prior for d in dets])
     in_dynamic = hits[:, priors == Prior.DYNAMIC].any(axis=1) if len(dets) else np.zeros(n, bool)
     in_other = hits[:, priors != Prior.DYNAMIC].any(axis=1) if len(dets) else np.zeros(n, bool)
@@ -112,7 +124,7 @@ def classify(
         return codes
     if strategy == "prior_flow":
         return _prior_flow(codes, current, previous, in_dynamic, hits, priors, config, flow)
-    return _epipolar_flow(codes, current, previous, in_dynamic, config, flow)
+    return _epipolar_flow(codes, current, previous, in_dynamic, config, flow, memo)
 
 
 def _prior_flow(
@@ -149,6 +161,7 @@ def _epipolar_flow(
     in_dynamic: np.ndarray,
     config: RejectionConfig,
     flow: Flow | None = None,
+    memo: dict | None = None,
 ) -> np.ndarray:
     rest = np.flatnonzero(~in_dynamic)
     if len(rest) < 8:
@@ -160,21 +173,20 @@ def _epipolar_flow(
     tracked = rest[ok]
     if len(tracked) < 8:
         return codes
-    cur_pts = current.keypoints_px[tracked].astype(np.float64)
-    prev_pts = prev[ok].astype(np.float64)
-    f, _ = cv2.findFundamentalMat(prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99)
-    if f is not None and f.shape == (3, 3):
-        lines = np.c_[prev_pts, np.ones(len(prev_pts))] @ f.T
-        distance = np.abs(np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)) / np.maximum(
-            np.hypot(lines[:, 0], lines[:, 1]), 1e-12
-        )
+    prev_pts = prev[ok]
+    key = (tracked.tobytes(), prev_pts.tobytes(), config.fundamental_ransac_px)
+    if memo is not None and key in memo:
+        distance, magnitude = memo[key]
+    else:
+        distance, magnitude = _epipolar_geometry(current.keypoints_px[tracked], prev_pts, config)
+        if memo is not None:
+            memo[key] = (distance, magnitude)
+    if distance is not None:
         off_line = distance > config.epsilon_px
         codes[tracked[off_line]] = REJECTION_CODES[Rejection.EPIPOLAR]
-        keep = ~off_line
-        tracked, cur_pts, prev_pts = tracked[keep], cur_pts[keep], prev_pts[keep]
+        tracked, magnitude = tracked[~off_line], magnitude[~off_line]
     if len(tracked) < 2:
         return codes
-    magnitude = np.linalg.norm(cur_pts - prev_pts, axis=1)
     deviation = np.abs(magnitude - magnitude.mean())
     std = float(magnitude.std())
     outlier = (deviation > config.sigma_factor * std) | (
@@ -182,3 +194,20 @@ def _epipolar_flow(
     )
     codes[tracked[outlier]] = REJECTION_CODES[Rejection.FLOW_OUTLIER]
     return codes
+
+
+def _epipolar_geometry(
+    current_px: np.ndarray, previous_px: np.ndarray, config: RejectionConfig
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Each point's distance to its epipolar line under F from RANSAC (None when F fails)
+    and its flow magnitude: what method 3's thresholds are then applied to."""
+    cur_pts, prev_pts = current_px.astype(np.float64), previous_px.astype(np.float64)
+    magnitude = np.linalg.norm(cur_pts - prev_pts, axis=1)
+    f, _ = cv2.findFundamentalMat(prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99)
+    if f is None or f.shape != (3, 3):
+        return None, magnitude
+    lines = np.c_[prev_pts, np.ones(len(prev_pts))] @ f.T
+    distance = np.abs(np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)) / np.maximum(
+        np.hypot(lines[:, 0], lines[:, 1]), 1e-12
+    )
+    return distance, magnitude
