@@ -24,13 +24,14 @@ from eval.harness import (
     family_of,
     job_key,
     prepare,
+    slam_config,
     stages_for,
     track,
     track_tree,
     uses_stages,
 )
 from eval.record import RunRecord
-from eval.stages import decision_path, decision_signature, features_key
+from eval.stages import decision_path, decision_signature, features_key, sequence_stages
 from eval.store import ResultStore
 from eval.sweep_spec import (
     MAX_JOBS,
@@ -169,6 +170,29 @@ class Decision:
     path: tuple[str, ...] | None
 
 
+def stage_groups(jobs: list[SweepJob]) -> list[SweepJob]:
+    """One job per set of shared stages (sequence, detector, tracking and flow settings):
+    computing those first, one task each, keeps two workers from computing the same ones."""
+    chosen: dict[tuple, SweepJob] = {}
+    for job in jobs:
+        run = job.job
+        if not uses_stages(run):
+            continue
+        config = slam_config(run.strategy, dict(run.settings), run.tracker.kind)
+        flow = (config.rejection.lk_window_px, config.rejection.lk_levels)
+        key = (str(run.sequence), repr(run.detector), config.tracking, flow)
+        chosen.setdefault(key, job)
+    return list(chosen.values())
+
+
+def compute_stages(job: SweepJob) -> None:
+    """Worker entry point of phase 0: detections, features and flow of a job, into the cache."""
+    cache = StageCache.from_env()
+    sequence, config = prepare(job.job)
+    detect_sequence(sequence, job.job.detector, cache)
+    sequence_stages(sequence, config.tracking, config.rejection, True, cache)
+
+
 def decide(jobs: list[SweepJob]) -> list[Decision]:
     """Worker entry point of phase 1: each job's decision path (cheap: no tracking).
 
@@ -276,10 +300,11 @@ def run_jobs(
 ) -> tuple[int, int]:
     """Run the jobs whose rows are missing; returns (runs tracked, rows written).
 
-    Phase 1 finds, per job, which keypoints it keeps in every frame (cheap: no
-    tracking). Phase 2 tracks one job per distinct decision path, the jobs of one
-    sequence and strategy together, sharing the frames where their paths agree;
-    jobs with a path already tracked get its row. ``dedupe=False`` tracks every job
+    Phase 0 computes the stages jobs share (detections, features, flow), one task per
+    sequence and setting, into the stage cache. Phase 1 finds, per job, which keypoints
+    it keeps in every frame (cheap: no tracking). Phase 2 tracks one job per distinct
+    decision path, the jobs of one sequence and strategy together, sharing the frames
+    where their paths agree; jobs with a path already tracked get its row. ``dedupe=False`` tracks every job
     alone (the reference the tests compare against).
     """
     done = store.keys()
@@ -290,6 +315,12 @@ def run_jobs(
     failed = True
     try:
         decisions = [Decision(j.key, None, None, None) for j in pending]
+        if StageCache.from_env() is not None:
+            groups = stage_groups(pending)
+            bar = tqdm(total=len(groups), desc="stages", unit="seq", disable=None if progress else True)
+            with bar:
+                for _ in pool.map_unordered(compute_stages, [(j,) for j in groups]):
+                    bar.update(1)
         if dedupe and pending:
             bar = tqdm(total=len(pending), desc="decisions", unit="run", disable=None if progress else True)
             decisions = []
