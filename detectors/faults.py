@@ -34,7 +34,8 @@ class Difficulty:
 
     area_px: float
     occlusion: float
-    """0 (nothing in front) .. 1 (every pixel around it is a nearer surface)."""
+    """0 (in plain view) .. 1 (hidden): 1 - visible fraction where the sequence records it,
+    else the share of its outline that borders a nearer surface."""
     speed_px: float
     """Image motion of its centre between frames, px per frame (blur grows with it)."""
 

@@ -59,12 +59,15 @@ class GroundTruthDetector:
         objects = self.visible(index)
         if not objects:
             return ()
-        instances = self.sequence.instances(index)
-        depth = self.sequence.depth_m(index)
+        exact = all(o.visible_fraction is not None for o in objects)
+        instances = None if exact else self.sequence.instances(index)
+        depth = None if exact else self.sequence.depth_m(index)
         return tuple(
             Difficulty(
                 area_px=float((o.box_xyxy[2] - o.box_xyxy[0]) * (o.box_xyxy[3] - o.box_xyxy[1])),
-                occlusion=occlusion(instances, depth, o.instance_id, o.box_xyxy),
+                occlusion=1.0 - o.visible_fraction
+                if o.visible_fraction is not None
+                else occlusion(instances, depth, o.instance_id, o.box_xyxy),
                 speed_px=self._speed_px(index, o),
             )
             for o in objects
@@ -96,7 +99,8 @@ class GroundTruthDetector:
 def occlusion(
     instances: np.ndarray, depth_m: np.ndarray, instance_id: int, box_xyxy: tuple[int, int, int, int]
 ) -> float:
-    """The share of the object's outline that borders a nearer surface.
+    """The share of the object's outline that borders a nearer surface: the occlusion of
+    sequences that do not record the visible fraction.
 
     Each pixel in a 2-px ring around the object's mask is compared with the
     object's nearest depth within 2 px of it: nearer by more than 5 cm is an
@@ -118,6 +122,15 @@ def occlusion(
     nearest_own = cv2.erode(own, _RING, borderType=cv2.BORDER_CONSTANT, borderValue=float(np.inf))
     occluder = ring & (depth > 0) & (depth < nearest_own - OCCLUDER_MARGIN_M)
     return float(occluder.sum() / ring.sum())
+
+
+def is_truncated(obj: ObjectState, width: int, height: int) -> bool:
+    """Whether the image border cuts the object: recorded by the generator, or for older
+    sequences (and TUM folders) guessed from its visible box touching the border."""
+    if obj.truncated is not None:
+        return obj.truncated
+    assert obj.box_xyxy is not None
+    return truncated(obj.box_xyxy, width, height)
 
 
 def truncated(box_xyxy: tuple[float, float, float, float], width: int, height: int) -> bool:

@@ -19,7 +19,7 @@ import numpy as np
 from detectors.config import DetectorConfig
 from detectors.detection import Detection, Prior
 from detectors.faults import Difficulty
-from detectors.groundtruth import GroundTruthDetector, truncated
+from detectors.groundtruth import GroundTruthDetector, is_truncated
 from eval.cache import StageCache
 from eval.detections import detect_sequence
 from sim.sequence import Sequence
@@ -133,7 +133,7 @@ def truth_boxes(
             o.class_name,
             detector.priors.prior(o.class_name),
             diff,
-            truncated(o.box_xyxy, k.width, k.height),
+            is_truncated(o, k.width, k.height),
             o.visible_pixels < min_visible_pixels,
         )
         for o, diff in zip(detector.visible(index), detector.difficulties(index), strict=True)

@@ -33,8 +33,15 @@ def _quat_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
     return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
-def object_states(world: World, now: Snapshot, nxt: Snapshot, instances: np.ndarray) -> list[ObjectState]:
-    """Every instance's ground truth at ``now``; ``nxt`` (one frame later) gives part speeds."""
+def object_states(
+    world: World,
+    now: Snapshot,
+    nxt: Snapshot,
+    instances: np.ndarray,
+    unoccluded: dict[int, tuple[int, bool]] | None = None,
+) -> list[ObjectState]:
+    """Every instance's ground truth at ``now``; ``nxt`` (one frame later) gives part speeds;
+    ``unoccluded`` (``FrameRenderer.unoccluded``) each visible instance's unoccluded area."""
     boxes, counts = boxes_and_counts(instances, len(world.instances))
     dt = nxt.time_s - now.time_s
     part_speed = np.linalg.norm(nxt.body_positions - now.body_positions, axis=1) / dt
@@ -69,6 +76,8 @@ def object_states(world: World, now: Snapshot, nxt: Snapshot, instances: np.ndar
                 moving=moving,
                 box_xyxy=None if box is None else tuple(int(v) for v in box),
                 visible_pixels=count,
+                unoccluded_pixels=unoccluded[info.instance_id][0] if count and unoccluded else None,
+                truncated=unoccluded[info.instance_id][1] if count and unoccluded else None,
             )
         )
     return states
@@ -130,7 +139,8 @@ def generate(
         world = build_world(scenario)
         writer.meta["classes"] = world.classes()
         writer.meta["instances"] = [dataclasses.asdict(i) for i in world.instances]
-        renderer = FrameRenderer(world.model, scenario.width, scenario.height)
+        geom_instance = world.body_instance[world.model.geom_bodyid]
+        renderer = FrameRenderer(world.model, scenario.width, scenario.height, geom_instance)
         try:
             frames = tqdm(
                 range(scenario.frames),
@@ -166,13 +176,15 @@ def _write_frames(
     now = sim.snapshot()
     for k in frames:
         rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
-        sim.advance_to((k + 1) * period)
-        nxt = sim.snapshot()
         valid = geom_ids >= 0
         instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
+        seen = np.flatnonzero(np.bincount(instances.ravel(), minlength=len(world.instances) + 1)[1:]) + 1
+        unoccluded = renderer.unoccluded(sim.data, world.camera_id, seen.tolist())
+        sim.advance_to((k + 1) * period)
+        nxt = sim.snapshot()
         bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
-        objects = object_states(world, now, nxt, instances)
+        objects = object_states(world, now, nxt, instances, unoccluded)
         moving_ids = [o.instance_id for o in objects if o.moving]
         moving = np.isin(instances, moving_ids) & (depth > 0)
         vv, uu = np.nonzero(moving)

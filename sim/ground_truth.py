@@ -35,6 +35,19 @@ class ObjectState:
     moving: bool
     box_xyxy: tuple[int, int, int, int] | None
     visible_pixels: int
+    unoccluded_pixels: int | None = None
+    """Pixels of the image it would cover with everything else removed (None when it has no
+    visible pixel, and in sequences written before this was recorded)."""
+    truncated: bool | None = None
+    """Whether the image border cuts it (its unoccluded area reaches the border), as KITTI
+    and COCO users expect; None when it has no visible pixel."""
+
+    @property
+    def visible_fraction(self) -> float | None:
+        """Visible over unoccluded pixels: 1 in plain view, towards 0 behind things."""
+        if self.unoccluded_pixels is None or self.visible_pixels == 0:
+            return None
+        return self.visible_pixels / self.unoccluded_pixels
 
     def __post_init__(self) -> None:
         if not 0 < self.instance_id < 65536:
@@ -48,6 +61,11 @@ class ObjectState:
             raise ValueError("visible_pixels must be >= 0")
         if (self.box_xyxy is None) != (self.visible_pixels == 0):
             raise ValueError("an instance has a box exactly when it has visible pixels")
+        if self.unoccluded_pixels is not None and self.unoccluded_pixels < self.visible_pixels:
+            raise ValueError(
+                f"unoccluded_pixels {self.unoccluded_pixels} of instance {self.instance_id} is below "
+                f"its visible_pixels {self.visible_pixels}"
+            )
         if self.box_xyxy is not None:
             x0, y0, x1, y1 = self.box_xyxy
             if not (0 <= x0 < x1 and 0 <= y0 < y1):
@@ -65,6 +83,9 @@ class ObjectState:
             "moving": self.moving,
             "box_xyxy": None if self.box_xyxy is None else list(self.box_xyxy),
             "visible_pixels": self.visible_pixels,
+            "unoccluded_pixels": self.unoccluded_pixels,
+            "visible_fraction": None if self.visible_fraction is None else round(self.visible_fraction, 4),
+            "truncated": self.truncated,
         }
 
     @classmethod
@@ -83,7 +104,21 @@ class ObjectState:
             moving=data["moving"],
             box_xyxy=None if box is None else _numbers(box, 4, int),  # type: ignore[arg-type]
             visible_pixels=int(data["visible_pixels"]),
+            unoccluded_pixels=_optional(data, "unoccluded_pixels", int),
+            truncated=_optional(data, "truncated", bool),
         )
+
+
+def _optional(data: dict[str, Any], name: str, kind: type) -> Any:
+    """A field later formats added: absent or null reads as None."""
+    value = data.get(name)
+    if value is None:
+        return None
+    if kind is bool and not isinstance(value, bool):
+        raise ValueError(f"{name} must be true, false or null, got {value!r:.60}")
+    if kind is int and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ValueError(f"{name} must be an integer or null, got {value!r:.60}")
+    return value
 
 
 def _numbers(values: Any, n: int, kind: type) -> tuple:

@@ -1,8 +1,11 @@
 """Off-screen RGB, metric z-depth and per-pixel geom ids from MuJoCo's renderer.
 
 One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
-gives segmentation. The GL context belongs to the thread that creates this
-object (rendering-notes.md): create one per worker, after any fork.
+gives segmentation. A third, with only the instances' geoms drawn, gives each
+instance's unoccluded area (what it would cover with everything else removed);
+instances that touch another there are drawn once more alone. The GL context
+belongs to the thread that creates this object (rendering-notes.md): create one
+per worker, after any fork.
 """
 
 from __future__ import annotations
@@ -17,11 +20,23 @@ class RenderingUnavailable(EnvironmentProblem):
     """No off-screen OpenGL context could be made."""
 
 
+INSTANCE_GROUP, SOLO_GROUP = 2, 3
+"""Geom groups: an instance's geoms are in INSTANCE_GROUP (drawn by default), and move to
+SOLO_GROUP for a pass that draws that instance alone; the rest of the world is group 0."""
+
+
 class FrameRenderer:
-    def __init__(self, model: mujoco.MjModel, width: int, height: int) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, width: int, height: int, geom_instance: np.ndarray | None = None
+    ) -> None:
+        """``geom_instance``: the instance id of every geom (0 for the static world); needed
+        only for ``unoccluded``."""
         from mujoco import gl_context
 
         self.model, self.width, self.height = model, width, height
+        self.geom_instance = geom_instance
+        if geom_instance is not None:
+            model.geom_group[:] = np.where(geom_instance > 0, INSTANCE_GROUP, 0)
         try:
             self._gl = gl_context.GLContext(width, height)
             self._gl.make_current()
@@ -37,6 +52,10 @@ class FrameRenderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._option = mujoco.MjvOption()
+        self._instances_only = mujoco.MjvOption()
+        self._instances_only.geomgroup[:] = [g == INSTANCE_GROUP for g in range(len(self._option.geomgroup))]
+        self._solo = mujoco.MjvOption()
+        self._solo.geomgroup[:] = [g == SOLO_GROUP for g in range(len(self._option.geomgroup))]
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._rect = mujoco.MjrRect(0, 0, width, height)
@@ -59,21 +78,104 @@ class FrameRenderer:
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
         mujoco.mjr_render(self._rect, scene, self._context)
         mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._context)
+        rgb = np.flipud(self._rgb).copy()
+        depth = self._metric_depth(np.flipud(self._depth))
+        geom_ids = np.flipud(self._segment())
+        return rgb, depth, geom_ids
+
+    def _segment(self) -> np.ndarray:
+        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row first."""
+        scene, flags = self._scene, self._scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
         mujoco.mjr_render(self._rect, scene, self._context)
         mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
-        rgb = np.flipud(self._rgb).copy()
-        depth = self._metric_depth(np.flipud(self._depth))
-        seg = np.flipud(self._seg).astype(np.int32)
+        seg = self._seg.astype(np.int32)
         segid = seg[:, :, 0] + (seg[:, :, 1] << 8) + (seg[:, :, 2] << 16)
         lookup = np.full(scene.ngeom + 1, -1, dtype=np.int32)
         for k in range(scene.ngeom):
             geom = scene.geoms[k]
             if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.segid >= 0:
                 lookup[geom.segid + 1] = geom.objid
-        geom_ids = lookup[np.minimum(segid, scene.ngeom)]
-        return rgb, depth, geom_ids
+        return lookup[np.minimum(segid, scene.ngeom)]
+
+    def unoccluded(
+        self, data: mujoco.MjData, camera_id: int, instances: list[int]
+    ) -> dict[int, tuple[int, bool]]:
+        """Per instance asked: (pixels it covers with everything else removed, whether that
+        area reaches the image border). Exact: instances are drawn together without the
+        static world, and those that touch another there are drawn again alone (several
+        per pass when their projections are apart)."""
+        assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
+        self._gl.make_current()
+        together = self._instance_map(data, camera_id, self._instances_only)
+        counts = np.bincount(together.ravel(), minlength=int(self.geom_instance.max()) + 1)
+        on_border = set(np.unique(_border(together)).tolist())
+        touching: set[int] = set()
+        for a, b in ((together[:, 1:], together[:, :-1]), (together[1:], together[:-1])):
+            differ = (a != b) & (a > 0) & (b > 0)
+            touching.update(np.unique(a[differ]).tolist())
+            touching.update(np.unique(b[differ]).tolist())
+        out = {}
+        alone = [i for i in instances if i in touching]
+        for instance in instances:
+            if instance not in touching:
+                out[instance] = (int(counts[instance]), instance in on_border)
+        groups = self.model.geom_group
+        for batch in self._solo_batches(data, camera_id, alone):
+            owned = np.isin(self.geom_instance, batch)
+            groups[owned] = SOLO_GROUP
+            try:
+                drawn = self._instance_map(data, camera_id, self._solo)
+            finally:
+                groups[owned] = INSTANCE_GROUP
+            batch_counts = np.bincount(drawn.ravel(), minlength=counts.size)
+            batch_border = set(np.unique(_border(drawn)).tolist())
+            for instance in batch:
+                out[instance] = (int(batch_counts[instance]), instance in batch_border)
+        return out
+
+    def _solo_batches(self, data: mujoco.MjData, camera_id: int, instances: list[int]) -> list[list[int]]:
+        """Instances to draw alone, grouped so that one pass draws several: those whose
+        projected bounding boxes (of their geoms' boxes, conservative) are apart cannot
+        hide one another."""
+        rectangles = {i: self._projected_rectangle(data, camera_id, i) for i in instances}
+        batches: list[list[int]] = []
+        for instance in instances:
+            rect = rectangles[instance]
+            for batch in batches:
+                if not any(_overlap(rect, rectangles[other]) for other in batch):
+                    batch.append(instance)
+                    break
+            else:
+                batches.append([instance])
+        return batches
+
+    def _projected_rectangle(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
+        """(u0, v0, u1, v1) holding the instance's projection (the whole plane if any part is
+        behind the camera): the corners of its geoms' bounding boxes, projected."""
+        assert self.geom_instance is not None
+        geoms = np.flatnonzero(self.geom_instance == instance)
+        aabb = self.model.geom_aabb[geoms]  # (centre, half size) in the geom's frame
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        local = aabb[:, None, :3] + signs[None] * aabb[:, None, 3:]
+        rotation = data.geom_xmat[geoms].reshape(-1, 3, 3)
+        world = np.einsum("gij,gkj->gki", rotation, local) + data.geom_xpos[geoms][:, None]
+        camera = (world.reshape(-1, 3) - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
+        depth = -camera[:, 2]  # MuJoCo cameras look along -z
+        if (depth <= 1e-6).any():
+            return np.array([-np.inf, -np.inf, np.inf, np.inf])
+        focal = (self.height / 2) / np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
+        u, v = focal * camera[:, 0] / depth, focal * camera[:, 1] / depth
+        return np.array([u.min(), v.min(), u.max(), v.max()])
+
+    def _instance_map(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
+        self._camera.fixedcamid = camera_id
+        mujoco.mjv_updateScene(
+            self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
+        )
+        geoms = self._segment()
+        return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0)
 
     def _metric_depth(self, buffer: np.ndarray) -> np.ndarray:
         """Reversed-Z depth buffer to metric z-depth, as MuJoCo's Renderer converts it."""
@@ -89,3 +191,12 @@ class FrameRenderer:
     def close(self) -> None:
         self._context.free()
         self._gl.free()
+
+
+def _border(image: np.ndarray) -> np.ndarray:
+    """The values on the image's outermost rows and columns."""
+    return np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]])
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3])

@@ -115,11 +115,31 @@ def wall(rng: np.random.Generator, size: int = 512) -> np.ndarray:
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), sign, -1)
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (20, 20, 20), 2)
         _text(rng, image[y0 : y0 + h, x0 : x0 + w], 2, (15, 15, 15), 0.5)
-    for _ in range(60):  # stickers, patches and rivet plates
-        x0, y0 = (int(v) for v in rng.integers(0, size - 20, 2))
-        w, h = (int(v) for v in rng.integers(6, 20, 2))
-        shade = tuple(float(v) for v in rng.integers(0, 255, 3))
+    for _ in range(60):  # repair plates: a sheet of the wall's metal, outlined and riveted
+        x0, y0 = (int(v) for v in rng.integers(0, size - 28, 2))
+        w, h = (int(v) for v in rng.integers(10, 28, 2))
+        lightness = float(rng.choice([rng.uniform(0.55, 0.8), rng.uniform(1.15, 1.35)]))
+        shade = tuple(c * lightness for c in colour)
         cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), shade, -1)
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), tuple(c * 0.4 for c in colour), 1)
+        for cx, cy in (
+            (x0 + 3, y0 + 3),
+            (x0 + w - 3, y0 + 3),
+            (x0 + 3, y0 + h - 3),
+            (x0 + w - 3, y0 + h - 3),
+        ):
+            cv2.circle(image, (cx, cy), 1, (80, 80, 80), -1)
+    for _ in range(64):  # inspection tags and stencilled labels: off-white with black print
+        x0, y0 = (int(v) for v in rng.integers(0, size - 40, 2))
+        w, h = int(rng.integers(18, 40)), int(rng.integers(12, 22))
+        paper = float(rng.integers(205, 240))
+        cv2.rectangle(image, (x0, y0), (x0 + w, y0 + h), (paper, paper, paper * 0.95), -1)
+        _text(rng, image[y0 : y0 + h, x0 : x0 + w], 1, (20, 20, 20), 0.3)
+    for _ in range(20):  # rust streaks running down from bolts and seams
+        x0, y0 = int(rng.integers(0, size - 4)), int(rng.integers(0, size - 60))
+        length, width = int(rng.integers(20, 60)), int(rng.integers(2, 5))
+        rust = (float(rng.integers(110, 150)), float(rng.integers(60, 85)), float(rng.integers(30, 50)))
+        cv2.line(image, (x0, y0), (x0 + int(rng.integers(-3, 4)), y0 + length), rust, width)
     image += _noise(rng, size, amplitude=20)[:, :, None]
     return _finish(image)
 

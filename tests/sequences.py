@@ -35,6 +35,8 @@ def random_frame(rng: np.random.Generator, k: int, intrinsics: Intrinsics = SMAL
         moving=True,
         box_xyxy=(30, 10, 40, 20),
         visible_pixels=100,
+        unoccluded_pixels=160,
+        truncated=False,
     )
     chair = ObjectState(
         8,

@@ -498,6 +498,12 @@ def _sequence_cases() -> dict[str, Case]:
         "objects-moving": sequence_case(
             object_record(3, '"moving":true', '"moving":"yes"'), "objects.jsonl:3"
         ),
+        "objects-unoccluded-below-visible": sequence_case(
+            object_record(3, '"unoccluded_pixels":160', '"unoccluded_pixels":50'), "objects.jsonl:3"
+        ),
+        "objects-truncated-not-bool": sequence_case(
+            object_record(3, '"truncated":false', '"truncated":0'), "objects.jsonl:3"
+        ),
         "objects-nan": sequence_case(
             object_record(3, '"position_m":[1.0', '"position_m":[NaN'), "objects.jsonl:3"
         ),

@@ -306,3 +306,21 @@ def test_real_tum_folder_with_given_intrinsics(tmp_path: Path):
     assert Sequence.open(root).intrinsics.fx == 525.0  # ROS default for unknown sensors
     custom = TUM_FREIBURG["freiburg3"]
     assert Sequence.open(root, intrinsics=custom).intrinsics == custom
+
+
+def test_objects_written_before_visibility_was_recorded_still_read(tmp_path: Path):
+    """Sequences from before unoccluded_pixels / visible_fraction / truncated read as unknown."""
+    import json
+
+    root = tmp_path / "seq"
+    write_sequence(root, n=3)
+    path = root / "gt" / "objects.jsonl"
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    assert records[0]["objects"][0]["visible_fraction"] == pytest.approx(100 / 160, abs=1e-4)
+    for record in records:
+        for obj in record["objects"]:
+            for name in ("unoccluded_pixels", "visible_fraction", "truncated"):
+                del obj[name]
+    path.write_text("".join(json.dumps(r, separators=(",", ":")) + "\n" for r in records))
+    person = Sequence.open(root).objects()[0][0]
+    assert person.unoccluded_pixels is None and person.truncated is None and person.visible_fraction is None

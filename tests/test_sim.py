@@ -357,3 +357,59 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
         ratios.append((on.mean() / people.mean()) / ((~on).mean() / (~people).mean()))
     assert len(ratios) >= 5
     assert np.median(ratios) >= 0.4, ratios
+
+
+def _pixel_centres(low: float, high: float) -> int:
+    """Pixel centres (integers, OpenCV convention) strictly between two image coordinates."""
+    return max(0, min(int(np.floor(high)), 10**6) - int(np.ceil(low)) + 1)
+
+
+def test_unoccluded_area_and_truncation_match_the_projected_rectangles():
+    """Closed form: flat boxes facing the camera cover the pixel centres inside their projected
+    rectangles. Box 1 is half behind a static wall and partly behind box 2; box 3 crosses the
+    image's right edge. The unoccluded areas are the whole rectangles (cut at the image edge)."""
+    from sim.mujoco_env import mujoco
+    from sim.render import FrameRenderer
+
+    width, height, fovy = 64, 48, 60.0
+    focal = (height / 2) / np.tan(np.radians(fovy) / 2)
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    spec = mujoco.MjSpec()
+    world = spec.worldbody
+    world.add_camera(name="camera", pos=[0, 0, 0], fovy=fovy)
+    # (centre x, centre y, depth, half width, half height); the camera looks along -z.
+    boxes = {
+        1: (0.1, 0.05, 3.0, 0.6, 0.45),
+        2: (0.62, -0.1, 2.5, 0.2, 0.2),
+        3: (2.0, 0.2, 3.0, 0.4, 0.3),
+    }
+    for instance, (x, y, z, hx, hy) in boxes.items():
+        body = world.add_body(name=f"box{instance}", pos=[x, y, -z])
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, 0.01])
+    world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=[-0.5, 0.0, -2.0], size=[0.3, 1.0, 0.01])  # wall
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    body_instance = np.zeros(model.nbody, np.uint16)
+    for instance in boxes:
+        body_instance[model.body(f"box{instance}").id] = instance
+    renderer = FrameRenderer(model, width, height, body_instance[model.geom_bodyid])
+    try:
+        _, _, geom_ids = renderer.render(data, model.camera("camera").id)
+        unoccluded = renderer.unoccluded(data, model.camera("camera").id, [1, 2, 3])
+    finally:
+        renderer.close()
+    visible = np.bincount(
+        np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(), minlength=4
+    )
+    for instance, (x, y, z, hx, hy) in boxes.items():
+        z_front = z - 0.01
+        u0, u1 = cx + focal * (x - hx) / z_front, cx + focal * (x + hx) / z_front
+        v0, v1 = cy - focal * (y + hy) / z_front, cy - focal * (y - hy) / z_front
+        cols = _pixel_centres(max(u0, -0.5), min(u1, width - 0.5))
+        rows = _pixel_centres(max(v0, -0.5), min(v1, height - 0.5))
+        expected_cut = u0 < 0 or v0 < 0 or u1 > width - 1 or v1 > height - 1
+        assert unoccluded[instance] == (cols * rows, expected_cut), instance
+    assert [unoccluded[i][1] for i in (1, 2, 3)] == [False, False, True]
+    assert visible[1] < unoccluded[1][0]  # behind the wall and box 2
+    assert visible[2] == unoccluded[2][0] and visible[3] == unoccluded[3][0]
