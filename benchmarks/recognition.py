@@ -114,7 +114,7 @@ def main() -> None:
         f"YOLOX-nano, confidence 0.3, IoU >= {IOU_THRESHOLD}, objects >= {args.min_pixels} visible px; "
         f"{', '.join(args.scenes)}; seeds {args.seeds}, {args.frames} frames each"
     )
-    groups = sorted({g for tally in per_seed.values() for g in tally})
+    groups = sorted({*TARGETS, "pig"} | {g for tally in per_seed.values() for g in tally})
     for group in groups:
         found = sum(per_seed[s][group][0] for s in args.seeds)
         total = sum(per_seed[s][group][1] for s in args.seeds)
@@ -128,8 +128,10 @@ def main() -> None:
             if group in TARGETS
             else ""
         )
-        rate = found / total if total else float("nan")
-        print(f"{label:36s} {rate:5.2f} ({found}/{total}; {spread}) {target}")
+        if not total:
+            print(f"{label:36s}   -   (no sighting of {args.min_pixels} px or more) {target}")
+            continue
+        print(f"{label:36s} {found / total:5.2f} ({found}/{total}; {spread}) {target}")
 
 
 if __name__ == "__main__":
