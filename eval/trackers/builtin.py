@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -11,8 +13,9 @@ from eval.frames import FrameSource
 from eval.trackers.base import TrackerRun
 from sim.sequence import Sequence
 from slam.config import SlamConfig
+from slam.rejection import box_classes, classify
 from slam.system import Slam
-from slam.types import Frame, PinholeCamera
+from slam.types import Frame, FrameResult, PinholeCamera
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
 
@@ -106,8 +109,10 @@ class BuiltinTracker:
         ``eval.stages.decision_path``). While configurations agree they are one run;
         where they part, the system is forked (``Slam.fork``) and each branch goes
         on. Each run equals, bit for bit, the run of its configuration alone
-        (``tests/test_sweep.py``); its per-frame times are those of the shared run
-        up to where it parted. Needs the cached stages.
+        (``tests/test_sweep.py``): a shared frame is tracked once, and each
+        configuration's own rejection reasons and box classes are put in its results.
+        Its per-frame times are those of the shared run up to where it parted. Needs
+        the cached stages.
         """
         if self.stages is None:
             raise ValueError("run_tree needs the cached stages")
@@ -115,7 +120,9 @@ class BuiltinTracker:
             raise ValueError("one decision path of every frame per configuration")
         runs: list[TrackerRun | None] = [None] * len(configs)
         labels = [s.labels for s in self.stages if s.labels is not None]
-        # Depth-first over the branches: (system, next frame, members, results, seconds so far).
+        memos: dict[int, dict] = {}
+        # Depth-first over the branches: (system, next frame, members, (result, configuration
+        # that made it) per frame, seconds so far).
         pending = [(Slam(configs[0], camera_of(frames.sequence)), 0, list(range(len(configs))), [], 0.0)]
         while pending:
             slam, i, members, results, elapsed = pending.pop()
@@ -126,16 +133,37 @@ class BuiltinTracker:
                 if len(groups) > 1:
                     break
                 started = time.perf_counter()
-                results.append(self._step(slam, frames, i))
+                results.append((self._step(slam, frames, i), slam.config))
                 elapsed += time.perf_counter() - started
                 i += 1
             if i == len(frames):
                 for m in members:
-                    runs[m] = _tracker_run(results, labels, len(slam.map.keyframes), elapsed)
+                    own = []
+                    for k, (result, made_by) in enumerate(results):
+                        if made_by != configs[m]:
+                            memo = memos.setdefault(k, {})
+                            result = _member_frame(result, configs[m], self.stages, frames, k, memo)
+                        own.append(result)
+                    runs[m] = _tracker_run(own, labels, len(slam.map.keyframes), elapsed)
                 continue
             for group in reversed(list(groups.values())):
                 pending.append((slam.fork(configs[group[0]]), i, group, list(results), elapsed))
         return runs
+
+
+def _member_frame(
+    result: FrameResult, config: SlamConfig, stages: list, frames: FrameSource, i: int, memo: dict
+) -> FrameResult:
+    """A shared frame's result as ``config`` would report it: the same kept keypoints (so the
+    same tracking), but its own reason per rejected keypoint and box class per keypoint."""
+    stage, detections = stages[i], frames.detections(i)
+    previous = stages[i - 1].features if i else None
+    cv2.setRNGSeed(config.tracking.seed + i)  # as Slam.process does before rejection
+    codes = classify(
+        config.strategy, stage.features, previous, detections, config.rejection, stage.flow, memo
+    )
+    classes = box_classes(stage.features.keypoints_px, list(detections), config.rejection.box_dilation_px)
+    return replace(result, diagnostics=replace(result.diagnostics, rejection=codes, keypoint_classes=classes))
 
 
 def _tracker_run(results: list, labels: list, keyframes: int, total_s: float) -> TrackerRun:
