@@ -76,8 +76,8 @@ def _group(sequence: Sequence, instance_id: int, truncated: bool | None) -> str 
 
 
 def _count(sequence: Sequence, detections, min_pixels: int, tally: dict[str, list[int]]) -> None:
-    for index, found in enumerate(detections.per_frame):
-        for obj in sequence.objects()[index]:
+    for found, objects in zip(detections.per_frame, sequence.objects(), strict=True):
+        for obj in objects:
             if obj.box_xyxy is None or obj.visible_pixels < min_pixels:
                 continue
             group = _group(sequence, obj.instance_id, obj.truncated)

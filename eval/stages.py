@@ -21,7 +21,6 @@ import io
 import time
 from dataclasses import asdict, dataclass
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -32,6 +31,7 @@ from sim.sequence import Sequence
 from slam.config import RejectionConfig, SlamConfig, TrackingConfig
 from slam.features import FeatureExtractor, FrameFeatures
 from slam.rejection import Flow, classify, flow_to_previous
+from slam.system import seed_frame
 from slam.types import REJECTION_CODES, Rejection
 
 FEATURES_STAGE = "features"
@@ -162,7 +162,6 @@ def decision_path(
     stages: list[FrameStages],
     detections: list[tuple] | None,
     config: SlamConfig,
-    seed_base: int,
     memos: list[dict] | None = None,
 ) -> tuple[str, ...]:
     """Per frame, a hash of which keypoints the strategy keeps, computed without tracking.
@@ -178,7 +177,7 @@ def decision_path(
     path = []
     previous = None
     for i, stage in enumerate(stages):
-        cv2.setRNGSeed(seed_base + i)  # as Slam.process does before rejection
+        seed_frame(config.tracking, i)
         boxes = detections[i] if detections is not None else ()
         memo = memos[i] if memos is not None else None
         codes = classify(config.strategy, stage.features, previous, boxes, config.rejection, stage.flow, memo)

@@ -219,7 +219,7 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
             stages = stages_for(sequence, config, cache)
             loaded = {root: (stages, boxes, [{} for _ in stages])}  # one at a time
         stages, boxes, memos = loaded[root]
-        path = decision_path(stages, boxes, config, config.tracking.seed, memos)
+        path = decision_path(stages, boxes, config, memos)
         signature = decision_signature(path, features[at], run.strategy)
         decisions.append(Decision(job.key, signature, root, path))
     return decisions

@@ -37,12 +37,13 @@ def object_states(
     world: World,
     now: Snapshot,
     nxt: Snapshot,
-    instances: np.ndarray,
-    unoccluded: dict[int, tuple[int, bool]] | None = None,
+    boxes: list,
+    counts: np.ndarray,
+    unoccluded: dict[int, tuple[int, bool]],
 ) -> list[ObjectState]:
     """Every instance's ground truth at ``now``; ``nxt`` (one frame later) gives part speeds;
-    ``unoccluded`` (``FrameRenderer.unoccluded``) each visible instance's unoccluded area."""
-    boxes, counts = boxes_and_counts(instances, len(world.instances))
+    ``boxes`` and ``counts`` are its visible box and pixels (``boxes_and_counts``),
+    ``unoccluded`` each visible instance's unoccluded area (``FrameRenderer.unoccluded``)."""
     dt = nxt.time_s - now.time_s
     part_speed = np.linalg.norm(nxt.body_positions - now.body_positions, axis=1) / dt
     states = []
@@ -76,8 +77,8 @@ def object_states(
                 moving=moving,
                 box_xyxy=None if box is None else tuple(int(v) for v in box),
                 visible_pixels=count,
-                unoccluded_pixels=unoccluded[info.instance_id][0] if count and unoccluded else None,
-                truncated=unoccluded[info.instance_id][1] if count and unoccluded else None,
+                unoccluded_pixels=unoccluded[info.instance_id][0] if count else None,
+                truncated=unoccluded[info.instance_id][1] if count else None,
             )
         )
     return states
@@ -178,13 +179,14 @@ def _write_frames(
         rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
         valid = geom_ids >= 0
         instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
-        seen = np.flatnonzero(np.bincount(instances.ravel(), minlength=len(world.instances) + 1)[1:]) + 1
+        boxes, counts = boxes_and_counts(instances, len(world.instances))
+        seen = np.flatnonzero(counts[1:]) + 1
         unoccluded = renderer.unoccluded(sim.data, world.camera_id, seen.tolist())
         sim.advance_to((k + 1) * period)
         nxt = sim.snapshot()
         bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
-        objects = object_states(world, now, nxt, instances, unoccluded)
+        objects = object_states(world, now, nxt, boxes, counts, unoccluded)
         moving_ids = [o.instance_id for o in objects if o.moving]
         moving = np.isin(instances, moving_ids) & (depth > 0)
         vv, uu = np.nonzero(moving)

@@ -69,11 +69,8 @@ class FrameRenderer:
     def render(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RGB (H, W, 3) uint8, z-depth in metres (float32, 0 = nothing), geom ids (-1 = none)."""
         self._gl.make_current()
-        self._camera.fixedcamid = camera_id
+        self._update_scene(data, camera_id, self._option)
         scene, flags = self._scene, self._scene.flags
-        mujoco.mjv_updateScene(
-            self.model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, scene
-        )
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = False
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
         mujoco.mjr_render(self._rect, scene, self._context)
@@ -157,8 +154,7 @@ class FrameRenderer:
         assert self.geom_instance is not None
         geoms = np.flatnonzero(self.geom_instance == instance)
         aabb = self.model.geom_aabb[geoms]  # (centre, half size) in the geom's frame
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-        local = aabb[:, None, :3] + signs[None] * aabb[:, None, 3:]
+        local = aabb[:, None, :3] + _BOX_CORNERS[None] * aabb[:, None, 3:]
         rotation = data.geom_xmat[geoms].reshape(-1, 3, 3)
         world = np.einsum("gij,gkj->gki", rotation, local) + data.geom_xpos[geoms][:, None]
         camera = (world.reshape(-1, 3) - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
@@ -169,11 +165,14 @@ class FrameRenderer:
         u, v = focal * camera[:, 0] / depth, focal * camera[:, 1] / depth
         return np.array([u.min(), v.min(), u.max(), v.max()])
 
-    def _instance_map(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
+    def _update_scene(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> None:
         self._camera.fixedcamid = camera_id
         mujoco.mjv_updateScene(
             self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
+
+    def _instance_map(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
+        self._update_scene(data, camera_id, option)
         geoms = self._segment()
         return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0)
 
@@ -191,6 +190,10 @@ class FrameRenderer:
     def close(self) -> None:
         self._context.free()
         self._gl.free()
+
+
+_BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+"""The 8 corners of a unit box, as signs of its half sizes."""
 
 
 def _border(image: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ import numpy as np
 from scipy import sparse
 
 from slam.geometry import exp_se3
+from slam.optimize import is_inlier
 from slam.types import PinholeCamera
 
 HUBER_K = float(np.sqrt(7.815))
@@ -172,19 +173,18 @@ def bundle_adjust(
     camera: PinholeCamera,
     bf: float,
     iterations: int,
-) -> tuple[np.ndarray, np.ndarray, float, int]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Optimise the free poses (camera_from_world, (K, 4, 4)) and every point (P, 3).
 
-    Returns new poses, new points, the final cost and the iterations taken.
+    Returns new poses, new points, the inlier mask of the observations (ORB-SLAM's
+    chi-square test at the result) and the final cost.
     """
     problem = _Problem(free, obs_pose, obs_point, uv, ur, weight, camera, bf, len(points))
     poses, points = poses.copy(), points.astype(np.float64).copy()
     free_index = np.flatnonzero(free)
     cost = problem.cost(poses, points)
     damping = LAMBDA_INITIAL
-    done = 0
-    while done < max(1, iterations):
-        done += 1
+    for _ in range(max(1, iterations)):
         linear = problem.linearise(poses, points)
         accepted = False
         while damping <= LAMBDA_MAX:
@@ -203,7 +203,8 @@ def bundle_adjust(
             break
         decrease = cost - trial_cost
         poses, points, cost = trial_poses, trial_points, trial_cost
-        damping = max(damping / LAMBDA_FACTOR, 0.0)
+        damping /= LAMBDA_FACTOR
         if decrease < ABSOLUTE_TOLERANCE or decrease < RELATIVE_TOLERANCE * (cost + decrease):
             break
-    return poses, points, cost, done
+    pc = problem._camera_points(poses, points)
+    return poses, points, is_inlier(pc, uv, ur, weight, camera, bf), cost

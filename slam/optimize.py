@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from slam.bundle import bundle_adjust
 from slam.geometry import exp_se3
 from slam.types import PinholeCamera
 
@@ -136,32 +135,3 @@ def refine_pose(
         points_c = points_w @ pose[:3, :3].T + pose[:3, 3]
         active = is_inlier(points_c, uv, ur, weight, camera, bf)
     return pose, active
-
-
-def local_bundle_adjustment(
-    poses: np.ndarray,
-    free: np.ndarray,
-    points: np.ndarray,
-    obs_pose: np.ndarray,
-    obs_point: np.ndarray,
-    uv: np.ndarray,
-    ur: np.ndarray,
-    weight: np.ndarray,
-    camera: PinholeCamera,
-    bf: float,
-    iterations: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Optimise free keyframe poses (camera_from_world, (K, 4, 4)) and all points (P, 3).
-
-    Levenberg-Marquardt on ORB-SLAM's RGB-D edges (``slam.bundle``); fixed keyframes stay
-    where they are. Returns new poses, new points and the inlier mask of the observations
-    (chi-square test at the result).
-    """
-    new_poses, new_points, _, _ = bundle_adjust(
-        poses, free, points, obs_pose, obs_point, uv, ur, weight, camera, bf, iterations
-    )
-    pc = (
-        np.einsum("nij,nj->ni", new_poses[obs_pose, :3, :3], new_points[obs_point])
-        + new_poses[obs_pose, :3, 3]
-    )
-    return new_poses, new_points, is_inlier(pc, uv, ur, weight, camera, bf)

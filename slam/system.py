@@ -19,7 +19,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slam.config import SlamConfig, check_pyramid
+from slam.bundle import bundle_adjust
+from slam.config import SlamConfig, TrackingConfig, check_pyramid
 from slam.features import FeatureExtractor, FrameFeatures
 from slam.geometry import (
     backproject,
@@ -32,7 +33,7 @@ from slam.geometry import (
     transform,
 )
 from slam.map import KeyFrame, Map
-from slam.optimize import local_bundle_adjustment, refine_pose
+from slam.optimize import refine_pose
 from slam.rejection import Flow, box_classes, classify
 from slam.types import (
     REJECTION_CODES,
@@ -77,6 +78,13 @@ def _consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
     top = np.argsort(-counts, kind="stable")[:3]
     top = top[counts[top] >= 0.1 * counts[top[0]]]
     return np.isin(bins, top)
+
+
+def seed_frame(tracking: TrackingConfig, frame_index: int) -> None:
+    """Seed OpenCV's RNG (the RANSACs of rejection and tracking) for a frame, before its
+    rejection: decisions computed apart from the tracker (``eval.stages.decision_path``,
+    the shared frames of a branching run) then match the tracker's own."""
+    cv2.setRNGSeed(tracking.seed + frame_index)
 
 
 class Slam:
@@ -126,7 +134,7 @@ class Slam:
         """Track one frame. ``features`` (see ``extract``) and ``flow`` (LK of every keypoint
         into the previous frame, ``rejection.flow_to_previous``) may come from a cache; then
         the frame's images are not read."""
-        cv2.setRNGSeed(self.tc.seed + self.frame_index)
+        seed_frame(self.tc, self.frame_index)
         times: dict[str, float] = {}
         start = time.perf_counter()
         if features is None:
@@ -556,7 +564,7 @@ class Slam:
             keypoints = np.array(obs_kp)[rows]
             u, r, w = self._observations(self.map.keyframe(kf_id).features, keypoints)
             uv[rows], ur[rows], weight[rows] = u, r, w
-        new_poses, new_points, inlier = local_bundle_adjustment(
+        new_poses, new_points, inlier, _ = bundle_adjust(
             poses,
             free,
             self.map.positions[points].copy(),

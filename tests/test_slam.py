@@ -369,7 +369,7 @@ def test_local_bundle_adjustment_reaches_gtsams_minimum(seed: int):
     from tests.gtsam_reference import gtsam_bundle_adjust
 
     args, true_poses = _window(seed)
-    poses, points, cost, _ = bundle_adjust(*args)
+    poses, points, _, cost = bundle_adjust(*args)
     ref_poses, ref_points = gtsam_bundle_adjust(*args)
     start, free, start_points, obs_pose, obs_point, uv, ur, weight, camera, bf, _ = args
     problem = _Problem(free, obs_pose, obs_point, uv, ur, weight, camera, bf, len(start_points))

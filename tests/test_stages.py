@@ -120,7 +120,7 @@ def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tm
     for job in jobs:
         sequence, config = prepare(job)
         boxes = list(detect_sequence(sequence, job.detector, cache).per_frame)
-        paths.append(decision_path(stages_for(sequence, config, cache), boxes, config, config.tracking.seed))
+        paths.append(decision_path(stages_for(sequence, config, cache), boxes, config))
     parted = [
         next((i for i, (a, b) in enumerate(zip(p, q, strict=False)) if a != b), None)
         for p, q in zip(paths, paths[1:], strict=False)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -14,7 +13,7 @@ from eval.trackers.base import TrackerRun
 from sim.sequence import Sequence
 from slam.config import SlamConfig
 from slam.rejection import box_classes, classify
-from slam.system import Slam
+from slam.system import Slam, seed_frame
 from slam.types import Frame, FrameResult, PinholeCamera
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
@@ -158,7 +157,7 @@ def _member_frame(
     same tracking), but its own reason per rejected keypoint and box class per keypoint."""
     stage, detections = stages[i], frames.detections(i)
     previous = stages[i - 1].features if i else None
-    cv2.setRNGSeed(config.tracking.seed + i)  # as Slam.process does before rejection
+    seed_frame(config.tracking, i)
     codes = classify(
         config.strategy, stage.features, previous, detections, config.rejection, stage.flow, memo
     )
