@@ -8,15 +8,20 @@ kinematics. So feet do not slide, whatever the speed or the path's curvature.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from sim.figures import SHOULDER_Y, AnimalLook, Look, Surface, person_surfaces, quadruped_surfaces
 from sim.paths import Path
 
 FD_STEP_S = 1e-3
 """Step of the central differences that give an actor's velocity."""
+
+ARM_HANG = math.radians(5.0)
+"""Arms hang this far out from the body, clear of the hips."""
 
 SWING_TRAVEL = (0.15, 0.85)
 """Fractions of the swing phase between which a foot moves forward."""
@@ -24,12 +29,14 @@ SWING_TRAVEL = (0.15, 0.85)
 
 @dataclass(frozen=True)
 class Part:
-    """One rigid piece (a mocap body with one geom). ``size`` is MuJoCo's geom size."""
+    """One rigid piece: a mocap body with a primitive geom (``size`` is MuJoCo's geom
+    size). With ``surfaces``, those are drawn instead and the primitive only collides."""
 
     name: str
     shape: str
     size: tuple[float, ...]
     material: str
+    surfaces: tuple[Surface, ...] = ()
 
 
 def yaw_matrix(yaw: float) -> np.ndarray:
@@ -155,10 +162,14 @@ class Actor:
         return linear, axis * angle / (2 * FD_STEP_S)
 
 
-def person_parts(s: float, materials: dict[str, str], thigh_half: float, shin_half: float) -> list[Part]:
-    """The 13 parts of a person of scale ``s``, in the order ``pose`` fills them."""
-    shirt, pants, skin, shoes = (materials[k] for k in ("shirt", "pants", "skin", "shoes"))
-    return [
+def person_parts(
+    s: float, materials: dict[str, str], thigh_half: float, shin_half: float, look: Look | None = None
+) -> list[Part]:
+    """The 13 parts of a person of scale ``s``, in the order ``pose`` fills them. With a
+    ``look``, each part is drawn as its piece of a continuous clothed body (figures.py);
+    ``materials`` maps that look's roles (skin, hair, top, ...) to material names."""
+    shirt, pants, skin, shoes = (materials[k] for k in ("top", "legs", "skin", "feet"))
+    parts = [
         Part("pelvis", "box", (0.1 * s, 0.16 * s, 0.08 * s), pants),
         Part("torso", "box", (0.11 * s, 0.19 * s, 0.25 * s), shirt),
         Part("head", "sphere", (0.11 * s,), skin),
@@ -172,6 +183,19 @@ def person_parts(s: float, materials: dict[str, str], thigh_half: float, shin_ha
         Part("shin_r", "capsule", (0.055 * s, shin_half), pants),
         Part("foot_l", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
         Part("foot_r", "box", (0.12 * s, 0.05 * s, 0.04 * s), shoes),
+    ]
+    if look is None:
+        return parts
+    drawn = person_surfaces(s, look)
+    return [
+        dataclasses.replace(
+            part,
+            surfaces=tuple(
+                dataclasses.replace(f, material=materials.get(f.material, f.material))
+                for f in drawn[part.name]
+            ),
+        )
+        for part in parts
     ]
 
 
@@ -188,6 +212,7 @@ class Walker(Actor):
         materials: dict[str, str],
         start_s: float,
         push: bool = False,
+        look: Look | None = None,
     ) -> None:
         self.scale = s = scale
         self.push = push
@@ -202,7 +227,7 @@ class Walker(Actor):
             Leg((0.0, -0.1 * s, 0.0), self.l_thigh, self.l_shin, 0.5),
         ]
         self.gait = Gait(path, speed, self.stride, duty, 0.1 * s, start_s)
-        self.parts = person_parts(s, materials, self.l_thigh / 2, self.l_shin / 2)
+        self.parts = person_parts(s, materials, self.l_thigh / 2, self.l_shin / 2, look)
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         s = self.gait.arc(t)
@@ -225,15 +250,17 @@ class Walker(Actor):
         swing_amp = math.radians(25.0) * min(1.0, self.gait.speed / 1.2)
         arms = {}
         for side, sign in (("l", 1.0), ("r", -1.0)):
-            shoulder = pelvis + lean @ np.array([0.0, sign * 0.24 * s, 0.52 * s])
+            shoulder = pelvis + lean @ np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s])
             if self.push:
-                upper_angle, elbow = math.radians(75.0), math.radians(15.0)
+                upper_angle, elbow = math.radians(30.0), math.radians(45.0)
             else:
                 upper_angle = sign * swing_amp * math.sin(phase)
                 elbow = math.radians(15.0) + 0.5 * max(0.0, upper_angle)
-            down = axis_rotation(left, -upper_angle) @ (-up)
+            down = axis_rotation(fwd, sign * ARM_HANG) @ axis_rotation(left, -upper_angle) @ (-up)
             elbow_pos = shoulder + 0.3 * s * down
-            fore_dir = axis_rotation(left, -(upper_angle + elbow)) @ (-up)
+            fore_dir = (
+                axis_rotation(fwd, sign * ARM_HANG) @ axis_rotation(left, -(upper_angle + elbow)) @ (-up)
+            )
             hand = elbow_pos + 0.3 * s * fore_dir
             arms[side] = (shoulder, elbow_pos, hand)
         for side in ("l", "r"):
@@ -275,12 +302,13 @@ class SittingPerson(Actor):
         scale: float,
         materials: dict[str, str],
         rng: np.random.Generator,
+        look: Look | None = None,
     ) -> None:
         self.scale = s = scale
         self.seat = seat
         self.phases = rng.uniform(0, 2 * math.pi, 6)
         self.rates = rng.uniform(0.6, 1.4, 6)
-        self.parts = person_parts(s, materials, 0.21 * s, 0.2 * s)
+        self.parts = person_parts(s, materials, 0.21 * s, 0.2 * s, look)
 
     def _wave(self, k: int, t: float, amplitude: float) -> float:
         return amplitude * math.sin(self.rates[k] * t + self.phases[k])
@@ -304,7 +332,7 @@ class SittingPerson(Actor):
         rotations = [body, sway, head_turn]
         uppers, fores = [], []
         for k, sign in ((3, 1.0), (4, -1.0)):
-            shoulder = pelvis + sway @ np.array([0.0, sign * 0.24 * s, 0.52 * s])
+            shoulder = pelvis + sway @ np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s])
             lift = math.radians(35.0) + self._wave(k, 2.5 * t, math.radians(8.0))
             down = axis_rotation(left, -lift) @ (-sway[:, 2])
             elbow = shoulder + 0.3 * s * down
@@ -336,19 +364,31 @@ class QuadrupedBuild:
     leg_m: float
     stride_m: float
     coat: str
+    tail_m: float
+    """Tail length."""
+    tail_rise: float
+    """How high the tail is carried: its direction is back + this much up."""
 
 
 QUADRUPEDS = {
-    "dog": QuadrupedBuild("dog", (0.32, 0.12, 0.12), 0.44, 0.75, "fur_dog"),
-    "cat": QuadrupedBuild("cat", (0.2, 0.07, 0.08), 0.24, 0.4, "fur_cat"),
-    "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig"),
+    "dog": QuadrupedBuild("dog", (0.32, 0.12, 0.12), 0.44, 0.75, "fur_dog", 0.3, 0.8),
+    "cat": QuadrupedBuild("cat", (0.2, 0.07, 0.08), 0.24, 0.4, "fur_cat", 0.3, 1.6),
+    "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig", 0.09, 0.8),
 }
 
 
 class Quadruped(Actor):
     """Dog, cat or pig: body, head, snout, tail and four two-segment legs; walk or trot."""
 
-    def __init__(self, build: QuadrupedBuild, path: Path, speed: float, start_s: float) -> None:
+    def __init__(
+        self,
+        build: QuadrupedBuild,
+        path: Path,
+        speed: float,
+        start_s: float,
+        look: AnimalLook | None = None,
+        materials: dict[str, str] | None = None,
+    ) -> None:
         self.build = b = build
         self.class_name = b.class_name
         hx, hy, hz = b.body_half
@@ -376,17 +416,43 @@ class Quadruped(Actor):
             Part("body", "ellipsoid", (hx, hy, hz), coat),
             Part("head", "ellipsoid", (0.45 * hy + 0.04, 0.8 * hy, 0.75 * hz), coat),
             Part("snout", "capsule", (0.35 * hy, 0.3 * hy), coat),
-            Part(
-                "tail",
-                "capsule",
-                (0.15 * hy, 0.3 * hx if b.class_name != "pig" else 0.1 * hx),
-                coat,
-            ),
+            Part("tail", "capsule", (0.15 * hy, b.tail_m / 2), coat),
         ]
         for k in range(4):
             self.parts.append(Part(f"upper_leg_{k}", "capsule", (0.3 * hy, half_leg / 2), coat))
         for k in range(4):
             self.parts.append(Part(f"lower_leg_{k}", "capsule", (self.paw_r, half_leg / 2), coat))
+        if look is not None:
+            self._dress(look, materials or {})
+
+    def _dress(self, look: AnimalLook, materials: dict[str, str]) -> None:
+        """Draw the parts as pieces of one furred body (figures.py)."""
+        positions, rotations = self.bind()
+        frames = {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
+        hx = self.build.body_half[0]
+        tail_dir = np.array([-1.0, 0.0, self.build.tail_rise])
+        tail_dir /= np.linalg.norm(tail_dir)
+        tail_start = np.array([-hx, 0.0, 0.0]) + 0.02 * tail_dir
+        drawn = quadruped_surfaces(
+            self.build.class_name,
+            self.build.body_half,
+            frames,
+            [np.array(leg.hip_body) for leg in self.legs],
+            self.build.leg_m,
+            self.paw_r,
+            (tail_start, tail_start + self.build.tail_m * tail_dir),
+            look,
+        )
+        self.parts = [
+            dataclasses.replace(
+                part,
+                surfaces=tuple(
+                    dataclasses.replace(f, material=materials.get(f.material, f.material))
+                    for f in drawn[part.name]
+                ),
+            )
+            for part in self.parts
+        ]
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         s = self.gait.arc(t)
@@ -397,20 +463,26 @@ class Quadruped(Actor):
         )
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        hx, hy, hz = self.build.body_half
         centre, body = self.root(t)
+        feet = [self.gait.foot(leg, t, self.paw_r)[0] for leg in self.legs]
+        return self.place(centre, body, feet)
+
+    def place(
+        self, centre: np.ndarray, body: np.ndarray, feet: list[np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every part's pose for the body at (centre, body) and the paws at ``feet``."""
+        hx, hy, hz = self.build.body_half
         fwd, up = body[:, 0], body[:, 2]
         head = centre + body @ np.array([hx + 0.3 * hy, 0.0, 0.9 * hz])
         snout = head + fwd * (0.9 * hy)
-        tail_dir = -fwd + 0.8 * up
+        tail_dir = -fwd + self.build.tail_rise * up
         tail_len = 2 * self.parts[3].size[1]
         tail = centre - fwd * hx + tail_dir / np.linalg.norm(tail_dir) * (tail_len / 2 + 0.02)
         positions = [centre, head, snout, tail]
         rotations = [body, body, frame_along(fwd, up), frame_along(tail_dir, fwd)]
         uppers, lowers = [], []
-        for leg in self.legs:
+        for leg, foot in zip(self.legs, feet, strict=True):
             hip = centre + body @ np.array(leg.hip_body)
-            foot, _, _ = self.gait.foot(leg, t, self.paw_r)
             bend = fwd if leg.knee_forward else -fwd
             knee = two_link_knee(hip, foot, leg.thigh_m, leg.shin_m, bend)
             uppers.append(((hip + knee) / 2, frame_along(hip - knee, fwd)))
@@ -419,6 +491,11 @@ class Quadruped(Actor):
             positions.append(p)
             rotations.append(r)
         return np.array(positions), np.array(rotations)
+
+    def bind(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parts' poses standing still with straight legs, centred at the origin."""
+        feet = [np.array(leg.hip_body) - [0.0, 0.0, leg.thigh_m + leg.shin_m] for leg in self.legs]
+        return self.place(np.zeros(3), np.eye(3), feet)
 
 
 class Bird(Actor):

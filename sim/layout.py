@@ -151,8 +151,8 @@ def _desk(rng: np.random.Generator, x: float, y: float) -> tuple[list[StaticObje
             "laptop",
             "potential",
             (
-                Piece((x - 0.35, y - 0.05, z + 0.01), (0.17, 0.12, 0.01), "metal_grey"),
-                Piece((x - 0.35, y + 0.07, z + 0.13), (0.17, 0.01, 0.12), "screen0", 0.0),
+                Piece((x - 0.6, y - 0.05, z + 0.01), (0.15, 0.11, 0.01), "metal_grey"),
+                Piece((x - 0.6, y + 0.06, z + 0.11), (0.15, 0.01, 0.1), "screen0", 0.0),
             ),
         )
     )
@@ -161,8 +161,8 @@ def _desk(rng: np.random.Generator, x: float, y: float) -> tuple[list[StaticObje
             "tv",
             "potential",
             (
-                Piece((x + 0.3, y + 0.25, z + 0.33), (0.3, 0.02, 0.19), "screen1"),
-                Piece((x + 0.3, y + 0.27, z + 0.07), (0.03, 0.03, 0.07), "metal_grey"),
+                Piece((x + 0.02, y + 0.25, z + 0.3), (0.2, 0.02, 0.14), "screen1"),
+                Piece((x + 0.02, y + 0.27, z + 0.08), (0.03, 0.03, 0.08), "metal_grey"),
             ),
         )
     )

@@ -20,9 +20,10 @@ class RenderingUnavailable(EnvironmentProblem):
     """No off-screen OpenGL context could be made."""
 
 
-INSTANCE_GROUP, SOLO_GROUP = 2, 3
+INSTANCE_GROUP, SOLO_GROUP, HIDDEN_GROUP = 2, 3, 5
 """Geom groups: an instance's geoms are in INSTANCE_GROUP (drawn by default), and move to
-SOLO_GROUP for a pass that draws that instance alone; the rest of the world is group 0."""
+SOLO_GROUP for a pass that draws that instance alone; the rest of the world is group 0.
+Geoms the model puts in HIDDEN_GROUP or above (collision stand-ins) are never drawn."""
 
 
 class FrameRenderer:
@@ -35,8 +36,11 @@ class FrameRenderer:
 
         self.model, self.width, self.height = model, width, height
         self.geom_instance = geom_instance
+        self._drawn = model.geom_group < HIDDEN_GROUP
         if geom_instance is not None:
-            model.geom_group[:] = np.where(geom_instance > 0, INSTANCE_GROUP, 0)
+            model.geom_group[:] = np.where(
+                self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
+            )
         try:
             self._gl = gl_context.GLContext(width, height)
             self._gl.make_current()
@@ -120,7 +124,7 @@ class FrameRenderer:
                 out[instance] = (int(counts[instance]), instance in on_border)
         groups = self.model.geom_group
         for batch in self._solo_batches(data, camera_id, alone):
-            owned = np.isin(self.geom_instance, batch)
+            owned = np.isin(self.geom_instance, batch) & self._drawn
             groups[owned] = SOLO_GROUP
             try:
                 drawn = self._instance_map(data, camera_id, self._solo)

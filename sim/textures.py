@@ -340,3 +340,127 @@ def skin(rng: np.random.Generator, size: int = 128) -> np.ndarray:
         axes = (int(rng.integers(3, 9)), int(rng.integers(1, 4)))
         cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, tuple(0.55 * v for v in tone), -1)
     return _finish(image)
+
+
+SKIN_TONES: tuple[Colour, ...] = (
+    (236, 200, 172),
+    (222, 178, 142),
+    (198, 146, 108),
+    (160, 110, 76),
+    (120, 80, 55),
+    (88, 60, 42),
+)
+HAIR_COLOURS: tuple[Colour, ...] = (
+    (25, 20, 18),
+    (55, 38, 25),
+    (95, 65, 38),
+    (165, 125, 75),
+    (205, 180, 125),
+    (130, 125, 120),
+    (120, 55, 30),
+)
+
+
+def skin_tone(rng: np.random.Generator, tone: Colour, size: int = 128) -> np.ndarray:
+    """Bare skin: the tone with soft blotches, pores and a few freckles."""
+    image = _base(rng, size, tone, grain=10)
+    for _ in range(10):
+        c = tuple(int(v) for v in rng.integers(0, size, 2))
+        axes = (int(rng.integers(4, 12)), int(rng.integers(2, 6)))
+        cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, tuple(0.85 * v for v in tone), -1)
+    for _ in range(25):
+        c = tuple(int(v) for v in rng.integers(0, size, 2))
+        cv2.circle(image, c, 1, tuple(0.7 * v for v in tone), -1)
+    return _finish(image)
+
+
+def hair(rng: np.random.Generator, colour: Colour, size: int = 128) -> np.ndarray:
+    """Hair: dense strands, darker and lighter than the colour, mostly along one direction."""
+    image = _base(rng, size, colour, grain=18)
+    for _ in range(700):
+        p = rng.uniform(0, size, 2)
+        angle = rng.normal(np.pi / 2, 0.35)
+        q = p + rng.uniform(6, 18) * np.array([np.cos(angle), np.sin(angle)])
+        shade = tuple(
+            float(np.clip(c * rng.uniform(0.55, 1.45) + rng.uniform(-8, 8), 0, 255)) for c in colour
+        )
+        cv2.line(image, tuple(int(v) for v in p), tuple(int(v) for v in q), shade, 1, cv2.LINE_AA)
+    return _finish(image)
+
+
+def hivis(rng: np.random.Generator, colour: Colour, size: int = 256) -> np.ndarray:
+    """A high-visibility work vest: fluorescent fabric, two reflective bands, a print."""
+    image = _base(rng, size, colour, grain=14)
+    for y in (int(size * 0.35), int(size * 0.65)):
+        cv2.rectangle(image, (0, y), (size, y + size // 14), (200, 202, 205), -1)
+        cv2.rectangle(image, (0, y), (size, y + size // 14), (120, 120, 125), 1)
+    _wear(rng, image, colour, folds=25)
+    _text(rng, image, 1, (30, 30, 30), 0.6)
+    return _finish(image)
+
+
+def plastic(rng: np.random.Generator, colour: Colour, size: int = 64) -> np.ndarray:
+    """Hard hats and caps: a smooth shell with a few scuffs."""
+    image = _base(rng, size, colour, grain=12)
+    for _ in range(8):
+        p = rng.integers(0, size, 2)
+        cv2.line(
+            image,
+            tuple(int(v) for v in p),
+            tuple(int(v) for v in p + rng.integers(-6, 7, 2)),
+            tuple(0.7 * c for c in colour),
+            1,
+        )
+    return _finish(image)
+
+
+COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
+    "dog": (
+        ((150, 105, 60), "patches"),
+        ((200, 160, 95), "plain"),
+        ((35, 30, 28), "plain"),
+        ((60, 45, 35), "saddle"),
+        ((225, 220, 210), "patches"),
+        ((120, 75, 45), "plain"),
+    ),
+    "cat": (
+        ((120, 118, 112), "tabby"),
+        ((205, 130, 60), "tabby"),
+        ((30, 28, 28), "plain"),
+        ((215, 210, 200), "patches"),
+        ((90, 80, 70), "tabby"),
+    ),
+    "pig": (((235, 175, 165), "plain"), ((225, 160, 150), "dirt"), ((240, 190, 180), "plain")),
+}
+
+
+def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
+    """An animal's coat: a colour of its kind with a pattern (patches, tabby stripes, a
+    dark saddle, mud), fur strands over it."""
+    colour, pattern = COATS[kind][int(rng.integers(len(COATS[kind])))]
+    image = _base(rng, size, colour, grain=25)
+    dark = tuple(0.35 * c for c in colour)
+    if pattern == "tabby":
+        for y in range(0, size, int(rng.integers(9, 14))):
+            wobble = (np.sin(np.arange(size) / rng.uniform(5, 9) + rng.uniform(0, 6)) * 3).astype(int)
+            for x in range(0, size, 2):
+                cv2.line(image, (x, y + int(wobble[x])), (x + 2, y + int(wobble[x])), dark, 3)
+    elif pattern in ("patches", "dirt"):
+        # Soft-edged colours, not black on white: a Dalmatian's spots would be the
+        # densest ORB corners of the scene and make the animal a feature magnet.
+        other = (150, 100, 62) if colour[0] > 150 else (235, 228, 215)
+        count = 5
+        if pattern == "dirt":
+            other, count = (170, 130, 105), 4
+        for _ in range(count):
+            c = tuple(int(v) for v in rng.integers(0, size, 2))
+            axes = (int(rng.integers(14, 30)), int(rng.integers(10, 22)))
+            cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, other, -1)
+    elif pattern == "saddle":
+        cv2.rectangle(image, (0, 0), (size, size // 2), (25, 22, 20), -1)
+    for _ in range(400):
+        p = rng.integers(0, size, 2)
+        q = p + rng.integers(-4, 5, 2)
+        shade = tuple(float(np.clip(c * rng.uniform(0.65, 1.3), 0, 255)) for c in colour)
+        cv2.line(image, tuple(int(v) for v in p), tuple(int(v) for v in q), shade, 1)
+    return _finish(image)

@@ -17,9 +17,11 @@ from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
 from sim.camera import Intrinsics
 from sim.camera_rig import CameraRig
 from sim.conventions import gl_from_cv_rotation, quat_wxyz
+from sim.figures import AnimalLook, Look, Surface
 from sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
 from sim.mujoco_env import mujoco
 from sim.paths import Path, plan_loop
+from sim.render import HIDDEN_GROUP
 from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
 
 STATIC_BITS, CHAIR_BITS, ACTOR_BITS = (1, 1), (1, 3), (2, 0)
@@ -67,8 +69,23 @@ class World:
         return {i.class_name: i.prior for i in self.instances}
 
 
+PERSON_KINDS = ("person", "sitting_person", "chair_pusher")
+PERSON_ROLES = ("skin", "hair", "hat", "top", "bib", "arms", "legs", "feet")
+"""A person's materials, one each (named role + actor index)."""
+
+HARD_HATS: tuple[textures.Colour, ...] = ((235, 200, 30), (240, 240, 235), (235, 120, 30), (40, 90, 190))
+JACKETS: tuple[textures.Colour, ...] = ((35, 45, 70), (30, 30, 32), (70, 80, 50), (150, 40, 35), (90, 90, 95))
+TROUSERS: tuple[textures.Colour, ...] = (
+    (40, 50, 90),
+    (60, 60, 60),
+    (120, 100, 70),
+    (45, 55, 40),
+    (25, 25, 30),
+)
+
+
 def _material_images(
-    rng: np.random.Generator, clothing: list[tuple[str, str]]
+    rng: np.random.Generator, clothing: list[tuple[str, str]], looks: list[Look | AnimalLook | None]
 ) -> dict[str, tuple[str, np.ndarray]]:
     """Every material's texture: ('2d' | 'cube', image)."""
     mats: dict[str, tuple[str, np.ndarray]] = {
@@ -94,14 +111,42 @@ def _material_images(
     mats["fur_bird"] = ("cube", textures.fur(rng, (120, 125, 140)))
     mats["chair"] = ("cube", textures.metal(rng, colour=(120, 120, 128)))
     mats["chair_seat"] = ("cube", textures.cloth(rng, "plain", (80, 100, 150)))
-    for k, (pattern, _) in enumerate(clothing):
-        shirt = tuple(int(c) for c in rng.integers(30, 230, 3))
-        pants = tuple(int(c) for c in rng.choice([(40, 50, 90), (60, 60, 60), (120, 100, 70)]))
-        mats[f"shirt{k}"] = ("cube", textures.cloth(rng, pattern, shirt))
-        mats[f"pants{k}"] = ("cube", textures.denim(rng, pants))
-        mats[f"skin{k}"] = ("cube", textures.skin(rng))
-        mats[f"shoes{k}"] = ("cube", textures.cloth(rng, "plain", (35, 30, 30)))
+    mats["eye"] = ("cube", np.full((8, 8, 3), 28, np.uint8))
+    mats["lips"] = ("cube", textures.skin_tone(rng, (150, 80, 75), size=16))
+    mats["nose"] = ("cube", textures.skin_tone(rng, (30, 25, 25), size=16))
+    mats["hoof"] = ("cube", textures.skin_tone(rng, (60, 50, 45), size=16))
+    for k, ((pattern, kind), look) in enumerate(zip(clothing, looks, strict=True)):
+        if isinstance(look, Look):
+            mats |= {f"{role}{k}": image for role, image in _person_images(rng, pattern, look).items()}
+        elif isinstance(look, AnimalLook):
+            mats[f"coat{k}"] = ("cube", textures.coat(rng, kind))
     return mats
+
+
+def _pick(rng: np.random.Generator, colours: tuple[textures.Colour, ...]) -> textures.Colour:
+    return colours[int(rng.integers(len(colours)))]
+
+
+def _person_images(rng: np.random.Generator, pattern: str, look: Look) -> dict[str, tuple[str, np.ndarray]]:
+    """One person's textures, by role: skin, hair, hat, clothes and footwear."""
+    shirt = tuple(int(c) for c in rng.integers(30, 230, 3))
+    top = textures.cloth(rng, pattern, shirt)
+    legs = textures.denim(rng, _pick(rng, TROUSERS))
+    images = {
+        "skin": textures.skin_tone(rng, _pick(rng, textures.SKIN_TONES)),
+        "hair": textures.hair(rng, _pick(rng, textures.HAIR_COLOURS)),
+        "hat": textures.plastic(rng, _pick(rng, HARD_HATS) if look.hair == "hardhat" else shirt),
+        "top": top,
+        "arms": top,
+        "bib": legs,
+        "legs": legs,
+        "feet": textures.cloth(rng, "plain", _pick(rng, ((35, 30, 30), (85, 55, 35), (20, 20, 22)))),
+    }
+    if look.top == "jacket":
+        images["top"] = images["arms"] = textures.cloth(rng, "plain", _pick(rng, JACKETS))
+    elif look.top == "vest":
+        images["top"] = textures.hivis(rng, _pick(rng, ((215, 235, 40), (250, 140, 30))))
+    return {role: ("cube", image) for role, image in images.items()}
 
 
 def _add_materials(spec: mujoco.MjSpec, images: dict[str, tuple[str, np.ndarray]]) -> None:
@@ -174,14 +219,16 @@ def _make_actor(
     rng: np.random.Generator,
     duration_s: float,
     seat_index: int,
+    look: Look | AnimalLook | None,
 ) -> Actor:
-    materials = {m: f"{m}{k}" for m in ("shirt", "pants", "skin", "shoes")}
+    materials = {m: f"{m}{k}" for m in PERSON_ROLES}
     scale = spec.scale if spec.scale is not None else float(rng.uniform(0.9, 1.08))
     bounds = (-layout.size[0] / 2, -layout.size[1] / 2, layout.size[0] / 2, layout.size[1] / 2)
+    person_look = look if isinstance(look, Look) else None
     if spec.kind == "sitting_person":
         if not layout.seats:
             raise ValueError("a sitting_person needs a desk (layout.desk: true)")
-        return SittingPerson(layout.seats[seat_index % len(layout.seats)], scale, materials, rng)
+        return SittingPerson(layout.seats[seat_index % len(layout.seats)], scale, materials, rng, person_look)
     if spec.kind == "chair_pusher":
         if not chairs:
             raise ValueError("a chair_pusher needs at least one chair")
@@ -189,7 +236,7 @@ def _make_actor(
         direction = np.array([1.0, 0.35]) / np.linalg.norm([1.0, 0.35])
         waypoints = np.array([[cx, cy] - 1.6 * direction, [cx, cy] + 1.4 * direction])
         path = Path(waypoints, smoothing_m=0.3)
-        return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True)
+        return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True, look=person_look)
     obstacles = layout.obstacles + chair_footprints(chairs)
     if spec.waypoints:
         waypoints = np.array(spec.waypoints, dtype=float)
@@ -204,10 +251,11 @@ def _make_actor(
     path = Path(waypoints)
     start = float(rng.uniform(0, path.length))
     if spec.kind == "person":
-        return Walker(path, spec.speed_mps, scale, materials, start)
+        return Walker(path, spec.speed_mps, scale, materials, start, look=person_look)
     if spec.kind == "bird":
         return Bird(path, start, duration_s, rng)
-    return Quadruped(QUADRUPEDS[spec.kind], path, spec.speed_mps, start)
+    assert look is None or isinstance(look, AnimalLook)
+    return Quadruped(QUADRUPEDS[spec.kind], path, spec.speed_mps, start, look, {"coat": f"coat{k}"})
 
 
 def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
@@ -241,6 +289,24 @@ def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
     return body
 
 
+def _add_surface(spec: mujoco.MjSpec, body: mujoco.MjsBody, surface: Surface, name: str) -> None:
+    """A drawn, non-colliding geom: a mesh piece of a figure or a small primitive."""
+    common = {"material": surface.material, "contype": 0, "conaffinity": 0, "group": 0}
+    if surface.mesh is None:
+        size = list(surface.size) + [0.0] * (3 - len(surface.size))
+        body.add_geom(
+            type=_SHAPES[surface.shape], size=size, pos=list(surface.pos), quat=list(surface.quat), **common
+        )
+        return
+    spec.add_mesh(
+        name=name,
+        uservert=surface.mesh.vertices.astype(np.float32).ravel().tolist(),
+        userface=surface.mesh.faces.ravel().tolist(),
+        inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL,
+    )
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, mass=0.0, **common)
+
+
 def chair_footprints(chairs: tuple[ChairSpec, ...]) -> tuple[Rect, ...]:
     h = CHAIR_HALF_M
     return tuple((x - h, y - h, x + h, y + h) for x, y in (c.position_m for c in chairs))
@@ -257,15 +323,23 @@ def intrinsics_of(scenario: ScenarioSpec) -> Intrinsics:
 
 def build_world(scenario: ScenarioSpec) -> World:
     """Compile the scenario into a MuJoCo model; every random draw comes from its seed."""
-    texture_rng, layout_rng, actor_rng, camera_rng = scenario_streams(scenario.seed)[:4]
+    texture_rng, layout_rng, actor_rng, camera_rng, _, figure_rng = scenario_streams(scenario.seed)
     intrinsics = intrinsics_of(scenario)
     if scenario.layout_seed is not None:
         layout_rng = np.random.default_rng(scenario.layout_seed)
     layout = plan_layout(scenario.layout, layout_rng, keep_out=chair_footprints(scenario.chairs))
     duration = scenario.frames / scenario.fps
     seat_of = np.cumsum([a.kind == "sitting_person" for a in scenario.actors]) - 1
+    looks: list[Look | AnimalLook | None] = [
+        Look.draw(figure_rng)
+        if a.kind in PERSON_KINDS
+        else AnimalLook.draw(figure_rng, a.kind)
+        if a.kind in QUADRUPEDS
+        else None
+        for a in scenario.actors
+    ]
     actors = [
-        _make_actor(a, k, layout, scenario.chairs, actor_rng, duration, int(seat_of[k]))
+        _make_actor(a, k, layout, scenario.chairs, actor_rng, duration, int(seat_of[k]), looks[k])
         for k, a in enumerate(scenario.actors)
     ]
     clothing = [
@@ -286,7 +360,7 @@ def build_world(scenario: ScenarioSpec) -> World:
     spec.stat.center = [0.0, 0.0, 1.5]
     spec.visual.map.znear = 0.005
     spec.visual.map.zfar = 6.0
-    _add_materials(spec, _material_images(texture_rng, clothing))
+    _add_materials(spec, _material_images(texture_rng, clothing, looks))
 
     world_body = spec.worldbody
     for piece in layout.world:
@@ -335,7 +409,10 @@ def build_world(scenario: ScenarioSpec) -> World:
                 material=part.material,
                 contype=ACTOR_BITS[0],
                 conaffinity=ACTOR_BITS[1],
+                group=HIDDEN_GROUP if part.surfaces else 0,
             )
+            for n, surface in enumerate(part.surfaces):
+                _add_surface(spec, body, surface, f"actor{k}_{part.name}_{n}")
             bodies.append(body)
         actor_bodies.append(bodies)
     chair_bodies = [_add_chair(spec, chair, k) for k, chair in enumerate(scenario.chairs)]
@@ -390,5 +467,6 @@ def build_world(scenario: ScenarioSpec) -> World:
 
 
 def scenario_streams(seed: int) -> list[np.random.Generator]:
-    """Independent streams: textures, layout, actors, camera, sensor (in that order)."""
-    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(5)]
+    """Independent streams: textures, layout, actors, camera, sensor, figures (in that
+    order; a stream added at the end leaves the others' draws unchanged)."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6)]
