@@ -3,7 +3,8 @@
 One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
 gives segmentation. A third, with only the instances' geoms drawn, gives each
 instance's unoccluded area (what it would cover with everything else removed);
-instances that touch another there are drawn once more alone. The GL context
+instances that another could cover there (overlapping projections, not wholly
+behind) are drawn once more alone, several per pass, reading back only their window. The GL context
 belongs to the thread that creates this object (rendering-notes.md): create one
 per worker, after any fork.
 """
@@ -84,14 +85,20 @@ class FrameRenderer:
         geom_ids = np.flipud(self._segment())
         return rgb, depth, geom_ids
 
-    def _segment(self) -> np.ndarray:
-        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row first."""
+    def _segment(self, rect: mujoco.MjrRect | None = None) -> np.ndarray:
+        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row
+        first; only the pixels of ``rect`` (default: all) are read back."""
         scene, flags = self._scene, self._scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
         mujoco.mjr_render(self._rect, scene, self._context)
-        mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
-        seg = self._seg.astype(np.int32)
+        if rect is None:
+            mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
+            seg = self._seg.astype(np.int32)
+        else:
+            part = np.empty((rect.height, rect.width, 3), np.uint8)
+            mujoco.mjr_readPixels(part, None, rect, self._context)
+            seg = part.astype(np.int32)
         segid = seg[:, :, 0] + (seg[:, :, 1] << 8) + (seg[:, :, 2] << 16)
         lookup = np.full(scene.ngeom + 1, -1, dtype=np.int32)
         for k in range(scene.ngeom):
@@ -112,49 +119,38 @@ class FrameRenderer:
         together = self._instance_map(data, camera_id, self._instances_only)
         counts = np.bincount(together.ravel(), minlength=int(self.geom_instance.max()) + 1)
         on_border = set(np.unique(_border(together)).tolist())
-        touching: set[int] = set()
-        for a, b in ((together[:, 1:], together[:, :-1]), (together[1:], together[:-1])):
-            differ = (a != b) & (a > 0) & (b > 0)
-            touching.update(np.unique(a[differ]).tolist())
-            touching.update(np.unique(b[differ]).tolist())
+        boxes = {i: self._projected_box(data, camera_id, i) for i in instances}
+        others = [i for i in range(1, counts.size) if i not in boxes and counts[i] > 0]
+        boxes |= {i: self._projected_box(data, camera_id, i) for i in others}
         out = {}
-        alone = [i for i in instances if i in touching]
+        alone = [i for i in instances if _may_be_hidden(i, boxes)]
         for instance in instances:
-            if instance not in touching:
+            if instance not in alone:
                 out[instance] = (int(counts[instance]), instance in on_border)
         groups = self.model.geom_group
-        for batch in self._solo_batches(data, camera_id, alone):
+        for batch in _batches(alone, boxes):
             owned = np.isin(self.geom_instance, batch) & self._drawn
             groups[owned] = SOLO_GROUP
             try:
-                drawn = self._instance_map(data, camera_id, self._solo)
+                drawn, (row0, col0) = self._instance_map(data, camera_id, self._solo, _union(batch, boxes))
             finally:
                 groups[owned] = INSTANCE_GROUP
             batch_counts = np.bincount(drawn.ravel(), minlength=counts.size)
-            batch_border = set(np.unique(_border(drawn)).tolist())
             for instance in batch:
-                out[instance] = (int(batch_counts[instance]), instance in batch_border)
+                rows, cols = np.nonzero(drawn == instance)
+                border = rows.size > 0 and (
+                    row0 + rows.min() == 0
+                    or col0 + cols.min() == 0
+                    or row0 + rows.max() == self.height - 1
+                    or col0 + cols.max() == self.width - 1
+                )
+                out[instance] = (int(batch_counts[instance]), bool(border))
         return out
 
-    def _solo_batches(self, data: mujoco.MjData, camera_id: int, instances: list[int]) -> list[list[int]]:
-        """Instances to draw alone, grouped so that one pass draws several: those whose
-        projected bounding boxes (of their geoms' boxes, conservative) are apart cannot
-        hide one another."""
-        rectangles = {i: self._projected_rectangle(data, camera_id, i) for i in instances}
-        batches: list[list[int]] = []
-        for instance in instances:
-            rect = rectangles[instance]
-            for batch in batches:
-                if not any(_overlap(rect, rectangles[other]) for other in batch):
-                    batch.append(instance)
-                    break
-            else:
-                batches.append([instance])
-        return batches
-
-    def _projected_rectangle(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
-        """(u0, v0, u1, v1) holding the instance's projection (the whole plane if any part is
-        behind the camera): the corners of its geoms' bounding boxes, projected."""
+    def _projected_box(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
+        """(u0, v0, u1, v1, nearest depth, farthest depth) holding the instance's projection,
+        from the corners of its geoms' bounding boxes (conservative; the whole plane if a
+        corner is behind the camera). u, v are pixel offsets from the image centre."""
         assert self.geom_instance is not None
         geoms = np.flatnonzero(self.geom_instance == instance)
         aabb = self.model.geom_aabb[geoms]  # (centre, half size) in the geom's frame
@@ -164,10 +160,10 @@ class FrameRenderer:
         camera = (world.reshape(-1, 3) - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
         depth = -camera[:, 2]  # MuJoCo cameras look along -z
         if (depth <= 1e-6).any():
-            return np.array([-np.inf, -np.inf, np.inf, np.inf])
+            return np.array([-np.inf, -np.inf, np.inf, np.inf, max(depth.min(), 0.0), depth.max()])
         focal = (self.height / 2) / np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
-        u, v = focal * camera[:, 0] / depth, focal * camera[:, 1] / depth
-        return np.array([u.min(), v.min(), u.max(), v.max()])
+        u, v = focal * camera[:, 0] / depth, -focal * camera[:, 1] / depth
+        return np.array([u.min(), v.min(), u.max(), v.max(), depth.min(), depth.max()])
 
     def _update_scene(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> None:
         self._camera.fixedcamid = camera_id
@@ -175,10 +171,27 @@ class FrameRenderer:
             self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
 
-    def _instance_map(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> np.ndarray:
+    def _instance_map(
+        self,
+        data: mujoco.MjData,
+        camera_id: int,
+        option: mujoco.MjvOption,
+        window: np.ndarray | None = None,
+    ):
+        """Instance ids per pixel of a segmentation pass (top row first). With a
+        ``window`` (u0, v0, u1, v1 about the image centre), only the pixels inside it are
+        read back, and their (row, column) offset is returned too."""
         self._update_scene(data, camera_id, option)
-        geoms = self._segment()
-        return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0)
+        if window is None:
+            geoms = np.flipud(self._segment())
+            return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0)
+        col0 = int(np.clip(np.floor(window[0] + self.width / 2) - 1, 0, self.width - 1))
+        col1 = int(np.clip(np.ceil(window[2] + self.width / 2) + 1, col0 + 1, self.width))
+        row0 = int(np.clip(np.floor(window[1] + self.height / 2) - 1, 0, self.height - 1))
+        row1 = int(np.clip(np.ceil(window[3] + self.height / 2) + 1, row0 + 1, self.height))
+        rect = mujoco.MjrRect(col0, self.height - row1, col1 - col0, row1 - row0)
+        geoms = np.flipud(self._segment(rect))
+        return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0), (row0, col0)
 
     def _metric_depth(self, buffer: np.ndarray) -> np.ndarray:
         """Reversed-Z depth buffer to metric z-depth, as MuJoCo's Renderer converts it."""
@@ -207,3 +220,29 @@ def _border(image: np.ndarray) -> np.ndarray:
 
 def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3])
+
+
+def _may_be_hidden(instance: int, boxes: dict[int, np.ndarray]) -> bool:
+    """Whether another instance could cover part of this one: its projection overlaps
+    and it is not wholly farther away."""
+    box = boxes[instance]
+    return any(other != instance and _overlap(box, b) and b[4] < box[5] for other, b in boxes.items())
+
+
+def _batches(instances: list[int], boxes: dict[int, np.ndarray]) -> list[list[int]]:
+    """Instances to draw alone, grouped so that one pass draws several: those whose
+    projections are apart cannot hide one another."""
+    batches: list[list[int]] = []
+    for instance in instances:
+        for batch in batches:
+            if not any(_overlap(boxes[instance], boxes[other]) for other in batch):
+                batch.append(instance)
+                break
+        else:
+            batches.append([instance])
+    return batches
+
+
+def _union(batch: list[int], boxes: dict[int, np.ndarray]) -> np.ndarray:
+    rects = np.array([boxes[i][:4] for i in batch])
+    return np.array([rects[:, 0].min(), rects[:, 1].min(), rects[:, 2].max(), rects[:, 3].max()])
