@@ -210,7 +210,7 @@ def _person_bones(s: float, joints: dict[str, np.ndarray]) -> list[Bone]:
             np.array([0.0, -0.1, -0.02]) * s,
             np.array([0.0, 0.1, -0.02]) * s,
             0.11 * s,
-            0.018 * s,
+            0.024 * s,
             0.06 * s,
         ),
         Bone(
@@ -218,7 +218,7 @@ def _person_bones(s: float, joints: dict[str, np.ndarray]) -> list[Bone]:
             np.array([0.0, 0.0, 0.14]) * s,
             np.array([0.0, 0.0, 0.5]) * s,
             0.14 * s,
-            0.018 * s,
+            0.024 * s,
             0.06 * s,
         ),
         Bone(
@@ -226,7 +226,7 @@ def _person_bones(s: float, joints: dict[str, np.ndarray]) -> list[Bone]:
             np.array([0.0, 0.0, 0.6]) * s,
             np.array([0.0, 0.0, 0.78]) * s,
             0.08 * s,
-            0.008 * s,
+            0.01 * s,
             0.06 * s,
         ),
     ]
@@ -235,16 +235,16 @@ def _person_bones(s: float, joints: dict[str, np.ndarray]) -> list[Bone]:
             k: joints[f"{k}_{side}"] for k in ("shoulder", "elbow", "hand", "hip", "knee", "ankle", "ground")
         }
         bones += [
-            Bone(f"upper_arm_{side}", j["shoulder"], j["elbow"], 0.045 * s, 0.011 * s, 0.06 * s),
-            Bone(f"forearm_{side}", j["elbow"], j["hand"], 0.035 * s, 0.009 * s, 0.09 * s),
-            Bone(f"thigh_{side}", j["hip"], j["knee"], 0.07 * s, 0.014 * s, 0.06 * s),
-            Bone(f"shin_{side}", j["knee"], j["ankle"], 0.045 * s, 0.012 * s, 0.06 * s),
+            Bone(f"upper_arm_{side}", j["shoulder"], j["elbow"], 0.045 * s, 0.016 * s, 0.06 * s),
+            Bone(f"forearm_{side}", j["elbow"], j["hand"], 0.035 * s, 0.012 * s, 0.09 * s),
+            Bone(f"thigh_{side}", j["hip"], j["knee"], 0.07 * s, 0.02 * s, 0.06 * s),
+            Bone(f"shin_{side}", j["knee"], j["ankle"], 0.045 * s, 0.017 * s, 0.06 * s),
             Bone(
                 f"foot_{side}",
                 j["ground"] + np.array([-0.03, 0.0, 0.04]) * s,
                 j["ground"] + np.array([0.15, 0.0, 0.03]) * s,
                 0.035 * s,
-                0.01 * s,
+                0.013 * s,
                 0.06 * s,
             ),
         ]
@@ -439,7 +439,7 @@ def person_surfaces(s: float, look: Look) -> dict[str, tuple[Surface, ...]]:
     origin, rotation = frames["head"]
     hair = _hair_field(s, look)
     if hair is not None:
-        mesh = mesh_field(hair, hair.lower, hair.upper, 0.009 * s)
+        mesh = mesh_field(hair, hair.lower, hair.upper, 0.011 * s)
         if mesh is not None:
             role = "hat" if look.hair in ("cap", "hardhat") else "hair"
             out["head"].append(Surface(role, _to_frame(mesh, origin, rotation)))
@@ -540,7 +540,7 @@ def quadruped_surfaces(
             np.array([-0.75 * hx, 0.0, 0.0]),
             np.array([0.75 * hx, 0.0, 0.05 * hz]),
             0.9 * hy,
-            0.07 * hx,
+            0.09 * hx,
             0.25 * hx,
         ),
         Bone(
@@ -548,10 +548,10 @@ def quadruped_surfaces(
             head - [0.5 * hy, 0.0, 0.2 * hy],
             head + [0.2 * hy, 0.0, 0.0],
             0.65 * hy,
-            0.06 * hy,
+            0.08 * hy,
             0.9 * hy,
         ),
-        Bone("snout", head + [0.6 * hy, 0.0, -0.2 * hy], tip, muzzle_r, 0.045 * hy, 0.6 * hy),
+        Bone("snout", head + [0.6 * hy, 0.0, -0.2 * hy], tip, muzzle_r, 0.06 * hy, 0.6 * hy),
         Bone("tail", tail_a, tail_b, tail_r, 0.3 * tail_r, 2 * tail_r),
     ]
     balls: dict[str, list[tuple[np.ndarray, float]]] = {}
@@ -566,8 +566,8 @@ def quadruped_surfaces(
                 lambda p, z=foot[2] - paw_r: z - p[:, 2],
             ),
         ]
-        uppers.append(Bone(f"upper_leg_{k}", hip, knee, 0.9 * leg_r, 0.3 * leg_r, 1.2 * leg_r))
-        lowers.append(Bone(f"lower_leg_{k}", knee, foot, 0.65 * leg_r, 0.25 * leg_r, 1.6 * leg_r))
+        uppers.append(Bone(f"upper_leg_{k}", hip, knee, 0.9 * leg_r, 0.4 * leg_r, 1.2 * leg_r))
+        lowers.append(Bone(f"lower_leg_{k}", knee, foot, 0.65 * leg_r, 0.33 * leg_r, 1.6 * leg_r))
         balls[f"upper_leg_{k}"] = [(knee, 0.68 * leg_r)]
         balls[f"lower_leg_{k}"] = [(knee, 0.68 * leg_r)]
     body = smooth_union(
