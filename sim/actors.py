@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.conventions import frame_along
 from sim.figures import SHOULDER_Y, AnimalLook, Look, Surface, person_surfaces, quadruped_surfaces
 from sim.paths import Path
 
@@ -49,18 +50,6 @@ def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     k = np.asarray(axis, dtype=float)
     kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
-
-
-def frame_along(direction: np.ndarray, forward: np.ndarray) -> np.ndarray:
-    """Rotation whose z axis is ``direction`` and whose x axis leans to ``forward``."""
-    z = direction / np.linalg.norm(direction)
-    x = forward - np.dot(forward, z) * z
-    norm = np.linalg.norm(x)
-    if norm < 1e-6:
-        x = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.cross(z, [0.0, 1.0, 0.0])
-        norm = np.linalg.norm(x)
-    x = x / norm
-    return np.stack([x, np.cross(z, x), z], axis=1)
 
 
 def two_link_knee(hip: np.ndarray, ankle: np.ndarray, l1: float, l2: float, bend: np.ndarray) -> np.ndarray:
@@ -186,7 +175,14 @@ def person_parts(
     ]
     if look is None:
         return parts
-    drawn = person_surfaces(s, look)
+    return dressed(parts, person_surfaces(s, look), materials)
+
+
+def dressed(
+    parts: list[Part], drawn: dict[str, tuple[Surface, ...]], materials: dict[str, str]
+) -> list[Part]:
+    """``parts`` drawn as ``drawn``'s surfaces, their material roles (skin, coat, ...)
+    named through ``materials`` (a role not in it is a shared material's own name)."""
     return [
         dataclasses.replace(
             part,
@@ -429,10 +425,8 @@ class Quadruped(Actor):
         """Draw the parts as pieces of one furred body (figures.py)."""
         positions, rotations = self.bind()
         frames = {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
-        hx = self.build.body_half[0]
-        tail_dir = np.array([-1.0, 0.0, self.build.tail_rise])
-        tail_dir /= np.linalg.norm(tail_dir)
-        tail_start = np.array([-hx, 0.0, 0.0]) + 0.02 * tail_dir
+        centre, rotation = frames["tail"]
+        half = rotation[:, 2] * self.build.tail_m / 2  # the tail's frame sits mid-tail, z along it
         drawn = quadruped_surfaces(
             self.build.class_name,
             self.build.body_half,
@@ -440,19 +434,10 @@ class Quadruped(Actor):
             [np.array(leg.hip_body) for leg in self.legs],
             self.build.leg_m,
             self.paw_r,
-            (tail_start, tail_start + self.build.tail_m * tail_dir),
+            (centre - half, centre + half),
             look,
         )
-        self.parts = [
-            dataclasses.replace(
-                part,
-                surfaces=tuple(
-                    dataclasses.replace(f, material=materials.get(f.material, f.material))
-                    for f in drawn[part.name]
-                ),
-            )
-            for part in self.parts
-        ]
+        self.parts = dressed(self.parts, drawn, materials)
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         s = self.gait.arc(t)

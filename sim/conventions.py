@@ -53,3 +53,15 @@ def quat_wxyz(rotation: np.ndarray) -> np.ndarray:
     """MuJoCo's quaternion order (w, x, y, z) of rotation matrices (..., 3, 3)."""
     xyzw = Rotation.from_matrix(rotation).as_quat(canonical=True)
     return np.roll(xyzw, 1, axis=-1)
+
+
+def frame_along(direction: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    """Rotation whose z axis is ``direction`` and whose x axis leans to ``forward``."""
+    z = direction / np.linalg.norm(direction)
+    x = forward - np.dot(forward, z) * z
+    norm = np.linalg.norm(x)
+    if norm < 1e-6:
+        x = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.cross(z, [0.0, 1.0, 0.0])
+        norm = np.linalg.norm(x)
+    x = x / norm
+    return np.stack([x, np.cross(z, x), z], axis=1)

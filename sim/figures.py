@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.conventions import frame_along
 from sim.shapes import (
     Field,
     Grid,
@@ -90,12 +91,6 @@ class Look:
         )
 
 
-def _frame_along(direction: np.ndarray, forward: np.ndarray) -> np.ndarray:
-    from sim.actors import frame_along
-
-    return frame_along(direction, forward)
-
-
 @dataclass(frozen=True)
 class Bone:
     part: str
@@ -127,16 +122,16 @@ def person_bind(s: float) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dic
         elbow = shoulder + 0.3 * s * down
         hand = elbow + 0.3 * s * down
         joints |= {f"shoulder_{side}": shoulder, f"elbow_{side}": elbow, f"hand_{side}": hand}
-        frames[f"upper_arm_{side}"] = ((shoulder + elbow) / 2, _frame_along(elbow - shoulder, fwd))
-        frames[f"forearm_{side}"] = ((elbow + hand) / 2, _frame_along(hand - elbow, fwd))
+        frames[f"upper_arm_{side}"] = ((shoulder + elbow) / 2, frame_along(elbow - shoulder, fwd))
+        frames[f"forearm_{side}"] = ((elbow + hand) / 2, frame_along(hand - elbow, fwd))
     for side, sign in (("l", 1.0), ("r", -1.0)):
         hip = np.array([0.0, sign * 0.1 * s, 0.0])
         knee = hip - [0.0, 0.0, 0.45 * s]
         ankle = knee - [0.0, 0.0, 0.45 * s]
         foot = ankle - [0.0, 0.0, 0.08 * s]
         joints |= {f"hip_{side}": hip, f"knee_{side}": knee, f"ankle_{side}": ankle, f"ground_{side}": foot}
-        frames[f"thigh_{side}"] = ((hip + knee) / 2, _frame_along(hip - knee, fwd))
-        frames[f"shin_{side}"] = ((knee + ankle) / 2, _frame_along(knee - ankle, fwd))
+        frames[f"thigh_{side}"] = ((hip + knee) / 2, frame_along(hip - knee, fwd))
+        frames[f"shin_{side}"] = ((knee + ankle) / 2, frame_along(knee - ankle, fwd))
         frames[f"foot_{side}"] = (foot + np.array([0.05 * s, 0.0, 0.04 * s]), np.eye(3))
     return frames, joints
 
@@ -524,9 +519,7 @@ def quadruped_surfaces(
             head_parts.append(round_cone(base, ear_tip, 0.3 * skull_r[1], 0.04 * skull_r[1]))
         else:
             ear = head + np.array([-0.1 * skull_r[0], sign * 0.9 * skull_r[1], 0.0])
-            axes = _frame_along(
-                np.array([0.25 if pig else 0.0, sign * 0.35, -1.0]), np.array([1.0, 0.0, 0.0])
-            )
+            axes = frame_along(np.array([0.25 if pig else 0.0, sign * 0.35, -1.0]), np.array([1.0, 0.0, 0.0]))
             head_parts.append(
                 ellipsoid(ear, np.array([0.45, 0.12, 0.8]) * skull_r[1] * (1.5 if pig else 1.0), axes)
             )
