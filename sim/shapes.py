@@ -4,7 +4,10 @@ A figure is a field built from a few primitives (ellipsoids, round cones) joined
 by smooth unions, so shoulders, neck and hips blend as on a real body. It is
 meshed with marching cubes (PyMCubes) into closed triangle meshes, one per rigid
 part and material, which MuJoCo draws as ordinary mesh geoms: every pixel then
-belongs to one rigid body, so masks and optical flow stay exact.
+belongs to one rigid body, so masks and optical flow stay exact. Marching cubes
+spends most triangles on flat stretches; quadric decimation (fast-simplification)
+keeps a fifth of them where they shape the surface, which is what a CPU renderer
+pays for in every pass (benchmarks/generation.py).
 """
 
 from __future__ import annotations
@@ -12,12 +15,18 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import fast_simplification
 import mcubes
 import numpy as np
+import trimesh
 
 Field = Callable[[np.ndarray], np.ndarray]
 """Signed distance (negative inside) at points (N, 3)."""
 
+KEEP_FACES = 0.2
+"""Share of marching cubes' triangles a mesh keeps after decimation."""
+MIN_FACES = 48
+"""Meshes with fewer triangles than this after decimation are kept whole."""
 FAR = 1.0
 """What a shape reports at points it cannot reach (metres; only the sign matters there)."""
 
@@ -151,7 +160,19 @@ class Grid:
         a, b, c = (vertices[faces[:, i]] for i in range(3))
         if np.einsum("ij,ij->i", a, np.cross(b, c)).sum() < 0:  # outward normals, positive volume
             faces = faces[:, ::-1].copy()
-        return Mesh(vertices.astype(np.float64), faces)
+        return decimate(Mesh(vertices.astype(np.float64), faces))
+
+
+def decimate(mesh: Mesh, keep: float = KEEP_FACES) -> Mesh:
+    """The mesh with about ``keep`` of its triangles (quadric error collapses); the mesh
+    itself where that would leave it tiny or open it (a collapse can, rarely)."""
+    target = int(len(mesh.faces) * keep)
+    if target < MIN_FACES:
+        return mesh
+    vertices, faces = fast_simplification.simplify(mesh.vertices, mesh.faces, target_count=target)
+    if not trimesh.Trimesh(vertices, faces, process=False).is_watertight:
+        return mesh
+    return Mesh(vertices.astype(np.float64), faces.astype(np.int32))
 
 
 def mesh_field(field: Field, lower: np.ndarray, upper: np.ndarray, step: float) -> Mesh | None:
