@@ -1,10 +1,9 @@
 """Off-screen RGB, metric z-depth and per-pixel geom ids from MuJoCo's renderer.
 
 One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
-gives segmentation. A third, with only the instances' geoms drawn, gives each
-instance's unoccluded area (what it would cover with everything else removed);
-instances that another could cover there (overlapping projections, not wholly
-behind) are drawn once more alone, several per pass, reading back only their window. The GL context
+gives segmentation. Each visible instance's unoccluded area (what it would cover
+with everything else removed) comes from passes that draw only instances, several
+per pass when their projections are apart, reading back only their window. The GL context
 belongs to the thread that creates this object (rendering-notes.md): create one
 per worker, after any fork.
 """
@@ -57,8 +56,6 @@ class FrameRenderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._option = mujoco.MjvOption()
-        self._instances_only = mujoco.MjvOption()
-        self._instances_only.geomgroup[:] = [g == INSTANCE_GROUP for g in range(len(self._option.geomgroup))]
         self._solo = mujoco.MjvOption()
         self._solo.geomgroup[:] = [g == SOLO_GROUP for g in range(len(self._option.geomgroup))]
         self._camera = mujoco.MjvCamera()
@@ -111,41 +108,38 @@ class FrameRenderer:
         self, data: mujoco.MjData, camera_id: int, instances: list[int]
     ) -> dict[int, tuple[int, bool]]:
         """Per instance asked: (pixels it covers with everything else removed, whether that
-        area reaches the image border). Exact: instances are drawn together without the
-        static world, and those that touch another there are drawn again alone (several
-        per pass when their projections are apart)."""
+        area reaches the image border). Exact: each is drawn without the rest of the
+        world, several per pass when their projections are apart (then none can hide
+        another), reading back only the pass's window."""
         assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
         self._gl.make_current()
-        together = self._instance_map(data, camera_id, self._instances_only)
-        counts = np.bincount(together.ravel(), minlength=int(self.geom_instance.max()) + 1)
-        on_border = set(np.unique(_border(together)).tolist())
         boxes = {i: self._projected_box(data, camera_id, i) for i in instances}
-        others = [i for i in range(1, counts.size) if i not in boxes and counts[i] > 0]
-        boxes |= {i: self._projected_box(data, camera_id, i) for i in others}
-        out = {}
-        alone = [i for i in instances if _may_be_hidden(i, boxes)]
-        for instance in instances:
-            if instance not in alone:
-                out[instance] = (int(counts[instance]), instance in on_border)
         groups = self.model.geom_group
-        for batch in _batches(alone, boxes):
+        out = {}
+        for batch in _batches(instances, boxes):
             owned = np.isin(self.geom_instance, batch) & self._drawn
             groups[owned] = SOLO_GROUP
             try:
                 drawn, (row0, col0) = self._instance_map(data, camera_id, self._solo, _union(batch, boxes))
             finally:
                 groups[owned] = INSTANCE_GROUP
-            batch_counts = np.bincount(drawn.ravel(), minlength=counts.size)
+            batch_counts = np.bincount(drawn.ravel(), minlength=int(max(batch)) + 1)
+            edges = self._edges_in(drawn, row0, col0)
             for instance in batch:
-                rows, cols = np.nonzero(drawn == instance)
-                border = rows.size > 0 and (
-                    row0 + rows.min() == 0
-                    or col0 + cols.min() == 0
-                    or row0 + rows.max() == self.height - 1
-                    or col0 + cols.max() == self.width - 1
-                )
-                out[instance] = (int(batch_counts[instance]), bool(border))
+                out[instance] = (int(batch_counts[instance]), bool(np.any(edges == instance)))
         return out
+
+    def _edges_in(self, window: np.ndarray, row0: int, col0: int) -> np.ndarray:
+        """The values of a window of the image (at row0, col0) that lie on the image's border."""
+        rows, cols = window.shape
+        parts = [window[0]] if row0 == 0 else []
+        if row0 + rows == self.height:
+            parts.append(window[-1])
+        if col0 == 0:
+            parts.append(window[:, 0])
+        if col0 + cols == self.width:
+            parts.append(window[:, -1])
+        return np.concatenate(parts) if parts else np.zeros(0, window.dtype)
 
     def _projected_box(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
         """(u0, v0, u1, v1, nearest depth, farthest depth) holding the instance's projection,
@@ -172,19 +166,12 @@ class FrameRenderer:
         )
 
     def _instance_map(
-        self,
-        data: mujoco.MjData,
-        camera_id: int,
-        option: mujoco.MjvOption,
-        window: np.ndarray | None = None,
-    ):
-        """Instance ids per pixel of a segmentation pass (top row first). With a
-        ``window`` (u0, v0, u1, v1 about the image centre), only the pixels inside it are
-        read back, and their (row, column) offset is returned too."""
+        self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption, window: np.ndarray
+    ) -> tuple[np.ndarray, tuple[int, int]]:
+        """Instance ids per pixel of a segmentation pass (top row first), read back only
+        inside ``window`` (u0, v0, u1, v1 about the image centre), with its (row, column)
+        offset in the image."""
         self._update_scene(data, camera_id, option)
-        if window is None:
-            geoms = np.flipud(self._segment())
-            return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0)
         col0 = int(np.clip(np.floor(window[0] + self.width / 2) - 1, 0, self.width - 1))
         col1 = int(np.clip(np.ceil(window[2] + self.width / 2) + 1, col0 + 1, self.width))
         row0 = int(np.clip(np.floor(window[1] + self.height / 2) - 1, 0, self.height - 1))
@@ -213,20 +200,8 @@ _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-
 """The 8 corners of a unit box, as signs of its half sizes."""
 
 
-def _border(image: np.ndarray) -> np.ndarray:
-    """The values on the image's outermost rows and columns."""
-    return np.concatenate([image[0], image[-1], image[:, 0], image[:, -1]])
-
-
 def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
     return bool(a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3])
-
-
-def _may_be_hidden(instance: int, boxes: dict[int, np.ndarray]) -> bool:
-    """Whether another instance could cover part of this one: its projection overlaps
-    and it is not wholly farther away."""
-    box = boxes[instance]
-    return any(other != instance and _overlap(box, b) and b[4] < box[5] for other, b in boxes.items())
 
 
 def _batches(instances: list[int], boxes: dict[int, np.ndarray]) -> list[list[int]]:

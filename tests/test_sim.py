@@ -413,3 +413,35 @@ def test_unoccluded_area_and_truncation_match_the_projected_rectangles():
     assert [unoccluded[i][1] for i in (1, 2, 3)] == [False, False, True]
     assert visible[1] < unoccluded[1][0]  # behind the wall and box 2
     assert visible[2] == unoccluded[2][0] and visible[3] == unoccluded[3][0]
+
+
+def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
+    """Brute force: draw every visible instance of the default scene entirely alone over the
+    whole image, one per pass; the batched passes (several instances apart per pass, window
+    read back) must give the same areas and border flags."""
+    from sim.render import SOLO_GROUP, FrameRenderer
+
+    world = build_world(default_scenario(frames=12, seed=2))
+    geom_instance = world.body_instance[world.model.geom_bodyid]
+    renderer = FrameRenderer(world.model, 320, 240, geom_instance)
+    sim = Simulation(world)
+    full = np.array([-np.inf, -np.inf, np.inf, np.inf])
+    groups = world.model.geom_group
+    try:
+        for k in range(0, 12, 3):
+            sim.advance_to(k / 30)
+            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            seen = [int(i) for i in np.unique(geom_instance[geom_ids[geom_ids >= 0]]) if i > 0]
+            batched = renderer.unoccluded(sim.data, world.camera_id, seen)
+            for instance in seen:
+                owned = (geom_instance == instance) & (groups < 5)
+                before = groups[owned].copy()
+                groups[owned] = SOLO_GROUP
+                alone, _ = renderer._instance_map(sim.data, world.camera_id, renderer._solo, full)
+                groups[owned] = before
+                mask = alone == instance
+                border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+                assert batched[instance] == (int(mask.sum()), border), (k, instance)
+            assert len(seen) > 5
+    finally:
+        renderer.close()
