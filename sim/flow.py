@@ -30,11 +30,11 @@ def flow_at(
     """Flow (N, 2) of pixels (u, v) with depth z on the given bodies, from frame t to t+1."""
     k = intrinsics
     z = z.astype(np.float64)
-    cam = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=-1)
-    world = cam @ world_from_cam0[:3, :3].T + world_from_cam0[:3, 3]
-    m = body_motion[bodies]
-    moved = np.einsum("nij,nj->ni", m[:, :3, :3], world) + m[:, :3, 3]
-    cam1 = (moved - world_from_cam1[:3, 3]) @ world_from_cam1[:3, :3]
+    x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
+    # Camera 1 from camera 0 through each body's motion: one 3x4 per body, not per pixel.
+    through = np.linalg.inv(world_from_cam1) @ body_motion @ world_from_cam0
+    t = through[bodies, :3]
+    cam1 = t[:, :, 0] * x[:, None] + t[:, :, 1] * y[:, None] + t[:, :, 2] * z[:, None] + t[:, :, 3]
     u1 = k.fx * cam1[:, 0] / cam1[:, 2] + k.cx
     v1 = k.fy * cam1[:, 1] / cam1[:, 2] + k.cy
     return np.stack([u1 - u, v1 - v], axis=-1)

@@ -82,21 +82,13 @@ class FrameRenderer:
         geom_ids = np.flipud(self._segment())
         return rgb, depth, geom_ids
 
-    def _segment(self, rect: mujoco.MjrRect | None = None) -> np.ndarray:
-        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row
-        first; only the pixels of ``rect`` (default: all) are read back."""
-        scene, flags = self._scene, self._scene.flags
-        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
-        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
-        mujoco.mjr_render(self._rect, scene, self._context)
-        if rect is None:
-            mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
-            seg = self._seg.astype(np.int32)
-        else:
-            part = np.empty((rect.height, rect.width, 3), np.uint8)
-            mujoco.mjr_readPixels(part, None, rect, self._context)
-            seg = part.astype(np.int32)
+    def _segment(self) -> np.ndarray:
+        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row first."""
+        self._draw_segmentation()
+        mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
+        seg = self._seg.astype(np.int32)
         segid = seg[:, :, 0] + (seg[:, :, 1] << 8) + (seg[:, :, 2] << 16)
+        scene = self._scene
         lookup = np.full(scene.ngeom + 1, -1, dtype=np.int32)
         for k in range(scene.ngeom):
             geom = scene.geoms[k]
@@ -104,42 +96,67 @@ class FrameRenderer:
                 lookup[geom.segid + 1] = geom.objid
         return lookup[np.minimum(segid, scene.ngeom)]
 
+    def _draw_segmentation(self) -> None:
+        """Draw the current scene with each geom in its id colour (black where none)."""
+        flags = self._scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        mujoco.mjr_render(self._rect, self._scene, self._context)
+
     def unoccluded(
         self, data: mujoco.MjData, camera_id: int, instances: list[int]
     ) -> dict[int, tuple[int, bool]]:
         """Per instance asked: (pixels it covers with everything else removed, whether that
         area reaches the image border). Exact: each is drawn without the rest of the
-        world, several per pass when their projections are apart (then none can hide
-        another), reading back only the pass's window."""
+        world, several per pass when their pixel windows (which hold their projections)
+        are apart, so that in an instance's window every drawn pixel is its own."""
         assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
         self._gl.make_current()
-        boxes = {i: self._projected_box(data, camera_id, i) for i in instances}
+        windows = {i: self._window(self._projected_box(data, camera_id, i)) for i in instances}
         groups = self.model.geom_group
         out = {}
-        for batch in _batches(instances, boxes):
+        for batch in _batches(instances, windows):
             owned = np.isin(self.geom_instance, batch) & self._drawn
             groups[owned] = SOLO_GROUP
             try:
-                drawn, (row0, col0) = self._instance_map(data, camera_id, self._solo, _union(batch, boxes))
+                self._update_scene(data, camera_id, self._solo)
             finally:
                 groups[owned] = INSTANCE_GROUP
-            batch_counts = np.bincount(drawn.ravel(), minlength=int(max(batch)) + 1)
-            edges = self._edges_in(drawn, row0, col0)
+            self._draw_segmentation()
             for instance in batch:
-                out[instance] = (int(batch_counts[instance]), bool(np.any(edges == instance)))
+                covered = self._covered(windows[instance])
+                out[instance] = (int(covered.sum()), bool(self._on_border(covered, windows[instance]).any()))
         return out
 
-    def _edges_in(self, window: np.ndarray, row0: int, col0: int) -> np.ndarray:
-        """The values of a window of the image (at row0, col0) that lie on the image's border."""
-        rows, cols = window.shape
-        parts = [window[0]] if row0 == 0 else []
-        if row0 + rows == self.height:
-            parts.append(window[-1])
+    def _window(self, box: np.ndarray) -> tuple[int, int, int, int]:
+        """(row0, col0, row1, col1), top row first, of the pixels whose centres a projected
+        box (u0, v0, u1, v1 about the image centre) may hold, a pixel to spare."""
+        col0 = int(np.clip(np.floor(box[0] + self.width / 2) - 1, 0, self.width - 1))
+        col1 = int(np.clip(np.ceil(box[2] + self.width / 2) + 1, col0 + 1, self.width))
+        row0 = int(np.clip(np.floor(box[1] + self.height / 2) - 1, 0, self.height - 1))
+        row1 = int(np.clip(np.ceil(box[3] + self.height / 2) + 1, row0 + 1, self.height))
+        return row0, col0, row1, col1
+
+    def _covered(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """Which pixels of ``window`` the last segmentation pass drew (top row first)."""
+        row0, col0, row1, col1 = window
+        part = np.empty((row1 - row0, col1 - col0, 3), np.uint8)
+        mujoco.mjr_readPixels(
+            part, None, mujoco.MjrRect(col0, self.height - row1, col1 - col0, row1 - row0), self._context
+        )
+        return np.flipud((part[:, :, 0] | part[:, :, 1] | part[:, :, 2]) > 0)
+
+    def _on_border(self, pixels: np.ndarray, window: tuple[int, int, int, int]) -> np.ndarray:
+        """The values of ``pixels`` (a window of the image) that lie on the image's border."""
+        row0, col0, row1, col1 = window
+        parts = [pixels[0]] if row0 == 0 else []
+        if row1 == self.height:
+            parts.append(pixels[-1])
         if col0 == 0:
-            parts.append(window[:, 0])
-        if col0 + cols == self.width:
-            parts.append(window[:, -1])
-        return np.concatenate(parts) if parts else np.zeros(0, window.dtype)
+            parts.append(pixels[:, 0])
+        if col1 == self.width:
+            parts.append(pixels[:, -1])
+        return np.concatenate(parts) if parts else np.zeros(0, pixels.dtype)
 
     def _projected_box(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
         """(u0, v0, u1, v1, nearest depth, farthest depth) holding the instance's projection,
@@ -165,21 +182,6 @@ class FrameRenderer:
             self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
 
-    def _instance_map(
-        self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption, window: np.ndarray
-    ) -> tuple[np.ndarray, tuple[int, int]]:
-        """Instance ids per pixel of a segmentation pass (top row first), read back only
-        inside ``window`` (u0, v0, u1, v1 about the image centre), with its (row, column)
-        offset in the image."""
-        self._update_scene(data, camera_id, option)
-        col0 = int(np.clip(np.floor(window[0] + self.width / 2) - 1, 0, self.width - 1))
-        col1 = int(np.clip(np.ceil(window[2] + self.width / 2) + 1, col0 + 1, self.width))
-        row0 = int(np.clip(np.floor(window[1] + self.height / 2) - 1, 0, self.height - 1))
-        row1 = int(np.clip(np.ceil(window[3] + self.height / 2) + 1, row0 + 1, self.height))
-        rect = mujoco.MjrRect(col0, self.height - row1, col1 - col0, row1 - row0)
-        geoms = np.flipud(self._segment(rect))
-        return np.where(geoms >= 0, self.geom_instance[np.maximum(geoms, 0)], 0), (row0, col0)
-
     def _metric_depth(self, buffer: np.ndarray) -> np.ndarray:
         """Reversed-Z depth buffer to metric z-depth, as MuJoCo's Renderer converts it."""
         near, far = self._near, self._far
@@ -200,24 +202,20 @@ _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-
 """The 8 corners of a unit box, as signs of its half sizes."""
 
 
-def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    return bool(a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3])
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    """Whether two (row0, col0, row1, col1) windows share a pixel."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def _batches(instances: list[int], boxes: dict[int, np.ndarray]) -> list[list[int]]:
+def _batches(instances: list[int], windows: dict[int, tuple[int, int, int, int]]) -> list[list[int]]:
     """Instances to draw alone, grouped so that one pass draws several: those whose
-    projections are apart cannot hide one another."""
+    windows are apart cannot hide one another, nor stray into each other's window."""
     batches: list[list[int]] = []
     for instance in instances:
         for batch in batches:
-            if not any(_overlap(boxes[instance], boxes[other]) for other in batch):
+            if not any(_overlap(windows[instance], windows[other]) for other in batch):
                 batch.append(instance)
                 break
         else:
             batches.append([instance])
     return batches
-
-
-def _union(batch: list[int], boxes: dict[int, np.ndarray]) -> np.ndarray:
-    rects = np.array([boxes[i][:4] for i in batch])
-    return np.array([rects[:, 0].min(), rects[:, 1].min(), rects[:, 2].max(), rects[:, 3].max()])

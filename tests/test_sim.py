@@ -425,7 +425,6 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
     geom_instance = world.body_instance[world.model.geom_bodyid]
     renderer = FrameRenderer(world.model, 320, 240, geom_instance)
     sim = Simulation(world)
-    full = np.array([-np.inf, -np.inf, np.inf, np.inf])
     groups = world.model.geom_group
     try:
         for k in range(0, 12, 3):
@@ -437,9 +436,9 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
                 owned = (geom_instance == instance) & (groups < 5)
                 before = groups[owned].copy()
                 groups[owned] = SOLO_GROUP
-                alone, _ = renderer._instance_map(sim.data, world.camera_id, renderer._solo, full)
+                renderer._update_scene(sim.data, world.camera_id, renderer._solo)
                 groups[owned] = before
-                mask = alone == instance
+                mask = renderer._segment() >= 0
                 border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
                 assert batched[instance] == (int(mask.sum()), border), (k, instance)
             assert len(seen) > 5
