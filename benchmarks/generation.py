@@ -1,8 +1,13 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
-Usage: python benchmarks/generation.py [--frames N] [--width W --height H]
-Prints the rate of one process and of two processes in parallel (spawned workers,
-each with its own GL context, as rendering-notes.md requires).
+Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
+
+For the default scenario, prints the rate of one process (Mesa's default threads) and
+of two processes with one thread each, as suites run their workers
+(``sim.executors.single_threaded``), for each PNG level asked. Each worker generates
+its own seed. Two rates per line: per frame once the world is built (simulation,
+both render passes, the unoccluded passes, ground truth and PNG writes), and with
+building the world (meshing the figures, textures, compiling) counted too.
 """
 
 from __future__ import annotations
@@ -10,31 +15,41 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing as mp
-import os
 import tempfile
 import time
 from pathlib import Path
 
 
-def _run(args: tuple[int, int, int, int, str, int]) -> float:
-    frames, width, height, seed, out, gl_threads = args
-    if gl_threads:
-        os.environ["LP_NUM_THREADS"] = str(gl_threads)  # Mesa llvmpipe reads it at context creation
+def _run(args: tuple[int, int, int, int, str, bool, int]) -> tuple[float, float]:
+    """(seconds to build the world, seconds to generate, world building included)."""
+    frames, width, height, seed, out, one_thread, png_compression = args
+    if one_thread:
+        from sim.executors import single_threaded
+
+        single_threaded()
     from sim.generate import generate
     from sim.spec import default_scenario
-
-    spec = dataclasses.replace(
-        default_scenario(frames=frames, seed=seed),
-        width=width,
-        height=height,
-        focal_px=525.0 * width / 640,
-    )
     from sim.world import build_world
 
-    build_world(spec)  # warm imports and texture code before timing
+    def spec_of(s: int):
+        return dataclasses.replace(
+            default_scenario(frames=frames, seed=s), width=width, height=height, focal_px=525.0 * width / 640
+        )
+
+    build_world(spec_of(seed + 1000))  # warm imports and code paths on another seed's world
     start = time.perf_counter()
-    generate(spec, Path(out), progress=False)
-    return frames / (time.perf_counter() - start)
+    build_world(spec_of(seed))
+    build = time.perf_counter() - start
+    start = time.perf_counter()
+    generate(spec_of(seed), Path(out), progress=False, png_compression=png_compression)
+    return build, time.perf_counter() - start
+
+
+def _measure(pool, jobs: list[tuple]) -> tuple[float, float]:
+    """Total frames/s of the jobs run side by side: once built, and with building."""
+    results = pool.map(_run, jobs)
+    steady = sum(job[0] / (total - build) for job, (build, total) in zip(jobs, results, strict=True))
+    return steady, sum(job[0] / total for job, (_, total) in zip(jobs, results, strict=True))
 
 
 def main() -> None:
@@ -42,37 +57,32 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=90)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--png-compression", type=int, nargs="+", default=[1, 0])
     args = parser.parse_args()
     ctx = mp.get_context("spawn")
+    print(
+        f"default scenario, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included"
+    )
+    print("frames/s, summed over the processes: once the world is built | with building the world")
     with tempfile.TemporaryDirectory() as tmp:
+        for level in args.png_compression:
 
-        def jobs(first: int, n: int, gl_threads: int) -> list:
-            return [
-                (args.frames, args.width, args.height, seed, f"{tmp}/s{seed}", gl_threads)
-                for seed in range(first, first + n)
-            ]
+            def jobs(first: int, n: int, one_thread: bool, level: int = level) -> list:
+                return [
+                    (args.frames, args.width, args.height, s, f"{tmp}/s{s}-{level}", one_thread, level)
+                    for s in range(first, first + n)
+                ]
 
-        with ctx.Pool(1) as pool:
-            single = pool.map(_run, jobs(0, 1, 0))[0]
-        with ctx.Pool(2) as pool:
-            start = time.perf_counter()
-            rates = pool.map(_run, jobs(1, 2, 0))
-            wall = time.perf_counter() - start
-        with ctx.Pool(2) as pool:
-            start = time.perf_counter()
-            rates_1t = pool.map(_run, jobs(3, 2, 1))
-            wall_1t = time.perf_counter() - start
-    print(f"default scenario, {args.width}x{args.height}, {args.frames} frames, includes PNG writes")
-    print(f"1 process : {single:6.1f} frames/s")
-    print(
-        f"2 processes: {rates[0]:6.1f} + {rates[1]:6.1f} = {sum(rates):6.1f} frames/s "
-        f"(x{sum(rates) / single:.2f}; {2 * args.frames / wall:.1f} frames/s over the wall time, "
-        "start-up included)"
-    )
-    print(
-        f"2 processes, 1 llvmpipe thread each: {sum(rates_1t):6.1f} frames/s "
-        f"(x{sum(rates_1t) / single:.2f}; {2 * args.frames / wall_1t:.1f} over the wall time)"
-    )
+            with ctx.Pool(1) as pool:
+                single = _measure(pool, jobs(0, 1, False))
+            with ctx.Pool(2) as pool:
+                double = _measure(pool, jobs(1, 2, True))
+            print(f"PNG level {level}")
+            print(f"  1 process               : {single[0]:5.1f} | {single[1]:5.1f}")
+            print(
+                f"  2 processes, 1 thread each: {double[0]:5.1f} | {double[1]:5.1f}  "
+                f"(x{double[0] / single[0]:.2f} of one process, once built)"
+            )
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from tqdm import tqdm
 from scenes.schema import Scenario, to_scenario
 from scenes.suite import Suite, variations
 from sim.executors import make_pool
-from sim.files import dumps_json
+from sim.files import DEFAULT_PNG_COMPRESSION, dumps_json
 from sim.output import (
     OutputContainer,
     OutputKind,
@@ -34,12 +34,14 @@ from sim.spec import content_key
 INDEX_NAME = "index.json"
 
 
-def generate_job(scenario_data: dict[str, Any], out: str) -> dict[str, Any]:
+def generate_job(scenario_data: dict[str, Any], out: str, png_compression: int) -> dict[str, Any]:
     """Worker entry point: validate, generate (replacing a stale sequence), return its difficulty."""
     from sim.generate import generate
 
     scenario = Scenario.model_validate(scenario_data)
-    generate(to_scenario(scenario), Path(out), progress=False, overwrite=True)
+    generate(
+        to_scenario(scenario), Path(out), progress=False, overwrite=True, png_compression=png_compression
+    )
     return read_difficulty(Path(out))
 
 
@@ -61,14 +63,15 @@ def _generate_all(
     bar: tqdm,
     backend: str = "local",
     address: str | None = None,
+    png_compression: int = DEFAULT_PNG_COMPRESSION,
 ) -> None:
     # Always in worker processes (even one): rendering stays out of the caller's process.
     pool = make_pool(backend, workers, address, in_process=False)
     failed = True
     try:
-        items = [(sc.model_dump(mode="json"), str(out_dir / name)) for name, sc in pending]
+        items = [(sc.model_dump(mode="json"), str(out_dir / name), png_compression) for name, sc in pending]
         frames = {str(out_dir / name): sc.n_frames for name, sc in pending}
-        for (_, out), _ in pool.map_unordered(generate_job, items):  # a failure raises its own error
+        for (_, out, _), _ in pool.map_unordered(generate_job, items):  # a failure raises its own error
             bar.update(frames[out])
         failed = False
     finally:
@@ -84,12 +87,14 @@ def run_suite(
     overwrite: bool = False,
     backend: str = "local",
     address: str | None = None,
+    png_compression: int = DEFAULT_PNG_COMPRESSION,
 ) -> dict:
     """Generate every variation whose sequence is missing or stale; write ``index.json``.
 
     ``backend`` ``ray`` generates on a Ray cluster (``sim.executors``); the bytes are the same.
 
     ``overwrite`` regenerates every sequence, even those that are up to date.
+    ``png_compression`` is the zlib level of the PNGs (0: fastest, largest).
     """
     jobs = variations(suite, suite_path)
     with OutputContainer(out_dir, OutputKind.SUITE, inputs=(suite_path,)) as container:
@@ -117,7 +122,7 @@ def run_suite(
         start = time.perf_counter()
         try:
             if pending:
-                _generate_all(pending, root, workers, bar, backend, address)
+                _generate_all(pending, root, workers, bar, backend, address, png_compression)
         finally:
             bar.close()
         index = {

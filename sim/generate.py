@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from sim.errors import ScenarioError
+from sim.files import DEFAULT_PNG_COMPRESSION
 from sim.flow import exact_flow, flow_at, rigid_motions
 from sim.ground_truth import ObjectState, boxes_and_counts
 from sim.mujoco_env import mujoco
@@ -120,11 +121,13 @@ def generate(
     progress: bool = True,
     position: int = 0,
     inputs: tuple[Path, ...] = (),
+    png_compression: int = DEFAULT_PNG_COMPRESSION,
 ) -> Path:
     """Write ``scenario`` as a sequence folder at ``out`` (atomically).
 
     The output is checked, locked and staged before the world is built, so a place
-    that must not or cannot be written is refused before any work.
+    that must not or cannot be written is refused before any work. ``png_compression``
+    (zlib level 0-9) trades size for speed: the pixels are the same at every level.
     """
     out = Path(out)
     writer = SequenceWriter(
@@ -135,6 +138,7 @@ def generate(
         overwrite=overwrite,
         content_key=content_key(scenario),
         inputs=inputs,
+        png_compression=png_compression,
     )
     with writer:
         world = build_world(scenario)

@@ -29,7 +29,15 @@ from sim.camera import (
     tum_intrinsics_for,
 )
 from sim.errors import FileError, SequenceFormatError
-from sim.files import MAX_META_BYTES, MAX_RECORD_BYTES, decode_png, open_regular, png_header, read_text
+from sim.files import (
+    DEFAULT_PNG_COMPRESSION,
+    MAX_META_BYTES,
+    MAX_RECORD_BYTES,
+    decode_png,
+    open_regular,
+    png_header,
+    read_text,
+)
 from sim.ground_truth import ObjectState
 from sim.output import OutputKind, StagedOutput
 from sim.tum_files import (
@@ -495,7 +503,7 @@ class SequenceWriter:
         fps: float,
         meta: dict[str, Any],
         overwrite: bool = False,
-        png_compression: int = 1,
+        png_compression: int = DEFAULT_PNG_COMPRESSION,
         orbslam: OrbSlamSettings | None = None,
         content_key: str | None = None,
         inputs: tuple[Path, ...] = (),
@@ -504,6 +512,8 @@ class SequenceWriter:
         self.intrinsics = intrinsics
         self.fps = fps
         self.meta = dict(meta)
+        if isinstance(png_compression, bool) or png_compression not in range(10):
+            raise ValueError(f"png_compression must be a zlib level 0-9, got {png_compression!r}")
         # The SUB filter at level 1 encodes a third faster than libpng's adaptive default.
         self.png_params = [
             cv2.IMWRITE_PNG_COMPRESSION,

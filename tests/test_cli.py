@@ -107,3 +107,35 @@ def test_console_script_and_module_entry_point():
     assert result.returncode == 0 and "0.013473" in result.stdout
     result = subprocess.run([exe, "eval", str(GT)], capture_output=True, text=True)
     assert result.returncode == 2 and "estimate" in result.stderr
+
+
+def test_png_compression_changes_file_sizes_not_pixels(tmp_path: Path, capsys):
+    """`generate --png-compression 0` writes the same pixels as the default level, in larger
+    files; a level outside 0-9 is refused before anything is written."""
+    from sim.sequence import Sequence
+
+    for level in ("0", "1"):
+        assert (
+            main(
+                [
+                    "generate",
+                    "default",
+                    "--frames",
+                    "2",
+                    "-o",
+                    str(tmp_path / level),
+                    "--png-compression",
+                    level,
+                ]
+            )
+            == 0
+        )
+    fast, small = Sequence.open(tmp_path / "0"), Sequence.open(tmp_path / "1")
+    for k in range(2):
+        assert (fast.rgb(k) == small.rgb(k)).all() and (fast.depth_raw(k) == small.depth_raw(k)).all()
+        assert fast.frames[k].rgb_path.stat().st_size > 1.5 * small.frames[k].rgb_path.stat().st_size
+    with pytest.raises(SystemExit) as exit_info:
+        main(["generate", "default", "--frames", "2", "-o", str(tmp_path / "bad"), "--png-compression", "10"])
+    assert exit_info.value.code == 2
+    assert "--png-compression: must be a zlib level 0-9, got '10'" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
