@@ -364,11 +364,15 @@ class QuadrupedBuild:
     """Tail length."""
     tail_rise: float
     """How high the tail is carried: its direction is back + this much up."""
+    head_rise: float = 0.0
+    """How high the neck carries the head above a pig's, in body half-widths."""
 
 
 QUADRUPEDS = {
-    "dog": QuadrupedBuild("dog", (0.32, 0.12, 0.12), 0.44, 0.75, "fur_dog", 0.3, 0.8),
-    "cat": QuadrupedBuild("cat", (0.2, 0.07, 0.08), 0.24, 0.4, "fur_cat", 0.3, 1.6),
+    # Legs about as long as the chest is deep and the head carried up on a neck: a
+    # dog's outline, not a horse's (long legs) or a table's (head at the back's height).
+    "dog": QuadrupedBuild("dog", (0.3, 0.12, 0.14), 0.34, 0.6, "fur_dog", 0.3, 0.8, 0.75),
+    "cat": QuadrupedBuild("cat", (0.21, 0.075, 0.085), 0.19, 0.35, "fur_cat", 0.3, 1.2, 0.5),
     "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig", 0.09, 0.8),
 }
 
@@ -458,7 +462,7 @@ class Quadruped(Actor):
         """Every part's pose for the body at (centre, body) and the paws at ``feet``."""
         hx, hy, hz = self.build.body_half
         fwd, up = body[:, 0], body[:, 2]
-        head = centre + body @ np.array([hx + 0.3 * hy, 0.0, 0.9 * hz])
+        head = centre + body @ np.array([hx + 0.3 * hy, 0.0, 0.9 * hz + self.build.head_rise * hy])
         snout = head + fwd * (0.9 * hy)
         tail_dir = -fwd + self.build.tail_rise * up
         tail_len = 2 * self.parts[3].size[1]

@@ -498,25 +498,29 @@ def quadruped_surfaces(
             ellipsoid((0.68 * hx, sign * 0.5 * hy, -0.3 * hz), (0.24 * hx, 0.42 * hy, 0.85 * hz)),
             ellipsoid((-0.68 * hx, sign * 0.48 * hy, -0.15 * hz), (0.3 * hx, 0.48 * hy, 0.9 * hz)),
         ]
-    skull_r = (0.8 * hy, 0.68 * hy, 0.7 * hy) if not cat else (0.85 * hy, 0.8 * hy, 0.78 * hy)
+    skull_r = (0.9 * hy, 0.78 * hy, 0.8 * hy) if not cat else (0.92 * hy, 0.95 * hy, 0.88 * hy)
     if pig:
         skull_r = (0.75 * hy, 0.62 * hy, 0.68 * hy)
-    muzzle_len = (0.55 if cat else 1.0 if pig else 1.25) * hy * look.muzzle
-    muzzle_r = (0.3 if cat else 0.45 if pig else 0.36) * hy
+    muzzle_len = (0.25 if cat else 1.0 if pig else 1.25) * hy * look.muzzle  # a cat's face is flat
+    muzzle_r = (0.32 if cat else 0.45 if pig else 0.42) * hy
     tip = head + np.array([0.45 * hy + muzzle_len, 0.0, -0.25 * hy])
     head_parts = [
         ellipsoid(head, skull_r),
         round_cone(head + np.array([0.35 * hy, 0.0, -0.12 * hy]), tip, muzzle_r * 1.2, muzzle_r),
         round_cone(head - np.array([0.7 * hy, 0.0, 0.5 * hy]), head, 0.55 * hy * b, 0.5 * hy),
     ]
+    if not pig:  # the neck rises from the chest to the raised head
+        neck_base = np.array([0.55 * hx, 0.0, 0.35 * hz])
+        head_parts.append(round_cone(neck_base, head - [0.3 * hy, 0.0, 0.25 * hy], 0.75 * hy * b, 0.62 * hy))
     nose_centre = tip + np.array([0.8 * muzzle_r, 0.0, 0.1 * muzzle_r])
     nose_r = np.array([0.3, 0.55, 0.4]) * muzzle_r if not pig else np.array([0.2, 0.95, 0.85]) * muzzle_r
     nose = ellipsoid(nose_centre if not pig else tip + [0.85 * muzzle_r, 0, 0], nose_r)
     for sign in (1.0, -1.0):
         if look.ears == "erect":
             base = head + np.array([-0.15 * skull_r[0], sign * 0.5 * skull_r[1], 0.7 * skull_r[2]])
-            ear_tip = base + np.array([-0.1, sign * 0.25, 1.0]) * (0.9 if cat else 0.75) * skull_r[2]
-            head_parts.append(round_cone(base, ear_tip, 0.3 * skull_r[1], 0.04 * skull_r[1]))
+            ear_tip = base + np.array([-0.1, sign * 0.25, 1.0]) * (1.05 if cat else 0.75) * skull_r[2]
+            ear_r = (0.36 if cat else 0.3) * skull_r[1]
+            head_parts.append(round_cone(base, ear_tip, ear_r, 0.04 * skull_r[1]))
         else:
             ear = head + np.array([-0.1 * skull_r[0], sign * 0.9 * skull_r[1], 0.0])
             axes = frame_along(np.array([0.25 if pig else 0.0, sign * 0.35, -1.0]), np.array([1.0, 0.0, 0.0]))
@@ -526,7 +530,7 @@ def quadruped_surfaces(
     tail_a, tail_b = tail
     tail_r = (0.16 if cat else 0.12 if pig else 0.2) * hy
     limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r if not cat else 0.9 * tail_r)]
-    leg_r = (0.42 if pig else 0.36) * hy
+    leg_r = (0.42 if pig else 0.36 if cat else 0.42) * hy
     bones = [
         Bone(
             "body",

@@ -420,15 +420,17 @@ COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
         ((200, 160, 95), "plain"),
         ((35, 30, 28), "plain"),
         ((60, 45, 35), "saddle"),
-        ((225, 220, 210), "patches"),
+        ((215, 185, 135), "patches"),  # cream: a white dog on the grey floor read as a sheep or nothing
         ((120, 75, 45), "plain"),
     ),
+    # Cats a shade lighter than the real run of coats: a dark cat on the depot's dark
+    # floor is a shadow to a detector (and the black cat read as a dog).
     "cat": (
-        ((120, 118, 112), "tabby"),
-        ((205, 130, 60), "tabby"),
-        ((30, 28, 28), "plain"),
+        ((140, 135, 125), "tabby"),
+        ((210, 135, 65), "tabby"),
         ((215, 210, 200), "patches"),
-        ((90, 80, 70), "tabby"),
+        ((165, 130, 95), "tabby"),
+        ((105, 100, 95), "tabby"),
     ),
     "pig": (((235, 175, 165), "plain"), ((225, 160, 150), "dirt"), ((240, 190, 180), "plain")),
 }
@@ -439,7 +441,7 @@ def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
     dark saddle, mud), fur strands over it."""
     colour, pattern = COATS[kind][int(rng.integers(len(COATS[kind])))]
     image = _base(rng, size, colour, grain=25)
-    dark = tuple(0.35 * c for c in colour)
+    dark = tuple(0.6 * c for c in colour)  # soft tabby stripes: bold ones read as a zebra's
     if pattern == "tabby":
         for y in range(0, size, int(rng.integers(9, 14))):
             wobble = (np.sin(np.arange(size) / rng.uniform(5, 9) + rng.uniform(0, 6)) * 3).astype(int)
@@ -448,7 +450,8 @@ def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
     elif pattern in ("patches", "dirt"):
         # Soft-edged colours, not black on white: a Dalmatian's spots would be the
         # densest ORB corners of the scene and make the animal a feature magnet.
-        other = (150, 100, 62) if colour[0] > 150 else (235, 228, 215)
+        # Patches a few shades off the coat, so they do not break up the animal's outline.
+        other = (190, 140, 90) if colour[0] > 150 else (200, 160, 115)
         count = 5
         if pattern == "dirt":
             other, count = (170, 130, 105), 4

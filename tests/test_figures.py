@@ -45,6 +45,45 @@ def test_looks_vary_with_the_seed_and_repeat_with_it():
     assert AnimalLook.draw(np.random.default_rng(0), "cat").ears == "erect"
 
 
+def _quadruped(kind: str, seed: int):
+    from sim.actors import QUADRUPEDS, Quadruped
+    from sim.paths import Path
+
+    look = AnimalLook.draw(np.random.default_rng(seed), kind)
+    path = Path(np.array([[-2.0, 0.0], [2.0, 0.0]]))
+    return Quadruped(QUADRUPEDS[kind], path, 0.8, 0.0, look, {"coat": "coat0"})
+
+
+@pytest.mark.parametrize("kind", ["dog", "cat", "pig"])
+def test_every_animal_piece_is_a_closed_outward_mesh(kind):
+    """As for people: every drawn piece of a dog, cat or pig is watertight with positive
+    volume and lies near its own part's frame."""
+    animal = _quadruped(kind, 1)
+    for part in animal.parts:
+        meshes = [s.mesh for s in part.surfaces if s.mesh is not None]
+        assert meshes, part.name
+        for mesh in meshes:
+            assert _edges_shared_twice(mesh.faces), part.name
+            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
+            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, part.name
+            assert np.linalg.norm(mesh.vertices, axis=1).max() < 0.7, part.name
+
+
+@pytest.mark.parametrize(("kind", "raised"), [("dog", True), ("cat", True), ("pig", False)])
+def test_dogs_and_cats_carry_their_heads_above_the_back(kind, raised):
+    """A dog's or cat's neck carries the head's top well above the withers (head at the
+    back's height read as a table or a horse to a detector); a pig's head stays low."""
+    animal = _quadruped(kind, 2)
+    positions, rotations = animal.bind()
+    top = {}
+    for j, part in enumerate(animal.parts[:2]):
+        vertices = np.concatenate([s.mesh.vertices for s in part.surfaces if s.mesh is not None])
+        top[part.name] = float((vertices @ rotations[j].T + positions[j])[:, 2].max())
+    margin = top["head"] - top["body"]
+    hy = animal.build.body_half[1]
+    assert margin > 1.2 * hy if raised else margin < 0.9 * hy, margin
+
+
 def _scene(kind: str, speed: float) -> ScenarioSpec:
     return ScenarioSpec(
         frames=1,
