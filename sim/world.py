@@ -353,6 +353,12 @@ def build_world(scenario: ScenarioSpec) -> World:
     spec.visual.global_.offheight = scenario.height
     spec.visual.quality.offsamples = 0
     spec.visual.quality.shadowsize = 0
+    # Each box face one quad (MuJoCo's default splits it 4 x 4 for per-vertex lighting) and
+    # coarser spheres and capsules (eyes, brows): the rack's hundreds of boxes were a
+    # quarter of a CPU render pass; the light barely changes (benchmarks/render.py).
+    spec.visual.quality.numquads = 1
+    spec.visual.quality.numslices = 12
+    spec.visual.quality.numstacks = 8
     spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
     spec.visual.headlight.diffuse = [0.0, 0.0, 0.0]
     spec.visual.headlight.specular = [0.0, 0.0, 0.0]
