@@ -29,11 +29,6 @@ START_TIME_S = 1.0
 """Timestamp of the first frame (TUM tools dislike a zero timestamp)."""
 
 
-def _quat_xyzw(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    q = Rotation.from_matrix(rotation).as_quat(canonical=True)
-    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-
-
 def object_states(
     world: World,
     now: Snapshot,
@@ -47,7 +42,7 @@ def object_states(
     ``unoccluded`` each visible instance's unoccluded area (``FrameRenderer.unoccluded``)."""
     dt = nxt.time_s - now.time_s
     part_speed = np.linalg.norm(nxt.body_positions - now.body_positions, axis=1) / dt
-    states = []
+    poses = []
     for info in world.instances:
         if info.kind == "actor":
             actor = world.actors[info.index]
@@ -62,6 +57,10 @@ def object_states(
         else:
             position = world.object_positions[info.index]
             rotation, linear, angular = np.eye(3), np.zeros(3), np.zeros(3)
+        poses.append((info, position, rotation, linear, angular))
+    quats = Rotation.from_matrix(np.array([pose[2] for pose in poses])).as_quat(canonical=True)
+    states = []
+    for (info, position, _, linear, angular), quat in zip(poses, quats, strict=True):
         bodies = np.flatnonzero(world.body_instance == info.instance_id)
         moving = info.kind != "object" and bool(part_speed[bodies].max() > MOVING_SPEED_MPS)
         count = int(counts[info.instance_id])
@@ -72,7 +71,7 @@ def object_states(
                 class_name=info.class_name,
                 prior=info.prior,
                 position_m=tuple(float(v) for v in position),
-                quat_xyzw=_quat_xyzw(rotation),
+                quat_xyzw=(float(quat[0]), float(quat[1]), float(quat[2]), float(quat[3])),
                 linear_velocity_mps=tuple(float(v) for v in linear),
                 angular_velocity_radps=tuple(float(v) for v in angular),
                 moving=moving,
