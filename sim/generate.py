@@ -173,25 +173,26 @@ def _write_frames(
     """Simulate, render and write each frame with its ground truth; return the difficulty."""
     sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
     sim = Simulation(world)
-    geom_body = world.model.geom_bodyid.astype(np.int64)
-    geom_instance = world.body_instance[geom_body]
+    # Index -1 (no geom) reads the appended 0: the static world, no instance.
+    geom_body = np.append(world.model.geom_bodyid.astype(np.int64), 0)
+    geom_instance = np.append(world.body_instance[geom_body[:-1]], 0).astype(np.uint16)
     difficulty = DifficultyAccumulator()
     period = 1.0 / scenario.fps
     now = sim.snapshot()
     for k in frames:
         rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
-        valid = geom_ids >= 0
-        instances = np.where(valid, geom_instance[np.maximum(geom_ids, 0)], 0).astype(np.uint16)
+        instances = geom_instance[geom_ids]
         boxes, counts = boxes_and_counts(instances, len(world.instances))
         seen = np.flatnonzero(counts[1:]) + 1
         unoccluded = renderer.unoccluded(sim.data, world.camera_id, seen.tolist())
         sim.advance_to((k + 1) * period)
         nxt = sim.snapshot()
-        bodies = np.where(valid, geom_body[np.maximum(geom_ids, 0)], 0)
+        bodies = geom_body[geom_ids]
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
         objects = object_states(world, now, nxt, boxes, counts, unoccluded)
-        moving_ids = [o.instance_id for o in objects if o.moving]
-        moving = np.isin(instances, moving_ids) & (depth > 0)
+        is_moving = np.zeros(len(world.instances) + 1, bool)
+        is_moving[[o.instance_id for o in objects if o.moving]] = True
+        moving = is_moving[instances] & (depth > 0)
         vv, uu = np.nonzero(moving)
         flow = None
         poses = (now.world_from_camera, nxt.world_from_camera)

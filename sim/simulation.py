@@ -57,12 +57,13 @@ class Simulation:
         target = self._kinematic_targets(t)
         if self.world.chair_bodies:
             start_pos, start_quat = self._targets
+            end_quat = np.where(
+                np.sum(start_quat * target[1], axis=1, keepdims=True) < 0, -target[1], target[1]
+            )
             n = self.world.substeps
             for k in range(1, n + 1):
                 a = k / n
-                q = (1 - a) * start_quat + a * np.where(
-                    np.sum(start_quat * target[1], axis=1, keepdims=True) < 0, -target[1], target[1]
-                )
+                q = (1 - a) * start_quat + a * end_quat
                 self._apply(
                     (1 - a) * start_pos + a * target[0],
                     q / np.linalg.norm(q, axis=1, keepdims=True),
