@@ -19,6 +19,8 @@ and stopping rules follow GTSAM's Levenberg-Marquardt defaults.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import sparse
 
@@ -35,22 +37,35 @@ RELATIVE_TOLERANCE = ABSOLUTE_TOLERANCE = 1e-5
 MIN_DEPTH = 1e-6
 
 
+@dataclass(frozen=True, eq=False)
+class BundleWindow:
+    """A local bundle adjustment problem: keyframe poses, map points, who sees what.
+
+    ``poses`` are camera_from_world (K, 4, 4), ``free`` says which may move, ``points``
+    (P, 3) are all free. Observation k is keypoint ``uv[k]`` (with virtual right
+    coordinate ``ur[k]``, NaN without depth, and whitening ``weight[k]``) of point
+    ``obs_point[k]`` in keyframe ``obs_pose[k]``; ``bf`` is the baseline times fx."""
+
+    poses: np.ndarray
+    free: np.ndarray
+    points: np.ndarray
+    obs_pose: np.ndarray
+    obs_point: np.ndarray
+    uv: np.ndarray
+    ur: np.ndarray
+    weight: np.ndarray
+    camera: PinholeCamera
+    bf: float
+
+
 class _Problem:
     """Observations of points by keyframes; evaluates the cost and its linearisation."""
 
-    def __init__(
-        self,
-        free: np.ndarray,
-        obs_pose: np.ndarray,
-        obs_point: np.ndarray,
-        uv: np.ndarray,
-        ur: np.ndarray,
-        weight: np.ndarray,
-        camera: PinholeCamera,
-        bf: float,
-        n_points: int,
-    ) -> None:
-        self.camera, self.bf, self.weight = camera, bf, weight
+    def __init__(self, window: BundleWindow) -> None:
+        free, obs_pose, obs_point, ur = window.free, window.obs_pose, window.obs_point, window.ur
+        n_points = len(window.points)
+        uv, camera, bf = window.uv, window.camera, window.bf
+        self.camera, self.bf, self.weight = camera, bf, window.weight
         self.obs_pose, self.obs_point = obs_pose, obs_point
         self.stereo = np.isfinite(ur)
         self.measured = np.c_[uv, np.where(self.stereo, ur, 0.0)]
@@ -161,27 +176,15 @@ class _Problem:
         return pose_step.reshape(-1, 6), point_step
 
 
-def bundle_adjust(
-    poses: np.ndarray,
-    free: np.ndarray,
-    points: np.ndarray,
-    obs_pose: np.ndarray,
-    obs_point: np.ndarray,
-    uv: np.ndarray,
-    ur: np.ndarray,
-    weight: np.ndarray,
-    camera: PinholeCamera,
-    bf: float,
-    iterations: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Optimise the free poses (camera_from_world, (K, 4, 4)) and every point (P, 3).
+def bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Optimise the window's free poses and every point.
 
     Returns new poses, new points, the inlier mask of the observations (ORB-SLAM's
     chi-square test at the result) and the final cost.
     """
-    problem = _Problem(free, obs_pose, obs_point, uv, ur, weight, camera, bf, len(points))
-    poses, points = poses.copy(), points.astype(np.float64).copy()
-    free_index = np.flatnonzero(free)
+    problem = _Problem(window)
+    poses, points = window.poses.copy(), window.points.astype(np.float64).copy()
+    free_index = np.flatnonzero(window.free)
     cost = problem.cost(poses, points)
     damping = LAMBDA_INITIAL
     for _ in range(max(1, iterations)):
@@ -207,4 +210,5 @@ def bundle_adjust(
         if decrease < ABSOLUTE_TOLERANCE or decrease < RELATIVE_TOLERANCE * (cost + decrease):
             break
     pc = problem._camera_points(poses, points)
-    return poses, points, is_inlier(pc, uv, ur, weight, camera, bf), cost
+    inlier = is_inlier(pc, window.uv, window.ur, window.weight, window.camera, window.bf)
+    return poses, points, inlier, cost

@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slam.bundle import bundle_adjust
+from slam.bundle import BundleWindow, bundle_adjust
 from slam.config import SlamConfig, TrackingConfig, check_pyramid
 from slam.features import FeatureExtractor, FrameFeatures
 from slam.geometry import (
@@ -564,7 +564,7 @@ class Slam:
             keypoints = np.array(obs_kp)[rows]
             u, r, w = self._observations(self.map.keyframe(kf_id).features, keypoints)
             uv[rows], ur[rows], weight[rows] = u, r, w
-        new_poses, new_points, inlier, _ = bundle_adjust(
+        problem = BundleWindow(
             poses,
             free,
             self.map.positions[points].copy(),
@@ -575,8 +575,8 @@ class Slam:
             weight,
             self.camera,
             self.bf,
-            self.tc.ba_iterations,
         )
+        new_poses, new_points, inlier, _ = bundle_adjust(problem, self.tc.ba_iterations)
         for i, kf_id in enumerate(involved):
             if free[i]:
                 self.map.keyframe(kf_id).world_from_camera = invert(new_poses[i])

@@ -11,25 +11,21 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from slam.bundle import BundleWindow
 from slam.geometry import invert
-from slam.types import PinholeCamera
 
 FIXED_POSE_SIGMA = 1e-9
 
 
-def gtsam_bundle_adjust(
-    poses: np.ndarray,
-    free: np.ndarray,
-    points: np.ndarray,
-    obs_pose: np.ndarray,
-    obs_point: np.ndarray,
-    uv: np.ndarray,
-    ur: np.ndarray,
-    weight: np.ndarray,
-    camera: PinholeCamera,
-    bf: float,
-    iterations: int,
-) -> tuple[np.ndarray, np.ndarray]:
+def gtsam_bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    poses, free, points, camera, bf = window.poses, window.free, window.points, window.camera, window.bf
+    obs_pose, obs_point, uv, ur, weight = (
+        window.obs_pose,
+        window.obs_point,
+        window.uv,
+        window.ur,
+        window.weight,
+    )
     calibration = gtsam.Cal3_S2Stereo(camera.fx, camera.fy, 0.0, camera.cx, camera.cy, bf / camera.fx)
     mono_calibration = gtsam.Cal3_S2(camera.fx, camera.fy, 0.0, camera.cx, camera.cy)
     huber = gtsam.noiseModel.mEstimator.Huber.Create(np.sqrt(7.815))

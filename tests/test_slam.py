@@ -324,6 +324,7 @@ def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: P
 def _window(seed: int):
     """A keyframe window seen by a moving RGB-D camera: true and perturbed poses and points,
     observations with pixel noise by pyramid level, keypoints without depth and outliers."""
+    from slam.bundle import BundleWindow
     from slam.geometry import exp_se3, invert
     from slam.types import PinholeCamera
 
@@ -354,20 +355,10 @@ def _window(seed: int):
     for k in np.flatnonzero(free):
         start[k] = exp_se3(np.r_[rng.normal(0, 0.01, 3), rng.normal(0, 0.02, 3)]) @ true_poses[k]
     points = true_points + rng.normal(0, 0.02, true_points.shape)
-    args = (
-        start,
-        free,
-        points,
-        np.array(obs_pose),
-        np.array(obs_point),
-        uv,
-        ur,
-        np.array(weight),
-        camera,
-        bf,
-        10,
+    window = BundleWindow(
+        start, free, points, np.array(obs_pose), np.array(obs_point), uv, ur, np.array(weight), camera, bf
     )
-    return args, true_poses
+    return window, true_poses
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -377,11 +368,11 @@ def test_local_bundle_adjustment_reaches_gtsams_minimum(seed: int):
     from slam.bundle import _Problem, bundle_adjust
     from tests.gtsam_reference import gtsam_bundle_adjust
 
-    args, true_poses = _window(seed)
-    poses, points, _, cost = bundle_adjust(*args)
-    ref_poses, ref_points = gtsam_bundle_adjust(*args)
-    start, free, start_points, obs_pose, obs_point, uv, ur, weight, camera, bf, _ = args
-    problem = _Problem(free, obs_pose, obs_point, uv, ur, weight, camera, bf, len(start_points))
+    window, true_poses = _window(seed)
+    poses, points, _, cost = bundle_adjust(window, 10)
+    ref_poses, ref_points = gtsam_bundle_adjust(window, 10)
+    start, free, start_points = window.poses, window.free, window.points
+    problem = _Problem(window)
     ref_cost = problem.cost(ref_poses, ref_points)
     assert cost < 0.5 * problem.cost(start, start_points)
     # Both stop once an iteration gains less than 1e-5 of the cost: the minima agree to
