@@ -58,6 +58,8 @@ def object_states(
             position = world.object_positions[info.index]
             rotation, linear, angular = np.eye(3), np.zeros(3), np.zeros(3)
         poses.append((info, position, rotation, linear, angular))
+    if not poses:
+        return []
     quats = Rotation.from_matrix(np.array([pose[2] for pose in poses])).as_quat(canonical=True)
     states = []
     for (info, position, _, linear, angular), quat in zip(poses, quats, strict=True):
