@@ -144,3 +144,26 @@ def test_people_are_drawn_by_their_meshes_not_their_stand_ins():
     assert (world.model.geom_contype[actor] == 0).all()
     boxes, counts = boxes_and_counts(np.where(geom_ids >= 0, geom_instance[np.maximum(geom_ids, 0)], 0), 1)
     assert counts[1] == actor.size
+
+
+def test_seated_people_keep_their_knees_under_the_desk_between_its_legs():
+    """Seats turn their people towards each other (a 3/4 view, as two people talking sit):
+    the shins must still hang under the desk top, inside its footprint and clear of its
+    legs, at every moment of the sway."""
+    from sim.actors import SittingPerson
+    from sim.layout import DESK_CENTRE, DESK_HALF, plan_layout
+    from sim.world import PERSON_ROLES
+
+    layout = plan_layout(LayoutSpec(), np.random.default_rng(0))
+    (cx, cy), (hx, hy) = DESK_CENTRE, DESK_HALF
+    legs = np.array([(cx + sx * (hx - 0.05), cy + sy * (hy - 0.05)) for sx in (-1, 1) for sy in (-1, 1)])
+    assert len(layout.seats) == 2
+    for seat in layout.seats:
+        for scale in (0.9, 1.08):
+            person = SittingPerson(seat, scale, {m: m for m in PERSON_ROLES}, np.random.default_rng(1))
+            for t in np.linspace(0.0, 10.0, 21):
+                positions, _ = person.pose(float(t))
+                for shin in positions[9:11]:
+                    assert abs(shin[0] - cx) < hx - 0.1 and abs(shin[1] - cy) < hy, (seat, t)
+                    assert np.linalg.norm(legs - shin[:2], axis=1).min() > 0.2, (seat, t)
+                    assert shin[2] < 0.6, (seat, t)
