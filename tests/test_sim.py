@@ -257,17 +257,18 @@ def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
     out = generate(dataclasses.replace(default_scenario(), frames=30), tmp_path / "seq", progress=False)
     seq = Sequence.open(out)
     orb = cv2.ORB_create(nfeatures=1000)
-    good = 0
-    counts = []
+    counts, densest = [], []
     for i in range(len(seq)):
         keypoints = orb.detect(cv2.cvtColor(seq.rgb(i), cv2.COLOR_RGB2GRAY), None)
         pts = np.array([k.pt for k in keypoints])
         counts.append(len(keypoints))
         cells = np.bincount((pts[:, 1] // 40).astype(int) * 16 + (pts[:, 0] // 40).astype(int))
-        if len(keypoints) >= 500 and cells.max() <= 0.05 * len(keypoints):
-            good += 1
+        densest.append(cells.max() / len(keypoints))
     assert min(counts) >= 500
-    assert good >= 0.95 * len(seq)
+    # No 40 px cell (1/192 of the image) holds more than 6 % of a frame's features, in
+    # any frame. (It was 5 % in 95 % of frames; a rack's upright-and-beam joint holds 5.2 %
+    # in three frames since the seated person turned, 2026-11: a real corner, not a clump.)
+    assert max(densest) <= 0.06
 
 
 def test_missing_gl_gives_an_install_hint(tmp_path: Path):
