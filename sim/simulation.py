@@ -38,10 +38,11 @@ class Simulation:
         """Mocap positions and quaternions (wxyz) of every actor part and the camera at t."""
         pos = self.data.mocap_pos.copy()
         quat = self.data.mocap_quat.copy()
-        for actor, ids in zip(self.world.actors, self.world.actor_mocap, strict=True):
-            positions, rotations = actor.pose(t)
-            pos[ids] = positions
-            quat[ids] = quat_wxyz(rotations)
+        if self.world.actors:
+            poses = [actor.pose(t) for actor in self.world.actors]
+            ids = np.concatenate(self.world.actor_mocap)
+            pos[ids] = np.concatenate([positions for positions, _ in poses])
+            quat[ids] = quat_wxyz(np.concatenate([rotations for _, rotations in poses]))  # one batch
         pose = self.world.rig.world_from_camera(t)
         pos[self.world.camera_mocap] = pose[:3, 3]
         quat[self.world.camera_mocap] = quat_wxyz(gl_from_cv_rotation(pose[:3, :3]))
