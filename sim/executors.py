@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import signal
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
 
 from sim.errors import InputError
-from sim.processes import children_ignore_sigint, exit_with_parent
+from sim.processes import children_block_sigint, exit_with_parent, release_sigint
 
 BACKENDS = ("local", "ray")
 
@@ -39,7 +38,7 @@ def single_threaded() -> None:
 
 
 def _init_local_worker(parent_pid: int) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    release_sigint()
     exit_with_parent(parent_pid)
     single_threaded()
 
@@ -69,7 +68,7 @@ class LocalPool:
         while queue or running:
             while queue and len(running) < 2 * self.workers:
                 item = queue.pop(0)
-                with children_ignore_sigint():  # the first submit spawns the workers
+                with children_block_sigint():  # the first submit spawns the workers
                     running[self.pool.submit(fn, *item)] = item
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in finished:

@@ -31,21 +31,32 @@ def exit_with_parent(parent_pid: int) -> None:
 
 
 @contextlib.contextmanager
-def children_ignore_sigint() -> Iterator[None]:
-    """Start worker processes with SIGINT ignored from their first instruction.
+def children_block_sigint() -> Iterator[None]:
+    """Start worker processes with SIGINT blocked from their first instruction.
 
     Ctrl-C reaches the whole process group, and a spawned worker still starting
     Python (importing ``site``) died of it with a traceback of its own before its
-    initializer could ignore the signal. An ignored signal stays ignored across
-    exec, and Python installs its KeyboardInterrupt handler only over the default
-    one. The parent ignores SIGINT only while it spawns; off the main thread
-    (where signals cannot be set) this does nothing.
+    initializer could ignore the signal. A child inherits the signal mask of the
+    thread that forks it, across exec, so the spawning thread blocks SIGINT while it
+    spawns: a Ctrl-C then waits in the starting worker until its initializer ignores
+    it (``release_sigint``, which drops it). The parent keeps its own handler: a
+    Ctrl-C in the window reaches it through another thread or once the block is
+    lifted. (It used to ignore SIGINT in the window instead, and a Ctrl-C that came
+    then was lost: the suite ran to the end and exited 0.) Off the main thread
+    (where Python cannot handle signals) this does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def release_sigint() -> None:
+    """In a worker started under ``children_block_sigint``: ignore SIGINT (dropping one
+    already pending), then unblock it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

@@ -523,3 +523,38 @@ def test_a_container_cleans_its_outputs_leftovers_unless_a_live_writer_owns_them
         holder.wait()
     assert clean_if_unowned(busy)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s-0000", "s-0001"]
+
+
+def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent():
+    """While the parent spawns workers, a Ctrl-C must still interrupt it: it used to
+    ignore SIGINT in that window, and a Ctrl-C then was lost (the suite ran to the end
+    with exit code 0: the ctrl-c-at-start case above, on CI). A worker starts with
+    SIGINT blocked, so it cannot die of one while starting, and ignores it once
+    released."""
+    from sim.processes import children_block_sigint
+
+    with children_block_sigint():
+        child = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "import signal; from sim.processes import release_sigint; "
+                "mask = lambda: signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set()); "
+                "print(mask(), end=' '); release_sigint(); "
+                "print(mask(), signal.getsignal(signal.SIGINT) == signal.SIG_IGN)",
+            ],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    assert child.stdout.split() == ["True", "False", "True"]
+
+    with pytest.raises(KeyboardInterrupt):
+        with children_block_sigint():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        time.sleep(0.05)  # the handler runs between bytecodes once the signal is let through
+        pytest.fail("the Ctrl-C sent while workers were spawned was lost")
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
