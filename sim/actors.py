@@ -15,7 +15,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.conventions import frame_along
-from sim.figures import SHOULDER_Y, AnimalLook, Look, Surface, person_surfaces, quadruped_surfaces
+from sim.figures import (
+    BIRD_SHOULDER,
+    SHOULDER_Y,
+    AnimalLook,
+    Look,
+    Surface,
+    bird_surfaces,
+    person_surfaces,
+    quadruped_surfaces,
+)
 from sim.paths import Path
 
 FD_STEP_S = 1e-3
@@ -488,10 +497,13 @@ class Quadruped(Actor):
 
 
 class Bird(Actor):
-    """A pigeon: hops along its path and now and then makes a short flight."""
+    """A pigeon: hops along its path with its wings folded and now and then makes a
+    short flight, wings spread and flapping."""
 
     class_name = "bird"
     HOP_S, HOP_M, PAUSE_S = 0.3, 0.14, 0.2
+    TUCK = math.radians(40.0)
+    """A folded wing lies swept back along the body, its chord this far down the flank."""
 
     def __init__(self, path: Path, start_s: float, duration_s: float, rng: np.random.Generator) -> None:
         self.path = path
@@ -506,46 +518,65 @@ class Bird(Actor):
             t += dur + self.PAUSE_S
             s += dist
         self.events = np.array(events)
+        # The primitives collide only (the meshes of bird_surfaces are drawn).
         self.parts = [
             Part("body", "ellipsoid", (0.12, 0.06, 0.06), "fur_bird"),
             Part("head", "sphere", (0.04,), "fur_bird"),
-            Part("beak", "capsule", (0.01, 0.015), "metal_orange"),
-            Part("wing_l", "box", (0.08, 0.1, 0.006), "fur_bird"),
-            Part("wing_r", "box", (0.08, 0.1, 0.006), "fur_bird"),
+            Part("beak", "capsule", (0.01, 0.015), "nose"),
+            Part("wing_l", "box", (0.045, 0.085, 0.006), "fur_bird"),
+            Part("wing_r", "box", (0.045, 0.085, 0.006), "fur_bird"),
             Part("leg_l", "capsule", (0.006, 0.02), "metal_orange"),
             Part("leg_r", "capsule", (0.006, 0.02), "metal_orange"),
         ]
+        positions, rotations = self.bind()
+        frames = {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
+        self.parts = dressed(self.parts, bird_surfaces(frames), {})
 
-    def _state(self, t: float) -> tuple[float, float, float]:
-        """(arc position, height above standing, wing flap angle) at t."""
+    def _state(self, t: float) -> tuple[float, float, float, float]:
+        """(arc position, height above standing, how far the wings are spread (0 folded,
+        1 open), flap angle) at t."""
         k = int(np.searchsorted(self.events[:, 0], t, side="right") - 1)
         k = max(k, 0)
         t0, t1, s0, s1, height = self.events[k]
         if t >= t1:
-            return s1, 0.0, 0.0
+            return s1, 0.0, 0.0, 0.0
         u = (t - t0) / (t1 - t0)
         w = smoothstep(u)
-        flying = height > 0.5
-        z = height * math.sin(math.pi * u) if not flying else height * math.sin(math.pi * w)
-        flap = math.radians(50.0) * math.sin(2 * math.pi * 8.0 * (t - t0)) if flying else 0.0
-        return s0 + (s1 - s0) * w, z, flap
+        if height <= 0.5:  # a hop
+            return s0 + (s1 - s0) * w, height * math.sin(math.pi * u), 0.0, 0.0
+        spread = smoothstep(min(u, 1.0 - u) / 0.12)  # wings open after take-off, fold to land
+        flap = math.radians(50.0) * math.sin(2 * math.pi * 8.0 * (t - t0))
+        return s0 + (s1 - s0) * w, height * math.sin(math.pi * w), spread, flap
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        s, z, _ = self._state(t)
+        s, z, _, _ = self._state(t)
         xy = self.path.point(s)
         return np.array([xy[0], xy[1], 0.1 + z]), yaw_matrix(float(self.path.heading(s)))
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        _, _, flap = self._state(t)
+        _, _, spread, flap = self._state(t)
         centre, body = self.root(t)
+        return self.place(centre, body, spread, flap)
+
+    def bind(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parts' poses with the wings spread level, centred at the origin."""
+        return self.place(np.zeros(3), np.eye(3), 1.0, 0.0)
+
+    def place(
+        self, centre: np.ndarray, body: np.ndarray, spread: float, flap: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Every part's pose for the body at (centre, body); wings ``spread`` from folded
+        (0: swept back along the flanks) to open (1: level, raised ``flap`` rad)."""
         fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
         head = centre + fwd * 0.12 + up * 0.06
         positions = [centre, head, head + fwd * 0.05]
         rotations = [body, body, frame_along(fwd, up)]
+        sx, sy, sz = BIRD_SHOULDER
+        sweep = (1.0 - spread) * math.pi / 2
+        roll = spread * flap - (1.0 - spread) * self.TUCK
         for sign in (1.0, -1.0):
-            r = axis_rotation(fwd, sign * flap) @ body
-            positions.append(centre + sign * 0.06 * left + r @ np.array([0.0, sign * 0.08, 0.0]))
-            rotations.append(r)
+            positions.append(centre + body @ np.array([sx, sign * sy, sz]))
+            rotations.append(axis_rotation(fwd, sign * roll) @ axis_rotation(up, sign * sweep) @ body)
         for sign in (1.0, -1.0):
             positions.append(centre + sign * 0.03 * left - up * 0.075)
             rotations.append(body)

@@ -590,3 +590,79 @@ def quadruped_surfaces(
             )
         )
     return {part: tuple(surfaces) for part, surfaces in out.items()}
+
+
+BIRD_PARTS = ("body", "head", "beak", "wing_l", "wing_r", "leg_l", "leg_r")
+BIRD_SHOULDER = (0.0, 0.05, 0.03)
+"""The left wing's joint in the body frame (the right one mirrors it)."""
+
+
+def bird_surfaces(frames: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[Surface, ...]]:
+    """A pigeon in its bind pose (``Bird.bind``: wings spread level), cut into its 7 parts:
+    plump body with breast, fanned tail, neck and small head, dark beak, wings that
+    sweep back along the flanks to fold, legs and toes. Materials: fur_bird, nose (beak), metal_orange
+    (legs), eye."""
+    trunk = [
+        ellipsoid((0.0, 0.0, 0.0), (0.11, 0.055, 0.055)),
+        ellipsoid((0.045, 0.0, -0.005), (0.065, 0.056, 0.062)),  # breast
+        ellipsoid((-0.14, 0.0, 0.005), (0.075, 0.036, 0.012)),  # tail
+        round_cone(np.array([0.06, 0.0, 0.02]), np.array([0.115, 0.0, 0.055]), 0.034, 0.026),  # neck
+        ellipsoid((0.12, 0.0, 0.06), (0.033, 0.028, 0.03)),  # head
+    ]
+    beak = round_cone(np.array([0.142, 0.0, 0.056]), np.array([0.172, 0.0, 0.051]), 0.0075, 0.003)
+    sx, sy, sz = BIRD_SHOULDER
+    wings = [ellipsoid((-0.01, sign * (sy + 0.085), sz), (0.045, 0.085, 0.008)) for sign in (1.0, -1.0)]
+    legs = []
+    for sign in (1.0, -1.0):
+        top, ankle = np.array([0.0, sign * 0.03, -0.045]), np.array([0.0, sign * 0.03, -0.093])
+        legs += [
+            round_cone(top, ankle, 0.009, 0.005),
+            ellipsoid(ankle + [0.012, 0.0, -0.002], (0.02, 0.008, 0.004)),  # toes
+        ]
+    body = smooth_union([smooth_union(trunk, 0.02), beak, *wings, *legs], 0.008)
+    bones = [
+        Bone("body", np.array([-0.15, 0.0, 0.0]), np.array([0.07, 0.0, 0.0]), 0.05, 0.006, 0.05),
+        Bone("head", np.array([0.095, 0.0, 0.045]), np.array([0.125, 0.0, 0.06]), 0.03, 0.005, 0.02),
+        Bone("beak", np.array([0.142, 0.0, 0.056]), np.array([0.175, 0.0, 0.051]), 0.006, 0.002, 0.008),
+    ]
+    balls: dict[str, list[tuple[np.ndarray, float]]] = {"body": []}
+    for name, sign in (("wing_l", 1.0), ("wing_r", -1.0)):
+        shoulder = np.array([sx, sign * sy, sz])
+        bones.append(
+            Bone(
+                name,
+                shoulder + [0.0, sign * 0.015, 0.0],
+                np.array([-0.01, sign * (sy + 0.17), sz]),
+                0.012,
+                0.004,
+                0.05,
+            )
+        )
+        balls[name] = [(shoulder, 0.014)]
+        balls["body"].append((shoulder, 0.014))
+    for name, sign in (("leg_l", 1.0), ("leg_r", -1.0)):
+        bones.append(
+            Bone(
+                name,
+                np.array([0.0, sign * 0.03, -0.05]),
+                np.array([0.0, sign * 0.03, -0.1]),
+                0.006,
+                0.003,
+                0.03,
+            )
+        )
+    materials = {"beak": "nose", "leg_l": "metal_orange", "leg_r": "metal_orange"}
+
+    def pieces(part: str) -> list[tuple[str, Field | None, float]]:
+        return [(materials.get(part, "fur_bird"), None, 0.0)]
+
+    out = carve(body, bones, balls, frames, pieces, overlap=0.004)
+    origin, rotation = frames["head"]
+    for sign in (1.0, -1.0):
+        at = np.array([0.138, sign * 0.02, 0.068])
+        out["head"].append(
+            Surface(
+                "eye", shape="sphere", size=(0.005,), pos=tuple(float(v) for v in (at - origin) @ rotation)
+            )
+        )
+    return {part: tuple(surfaces) for part, surfaces in out.items()}

@@ -167,3 +167,83 @@ def test_seated_people_keep_their_knees_under_the_desk_between_its_legs():
                     assert abs(shin[0] - cx) < hx - 0.1 and abs(shin[1] - cy) < hy, (seat, t)
                     assert np.linalg.norm(legs - shin[:2], axis=1).min() > 0.2, (seat, t)
                     assert shin[2] < 0.6, (seat, t)
+
+
+def _bird():
+    from sim.actors import Bird
+    from sim.paths import Path
+
+    return Bird(Path(np.array([[-1.0, 0.0], [1.0, 0.0]])), 0.0, 10.0, np.random.default_rng(3))
+
+
+def _bird_vertices(bird, spread: float, flap: float) -> np.ndarray:
+    positions, rotations = bird.place(np.zeros(3), np.eye(3), spread, flap)
+    return np.concatenate(
+        [
+            s.mesh.vertices @ rotations[j].T + positions[j]
+            for j, part in enumerate(bird.parts)
+            for s in part.surfaces
+            if s.mesh is not None
+        ]
+    )
+
+
+def test_every_bird_piece_is_a_closed_outward_mesh_and_the_wings_fold():
+    """The pigeon's pieces are watertight with positive volume; folded, its wings lie
+    along the body (it is no wider than a pigeon's body, 12-15 cm), open they span
+    about 40 cm, and a flap raises the tips above the back."""
+    bird = _bird()
+    for part in bird.parts:
+        meshes = [s.mesh for s in part.surfaces if s.mesh is not None]
+        assert meshes, part.name
+        for mesh in meshes:
+            assert _edges_shared_twice(mesh.faces), part.name
+            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
+            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, part.name
+    folded, spread = _bird_vertices(bird, 0.0, 0.0), _bird_vertices(bird, 1.0, 0.0)
+    assert np.ptp(folded[:, 1]) < 0.16
+    assert 0.35 < np.ptp(spread[:, 1]) < 0.5
+    raised = _bird_vertices(bird, 1.0, np.radians(40.0))
+    assert raised[:, 2].max() > 0.13  # the tips above the head's top (9 cm)
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("yaw_deg", [0.0, 60.0, 150.0])
+def test_a_bird_stays_in_one_piece_as_its_wings_open_and_flap(yaw_deg):
+    """Seen alone from close by, the pigeon renders as one connected region with its
+    wings folded, half open, open, and flapping up and down (a joint that opened would
+    split the mask)."""
+    import mujoco
+
+    from sim.actors import yaw_matrix
+    from sim.conventions import quat_wxyz
+
+    spec = ScenarioSpec(
+        frames=1,
+        width=320,
+        height=240,
+        focal_px=262.5,
+        layout=LayoutSpec(rack_rows=0, floor_props=0, desk=False),
+        actors=(ActorSpec("bird", waypoints=((-0.3, 0.0), (0.3, 0.0))),),
+        camera=CameraSpec(position_m=(0.0, -1.0, 0.6), target_m=(0.0, 0.0, 0.15)),
+    )
+    world = build_world(spec)
+    sim = Simulation(world)
+    bird, ids = world.actors[0], world.actor_mocap[0]
+    geom_instance = world.body_instance[world.model.geom_bodyid]
+    renderer = FrameRenderer(world.model, world.spec.width, world.spec.height, geom_instance)
+    try:
+        for spread, flap_deg in [(0.0, 0.0), (0.5, 0.0), (1.0, 0.0), (1.0, 50.0), (1.0, -50.0)]:
+            positions, rotations = bird.place(
+                np.array([0.0, 0.0, 0.15]), yaw_matrix(np.radians(yaw_deg)), spread, np.radians(flap_deg)
+            )
+            sim.data.mocap_pos[ids] = positions
+            sim.data.mocap_quat[ids] = quat_wxyz(rotations)
+            mujoco.mj_forward(world.model, sim.data)
+            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            mask = np.where(geom_ids >= 0, geom_instance[np.maximum(geom_ids, 0)], 0) == 1
+            assert mask.sum() > 800, (spread, flap_deg)
+            count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+            assert (stats[1:, cv2.CC_STAT_AREA] >= 3).sum() == 1, (spread, flap_deg)
+    finally:
+        renderer.close()
