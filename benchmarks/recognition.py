@@ -1,7 +1,7 @@
 """How a COCO-trained detector recognises the bench's people and animals.
 
 Usage: python benchmarks/recognition.py [--seeds 1 2 3] [--frames 40] [--scenes ...]
-                                        [--min-pixels 2000] [--workers 2]
+                                        [--min-pixels 2000] [--workers 2] [--misses DIR]
 
 Generates each library scene with each seed, runs the shipped YOLOX-nano (confidence
 0.3) on every frame and matches its boxes to the true visible boxes (same class,
@@ -14,6 +14,11 @@ seeds:
 - dogs and cats;
 - pigs: the share of pig sightings a ``person`` box claims (IoU >= 0.5).
 Issue 14's targets: >= 0.95, >= 0.7, >= 0.7, >= 0.8 and < 10 %.
+
+With ``--misses DIR``, writes one picture per group (``DIR/misses_<group>.png``): a
+crop of every missed object (up to 96, evenly over the run), its true box in green,
+the detection overlapping it most in red with class and confidence, and the scene,
+seed and frame. What a detector fails on is easier seen than counted.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import tempfile
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from detectors.config import parse_detector
@@ -75,8 +81,14 @@ def _group(sequence: Sequence, instance_id: int, truncated: bool | None) -> str 
     return kind if kind in ("dog", "cat", "pig") else None
 
 
-def _count(sequence: Sequence, detections, min_pixels: int, tally: dict[str, list[int]]) -> None:
-    for found, objects in zip(detections.per_frame, sequence.objects(), strict=True):
+def _count(
+    sequence: Sequence,
+    detections,
+    min_pixels: int,
+    tally: dict[str, list[int]],
+    misses: dict[str, list[np.ndarray]] | None = None,
+) -> None:
+    for index, (found, objects) in enumerate(zip(detections.per_frame, sequence.objects(), strict=True)):
         for obj in objects:
             if obj.box_xyxy is None or obj.visible_pixels < min_pixels:
                 continue
@@ -88,6 +100,55 @@ def _count(sequence: Sequence, detections, min_pixels: int, tally: dict[str, lis
             hit = bool((iou_matrix(np.array([obj.box_xyxy], float), boxes) >= IOU_THRESHOLD).any())
             tally[group][0] += hit
             tally[group][1] += 1
+            if misses is not None and not hit and group != "pig":
+                misses[group].append(_miss_tile(sequence, index, obj.box_xyxy, found))
+
+
+TILE = 160
+
+
+def _miss_tile(sequence: Sequence, index: int, box: tuple[int, ...], found) -> np.ndarray:
+    """A labelled crop around a missed object: true box green, nearest detection red."""
+    image = np.ascontiguousarray(sequence.rgb(index)[:, :, ::-1])  # BGR for OpenCV
+    x0, y0, x1, y1 = (int(v) for v in box)
+    cv2.rectangle(image, (x0, y0), (x1, y1), (0, 200, 0), 2)
+    caption = "no detection"
+    if found:
+        all_boxes = np.array([d.box_xyxy for d in found], float).reshape(-1, 4)
+        ious = iou_matrix(np.array([box], float), all_boxes)[0]
+        best = int(np.argmax(ious))
+        if ious[best] > 0:
+            bx0, by0, bx1, by1 = (int(v) for v in found[best].box_xyxy)
+            cv2.rectangle(image, (bx0, by0), (bx1, by1), (0, 0, 230), 1)
+            caption = f"{found[best].class_name} {found[best].confidence:.2f} iou {ious[best]:.2f}"
+    margin = 20
+    h, w = image.shape[:2]
+    crop = image[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
+    scale = TILE / max(crop.shape[:2])
+    crop = cv2.resize(crop, (max(1, round(crop.shape[1] * scale)), max(1, round(crop.shape[0] * scale))))
+    tile = np.full((TILE + 30, TILE, 3), 255, np.uint8)
+    tile[: crop.shape[0], : crop.shape[1]] = crop
+    name = f"{sequence.meta['scenario']['name']} s{sequence.meta['seed']} f{index}"
+    for row, text in enumerate((name, caption)):
+        cv2.putText(tile, text, (2, TILE + 12 + 13 * row), cv2.FONT_HERSHEY_PLAIN, 0.8, (0, 0, 0), 1)
+    return tile
+
+
+def _write_misses(folder: Path, misses: dict[str, list[np.ndarray]], most: int = 96) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for group, tiles in misses.items():
+        if not tiles:
+            continue
+        picked = [tiles[i] for i in np.linspace(0, len(tiles) - 1, min(most, len(tiles))).round().astype(int)]
+        columns = 8
+        rows = -(-len(picked) // columns)
+        grid = np.full((rows * picked[0].shape[0], columns * TILE, 3), 255, np.uint8)
+        for k, tile in enumerate(picked):
+            r, c = divmod(k, columns)
+            grid[r * tile.shape[0] : (r + 1) * tile.shape[0], c * TILE : (c + 1) * TILE] = tile
+        path = folder / f"misses_{group.replace(', ', '_').replace(' ', '_')}.png"
+        cv2.imwrite(str(path), grid)
+        print(f"wrote {path} ({len(picked)} of {len(tiles)} misses)")
 
 
 def main() -> None:
@@ -99,7 +160,9 @@ def main() -> None:
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
     parser.add_argument("--min-pixels", type=int, default=2000)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--misses", type=Path, help="write a picture of each group's misses here")
     args = parser.parse_args()
+    misses: dict[str, list[np.ndarray]] | None = defaultdict(list) if args.misses else None
     detector = parse_detector("onnx", {"confidence": "0.3"})
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -109,7 +172,7 @@ def main() -> None:
             sequence = Sequence.open(path)
             detections = detect_sequence(sequence, detector, cache)
             assert detections is not None
-            _count(sequence, detections, args.min_pixels, per_seed[int(sequence.meta["seed"])])
+            _count(sequence, detections, args.min_pixels, per_seed[int(sequence.meta["seed"])], misses)
     print(
         f"YOLOX-nano, confidence 0.3, IoU >= {IOU_THRESHOLD}, objects >= {args.min_pixels} visible px; "
         f"{', '.join(args.scenes)}; seeds {args.seeds}, {args.frames} frames each"
@@ -132,6 +195,8 @@ def main() -> None:
             print(f"{label:36s}   -   (no sighting of {args.min_pixels} px or more) {target}")
             continue
         print(f"{label:36s} {found / total:5.2f} ({found}/{total}; {spread}) {target}")
+    if misses is not None:
+        _write_misses(args.misses, misses)
 
 
 if __name__ == "__main__":
