@@ -146,6 +146,12 @@ class Actor:
         positions, rotations = self.pose(t)
         return positions[0], rotations[0]
 
+    def part_frames(
+        self, positions: np.ndarray, rotations: np.ndarray
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each part's (position, rotation) by name, from a pose (``bind`` for meshing)."""
+        return {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
+
     def velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Linear (m/s) and angular (rad/s, world frame) velocity of the root."""
         p0, r0 = self.root(t - FD_STEP_S)
@@ -436,8 +442,7 @@ class Quadruped(Actor):
 
     def _dress(self, look: AnimalLook, materials: dict[str, str]) -> None:
         """Draw the parts as pieces of one furred body (figures.py)."""
-        positions, rotations = self.bind()
-        frames = {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
+        frames = self.part_frames(*self.bind())
         centre, rotation = frames["tail"]
         half = rotation[:, 2] * self.build.tail_m / 2  # the tail's frame sits mid-tail, z along it
         drawn = quadruped_surfaces(
@@ -528,9 +533,7 @@ class Bird(Actor):
             Part("leg_l", "capsule", (0.006, 0.02), "metal_orange"),
             Part("leg_r", "capsule", (0.006, 0.02), "metal_orange"),
         ]
-        positions, rotations = self.bind()
-        frames = {part.name: (positions[j], rotations[j]) for j, part in enumerate(self.parts)}
-        self.parts = dressed(self.parts, bird_surfaces(frames), {})
+        self.parts = dressed(self.parts, bird_surfaces(self.part_frames(*self.bind())), {})
 
     def _state(self, t: float) -> tuple[float, float, float, float]:
         """(arc position, height above standing, how far the wings are spread (0 folded,

@@ -592,7 +592,6 @@ def quadruped_surfaces(
     return {part: tuple(surfaces) for part, surfaces in out.items()}
 
 
-BIRD_PARTS = ("body", "head", "beak", "wing_l", "wing_r", "leg_l", "leg_r")
 BIRD_SHOULDER = (0.0, 0.05, 0.03)
 """The left wing's joint in the body frame (the right one mirrors it)."""
 

@@ -159,9 +159,9 @@ class FrameRenderer:
         return np.concatenate(parts) if parts else np.zeros(0, pixels.dtype)
 
     def _projected_box(self, data: mujoco.MjData, camera_id: int, instance: int) -> np.ndarray:
-        """(u0, v0, u1, v1, nearest depth, farthest depth) holding the instance's projection,
-        from the corners of its geoms' bounding boxes (conservative; the whole plane if a
-        corner is behind the camera). u, v are pixel offsets from the image centre."""
+        """(u0, v0, u1, v1) holding the instance's projection, from the corners of its
+        geoms' bounding boxes (conservative; the whole plane if a corner is behind the
+        camera). u, v are pixel offsets from the image centre."""
         assert self.geom_instance is not None
         geoms = np.flatnonzero(self.geom_instance == instance)
         aabb = self.model.geom_aabb[geoms]  # (centre, half size) in the geom's frame
@@ -171,10 +171,10 @@ class FrameRenderer:
         camera = (world.reshape(-1, 3) - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
         depth = -camera[:, 2]  # MuJoCo cameras look along -z
         if (depth <= 1e-6).any():
-            return np.array([-np.inf, -np.inf, np.inf, np.inf, max(depth.min(), 0.0), depth.max()])
+            return np.array([-np.inf, -np.inf, np.inf, np.inf])
         focal = (self.height / 2) / np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
         u, v = focal * camera[:, 0] / depth, -focal * camera[:, 1] / depth
-        return np.array([u.min(), v.min(), u.max(), v.max(), depth.min(), depth.max()])
+        return np.array([u.min(), v.min(), u.max(), v.max()])
 
     def _update_scene(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> None:
         self._camera.fixedcamid = camera_id

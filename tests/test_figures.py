@@ -20,6 +20,23 @@ def _edges_shared_twice(faces: np.ndarray) -> bool:
     return bool((counts == 2).all())
 
 
+def _assert_closed_and_outward(named_meshes, reach: float | None = None) -> None:
+    """Every mesh watertight (each edge shared by two faces) with positive volume, and
+    within ``reach`` of its part's frame origin (a wrong frame would fling it away)."""
+    for name, meshes in named_meshes:
+        assert meshes, name
+        for mesh in meshes:
+            assert _edges_shared_twice(mesh.faces), name
+            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
+            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, name
+            if reach is not None:
+                assert np.linalg.norm(mesh.vertices, axis=1).max() < reach, name
+
+
+def _part_meshes(parts) -> list:
+    return [(part.name, [s.mesh for s in part.surfaces if s.mesh is not None]) for part in parts]
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_piece_is_a_closed_outward_mesh_near_its_part(seed):
     """Each drawn piece is watertight (every edge shared by two faces) with positive
@@ -28,14 +45,9 @@ def test_every_piece_is_a_closed_outward_mesh_near_its_part(seed):
     drawn = person_surfaces(1.0, look)
     frames, _ = person_bind(1.0)
     assert set(drawn) == set(frames)
-    for part, surfaces in drawn.items():
-        meshes = [s.mesh for s in surfaces if s.mesh is not None]
-        assert meshes, part
-        for mesh in meshes:
-            assert _edges_shared_twice(mesh.faces), part
-            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
-            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, part
-            assert np.linalg.norm(mesh.vertices, axis=1).max() < 0.45, part
+    _assert_closed_and_outward(
+        [(part, [s.mesh for s in surfaces if s.mesh is not None]) for part, surfaces in drawn.items()], 0.45
+    )
 
 
 def test_looks_vary_with_the_seed_and_repeat_with_it():
@@ -58,15 +70,7 @@ def _quadruped(kind: str, seed: int):
 def test_every_animal_piece_is_a_closed_outward_mesh(kind):
     """As for people: every drawn piece of a dog, cat or pig is watertight with positive
     volume and lies near its own part's frame."""
-    animal = _quadruped(kind, 1)
-    for part in animal.parts:
-        meshes = [s.mesh for s in part.surfaces if s.mesh is not None]
-        assert meshes, part.name
-        for mesh in meshes:
-            assert _edges_shared_twice(mesh.faces), part.name
-            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
-            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, part.name
-            assert np.linalg.norm(mesh.vertices, axis=1).max() < 0.7, part.name
+    _assert_closed_and_outward(_part_meshes(_quadruped(kind, 1).parts), 0.7)
 
 
 @pytest.mark.parametrize(("kind", "raised"), [("dog", True), ("cat", True), ("pig", False)])
@@ -193,13 +197,7 @@ def test_every_bird_piece_is_a_closed_outward_mesh_and_the_wings_fold():
     along the body (it is no wider than a pigeon's body, 12-15 cm), open they span
     about 40 cm, and a flap raises the tips above the back."""
     bird = _bird()
-    for part in bird.parts:
-        meshes = [s.mesh for s in part.surfaces if s.mesh is not None]
-        assert meshes, part.name
-        for mesh in meshes:
-            assert _edges_shared_twice(mesh.faces), part.name
-            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
-            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, part.name
+    _assert_closed_and_outward(_part_meshes(bird.parts))
     folded, spread = _bird_vertices(bird, 0.0, 0.0), _bird_vertices(bird, 1.0, 0.0)
     assert np.ptp(folded[:, 1]) < 0.16
     assert 0.35 < np.ptp(spread[:, 1]) < 0.5
