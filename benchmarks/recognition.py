@@ -24,6 +24,7 @@ seed and frame. What a detector fails on is easier seen than counted.
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from collections import defaultdict
 from pathlib import Path
@@ -162,6 +163,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--misses", type=Path, help="write a picture of each group's misses here")
     args = parser.parse_args()
+    taken = args.misses is not None and args.misses.exists()
+    if taken and (not args.misses.is_dir() or any(args.misses.iterdir())):
+        # Checked before the long run; the pictures never replace what is already there.
+        print(f"recognition.py: --misses {args.misses}: give a new or empty folder", file=sys.stderr)
+        raise SystemExit(2)
     misses: dict[str, list[np.ndarray]] | None = defaultdict(list) if args.misses else None
     detector = parse_detector("onnx", {"confidence": "0.3"})
     with tempfile.TemporaryDirectory() as tmp:
