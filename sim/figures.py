@@ -527,10 +527,29 @@ def quadruped_surfaces(
             head_parts.append(
                 ellipsoid(ear, np.array([0.45, 0.12, 0.8]) * skull_r[1] * (1.5 if pig else 1.0), axes)
             )
+    if cat:  # round cheeks (whisker pads) under wide-set eyes: a cat's face is wider than tall
+        for sign in (1.0, -1.0):
+            head_parts.append(
+                ellipsoid(
+                    head + np.array([0.45, sign * 0.45, -0.38]) * skull_r,
+                    np.array([0.45, 0.4, 0.36]) * skull_r,
+                )
+            )
     tail_a, tail_b = tail
     tail_r = (0.16 if cat else 0.12 if pig else 0.2) * hy
-    limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r if not cat else 0.9 * tail_r)]
-    leg_r = (0.42 if pig else 0.36 if cat else 0.42) * hy
+    tail_pad = 2 * tail_r
+    if cat:
+        curve = _cat_tail(tail_a, tail_b)
+        limbs = [
+            round_cone(
+                a, b, tail_r * (1.0 - 0.35 * k / len(curve)), tail_r * (1.0 - 0.35 * (k + 1) / len(curve))
+            )
+            for k, (a, b) in enumerate(zip(curve[:-1], curve[1:], strict=True))
+        ]
+        tail_pad = float(segment_distance(tail_a, tail_b, curve).max()) + 2 * tail_r
+    else:
+        limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r)]
+    leg_r = (0.42 if pig else 0.3 if cat else 0.42) * hy
     bones = [
         Bone(
             "body",
@@ -549,7 +568,7 @@ def quadruped_surfaces(
             0.9 * hy,
         ),
         Bone("snout", head + [0.6 * hy, 0.0, -0.2 * hy], tip, muzzle_r, 0.06 * hy, 0.6 * hy),
-        Bone("tail", tail_a, tail_b, tail_r, 0.3 * tail_r, 2 * tail_r),
+        Bone("tail", tail_a, tail_b, tail_r, 0.3 * tail_r, tail_pad),
     ]
     balls: dict[str, list[tuple[np.ndarray, float]]] = {}
     uppers, lowers = [], []
@@ -580,16 +599,55 @@ def quadruped_surfaces(
         return [("coat", None, 0.0)]
 
     out = carve(body, bones + uppers + lowers, balls, frames, pieces, overlap=0.1 * hy)
-    eye_r = (0.11 if cat else 0.09) * hy
-    origin, rotation = frames["head"]
-    for sign in (1.0, -1.0):
-        at = head + np.array([0.72 * skull_r[0], sign * 0.45 * skull_r[1], 0.25 * skull_r[2]])
-        out["head"].append(
-            Surface(
-                "eye", shape="sphere", size=(eye_r,), pos=tuple(float(v) for v in (at - origin) @ rotation)
-            )
-        )
+    out["head"] += _animal_eyes(head, skull_r, frames["head"], (0.15 if cat else 0.09) * hy, cat)
     return {part: tuple(surfaces) for part, surfaces in out.items()}
+
+
+def _animal_eyes(
+    head: np.ndarray,
+    skull_r: tuple[float, float, float],
+    frame: tuple[np.ndarray, np.ndarray],
+    eye_r: float,
+    cat: bool,
+) -> list[Surface]:
+    """Two eyes. A dog's or pig's dark eye sits just under the coat's surface, as it
+    always has (its recall was measured so); a cat's is a large amber iris set into the
+    skull's surface, with a dark pupil, so that its face shows."""
+    origin, rotation = frame
+    spheres = []
+    for sign in (1.0, -1.0):
+        if not cat:
+            spheres.append(("eye", head + np.array([0.72, sign * 0.45, 0.25]) * skull_r, eye_r))
+            continue
+        # A unit direction in the skull's own (ellipsoid) coordinates lands on its surface.
+        d = np.array([0.8, sign * 0.5, 0.3]) / np.linalg.norm([0.8, 0.5, 0.3])
+        normal = d / np.asarray(skull_r)
+        normal /= np.linalg.norm(normal)
+        surface = head + d * np.asarray(skull_r)
+        spheres += [
+            ("iris", surface - 0.35 * eye_r * normal, eye_r),
+            ("eye", surface + 0.3 * eye_r * normal, 0.45 * eye_r),
+        ]
+    return [
+        Surface(role, shape="sphere", size=(radius,), pos=tuple(float(v) for v in (at - origin) @ rotation))
+        for role, at, radius in spheres
+    ]
+
+
+def _cat_tail(a: np.ndarray, b: np.ndarray, count: int = 8) -> np.ndarray:
+    """Points along a cat's tail: out behind the body, then curving up to a tip that
+    hooks forward, as a walking cat carries it (a straight stick reads as a pole)."""
+    length = float(np.linalg.norm(b - a))
+    back, up = np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    controls = [
+        a,
+        a + length * (0.45 * back - 0.1 * up),
+        a + length * (0.8 * back + 0.25 * up),
+        a + length * (0.8 * back + 0.65 * up),
+    ]
+    u = np.linspace(0.0, 1.0, count + 1)[:, None]
+    weights = [(1 - u) ** 3, 3 * u * (1 - u) ** 2, 3 * u**2 * (1 - u), u**3]
+    return sum(w * c for w, c in zip(weights, controls, strict=True))
 
 
 BIRD_SHOULDER = (0.0, 0.05, 0.03)

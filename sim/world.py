@@ -112,6 +112,7 @@ def _material_images(
     mats["chair"] = ("cube", textures.metal(rng, colour=(120, 120, 128)))
     mats["chair_seat"] = ("cube", textures.cloth(rng, "plain", (80, 100, 150)))
     mats["eye"] = ("cube", np.full((8, 8, 3), 28, np.uint8))
+    mats["iris"] = ("cube", np.full((8, 8, 3), (185, 160, 55), np.uint8))  # a cat's amber eyes
     mats["lips"] = ("cube", textures.skin_tone(rng, (150, 80, 75), size=16))
     mats["nose"] = ("cube", textures.skin_tone(rng, (30, 25, 25), size=16))
     mats["hoof"] = ("cube", textures.skin_tone(rng, (60, 50, 45), size=16))

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
+import mujoco
 import numpy as np
 import pytest
 
@@ -243,5 +246,32 @@ def test_a_bird_stays_in_one_piece_as_its_wings_open_and_flap(yaw_deg):
             assert mask.sum() > 800, (spread, flap_deg)
             count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
             assert (stats[1:, cv2.CC_STAT_AREA] >= 3).sum() == 1, (spread, flap_deg)
+    finally:
+        renderer.close()
+
+
+@pytest.mark.render
+def test_a_cat_seen_from_the_side_shows_an_eye():
+    """A detector knows a cat by its face: walking past the camera side-on, the cat's
+    eye (iris and pupil) shows in every frame, not buried under the coat."""
+    spec = dataclasses.replace(
+        _scene("cat", 0.6),
+        width=640,
+        height=480,
+        focal_px=525.0,
+        camera=CameraSpec(position_m=(0.0, -1.5, 0.45), target_m=(0.0, 0.0, 0.2)),
+    )
+    world = build_world(spec)
+    sim = Simulation(world)
+    model = world.model
+    eye_materials = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_MATERIAL, name) for name in ("iris", "eye")]
+    eye_geoms = np.flatnonzero(np.isin(model.geom_matid, eye_materials))
+    geom_instance = world.body_instance[model.geom_bodyid]
+    renderer = FrameRenderer(model, spec.width, spec.height, geom_instance)
+    try:
+        for k in range(6):
+            sim.advance_to(1.5 + k / 10.0)  # crossing the view, head to one side
+            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            assert np.isin(geom_ids, eye_geoms).sum() >= 15, k  # 28-35 px; buried: 0-1
     finally:
         renderer.close()
