@@ -5,7 +5,7 @@ Usage: python benchmarks/render.py [--width W --height H --frames N --threads T 
 Times the RGB + depth pass, the segmentation pass and the unoccluded passes (the
 visible instances drawn apart), with depotbench's tessellation (one quad per box
 face, coarser spheres and capsules) and with MuJoCo's defaults beside it.
-``--threads`` sets Mesa's rasterizer threads (suites' workers use 1).
+``--threads`` sets Mesa's rasterizer threads (suites' workers use 0: rasterise in the calling thread).
 """
 
 from __future__ import annotations
