@@ -189,7 +189,6 @@ def _write_frames(
         unoccluded = renderer.unoccluded(sim.data, world.camera_id, seen.tolist())
         sim.advance_to((k + 1) * period)
         nxt = sim.snapshot()
-        bodies = geom_body[geom_ids]
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
         objects = object_states(world, now, nxt, boxes, counts, unoccluded)
         is_moving = np.zeros(len(world.instances) + 1, bool)
@@ -199,12 +198,12 @@ def _write_frames(
         flow = None
         poses = (now.world_from_camera, nxt.world_from_camera)
         if scenario.flow or sensor.needs_flow:
-            flow = exact_flow(depth, bodies, world.intrinsics, *poses, motion)
+            flow = exact_flow(depth, geom_body[geom_ids], world.intrinsics, *poses, motion)
             moving_flow = flow[vv, uu]
         else:
             # Only the moving pixels' flow is needed: the same computation, cast as exact_flow does.
             moving_flow = flow_at(
-                uu, vv, depth[vv, uu], bodies[vv, uu], world.intrinsics, *poses, motion
+                uu, vv, depth[vv, uu], geom_body[geom_ids[vv, uu]], world.intrinsics, *poses, motion
             ).astype(np.float32)
         camera_speed = float(np.linalg.norm(poses[1][:3, 3] - poses[0][:3, 3]) / period)
         difficulty.add(moving, moving_flow, camera_speed)

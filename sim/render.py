@@ -3,7 +3,8 @@
 One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
 gives segmentation. Each visible instance's unoccluded area (what it would cover
 with everything else removed) comes from passes that draw only instances, several
-per pass when their projections are apart, reading back only their window. The GL context
+per pass when their projections are apart, reading back only their window. Geoms wholly
+outside the camera's view are left out of every pass: they draw no pixel. The GL context
 belongs to the thread that creates this object (rendering-notes.md): create one
 per worker, after any fork.
 """
@@ -28,15 +29,23 @@ Geoms the model puts in HIDDEN_GROUP or above (collision stand-ins) are never dr
 
 class FrameRenderer:
     def __init__(
-        self, model: mujoco.MjModel, width: int, height: int, geom_instance: np.ndarray | None = None
+        self,
+        model: mujoco.MjModel,
+        width: int,
+        height: int,
+        geom_instance: np.ndarray | None = None,
+        cull: bool = True,
     ) -> None:
         """``geom_instance``: the instance id of every geom (0 for the static world); needed
-        only for ``unoccluded``."""
+        only for ``unoccluded``. ``cull``: leave out geoms outside the view (the same pixels)."""
         from mujoco import gl_context
 
         self.model, self.width, self.height = model, width, height
         self.geom_instance = geom_instance
         self._drawn = model.geom_group < HIDDEN_GROUP
+        # Culled by their bounding spheres, a little enlarged; planes (rbound 0) never.
+        self._cullable = (self._drawn & (model.geom_rbound > 0)) if cull else np.zeros(model.ngeom, bool)
+        self._cull_radius = model.geom_rbound * (1 + 1e-6) + 1e-3
         if geom_instance is not None:
             model.geom_group[:] = np.where(
                 self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
@@ -52,6 +61,8 @@ class FrameRenderer:
                 "or set MUJOCO_GL=osmesa with libosmesa6."
             ) from exc
         self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom))
+        if self._scene.maxgeom >= (1 << 16) - 1:
+            raise ValueError(f"{model.ngeom} geoms: segmentation reads at most {(1 << 16) - 2}")
         self._context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
@@ -86,15 +97,17 @@ class FrameRenderer:
         """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row first."""
         self._draw_segmentation()
         mujoco.mjr_readPixels(self._seg, None, self._rect, self._context)
-        seg = self._seg.astype(np.int32)
-        segid = seg[:, :, 0] + (seg[:, :, 1] << 8) + (seg[:, :, 2] << 16)
+        # A pixel's colour is segid + 1 in 24 bits (R lowest); below 2^16 blue is 0, so the
+        # id is the little-endian 16 bits of red and green, read in place.
+        seg = self._seg
+        segid = np.ndarray(seg.shape[:2], np.dtype("<u2"), seg, 0, seg.strides[:2])
         scene = self._scene
-        lookup = np.full(scene.ngeom + 1, -1, dtype=np.int32)
+        lookup = np.full(1 << 16, -1, dtype=np.int32)  # ids no geom has (none drawn) read -1
         for k in range(scene.ngeom):
             geom = scene.geoms[k]
             if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.segid >= 0:
                 lookup[geom.segid + 1] = geom.objid
-        return lookup[np.minimum(segid, scene.ngeom)]
+        return lookup[segid]
 
     def _draw_segmentation(self) -> None:
         """Draw the current scene with each geom in its id colour (black where none)."""
@@ -178,9 +191,29 @@ class FrameRenderer:
 
     def _update_scene(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> None:
         self._camera.fixedcamid = camera_id
-        mujoco.mjv_updateScene(
-            self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
-        )
+        groups = self.model.geom_group
+        outside = self._outside_view(data, camera_id)
+        kept = groups[outside]
+        groups[outside] = HIDDEN_GROUP
+        try:
+            mujoco.mjv_updateScene(
+                self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
+            )
+        finally:
+            groups[outside] = kept
+
+    def _outside_view(self, data: mujoco.MjData, camera_id: int) -> np.ndarray:
+        """Which geoms lie wholly outside the camera's view: each bounding sphere on the far
+        side of one of the frustum's side planes, or behind the camera."""
+        camera = (data.geom_xpos - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
+        x, y, z = camera[:, 0], camera[:, 1], -camera[:, 2]  # MuJoCo cameras look along -z
+        radius = self._cull_radius
+        tan_v = np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
+        tan_u = tan_v * self.width / self.height
+        outside = z < -radius
+        for offset, tan in ((x, tan_u), (-x, tan_u), (y, tan_v), (-y, tan_v)):
+            outside |= offset - tan * z > radius * np.sqrt(1 + tan * tan)  # distance to the plane
+        return outside & self._cullable
 
     def _metric_depth(self, buffer: np.ndarray) -> np.ndarray:
         """Reversed-Z depth buffer to metric z-depth, as MuJoCo's Renderer converts it."""

@@ -592,8 +592,10 @@ class SequenceWriter:
         _check_pose(f"frame {index} world_from_camera", pose)
         name = timestamp_name(timestamp_s)
         tmp = self._tmp
-        self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
+        self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), own=True)
+        self._write_png(
+            tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale), own=True
+        )
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
         if clean_depth_m is not None:
             _check_array(f"frame {index} clean_depth_m", clean_depth_m, (h, w), None)
@@ -601,6 +603,7 @@ class SequenceWriter:
             self._write_png(
                 tmp / "gt" / "depth" / f"{name}.png",
                 encode_depth(clean_depth_m, self.intrinsics.depth_scale),
+                own=True,
             )
         if flow is not None:
             _check_array(f"frame {index} flow", flow, (h, w, 2), np.float32)
@@ -612,10 +615,13 @@ class SequenceWriter:
         record = {"timestamp": name, "objects": [o.to_json() for o in objects]}
         self._objects.append(json.dumps(record, separators=(",", ":")))
 
-    def _write_png(self, path: Path, image: np.ndarray) -> None:
+    def _write_png(self, path: Path, image: np.ndarray, own: bool = False) -> None:
+        """Encode and write ``image`` in a writer thread; a caller's array (not ``own``, made
+        here for this write) is copied first, since the caller may change it meanwhile."""
         assert self._pool is not None
         self._pending = [f for f in self._pending if not f.done() or f.exception()]
-        self._pending.append(self._pool.submit(_imwrite, path, image.copy(), self.png_params))
+        image = image if own else image.copy()
+        self._pending.append(self._pool.submit(_imwrite, path, image, self.png_params))
 
     def _finish(self) -> None:
         assert self._tmp is not None
@@ -657,9 +663,11 @@ def _imwrite(path: Path, image: np.ndarray, params: list[int]) -> None:
 
 def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     """Metric depth to TUM's uint16 PNG units; no reading (0) where out of range or invalid."""
-    scaled = np.rint(np.asarray(depth_m, dtype=np.float64) * depth_scale)
-    valid = np.isfinite(scaled) & (scaled > 0) & (scaled <= np.iinfo(np.uint16).max)
-    return np.where(valid, scaled, 0).astype(np.uint16)
+    scaled = np.asarray(depth_m).astype(np.float64)  # a copy, worked on in place
+    np.multiply(scaled, depth_scale, out=scaled)
+    np.rint(scaled, out=scaled)
+    scaled[~((scaled > 0) & (scaled <= np.iinfo(np.uint16).max))] = 0  # NaN compares false
+    return scaled.astype(np.uint16)
 
 
 def _check_array(what: str, array: np.ndarray, shape: tuple[int, ...], dtype: type | None) -> None:

@@ -445,3 +445,32 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
             assert len(seen) > 5
     finally:
         renderer.close()
+
+
+def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
+    """Culling by bounding spheres leaves out many geoms yet gives the same RGB, depth, geom
+    ids and unoccluded areas, bit for bit, along the default scenario's path."""
+    from sim.render import FrameRenderer
+
+    world = build_world(default_scenario(frames=12, seed=1))
+    geom_instance = world.body_instance[world.model.geom_bodyid]
+    culled = FrameRenderer(world.model, 320, 240, geom_instance)
+    whole = FrameRenderer(world.model, 320, 240, geom_instance, cull=False)
+    sim = Simulation(world)
+    left_out = []
+    try:
+        for k in range(0, 12, 4):
+            sim.advance_to(k / 10)
+            a = culled.render(sim.data, world.camera_id)
+            left_out.append(int(culled._outside_view(sim.data, world.camera_id).sum()))
+            b = whole.render(sim.data, world.camera_id)
+            for x, y in zip(a, b, strict=True):
+                assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), k
+            seen = [int(i) for i in np.unique(geom_instance[a[2][a[2] >= 0]]) if i > 0]
+            assert culled.unoccluded(sim.data, world.camera_id, seen) == whole.unoccluded(
+                sim.data, world.camera_id, seen
+            ), k
+    finally:
+        culled.close()
+        whole.close()
+    assert min(left_out) > world.model.ngeom // 10, left_out
