@@ -62,13 +62,12 @@ class Simulation:
                 np.sum(start_quat * target[1], axis=1, keepdims=True) < 0, -target[1], target[1]
             )
             n = self.world.substeps
-            for k in range(1, n + 1):
-                a = k / n
-                q = (1 - a) * start_quat + a * end_quat
-                self._apply(
-                    (1 - a) * start_pos + a * target[0],
-                    q / np.linalg.norm(q, axis=1, keepdims=True),
-                )
+            a = (np.arange(1, n + 1) / n)[:, None, None]  # every substep's poses in one go
+            positions = (1 - a) * start_pos + a * target[0]
+            quats = (1 - a) * start_quat + a * end_quat
+            quats /= np.linalg.norm(quats, axis=2, keepdims=True)
+            for k in range(n):
+                self._apply(positions[k], quats[k])
                 mujoco.mj_step(self.model, self.data)
             self._apply(*target)
         else:
@@ -81,6 +80,8 @@ class Simulation:
 
     def _check_warnings(self) -> None:
         """A warning from MuJoCo means the physics (hence the ground truth) went wrong: stop."""
+        if not self.data.warning.number.any():
+            return
         for kind, stat in enumerate(self.data.warning):
             if stat.number:
                 raise ScenarioError(
