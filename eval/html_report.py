@@ -292,6 +292,12 @@ def _fmt(value: Any, digits: int = 4) -> str:
     return html.escape(str(value))
 
 
+def percent(value: float | None) -> float | None:
+    """A percentage shown to 0.01 %: rho of a run that matches its reference to the
+    micrometre is 0, not 1.304e-06 (what four significant digits make of it)."""
+    return None if value is None else round(value, 2)
+
+
 def table(header: list[str], rows: list[list[Any]]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in row) + "</tr>" for row in rows)
@@ -484,7 +490,7 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
             c["detector"],
             c["sequences"],
             c["ate_rmse_m"],
-            c["rho_percent"],
+            percent(c["rho_percent"]),
             c["rejection_precision"],
             c["rejection_recall"],
             c["tracked_fraction"],
@@ -536,7 +542,7 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
             settings_text(c["settings"]),
             c["detector"],
             c["ate_rmse_m"],
-            c["rho_percent"],
+            percent(c["rho_percent"]),
             c["rejection_precision"],
             c["rejection_recall"],
             c["track_ms_median"],

@@ -128,3 +128,13 @@ def test_rerun_recording_of_a_run(run_folder: Path, tmp_path: Path):
         "/error_m",
         "/state",
     } <= entities
+
+
+def test_percentages_in_the_tables_are_shown_to_a_hundredth():
+    """The demo's best run on the empty depot matched its reference within micrometres:
+    rho was shown as '1.304e-06'; a percentage reads 0 there, and 82.39 elsewhere."""
+    from eval.html_report import percent, table
+
+    page = table(["rho"], [[percent(1.304e-06)], [percent(82.39431659)], [percent(None)]])
+    assert "e-06" not in page
+    assert "<td>0</td>" in page and "<td>82.39</td>" in page and "<td>–</td>" in page
