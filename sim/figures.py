@@ -635,8 +635,8 @@ def _animal_eyes(
 
 
 def _cat_tail(a: np.ndarray, b: np.ndarray, count: int = 8) -> np.ndarray:
-    """Points along a cat's tail: out behind the body, then curving up to a tip that
-    hooks forward, as a walking cat carries it (a straight stick reads as a pole)."""
+    """Points along a cat's tail: out behind the body, dipping a little, then curving
+    up to an upright tip, as a walking cat carries it (a straight stick reads as a pole)."""
     length = float(np.linalg.norm(b - a))
     back, up = np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     controls = [
