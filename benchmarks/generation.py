@@ -1,6 +1,7 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
+                                       [--repeat R]
 
 For the default scenario, prints the rate of one process (Mesa's default threads) and
 of two processes with one thread each, as suites run their workers
@@ -8,6 +9,9 @@ of two processes with one thread each, as suites run their workers
 its own seed. Two rates per line: per frame once the world is built (simulation,
 both render passes, the unoccluded passes, ground truth and PNG writes), and with
 building the world (meshing the figures, textures, compiling) counted too.
+
+This 2-core machine's speed drifts by up to a fifth between runs of one build:
+``--repeat R`` measures each line R times and prints the median with the range.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ import multiprocessing as mp
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 
 def _run(args: tuple[int, int, int, int, str, bool, int]) -> tuple[float, float]:
@@ -58,31 +64,46 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--png-compression", type=int, nargs="+", default=[1, 0])
+    parser.add_argument("--repeat", type=int, default=1, help="measure each line this many times")
     args = parser.parse_args()
     ctx = mp.get_context("spawn")
     print(
         f"default scenario, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included"
     )
     print("frames/s, summed over the processes: once the world is built | with building the world")
+    if args.repeat > 1:
+        print(f"median of {args.repeat} runs [lowest-highest]")
     with tempfile.TemporaryDirectory() as tmp:
         for level in args.png_compression:
 
-            def jobs(first: int, n: int, one_thread: bool, level: int = level) -> list:
+            def jobs(first: int, n: int, one_thread: bool, run: int, level: int = level) -> list:
                 return [
-                    (args.frames, args.width, args.height, s, f"{tmp}/s{s}-{level}", one_thread, level)
+                    (args.frames, args.width, args.height, s, f"{tmp}/s{s}-{level}-{run}", one_thread, level)
                     for s in range(first, first + n)
                 ]
 
-            with ctx.Pool(1) as pool:
-                single = _measure(pool, jobs(0, 1, False))
-            with ctx.Pool(2) as pool:
-                double = _measure(pool, jobs(1, 2, True))
+            singles, doubles = [], []
+            for run in range(args.repeat):
+                with ctx.Pool(1) as pool:
+                    singles.append(_measure(pool, jobs(0, 1, False, run)))
+                with ctx.Pool(2) as pool:
+                    doubles.append(_measure(pool, jobs(1, 2, True, run)))
+            single, double = _summary(singles), _summary(doubles)
             print(f"PNG level {level}")
-            print(f"  1 process               : {single[0]:5.1f} | {single[1]:5.1f}")
-            print(
-                f"  2 processes, 1 thread each: {double[0]:5.1f} | {double[1]:5.1f}  "
-                f"(x{double[0] / single[0]:.2f} of one process, once built)"
-            )
+            print(f"  1 process               : {single}")
+            ratio = np.median([d[0] for d in doubles]) / np.median([s[0] for s in singles])
+            print(f"  2 processes, 1 thread each: {double}  (x{ratio:.2f} of one process, once built)")
+
+
+def _summary(rates: list[tuple[float, float]]) -> str:
+    """'steady | with building' as a median, with the range when measured more than once."""
+    columns = []
+    for values in zip(*rates, strict=True):
+        text = f"{np.median(values):5.1f}"
+        if len(values) > 1:
+            text += f" [{min(values):.1f}-{max(values):.1f}]"
+        columns.append(text)
+    return " | ".join(columns)
 
 
 if __name__ == "__main__":
