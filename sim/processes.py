@@ -44,15 +44,35 @@ def children_block_sigint() -> Iterator[None]:
     lifted. (It used to ignore SIGINT in the window instead, and a Ctrl-C that came
     then was lost: the suite ran to the end and exited 0.) Off the main thread
     (where Python cannot handle signals) this does nothing.
+
+    A Ctrl-C taken by another thread (a progress bar's monitor, the pool's own threads)
+    still runs Python's handler in this thread at once, which raised KeyboardInterrupt
+    between starting a worker and sending it its start-up data; the worker then died
+    reading a closed pipe, with a traceback ("Ran out of input"). So the handler is
+    deferred too: a SIGINT in the window is recorded and handed to the previous handler
+    as the window closes.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    taken: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: taken.append(signum))
     blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        signal.signal(signal.SIGINT, previous)
+        if taken:
+            _deliver_sigint(previous)
+
+
+def _deliver_sigint(handler: object) -> None:
+    """Hand a deferred SIGINT to ``handler`` as the signal itself would have."""
+    if callable(handler):
+        handler(signal.SIGINT, None)
+    elif handler == signal.SIG_DFL:
+        signal.raise_signal(signal.SIGINT)
 
 
 def release_sigint() -> None:

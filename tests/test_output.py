@@ -12,6 +12,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -557,4 +558,31 @@ def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent():
         time.sleep(0.05)  # the handler runs between bytecodes once the signal is let through
         pytest.fail("the Ctrl-C sent while workers were spawned was lost")
     assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_ctrl_c_taken_by_another_thread_waits_until_the_workers_are_spawned():
+    """Ctrl-C reaches the process group and any thread not blocking SIGINT may take it;
+    Python then ran the handler in the main thread at once, in the middle of spawning a
+    worker, which died reading its start-up data with a traceback ("Ran out of input":
+    the ctrl-c-at-start case above, on a busy machine). The interrupt must wait for the
+    window to close, and must not be lost."""
+    from sim.processes import children_block_sigint
+
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)  # started before the window: SIGINT not blocked
+    other.start()
+    spawned = False
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with children_block_sigint():
+                signal.pthread_kill(other.ident, signal.SIGINT)
+                time.sleep(0.1)  # the handler would have run here, between bytecodes
+                spawned = True
+            time.sleep(0.05)
+            pytest.fail("the Ctrl-C taken by another thread was lost")
+    finally:
+        release.set()
+        other.join()
+    assert spawned
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
