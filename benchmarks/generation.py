@@ -66,6 +66,8 @@ def main() -> None:
     parser.add_argument("--png-compression", type=int, nargs="+", default=[1, 0])
     parser.add_argument("--repeat", type=int, default=1, help="measure each line this many times")
     args = parser.parse_args()
+    if args.repeat < 1:
+        parser.error("--repeat must be at least 1")
     ctx = mp.get_context("spawn")
     print(
         f"default scenario, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included"
