@@ -40,6 +40,7 @@ from sim.files import (
 )
 from sim.ground_truth import ObjectState
 from sim.output import OutputKind, StagedOutput
+from sim.png import assemble_png, sub_filtered
 from sim.tum_files import (
     FrameList,
     PoseTable,
@@ -514,13 +515,7 @@ class SequenceWriter:
         self.meta = dict(meta)
         if isinstance(png_compression, bool) or png_compression not in range(10):
             raise ValueError(f"png_compression must be a zlib level 0-9, got {png_compression!r}")
-        # The SUB filter at level 1 encodes a third faster than libpng's adaptive default.
-        self.png_params = [
-            cv2.IMWRITE_PNG_COMPRESSION,
-            int(png_compression),
-            cv2.IMWRITE_PNG_FILTER,
-            cv2.IMWRITE_PNG_FILTER_SUB,
-        ]
+        self.png_level = int(png_compression)
         self._output = StagedOutput(
             self.root, OutputKind.SEQUENCE, overwrite=overwrite, inputs=inputs, content_key=content_key
         )
@@ -539,7 +534,7 @@ class SequenceWriter:
         self._tmp = self._output.path
         for sub in ("rgb", "depth", "gt/instances"):
             (self._tmp / sub).mkdir(parents=True)
-        # cv2.imwrite releases the GIL: encoding overlaps with rendering the next frame.
+        # The deflate releases the GIL: encoding overlaps with rendering the next frame.
         self._pool = ThreadPoolExecutor(max_workers=PNG_WRITER_THREADS)
         return self
 
@@ -592,10 +587,8 @@ class SequenceWriter:
         _check_pose(f"frame {index} world_from_camera", pose)
         name = timestamp_name(timestamp_s)
         tmp = self._tmp
-        self._write_png(tmp / "rgb" / f"{name}.png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), own=True)
-        self._write_png(
-            tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale), own=True
-        )
+        self._write_png(tmp / "rgb" / f"{name}.png", rgb)
+        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
         if clean_depth_m is not None:
             _check_array(f"frame {index} clean_depth_m", clean_depth_m, (h, w), None)
@@ -603,7 +596,6 @@ class SequenceWriter:
             self._write_png(
                 tmp / "gt" / "depth" / f"{name}.png",
                 encode_depth(clean_depth_m, self.intrinsics.depth_scale),
-                own=True,
             )
         if flow is not None:
             _check_array(f"frame {index} flow", flow, (h, w, 2), np.float32)
@@ -615,13 +607,15 @@ class SequenceWriter:
         record = {"timestamp": name, "objects": [o.to_json() for o in objects]}
         self._objects.append(json.dumps(record, separators=(",", ":")))
 
-    def _write_png(self, path: Path, image: np.ndarray, own: bool = False) -> None:
-        """Encode and write ``image`` in a writer thread; a caller's array (not ``own``, made
-        here for this write) is copied first, since the caller may change it meanwhile."""
+    def _write_png(self, path: Path, image: np.ndarray) -> None:
+        """Filter ``image``'s rows here (a copy: the caller may change the array once this
+        returns), then deflate and write them in a writer thread."""
         assert self._pool is not None
         self._pending = [f for f in self._pending if not f.done() or f.exception()]
-        image = image if own else image.copy()
-        self._pending.append(self._pool.submit(_imwrite, path, image, self.png_params))
+        rows = sub_filtered(image)
+        self._pending.append(
+            self._pool.submit(_write_rows, path, image.shape, image.dtype, rows, self.png_level)
+        )
 
     def _finish(self) -> None:
         assert self._tmp is not None
@@ -656,9 +650,8 @@ class SequenceWriter:
         (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
 
 
-def _imwrite(path: Path, image: np.ndarray, params: list[int]) -> None:
-    if not cv2.imwrite(str(path), image, params):
-        raise OSError(f"{path}: could not write PNG")
+def _write_rows(path: Path, shape: tuple[int, ...], dtype: np.dtype, rows: np.ndarray, level: int) -> None:
+    path.write_bytes(assemble_png(shape, dtype, rows, level))
 
 
 def encode_depth(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:

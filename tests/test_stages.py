@@ -114,7 +114,7 @@ def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tm
     cache = StageCache(tmp_path / "cache")
     jobs = [
         RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", eps),))
-        for eps in ("0.25", "0.5", "1.0", "2.0", "8.0")
+        for eps in ("0.25", "1.0", "2.0", "8.0", "16.0")
     ]
     paths = []
     for job in jobs:
