@@ -234,7 +234,7 @@ class FrameRenderer:
 
 def _sample_textures_bilinear(model: mujoco.MjModel, context: mujoco.MjrContext) -> None:
     """Sample every texture bilinearly from its nearest mip level instead of MuJoCo's
-    trilinear blend of two levels. On llvmpipe this takes a quarter off the RGB pass
+    trilinear blend of two levels. On llvmpipe this takes about a fifth off the RGB pass
     (benchmarks/render.py); pixels move by half a grey level on average."""
     from OpenGL import GL  # a dependency of mujoco's own GL contexts
 
