@@ -223,7 +223,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
         type=_png_level,
         default=DEFAULT_PNG_COMPRESSION,
         metavar="0-9",
-        help="deflate level of the PNGs: 0 stores (files about 3.5x larger), 1-3 use ISA-L (fast), "
+        help="deflate level of the PNGs: 0 stores (files about 3.6x larger), 1-3 use ISA-L (fast), "
         "4-9 zlib (several times slower, a few percent smaller); the same pixels at every level "
         "(default: %(default)s)",
     )

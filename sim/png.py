@@ -19,12 +19,13 @@ import zlib
 import numpy as np
 from isal import isal_zlib
 
-SIGNATURE = b"\x89PNG\r\n\x1a\n"
+from sim.files import PNG_SIGNATURE
+
 _COLOR_TYPE = {1: 0, 3: 2}
 """PNG colour type for a number of channels: grey, RGB."""
 _FILTER_SUB = 1
 
-FASTEST, SMALLEST = 1, 9
+FASTEST = 1
 ISAL_LEVELS = range(1, 4)
 """Levels 1-3 go to ISA-L (fast); 4-9 to zlib (slow, a few percent smaller); 0 stores."""
 
@@ -56,7 +57,7 @@ def assemble_png(shape: tuple[int, ...], dtype: np.dtype, rows: np.ndarray, leve
         ">IIBBBBB", width, height, np.dtype(dtype).itemsize * 8, _COLOR_TYPE[channels], 0, 0, 0
     )
     idat = _deflate(rows, level)
-    return b"".join((SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", idat), _chunk(b"IEND", b"")))
+    return b"".join((PNG_SIGNATURE, _chunk(b"IHDR", header), _chunk(b"IDAT", idat), _chunk(b"IEND", b"")))
 
 
 def sub_filtered(image: np.ndarray) -> np.ndarray:
