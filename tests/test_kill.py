@@ -55,11 +55,17 @@ def finish(args: list[str], token: str) -> float:
     return time.perf_counter() - began
 
 
-def kill_moments(rng: np.random.Generator, lifetime_s: float, n: int) -> np.ndarray:
-    """Half spread over the whole lifetime, half in its last third (writing and swapping)."""
+def kill_moments(rng: np.random.Generator, lifetime_s: float, n: int, past: int = 0) -> np.ndarray:
+    """Half spread over the whole lifetime, half in its last third (writing and swapping).
+
+    ``past`` of the late moments fall well after the measured lifetime, so that
+    some runs surely finish even when this one is slower than the measured one
+    (a two-core CI machine varies by a fifth from run to run).
+    """
     spread = rng.uniform(0.0, 1.05 * lifetime_s, n - n // 2)
-    late = rng.uniform(0.66 * lifetime_s, 1.05 * lifetime_s, n // 2)
-    return rng.permutation(np.concatenate([spread, late]))
+    late = rng.uniform(0.66 * lifetime_s, 1.05 * lifetime_s, n // 2 - past)
+    after = rng.uniform(1.3 * lifetime_s, 1.6 * lifetime_s, past)
+    return rng.permutation(np.concatenate([spread, late, after]))
 
 
 def kill_at(args: list[str], token: str, delay_s: float) -> None:
@@ -92,14 +98,17 @@ def test_run_overwrite_killed_at_random_moments(smoke_sequence: Path, tmp_path: 
     def args(strategy: str, target: Path) -> list[str]:
         return ["run", str(smoke_sequence), "-o", str(target), "--strategy", strategy, "--overwrite"]
 
-    lifetime = finish(args("none", tmp_path / "ref-none"), token)
-    finish(args("box_rule", tmp_path / "ref-box_rule"), token)
-    complete = {s: (tmp_path / f"ref-{s}" / "trajectory.txt").read_bytes() for s in ("none", "box_rule")}
+    strategies = ("box_rule", "none")
+    # each strategy's lifetime, measured on its own (they differ, and the first run is cold)
+    lifetime = {s: finish(args(s, tmp_path / f"ref-{s}"), token) for s in strategies}
+    lifetime = {s: max(t, finish(args(s, tmp_path / f"ref-{s}"), token)) for s, t in lifetime.items()}
+    complete = {s: (tmp_path / f"ref-{s}" / "trajectory.txt").read_bytes() for s in strategies}
     finish(args("none", out), token)
     seen = {"none": 0, "box_rule": 0}
     rng = np.random.default_rng(20261123)
-    for k, delay in enumerate(kill_moments(rng, lifetime, KILLS)):
-        strategy = ("box_rule", "none")[k % 2]
+    moments = {s: kill_moments(rng, lifetime[s], KILLS // 2, past=1) for s in strategies}
+    schedule = [(s, moments[s][i]) for i in range(KILLS // 2) for s in strategies]
+    for k, (strategy, delay) in enumerate(schedule):
         kill_at(args(strategy, out), token, float(delay))
         files = snapshot(out)  # the output is there, complete, and one of the two
         holds = [s for s, trajectory in complete.items() if files.get("trajectory.txt") == trajectory]
