@@ -102,6 +102,10 @@ class Bone:
     """Meshing resolution of this part (m)."""
     pad: float
     """How far beyond its flesh radius the part may reach (m): the meshing box."""
+    box: tuple[np.ndarray, np.ndarray] | None = None
+    """The meshing box (lower, upper corners), where the part's flesh does not lie along
+    the bone: a cat's curved tail fills a thin band of the box ``pad`` would give, which
+    then costs its 3.5 mm cells cubed (1.7 million points, 3.5 s per cat)."""
 
 
 def person_bind(s: float) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, np.ndarray]]:
@@ -390,6 +394,8 @@ def carve(
     for bone in bones:
         lower = np.minimum(bone.a, bone.b) - bone.radius - bone.pad
         upper = np.maximum(bone.a, bone.b) + bone.radius + bone.pad
+        if bone.box is not None:
+            lower, upper = np.maximum(lower, bone.box[0]), np.minimum(upper, bone.box[1])
         others = [b for b in bones if b is not bone and _within(b, lower, upper, 4 * bone.pad + bone.radius)]
         grid = Grid.around(lower, upper, bone.step)
         p = grid.points
@@ -537,7 +543,7 @@ def quadruped_surfaces(
             )
     tail_a, tail_b = tail
     tail_r = (0.16 if cat else 0.12 if pig else 0.2) * hy
-    tail_pad = 2 * tail_r
+    tail_pad, tail_box = 2 * tail_r, None
     if cat:
         curve = _cat_tail(tail_a, tail_b)
         limbs = [
@@ -547,6 +553,9 @@ def quadruped_surfaces(
             for k, (a, b) in enumerate(zip(curve[:-1], curve[1:], strict=True))
         ]
         tail_pad = float(segment_distance(tail_a, tail_b, curve).max()) + 2 * tail_r
+        # the flesh lies along the curve, blended into the rump (smooth union 0.25 hy)
+        reach = 2 * tail_r + 0.25 * hy
+        tail_box = (curve.min(axis=0) - reach, curve.max(axis=0) + reach)
     else:
         limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r)]
     leg_r = (0.42 if pig else 0.3 if cat else 0.42) * hy
@@ -568,7 +577,7 @@ def quadruped_surfaces(
             0.9 * hy,
         ),
         Bone("snout", head + [0.6 * hy, 0.0, -0.2 * hy], tip, muzzle_r, 0.06 * hy, 0.6 * hy),
-        Bone("tail", tail_a, tail_b, tail_r, 0.3 * tail_r, tail_pad),
+        Bone("tail", tail_a, tail_b, tail_r, 0.3 * tail_r, tail_pad, tail_box),
     ]
     balls: dict[str, list[tuple[np.ndarray, float]]] = {}
     uppers, lowers = [], []
