@@ -526,7 +526,17 @@ def test_a_container_cleans_its_outputs_leftovers_unless_a_live_writer_owns_them
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s-0000", "s-0001"]
 
 
-def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent():
+@pytest.fixture
+def python_sigint():
+    """Python's own Ctrl-C handler, as in a run from a terminal: a test run started in the
+    background from a script (``pytest &``, nohup) inherits SIGINT ignored, and then no
+    Ctrl-C can reach the code under test."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent(python_sigint):
     """While the parent spawns workers, a Ctrl-C must still interrupt it: it used to
     ignore SIGINT in that window, and a Ctrl-C then was lost (the suite ran to the end
     with exit code 0: the ctrl-c-at-start case above, on CI). A worker starts with
@@ -561,7 +571,7 @@ def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent():
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
-def test_a_ctrl_c_taken_by_another_thread_waits_until_the_workers_are_spawned():
+def test_a_ctrl_c_taken_by_another_thread_waits_until_the_workers_are_spawned(python_sigint):
     """Ctrl-C reaches the process group and any thread not blocking SIGINT may take it;
     Python then ran the handler in the main thread at once, in the middle of spawning a
     worker, which died reading its start-up data with a traceback ("Ran out of input":
