@@ -23,6 +23,11 @@ def _edges_shared_twice(faces: np.ndarray) -> bool:
     return bool((counts == 2).all())
 
 
+def _volume(mesh) -> float:
+    a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+
+
 def _assert_closed_and_outward(named_meshes, reach: float | None = None) -> None:
     """Every mesh watertight (each edge shared by two faces) with positive volume, and
     within ``reach`` of its part's frame origin (a wrong frame would fling it away)."""
@@ -30,8 +35,7 @@ def _assert_closed_and_outward(named_meshes, reach: float | None = None) -> None
         assert meshes, name
         for mesh in meshes:
             assert _edges_shared_twice(mesh.faces), name
-            a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
-            assert np.einsum("ij,ij->i", a, np.cross(b, c)).sum() > 0, name
+            assert _volume(mesh) > 0, name
             if reach is not None:
                 assert np.linalg.norm(mesh.vertices, axis=1).max() < reach, name
 
@@ -74,11 +78,6 @@ def test_every_animal_piece_is_a_closed_outward_mesh(kind):
     """As for people: every drawn piece of a dog, cat or pig is watertight with positive
     volume and lies near its own part's frame."""
     _assert_closed_and_outward(_part_meshes(_quadruped(kind, 1).parts), 0.7)
-
-
-def _volume(mesh) -> float:
-    a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
 
 
 def test_a_cats_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(monkeypatch):
