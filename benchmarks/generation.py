@@ -1,11 +1,12 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
-                                       [--repeat R]
+                                       [--repeat R] [--scene NAME]
 
-For the default scenario, prints the rate of one process (Mesa's default threads) and
-of two processes with one thread each, as suites run their workers
-(``sim.executors.single_threaded``), for each PNG level asked. Each worker generates
+For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
+the rate of one process (Mesa's default threads) and of two processes with one thread
+each, as suites run their workers (``sim.executors.single_threaded``), for each PNG
+level asked. Each worker generates
 its own seed. Two rates per line: per frame once the world is built (simulation,
 both render passes, the unoccluded passes, ground truth and PNG writes), and with
 building the world (meshing the figures, textures, compiling) counted too.
@@ -26,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 
-def _run(args: tuple[int, int, int, int, str, bool, int]) -> tuple[float, float]:
+def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[float, float]:
     """(seconds to build the world, seconds to generate, world building included)."""
-    frames, width, height, seed, out, one_thread, png_compression = args
+    frames, width, height, seed, out, one_thread, png_compression, scene = args
     if one_thread:
         from sim.executors import single_threaded
 
@@ -38,9 +39,15 @@ def _run(args: tuple[int, int, int, int, str, bool, int]) -> tuple[float, float]
     from sim.world import build_world
 
     def spec_of(s: int):
-        return dataclasses.replace(
-            default_scenario(frames=frames, seed=s), width=width, height=height, focal_px=525.0 * width / 640
-        )
+        if scene is None:
+            spec = default_scenario(frames=frames, seed=s)
+        else:
+            from scenes import library
+            from scenes.schema import to_scenario
+
+            update = {"frames": frames, "duration_s": None, "seed": s}
+            spec = to_scenario(library.get(scene).model_copy(update=update))
+        return dataclasses.replace(spec, width=width, height=height, focal_px=525.0 * width / 640)
 
     build_world(spec_of(seed + 1000))  # warm imports and code paths on another seed's world
     start = time.perf_counter()
@@ -65,13 +72,20 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--png-compression", type=int, nargs="+", default=[1, 0])
     parser.add_argument("--repeat", type=int, default=1, help="measure each line this many times")
+    parser.add_argument("--scene", help="a library scene instead of the default scenario")
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
     ctx = mp.get_context("spawn")
-    print(
-        f"default scenario, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included"
-    )
+    if args.scene is not None:
+        from scenes import library
+
+        if args.scene not in library.names():
+            parser.error(
+                f"--scene: no library scene {args.scene!r}; choose one of {', '.join(library.names())}"
+            )
+    name = args.scene or "default scenario"
+    print(f"{name}, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included")
     print("frames/s, summed over the processes: once the world is built | with building the world")
     if args.repeat > 1:
         print(f"median of {args.repeat} runs [lowest-highest]")
@@ -80,7 +94,16 @@ def main() -> None:
 
             def jobs(first: int, n: int, one_thread: bool, run: int, level: int = level) -> list:
                 return [
-                    (args.frames, args.width, args.height, s, f"{tmp}/s{s}-{level}-{run}", one_thread, level)
+                    (
+                        args.frames,
+                        args.width,
+                        args.height,
+                        s,
+                        f"{tmp}/s{s}-{level}-{run}",
+                        one_thread,
+                        level,
+                        args.scene,
+                    )
                     for s in range(first, first + n)
                 ]
 
