@@ -27,8 +27,11 @@ class CameraRig:
         self.phases = rng.uniform(0, 2 * math.pi, (3, 3))
         self.jitter_freqs = rng.uniform(0.4, 1.6, (2, 3)) * 2 * math.pi
         self.jitter_phases = rng.uniform(0, 2 * math.pi, (2, 3))
-        self.base = look_at(np.array(spec.position_m), np.array(spec.target_m))
-        self.path = Path(ROBOT_LOOP, smoothing_m=1.2) if spec.motion == "robot" else None
+        robot = spec.motion == "robot"
+        # The robot drives its own loop: its spec's position and target are not used (and
+        # not validated), so it gets no base pose, which they might not define.
+        self.base = None if robot else look_at(np.array(spec.position_m), np.array(spec.target_m))
+        self.path = Path(ROBOT_LOOP, smoothing_m=1.2) if robot else None
 
     def _wave(self, row: int, t: float) -> np.ndarray:
         return np.sin(self.freqs[row] * t + self.phases[row])
@@ -43,6 +46,9 @@ class CameraRig:
     def world_from_camera(self, t: float) -> np.ndarray:
         s = self.spec
         motion = s.motion
+        if motion == "robot":
+            return self._robot(t)
+        assert self.base is not None
         if motion == "static":
             return self.base @ self._jitter(t, 0.002, 0.2)
         if motion == "xyz":
@@ -70,8 +76,12 @@ class CameraRig:
                 ]
             )
             return look_at(eye, target) @ self._jitter(t, 0.0, 0.3)
+        raise ValueError(f"camera.motion: unknown motion {motion!r}")
+
+    def _robot(self, t: float) -> np.ndarray:
+        """A ground robot's camera: along its loop at a constant speed, looking ahead."""
         assert self.path is not None
-        arc = s.speed_mps * t
+        arc = self.spec.speed_mps * t
         xy = self.path.point(arc)
         heading = self.path.tangent(arc)
         eye = np.array([xy[0], xy[1], ROBOT_CAMERA_HEIGHT_M + 0.004 * math.sin(9.0 * t)])

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
+from sim.camera_rig import CameraRig
 from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, look_at
 from sim.sequence import Sequence
 from sim.simulation import Simulation
@@ -249,6 +250,24 @@ def test_camera_rigs_are_smooth(motion):
     positions = np.array([world.rig.world_from_camera(x)[:3, 3] for x in t])
     velocity = np.diff(positions, axis=0) * 30
     assert np.abs(np.diff(velocity, axis=0)).max() * 30 < 5.0  # bounded acceleration: no jumps
+
+
+def test_the_robot_rig_ignores_position_and_target_as_validation_does(tmp_path: Path):
+    """The robot drives its own loop, so validation does not check the camera's position
+    and target for it; the rig must not use them either. Found by the fuzz test: a robot
+    spec with position_m == target_m validated, then generate crashed in look_at."""
+    from eval.cli import main
+
+    spec = tmp_path / "robot.yaml"
+    camera = "{motion: robot, position_m: [0, 0, 0], target_m: [0, 0, 0]}"
+    spec.write_text(f"name: r\nframes: 2\nimage: {{width: 48, height: 36}}\ncamera: {camera}\n")
+    assert main(["validate", str(spec)]) == 0
+    assert main(["generate", str(spec), "-o", str(tmp_path / "out")]) == 0
+    default = CameraRig(CameraSpec(motion="robot"), np.random.default_rng(0))
+    odd_spec = CameraSpec(motion="robot", position_m=(0, 0, 0), target_m=(0, 0, 0))
+    odd = CameraRig(odd_spec, np.random.default_rng(0))
+    for t in (0.0, 1.0, 2.5):
+        np.testing.assert_array_equal(odd.world_from_camera(t), default.world_from_camera(t))
 
 
 def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
