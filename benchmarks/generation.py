@@ -58,9 +58,19 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
     return build, time.perf_counter() - start
 
 
-def _measure(pool, jobs: list[tuple]) -> tuple[float, float]:
-    """Total frames/s of the jobs run side by side: once built, and with building."""
-    results = pool.map(_run, jobs)
+def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
+    """Total frames/s of the jobs run side by side, one fresh process each: once built,
+    and with building. The pool is closed and joined, not terminated as ``with Pool``
+    does: terminating spawned workers left four semaphores for the resource tracker
+    to warn about at exit."""
+    pool = ctx.Pool(len(jobs))
+    try:
+        results = pool.map(_run, jobs)
+    except BaseException:
+        pool.terminate()
+        raise
+    pool.close()
+    pool.join()
     steady = sum(job[0] / (total - build) for job, (build, total) in zip(jobs, results, strict=True))
     return steady, sum(job[0] / total for job, (_, total) in zip(jobs, results, strict=True))
 
@@ -109,10 +119,8 @@ def main() -> None:
 
             singles, doubles = [], []
             for run in range(args.repeat):
-                with ctx.Pool(1) as pool:
-                    singles.append(_measure(pool, jobs(0, 1, False, run)))
-                with ctx.Pool(2) as pool:
-                    doubles.append(_measure(pool, jobs(1, 2, True, run)))
+                singles.append(_measure(ctx, jobs(0, 1, False, run)))
+                doubles.append(_measure(ctx, jobs(1, 2, True, run)))
             single, double = _summary(singles), _summary(doubles)
             print(f"PNG level {level}")
             print(f"  1 process               : {single}")

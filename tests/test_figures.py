@@ -299,3 +299,40 @@ def test_a_cat_seen_from_the_side_shows_an_eye():
             assert np.isin(geom_ids, eye_geoms).sum() >= 15, k  # 28-35 px; buried: 0-1
     finally:
         renderer.close()
+
+
+def test_cats_wear_the_photographed_fur_in_their_coat_colour():
+    """Every cat's coat is the shipped fur photograph (its strands and stripes kept: the
+    luminance correlates with the photograph's at >= 0.99), each channel's mean moved to
+    one of the cats' coat colours; a dog's coat stays drawn."""
+    from sim import textures
+
+    photo = cv2.imread(str(textures.FUR_PHOTO), cv2.IMREAD_COLOR)[:, :, ::-1].astype(np.float32)
+    reference = cv2.resize(photo, (128, 128), interpolation=cv2.INTER_AREA).mean(axis=2).ravel()
+    colours = [np.array(c, float) for c, pattern in textures.COATS["cat"] if pattern == "photo"]
+    assert len(colours) == len(textures.COATS["cat"])
+    seen = set()
+    for seed in range(12):
+        image = textures.coat(np.random.default_rng(seed), "cat")
+        assert image.shape == (128, 128, 3) and image.dtype == np.uint8
+        means = image.reshape(-1, 3).mean(axis=0)
+        k = int(np.argmin([np.abs(means - c).max() for c in colours]))
+        # within 5 grey levels: the ginger coat's brightest strands clip at 255 (-3.9 in red)
+        assert np.abs(means - colours[k]).max() < 5.0, (seed, means)
+        seen.add(k)
+        assert np.corrcoef(image.mean(axis=2).ravel(), reference)[0, 1] >= 0.99, seed
+    assert len(seen) >= 3  # the seed picks the colour
+    dog = textures.coat(np.random.default_rng(0), "dog").mean(axis=2).ravel()
+    assert abs(np.corrcoef(dog, reference)[0, 1]) < 0.3
+
+
+def test_a_missing_fur_photograph_is_named(monkeypatch, tmp_path):
+    from sim import textures
+
+    monkeypatch.setattr(textures, "FUR_PHOTO", tmp_path / "cat_fur.png")
+    textures._fur_photo.cache_clear()
+    try:
+        with pytest.raises(FileNotFoundError, match="cat_fur.png"):
+            textures.coat(np.random.default_rng(0), "cat")
+    finally:
+        textures._fur_photo.cache_clear()
