@@ -483,30 +483,19 @@ def photo_fur(colour: Colour, size: int = 128) -> np.ndarray:
 
 
 def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
-    """An animal's coat: a colour of its kind with a pattern (patches, tabby stripes, a
-    dark saddle, mud), fur strands over it; or, for cats, the photographed fur."""
+    """An animal's coat: a colour of its kind with a pattern (mud, a dark saddle) and fur
+    strands over it; or, for cats, the photographed fur in the coat's colour."""
     colour, pattern = COATS[kind][int(rng.integers(len(COATS[kind])))]
     if pattern == "photo":
         return photo_fur(colour, size)
     image = _base(rng, size, colour, grain=25)
-    dark = tuple(0.6 * c for c in colour)  # soft tabby stripes: bold ones read as a zebra's
-    if pattern == "tabby":
-        for y in range(0, size, int(rng.integers(9, 14))):
-            wobble = (np.sin(np.arange(size) / rng.uniform(5, 9) + rng.uniform(0, 6)) * 3).astype(int)
-            for x in range(0, size, 2):
-                cv2.line(image, (x, y + int(wobble[x])), (x + 2, y + int(wobble[x])), dark, 3)
-    elif pattern in ("patches", "dirt"):
-        # Soft-edged colours, not black on white: a Dalmatian's spots would be the
-        # densest ORB corners of the scene and make the animal a feature magnet.
-        # Patches a few shades off the coat, so they do not break up the animal's outline.
-        other = (190, 140, 90) if colour[0] > 150 else (200, 160, 115)
-        count = 5
-        if pattern == "dirt":
-            other, count = (170, 130, 105), 4
-        for _ in range(count):
+    if pattern == "dirt":
+        # Soft-edged smears a few shades off the coat, not dark spots: a Dalmatian's spots
+        # would be the densest ORB corners of the scene and break up the animal's outline.
+        for _ in range(4):
             c = tuple(int(v) for v in rng.integers(0, size, 2))
             axes = (int(rng.integers(14, 30)), int(rng.integers(10, 22)))
-            cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, other, -1)
+            cv2.ellipse(image, c, axes, float(rng.uniform(0, 180)), 0, 360, (170, 130, 105), -1)
     elif pattern == "saddle":
         cv2.rectangle(image, (0, 0), (size, size // 2), (25, 22, 20), -1)
     for _ in range(400):
