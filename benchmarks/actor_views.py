@@ -30,6 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from sheets import fit, grid, write_png
 
 from detectors.base import DetectorFrame
 from detectors.config import DetectorConfigError, parse_detector
@@ -96,7 +97,6 @@ def _views(args: argparse.Namespace, seed: int, detector) -> list[View]:
     geom_instance = world.body_instance[world.model.geom_bodyid]
     renderer = FrameRenderer(world.model, spec.width, spec.height, geom_instance)
     instance = next(i.instance_id for i in world.instances if i.kind == "actor")
-    wanted = args.kind
     spot = np.array([0.0, CAMERA_Y + args.distance])
     views = []
     try:
@@ -111,7 +111,7 @@ def _views(args: argparse.Namespace, seed: int, detector) -> list[View]:
                     raise SystemExit(f"seed {seed}, heading {heading:.0f}: the {args.kind} is out of view")
                 box = np.array([[cols.min(), rows.min(), cols.max() + 1, rows.max() + 1]], float)
                 found = detector.detect(DetectorFrame(len(views), 0.0, rgb))
-                score, called = _score(found, box, wanted)
+                score, called = _score(found, box, args.kind)
                 views.append(View(seed, float(heading), moment, score, called, _crop(rgb, box[0])))
     finally:
         renderer.close()
@@ -137,17 +137,15 @@ def _crop(rgb: np.ndarray, box: np.ndarray, side: int = 160) -> np.ndarray:
     margin = int(0.2 * max(x1 - x0, y1 - y0))
     h, w = rgb.shape[:2]
     crop = rgb[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
-    scale = side / max(crop.shape[:2])
-    return cv2.resize(crop, (max(1, round(crop.shape[1] * scale)), max(1, round(crop.shape[0] * scale))))
+    return fit(crop, side)
 
 
 def _report(views: list[View], kind: str) -> None:
-    wanted = kind
     print(f"{'heading':>8} {'recognised':>11} {'mean score':>11}  called instead (best-overlapping box)")
     for heading in sorted({v.heading_deg for v in views}):
         group = [v for v in views if v.heading_deg == heading]
         hits = sum(v.score >= RECOGNISED for v in group)
-        others = Counter(v.called for v in group if v.score < RECOGNISED and v.called != wanted)
+        others = Counter(v.called for v in group if v.score < RECOGNISED and v.called != kind)
         text = ", ".join(f"{name} {n}" for name, n in others.most_common(3)) or "-"
         print(f"{heading:7.0f}° {hits:5d}/{len(group):<5d} {np.mean([v.score for v in group]):11.2f}  {text}")
     hits = sum(v.score >= RECOGNISED for v in views)
@@ -171,11 +169,8 @@ def _sheet(views: list[View], path: Path, columns: int) -> None:
         label = f"s{v.seed} {v.heading_deg:.0f}d {v.moment_s:.2f}s {v.score:.2f} {v.called}"
         cv2.putText(tile, label, (2, side + 12), cv2.FONT_HERSHEY_PLAIN, 0.75, (0, 0, 0), 1)
         tiles.append(tile)
-    while len(tiles) % columns:
-        tiles.append(np.full_like(tiles[0], 255))
-    rows = [np.concatenate(tiles[i : i + columns], axis=1) for i in range(0, len(tiles), columns)]
     path.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(path), np.concatenate(rows, axis=0))
+    write_png(path, grid(tiles, columns))
     print(f"wrote {path} ({len(views)} views)")
 
 
@@ -190,8 +185,11 @@ def main() -> int:
     )
     parser.add_argument("--camera-height", type=float, default=0.9)
     parser.add_argument("--detector", default="onnx", help="onnx (the shipped YOLOX-nano) or onnx:MODEL")
-    parser.add_argument("--sheet", type=Path, help="write a labelled picture of every view here")
+    parser.add_argument("--sheet", type=Path, help="write a labelled picture of every view to this new .png")
     args = parser.parse_args()
+    if args.sheet is not None and (args.sheet.suffix.lower() != ".png" or args.sheet.exists()):
+        # Checked before the run: the picture never replaces a file that is already there.
+        parser.error(f"--sheet {args.sheet}: give a new .png path")
     if args.distance is None:
         args.distance = 3.0 if args.kind == "person" else 1.3
     if args.headings < 1 or args.moments < 1:

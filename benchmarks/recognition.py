@@ -34,6 +34,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from sheets import fit, grid
 
 from detectors.config import parse_detector
 from eval.cache import StageCache
@@ -140,8 +141,7 @@ def _miss_tile(sequence: Sequence, index: int, box: tuple[int, ...], found) -> n
     margin = 20
     h, w = image.shape[:2]
     crop = image[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
-    scale = TILE / max(crop.shape[:2])
-    crop = cv2.resize(crop, (max(1, round(crop.shape[1] * scale)), max(1, round(crop.shape[0] * scale))))
+    crop = fit(crop, TILE)
     tile = np.full((TILE + 30, TILE, 3), 255, np.uint8)
     tile[: crop.shape[0], : crop.shape[1]] = crop
     name = f"{sequence.meta['scenario']['name']} s{sequence.meta['seed']} f{index}"
@@ -156,14 +156,8 @@ def _write_misses(folder: Path, misses: dict[str, list[np.ndarray]], most: int =
         if not tiles:
             continue
         picked = [tiles[i] for i in np.linspace(0, len(tiles) - 1, min(most, len(tiles))).round().astype(int)]
-        columns = 8
-        rows = -(-len(picked) // columns)
-        grid = np.full((rows * picked[0].shape[0], columns * TILE, 3), 255, np.uint8)
-        for k, tile in enumerate(picked):
-            r, c = divmod(k, columns)
-            grid[r * tile.shape[0] : (r + 1) * tile.shape[0], c * TILE : (c + 1) * TILE] = tile
         path = folder / f"misses_{group.replace(', ', '_').replace(' ', '_')}.png"
-        cv2.imwrite(str(path), grid)
+        cv2.imwrite(str(path), grid(picked, columns=8))
         print(f"wrote {path} ({len(picked)} of {len(tiles)} misses)")
 
 

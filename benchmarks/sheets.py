@@ -1,0 +1,39 @@
+"""Contact sheets for the benchmarks' pictures: crops fitted to a square tile, laid out
+in a grid, written whole or not at all."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+
+def fit(image: np.ndarray, side: int) -> np.ndarray:
+    """``image`` scaled so that its longer side is ``side`` pixels."""
+    scale = side / max(image.shape[:2])
+    size = (max(1, round(image.shape[1] * scale)), max(1, round(image.shape[0] * scale)))
+    return cv2.resize(image, size)
+
+
+def grid(tiles: list[np.ndarray], columns: int) -> np.ndarray:
+    """Equal-sized tiles, row by row, ``columns`` to a row; the last row padded white."""
+    height, width = tiles[0].shape[:2]
+    rows = -(-len(tiles) // columns)
+    sheet = np.full((rows * height, columns * width, 3), 255, np.uint8)
+    for k, tile in enumerate(tiles):
+        r, c = divmod(k, columns)
+        sheet[r * height : (r + 1) * height, c * width : (c + 1) * width] = tile
+    return sheet
+
+
+def write_png(path: Path, image: np.ndarray) -> None:
+    """Write ``image`` (BGR) to ``path`` through a temporary file beside it, so that an
+    interrupted write leaves no half picture."""
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise OSError(f"{path}: could not encode the picture")
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data.tobytes())
+    os.replace(tmp, path)
