@@ -387,7 +387,9 @@ QUADRUPEDS = {
     # Legs about as long as the chest is deep and the head carried up on a neck: a
     # dog's outline, not a horse's (long legs) or a table's (head at the back's height).
     "dog": QuadrupedBuild("dog", (0.3, 0.12, 0.14), 0.34, 0.6, "fur_dog", 0.3, 0.8, 0.75),
-    "cat": QuadrupedBuild("cat", (0.21, 0.075, 0.085), 0.19, 0.35, "fur_cat", 0.3, 1.2, 0.5),
+    # A cat's body is as deep as its legs are long, and broad: the slim build it had
+    # (0.075 x 0.085 m half-sections) was called dog, bird or horse from most sides.
+    "cat": QuadrupedBuild("cat", (0.21, 0.1, 0.11), 0.19, 0.35, "fur_cat", 0.3, 1.2, 0.5),
     "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig", 0.09, 0.8),
 }
 
