@@ -159,14 +159,17 @@ def _report(views: list[View], kind: str) -> None:
     )
 
 
-def _sheet(views: list[View], path: Path, columns: int) -> None:
-    """One row per seed and moment, one column per heading."""
+def _sheet(views: list[View], path: Path, columns: int, kind: str) -> None:
+    """One row per seed and moment, one column per heading; each view labelled with its
+    class's score and, when not recognised, what the detector called it instead."""
     side = 160
     tiles = []
     for v in sorted(views, key=lambda v: (v.seed, v.moment_s, v.heading_deg)):
         tile = np.full((side + 16, side, 3), 255, np.uint8)
         tile[: v.crop.shape[0], : v.crop.shape[1]] = v.crop[:, :, ::-1]
-        label = f"s{v.seed} {v.heading_deg:.0f}d {v.moment_s:.2f}s {v.score:.2f} {v.called}"
+        label = f"s{v.seed} {v.heading_deg:.0f}d {v.moment_s:.2f}s {kind} {v.score:.2f}"
+        if v.score < RECOGNISED:
+            label += f" ({v.called})" if v.called != kind else " (low)"
         cv2.putText(tile, label, (2, side + 12), cv2.FONT_HERSHEY_PLAIN, 0.75, (0, 0, 0), 1)
         tiles.append(tile)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -218,7 +221,7 @@ def main() -> int:
     )
     _report(views, args.kind)
     if args.sheet is not None:
-        _sheet(views, args.sheet, columns=args.headings)
+        _sheet(views, args.sheet, columns=args.headings, kind=args.kind)
     return 0
 
 
