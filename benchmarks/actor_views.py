@@ -30,7 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from sheets import fit, grid, write_png
+from sheets import crop_around, fit, grid, write_png
 
 from detectors.base import DetectorFrame
 from detectors.config import DetectorConfigError, parse_detector
@@ -134,10 +134,7 @@ def _score(found, box: np.ndarray, wanted: str) -> tuple[float, str]:
 
 def _crop(rgb: np.ndarray, box: np.ndarray, side: int = 160) -> np.ndarray:
     x0, y0, x1, y1 = box.astype(int)
-    margin = int(0.2 * max(x1 - x0, y1 - y0))
-    h, w = rgb.shape[:2]
-    crop = rgb[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
-    return fit(crop, side)
+    return fit(crop_around(rgb, (x0, y0, x1, y1), int(0.2 * max(x1 - x0, y1 - y0))), side)
 
 
 def _report(views: list[View], kind: str) -> None:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from sheets import fit, grid
+from sheets import crop_around, fit, grid, write_png
 
 from detectors.config import parse_detector
 from eval.cache import StageCache
@@ -138,10 +138,7 @@ def _miss_tile(sequence: Sequence, index: int, box: tuple[int, ...], found) -> n
             bx0, by0, bx1, by1 = (int(v) for v in found[best].box_xyxy)
             cv2.rectangle(image, (bx0, by0), (bx1, by1), (0, 0, 230), 1)
             caption = f"{found[best].class_name} {found[best].confidence:.2f} iou {ious[best]:.2f}"
-    margin = 20
-    h, w = image.shape[:2]
-    crop = image[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
-    crop = fit(crop, TILE)
+    crop = fit(crop_around(image, (x0, y0, x1, y1), margin=20), TILE)
     tile = np.full((TILE + 30, TILE, 3), 255, np.uint8)
     tile[: crop.shape[0], : crop.shape[1]] = crop
     name = f"{sequence.meta['scenario']['name']} s{sequence.meta['seed']} f{index}"
@@ -157,7 +154,7 @@ def _write_misses(folder: Path, misses: dict[str, list[np.ndarray]], most: int =
             continue
         picked = [tiles[i] for i in np.linspace(0, len(tiles) - 1, min(most, len(tiles))).round().astype(int)]
         path = folder / f"misses_{group.replace(', ', '_').replace(' ', '_')}.png"
-        cv2.imwrite(str(path), grid(picked, columns=8))
+        write_png(path, grid(picked, columns=8))
         print(f"wrote {path} ({len(picked)} of {len(tiles)} misses)")
 
 

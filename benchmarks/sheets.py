@@ -17,6 +17,14 @@ def fit(image: np.ndarray, side: int) -> np.ndarray:
     return cv2.resize(image, size)
 
 
+def crop_around(image: np.ndarray, box, margin: int) -> np.ndarray:
+    """The part of ``image`` inside ``box`` (x0, y0, x1, y1) grown by ``margin`` pixels
+    on each side, clipped to the image."""
+    x0, y0, x1, y1 = (int(v) for v in box)
+    h, w = image.shape[:2]
+    return image[max(0, y0 - margin) : min(h, y1 + margin), max(0, x0 - margin) : min(w, x1 + margin)]
+
+
 def grid(tiles: list[np.ndarray], columns: int) -> np.ndarray:
     """Equal-sized tiles, row by row, ``columns`` to a row; the last row padded white."""
     height, width = tiles[0].shape[:2]
