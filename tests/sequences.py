@@ -65,3 +65,66 @@ def write_sequence(root: Path, n: int = 5, seed: int = 0, fps: float = 30.0, wit
             w.add_frame(t, rgb, depth, pose, instances, objects, flow if with_flow else None)
             frames.append((t, rgb, depth, pose, instances, objects, flow))
     return frames
+
+
+def tree_differences(a: Path, b: Path, skip: tuple[str, ...] = ()) -> list[str]:
+    """What differs between two output folders, one line per file, saying how: files only
+    one side has, and for a differing PNG the pixels that differ and by how much, for an
+    .npz its arrays, for text the first differing line. Empty when byte-identical.
+
+    A determinism failure is rare and costly to reproduce; the message is the evidence."""
+    names_a = {p.relative_to(a) for p in a.rglob("*") if p.is_file() and p.name not in skip}
+    names_b = {p.relative_to(b) for p in b.rglob("*") if p.is_file() and p.name not in skip}
+    lines = [f"{rel}: only in {a}" for rel in sorted(names_a - names_b)]
+    lines += [f"{rel}: only in {b}" for rel in sorted(names_b - names_a)]
+    for rel in sorted(names_a & names_b):
+        data_a, data_b = (a / rel).read_bytes(), (b / rel).read_bytes()
+        if data_a != data_b:
+            lines.append(f"{rel}: {_how_they_differ(rel.suffix, data_a, data_b)}")
+    return lines
+
+
+def _how_they_differ(suffix: str, data_a: bytes, data_b: bytes) -> str:
+    import io
+
+    import cv2
+
+    if suffix == ".png":
+        image_a = cv2.imdecode(np.frombuffer(data_a, np.uint8), cv2.IMREAD_UNCHANGED)
+        image_b = cv2.imdecode(np.frombuffer(data_b, np.uint8), cv2.IMREAD_UNCHANGED)
+        if image_a.shape != image_b.shape:
+            return f"shapes {image_a.shape} and {image_b.shape}"
+        delta = np.abs(image_a.astype(np.int64) - image_b.astype(np.int64))
+        if delta.ndim == 3:
+            delta = delta.max(axis=2)
+        rows, cols = np.nonzero(delta)
+        if not len(rows):
+            return f"same pixels, different encoding ({len(data_a)} and {len(data_b)} bytes)"
+        return (
+            f"{len(rows)} pixels differ, by up to {delta.max()} "
+            f"(first at row {rows[0]}, column {cols[0]}: {image_a[rows[0], cols[0]]} and "
+            f"{image_b[rows[0], cols[0]]})"
+        )
+    if suffix == ".npz":
+        arrays_a, arrays_b = np.load(io.BytesIO(data_a)), np.load(io.BytesIO(data_b))
+        parts = []
+        for key in sorted(set(arrays_a.files) | set(arrays_b.files)):
+            if key not in arrays_a.files or key not in arrays_b.files:
+                parts.append(f"{key} on one side only")
+                continue
+            x, y = arrays_a[key], arrays_b[key]
+            if x.shape != y.shape:
+                parts.append(f"{key} shapes {x.shape} and {y.shape}")
+            elif not np.array_equal(x, y, equal_nan=True):
+                unequal = ~((x == y) | (np.isnan(x) & np.isnan(y)))
+                parts.append(
+                    f"{key}: {int(unequal.sum())} values differ, by up to "
+                    f"{float(np.nanmax(np.abs(x - y))):.3g}"
+                )
+        return "; ".join(parts) or "same arrays, different encoding"
+    lines_a = data_a.decode(errors="replace").splitlines()
+    lines_b = data_b.decode(errors="replace").splitlines()
+    for k, (x, y) in enumerate(zip(lines_a, lines_b, strict=False)):
+        if x != y:
+            return f"line {k + 1} differs: {x[:200]!r} and {y[:200]!r}"
+    return f"{len(lines_a)} and {len(lines_b)} lines"

@@ -14,7 +14,7 @@ from sim.camera import TUM_FREIBURG, read_orbslam_yaml
 from sim.errors import SequenceFormatError
 from sim.output import OutputError
 from sim.sequence import Sequence, SequenceWriter, encode_depth
-from tests.sequences import SMALL, random_frame, write_sequence
+from tests.sequences import SMALL, random_frame, tree_differences, write_sequence
 
 
 @pytest.fixture
@@ -114,11 +114,29 @@ def test_overwrite_replaces_whole_folder(seq_dir: Path):
 def test_same_input_same_bytes(tmp_path: Path):
     write_sequence(tmp_path / "a", seed=3)
     write_sequence(tmp_path / "b", seed=3)
-    files_a = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
-    files_b = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
-    assert files_a == files_b
-    for rel in files_a:
-        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
+    assert tree_differences(tmp_path / "a", tmp_path / "b") == []
+
+
+def test_tree_differences_says_how_two_sequences_differ(tmp_path: Path):
+    """The determinism tests' failure message: which files, which pixels, by how much."""
+    write_sequence(tmp_path / "a", seed=3)
+    write_sequence(tmp_path / "b", seed=3)
+    depth_png = sorted((tmp_path / "b" / "depth").glob("*.png"))[1]
+    depth = cv2.imread(str(depth_png), cv2.IMREAD_UNCHANGED)
+    depth[4, 9] += 3
+    cv2.imwrite(str(depth_png), depth)
+    flow = sorted((tmp_path / "b" / "gt" / "flow").glob("*.npz"))[0]
+    arrays = dict(np.load(flow))
+    arrays["flow"][0, 0, 0] += 0.5
+    np.savez_compressed(flow, **arrays)
+    (tmp_path / "b" / "stray.txt").write_text("x")
+    report = tree_differences(tmp_path / "a", tmp_path / "b")
+    rel = depth_png.relative_to(tmp_path / "b")
+    assert report == [
+        f"stray.txt: only in {tmp_path / 'b'}",
+        f"{rel}: 1 pixels differ, by up to 3 (first at row 4, column 9: {depth[4, 9] - 3} and {depth[4, 9]})",
+        f"{flow.relative_to(tmp_path / 'b')}: flow: 1 values differ, by up to 0.5",
+    ]
 
 
 def test_encode_depth_marks_invalid_as_no_reading():
