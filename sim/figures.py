@@ -17,6 +17,7 @@ the skin, not the body part. Rigid parts with overlapping joints keep both exact
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from sim.shapes import (
     smooth_union,
     union,
 )
+from sim.textures import COAT_WIDTH_M
 
 ARM_SPREAD_DEG = 14.0
 """Arms of the bind pose hang this far from the body, so they do not melt into it."""
@@ -56,6 +58,9 @@ class Surface:
     size: tuple[float, ...] = ()
     pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
     quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    texcoord: np.ndarray | None = None
+    """A mesh's texture coordinates (3F, 2), one per corner of each face in order: set
+    where a coat is laid on along the body (``wrapped``), not projected by a cube map."""
 
 
 @dataclass(frozen=True)
@@ -477,6 +482,31 @@ QUADRUPED_PARTS = (
 )
 
 
+def wrapped(
+    surface: Surface, a: np.ndarray, b: np.ndarray, down: np.ndarray, frame: tuple[np.ndarray, np.ndarray]
+) -> Surface:
+    """``surface`` with texture coordinates round the axis a-b (bind pose): u along it,
+    COAT_WIDTH_M per texture width; v the angle round it from ``down`` (0 and 1) over
+    the side to the opposite (0.5). A face across the seam under the body gets its
+    corners' v unwrapped past 1 (the texture repeats), not squeezed across the texture."""
+    assert surface.mesh is not None
+    origin, rotation = frame
+    points = surface.mesh.vertices @ rotation.T + origin
+    axis = (b - a) / np.linalg.norm(b - a)
+    rel = points - a
+    along = rel @ axis
+    radial = rel - along[:, None] * axis
+    d = down - (down @ axis) * axis
+    d /= np.linalg.norm(d)
+    side = np.cross(axis, d)
+    v = np.mod(np.arctan2(radial @ side, radial @ d) / (2 * np.pi), 1.0)
+    corners = np.stack([along / COAT_WIDTH_M, v], axis=1)[surface.mesh.faces]  # (F, 3, 2)
+    cv = corners[:, :, 1]
+    across = (cv.max(axis=1) - cv.min(axis=1)) > 0.5
+    cv[across] = np.where(cv[across] < 0.5, cv[across] + 1.0, cv[across])
+    return dataclasses.replace(surface, texcoord=corners.reshape(-1, 2))
+
+
 def quadruped_surfaces(
     kind: str,
     half: tuple[float, float, float],
@@ -612,6 +642,15 @@ def quadruped_surfaces(
         return [("coat", None, 0.0)]
 
     out = carve(body, bones + uppers + lowers, balls, frames, pieces, overlap=0.1 * hy)
+    if cat:  # the tabby coat is laid on round each part, its belly side down (legs: inwards)
+        for bone in bones + uppers + lowers:
+            down = np.array([0.0, 0.0, -1.0])
+            if bone.part.endswith(("leg_0", "leg_1", "leg_2", "leg_3")):
+                down = np.array([0.0, -np.sign(bone.a[1]), 0.0])
+            out[bone.part] = [
+                wrapped(s, bone.a, bone.b, down, frames[bone.part]) if s.material == "coat" else s
+                for s in out[bone.part]
+            ]
     out["head"] += _animal_eyes(head, skull_r, frames["head"], (0.15 if cat else 0.09) * hy, cat)
     return {part: tuple(surfaces) for part, surfaces in out.items()}
 

@@ -120,7 +120,8 @@ def _material_images(
         if isinstance(look, Look):
             mats |= {f"{role}{k}": image for role, image in _person_images(rng, pattern, look).items()}
         elif isinstance(look, AnimalLook):
-            mats[f"coat{k}"] = ("cube", textures.coat(rng, kind))
+            # a cat's coat is laid on along its body (figures.wrapped), the others are cube maps
+            mats[f"coat{k}"] = ("uv" if kind == "cat" else "cube", textures.coat(rng, kind))
     return mats
 
 
@@ -153,22 +154,25 @@ def _person_images(rng: np.random.Generator, pattern: str, look: Look) -> dict[s
 def _add_materials(spec: mujoco.MjSpec, images: dict[str, tuple[str, np.ndarray]]) -> None:
     for name, (kind, image) in images.items():
         h, w = image.shape[:2]
-        if kind == "2d":
+        if kind in ("2d", "uv"):
             tex = spec.add_texture(
                 name=name, type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h, nchannel=3
             )
             tex.data = np.ascontiguousarray(image).tobytes()
         else:
+            # A square image is every face of the cube; six stacked faces (+x, -x, +y, -y,
+            # +z, -z in the geom's frame) give each side its own.
+            faces = image if h == 6 * w else np.tile(image, (6, 1, 1))
             tex = spec.add_texture(
-                name=name, type=mujoco.mjtTexture.mjTEXTURE_CUBE, width=w, height=6 * h, nchannel=3
+                name=name, type=mujoco.mjtTexture.mjTEXTURE_CUBE, width=w, height=len(faces), nchannel=3
             )
-            tex.data = np.ascontiguousarray(np.tile(image, (6, 1, 1))).tobytes()
+            tex.data = np.ascontiguousarray(faces).tobytes()
         mat = spec.add_material(name=name)
         mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = name
         mat.specular = 0.0
         mat.shininess = 0.0
         mat.reflectance = 0.0
-        if kind == "2d":
+        if kind == "2d":  # tiled over the surface; "uv": laid on by the mesh's coordinates
             mat.texuniform = True
             mat.texrepeat = [1.0, 1.0] if name == "floor" else [0.5, 0.5]
         if name == "lamp":
@@ -299,12 +303,15 @@ def _add_surface(spec: mujoco.MjSpec, body: mujoco.MjsBody, surface: Surface, na
             type=_SHAPES[surface.shape], size=size, pos=list(surface.pos), quat=list(surface.quat), **common
         )
         return
-    spec.add_mesh(
+    mesh = spec.add_mesh(
         name=name,
         uservert=surface.mesh.vertices.astype(np.float32).ravel().tolist(),
         userface=surface.mesh.faces.ravel().tolist(),
         inertia=mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL,
     )
+    if surface.texcoord is not None:
+        mesh.usertexcoord = surface.texcoord.astype(np.float32).ravel().tolist()
+        mesh.userfacetexcoord = list(range(len(surface.texcoord)))
     body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, mass=0.0, **common)
 
 

@@ -502,11 +502,12 @@ def test_run_with_the_onnx_detector_works_with_every_strategy(one_person: Path, 
 def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(tmp_path: Path):
     """The cats' coat and build are what made them cats to a COCO detector (0.11 of
     sightings with drawn stripes, 0.53 with the photographed fur, 0.63 with a stockier
-    body and larger head; README). A regression guard over dog_and_cat_roaming's seeds
-    1-3, 40 frames each, recognition.py's rule (a cat box with IoU >= 0.5 at confidence
-    0.3, sightings of >= 2000 visible px): drawn coats gave 17 of 120 here (version
-    0.3.4), the photographed fur on the slim cat 62 of 120, the stocky cat 72 of 120;
-    the floor is 0.55."""
+    body and larger head, 0.87 with the fur laid on along the body; README). A
+    regression guard over dog_and_cat_roaming's seeds 1-3, 40 frames each,
+    recognition.py's rule (a cat box with IoU >= 0.5 at confidence 0.3, sightings of
+    >= 2000 visible px): drawn coats gave 17 of 120 here (version 0.3.4), the
+    photographed fur on the slim cat 62 of 120, the stocky cat 72 of 120, the fur laid on
+    (0.3.8) 92 of 120; the floor is 0.7."""
     from detectors.config import SHIPPED_MODEL
     from eval.detection_eval import iou_matrix
     from scenes import library
@@ -535,4 +536,4 @@ def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(tmp_path: Path)
             sightings += 1
             hits += bool((ious >= 0.5).any())
     assert sightings >= 100
-    assert hits / sightings >= 0.55, (hits, sightings)
+    assert hits / sightings >= 0.7, (hits, sightings)
