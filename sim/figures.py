@@ -38,7 +38,7 @@ from sim.shapes import (
     smooth_union,
     union,
 )
-from sim.textures import COAT_WIDTH_M
+from sim.textures import COAT_WIDTH_M, LAID_ON
 
 ARM_SPREAD_DEG = 14.0
 """Arms of the bind pose hang this far from the body, so they do not melt into it."""
@@ -483,10 +483,15 @@ QUADRUPED_PARTS = (
 
 
 def wrapped(
-    surface: Surface, a: np.ndarray, b: np.ndarray, down: np.ndarray, frame: tuple[np.ndarray, np.ndarray]
+    surface: Surface,
+    a: np.ndarray,
+    b: np.ndarray,
+    down: np.ndarray,
+    frame: tuple[np.ndarray, np.ndarray],
+    width_m: float,
 ) -> Surface:
     """``surface`` with texture coordinates round the axis a-b (bind pose): u along it,
-    COAT_WIDTH_M per texture width; v the angle round it from ``down`` (0 and 1) over
+    ``width_m`` per texture width; v the angle round it from ``down`` (0 and 1) over
     the side to the opposite (0.5). A face across the seam under the body gets its
     corners' v unwrapped past 1 (the texture repeats), not squeezed across the texture."""
     assert surface.mesh is not None
@@ -500,7 +505,7 @@ def wrapped(
     d /= np.linalg.norm(d)
     side = np.cross(axis, d)
     v = np.mod(np.arctan2(radial @ side, radial @ d) / (2 * np.pi), 1.0)
-    corners = np.stack([along / COAT_WIDTH_M, v], axis=1)[surface.mesh.faces]  # (F, 3, 2)
+    corners = np.stack([along / width_m, v], axis=1)[surface.mesh.faces]  # (F, 3, 2)
     cv = corners[:, :, 1]
     across = (cv.max(axis=1) - cv.min(axis=1)) > 0.5
     cv[across] = np.where(cv[across] < 0.5, cv[across] + 1.0, cv[across])
@@ -642,13 +647,15 @@ def quadruped_surfaces(
         return [("coat", None, 0.0)]
 
     out = carve(body, bones + uppers + lowers, balls, frames, pieces, overlap=0.1 * hy)
-    if cat:  # the tabby coat is laid on round each part, its belly side down (legs: inwards)
+    if kind in LAID_ON:  # the coat is laid on round each part, its belly side down (legs: inwards)
         for bone in bones + uppers + lowers:
             down = np.array([0.0, 0.0, -1.0])
             if bone.part.endswith(("leg_0", "leg_1", "leg_2", "leg_3")):
                 down = np.array([0.0, -np.sign(bone.a[1]), 0.0])
             out[bone.part] = [
-                wrapped(s, bone.a, bone.b, down, frames[bone.part]) if s.material == "coat" else s
+                wrapped(s, bone.a, bone.b, down, frames[bone.part], COAT_WIDTH_M[kind])
+                if s.material == "coat"
+                else s
                 for s in out[bone.part]
             ]
     out["head"] += _animal_eyes(head, skull_r, frames["head"], (0.15 if cat else 0.09) * hy, cat)

@@ -481,8 +481,8 @@ def _fur_photo() -> np.ndarray:
 
 def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
     """An animal's coat: a colour of its kind with a pattern (mud, a dark saddle) and fur
-    strands over it, for a cube map; or, for cats, the photographed fur in the coat's
-    colour laid out to be laid on along the body (``tabby``, twice ``size``)."""
+    strands over it, for a cube map; for cats, the photographed fur in the coat's colour
+    laid out round the body (``tabby``, twice ``size``)."""
     colour, pattern = COATS[kind][int(rng.integers(len(COATS[kind])))]
     if pattern == "photo":
         return tabby(colour, 2 * size)
@@ -504,27 +504,38 @@ def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
     return _finish(image)
 
 
-COAT_WIDTH_M = 1.0
-"""Metres of body one width of the ``tabby`` texture covers along a part (it repeats).
-The photograph's stripes then fall a few centimetres apart, as a tabby's do; at 0.16 m
-a width they were fine streaks and a lone cat was recognised in 46 of 120 views
-(benchmarks/actor_views.py, seeds 1-5), at 0.4 m in 83, at 0.7 m in 111, at 1.0 m in 116."""
+COAT_WIDTH_M = {"cat": 1.0}
+"""Metres of body one width of the coat's texture covers along a part (it repeats), for
+each animal whose coat is laid on along the body (texture coordinates round each part,
+``figures.wrapped``) rather than cube-mapped. For cats the photograph's stripes then fall
+a few centimetres apart, as a tabby's do: at 0.16 m a width they were fine streaks and
+a lone cat was recognised in 46 of 120 views (benchmarks/actor_views.py, seeds 1-5), at
+0.4 m in 83, 0.7 m in 111, 1.0 m in 116 (cube-mapped: 88). Dogs stay cube-mapped: their
+drawn coat laid on at 0.6 m and countershaded (back 0.15, cream 0.4) was recognised
+alone in 108 of 120 views against 99, but in dog_and_cat_roaming in 0.77 of sightings
+on seeds 1-10 against 0.84, and 0.74 against 0.78 on seeds 11-20."""
+LAID_ON = frozenset(COAT_WIDTH_M)
+
+
+def countershaded(image: np.ndarray, back: float, cream: float) -> np.ndarray:
+    """A coat laid out round the body (rows from the belly over a flank to the back and
+    down again) darkened along the back by up to ``back`` and blended towards cream
+    underneath by up to ``cream``: most furred animals are paler below."""
+    size = image.shape[0]
+    around = np.cos(2 * np.pi * (np.arange(size) + 0.5) / size)[:, None, None]  # 1 under, -1 on top
+    belly, top = np.clip(around, 0.0, 1.0), np.clip(-around, 0.0, 1.0)
+    shaded = image.astype(np.float32) * (1.0 - back * top)
+    return shaded + (np.array([235, 222, 200], np.float32) - shaded) * (cream * belly**2)
 
 
 def tabby(colour: Colour, size: int = 256) -> np.ndarray:
-    """A cat's coat laid on round each part (``figures.wrapped``): columns run along the
-    part, rows round it from the belly (first and last rows) over a flank to the back
-    (middle row) and down the other flank. The photographed fur in the coat's colour,
-    mirrored so that it repeats without a seam, darker along the back and paling to
-    cream underneath: a cat is countershaded, and the detector saw it (a lone cat
-    recognised in 116 of 120 views against 111 in the fur alone; 88 cube-mapped)."""
+    """A cat's coat laid out round the body (``countershaded``'s rows; columns along a
+    part): the photographed fur in the coat's colour, mirrored so that it repeats without
+    a seam, darker along the back and paling to cream underneath, as a cat is (a lone
+    cat recognised in 116 of 120 views against 111 in the fur alone; 88 cube-mapped)."""
     photo = _fur_photo()
     tile = np.concatenate([photo, photo[:, ::-1]], axis=1)
     tile = np.concatenate([tile, tile[::-1]], axis=0)
     tile = cv2.resize(tile, (size // 2, size // 2), interpolation=cv2.INTER_AREA)
     fur = np.tile(tile, (2, 2, 1)) * (np.asarray(colour, np.float32) / tile.reshape(-1, 3).mean(axis=0))
-    around = np.cos(2 * np.pi * (np.arange(size) + 0.5) / size)[:, None, None]  # 1 under, -1 on top
-    belly, back = np.clip(around, 0.0, 1.0), np.clip(-around, 0.0, 1.0)
-    image = fur * (1.0 - 0.3 * back)
-    image += (np.array([235, 222, 200], np.float32) - image) * (0.55 * belly**2)
-    return _finish(image)
+    return _finish(countershaded(fur, back=0.3, cream=0.55))

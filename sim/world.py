@@ -120,8 +120,8 @@ def _material_images(
         if isinstance(look, Look):
             mats |= {f"{role}{k}": image for role, image in _person_images(rng, pattern, look).items()}
         elif isinstance(look, AnimalLook):
-            # a cat's coat is laid on along its body (figures.wrapped), the others are cube maps
-            mats[f"coat{k}"] = ("uv" if kind == "cat" else "cube", textures.coat(rng, kind))
+            # laid on along the body (figures.wrapped), or a cube map
+            mats[f"coat{k}"] = ("uv" if kind in textures.LAID_ON else "cube", textures.coat(rng, kind))
     return mats
 
 

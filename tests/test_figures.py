@@ -353,12 +353,11 @@ def test_cats_wear_the_photographed_fur_in_their_coat_colour():
 def test_a_coat_laid_on_round_a_part_follows_its_axis_and_unwraps_its_seam():
     """``wrapped``'s coordinates against their definition on a closed mesh of a
     capsule along a tilted axis, in a part frame turned and moved off the bind pose:
-    u is the distance along the axis in COAT_WIDTH_M, v the angle round it from
+    u is the distance along the axis in texture widths, v the angle round it from
     ``down``; no face spans more than a few cells of the texture (the seam under the
     body is unwrapped, not squeezed across it)."""
     from sim.figures import Surface, wrapped
     from sim.shapes import mesh_field, round_cone
-    from sim.textures import COAT_WIDTH_M
 
     a, b = np.array([0.1, 0.2, 0.3]), np.array([0.5, 0.25, 0.4])
     mesh = mesh_field(round_cone(a, b, 0.06, 0.05), np.minimum(a, b) - 0.07, np.maximum(a, b) + 0.07, 0.006)
@@ -367,11 +366,11 @@ def test_a_coat_laid_on_round_a_part_follows_its_axis_and_unwraps_its_seam():
     origin = np.array([0.2, -0.1, 0.05])
     part = Surface("coat", dataclasses.replace(mesh, vertices=(mesh.vertices - origin) @ rotation))
     down = np.array([0.0, 0.0, -1.0])
-    texcoord = wrapped(part, a, b, down, (origin, rotation)).texcoord
+    texcoord = wrapped(part, a, b, down, (origin, rotation), 0.25).texcoord
     assert texcoord is not None and texcoord.shape == (3 * len(mesh.faces), 2)
     corners = mesh.vertices[mesh.faces].reshape(-1, 3)
     axis = (b - a) / np.linalg.norm(b - a)
-    np.testing.assert_allclose(texcoord[:, 0] * COAT_WIDTH_M, (corners - a) @ axis, atol=1e-9)
+    np.testing.assert_allclose(texcoord[:, 0] * 0.25, (corners - a) @ axis, atol=1e-9)
     radial = (corners - a) - np.outer((corners - a) @ axis, axis)
     radial /= np.linalg.norm(radial, axis=1, keepdims=True)
     below = down - (down @ axis) * axis
