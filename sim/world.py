@@ -160,13 +160,10 @@ def _add_materials(spec: mujoco.MjSpec, images: dict[str, tuple[str, np.ndarray]
             )
             tex.data = np.ascontiguousarray(image).tobytes()
         else:
-            # A square image is every face of the cube; six stacked faces (+x, -x, +y, -y,
-            # +z, -z in the geom's frame) give each side its own.
-            faces = image if h == 6 * w else np.tile(image, (6, 1, 1))
             tex = spec.add_texture(
-                name=name, type=mujoco.mjtTexture.mjTEXTURE_CUBE, width=w, height=len(faces), nchannel=3
+                name=name, type=mujoco.mjtTexture.mjTEXTURE_CUBE, width=w, height=6 * h, nchannel=3
             )
-            tex.data = np.ascontiguousarray(faces).tobytes()
+            tex.data = np.ascontiguousarray(np.tile(image, (6, 1, 1))).tobytes()
         mat = spec.add_material(name=name)
         mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = name
         mat.specular = 0.0
