@@ -442,10 +442,9 @@ COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
     # along the body: ``tabby``): drawn stripes and strands were called bird (22 of 200);
     # the photograph raised cats to about half (README). A white cat with patches is left
     # out: the photograph is a tabby's, and recoloured white it read as bird (with it,
-    # 0.36 of sightings). The
-    # ginger is a pale one: a saturated orange (210, 135, 65) was called dog, in
-    # dog_and_cat_roaming's ginger seeds 5, 6, 9 and 10 0.41 of sightings found against
-    # 0.53, seeds 11-20 0.47 against 0.54 for all coats.
+    # 0.36 of sightings). The ginger is a pale one: a saturated orange (210, 135, 65) was
+    # called dog, in dog_and_cat_roaming's ginger seeds 5, 6, 9 and 10 0.41 of sightings
+    # found against 0.53, seeds 11-20 0.47 against 0.54 for all coats (cube-mapped).
     "cat": (
         ((155, 130, 90), "photo"),
         ((210, 160, 110), "photo"),
