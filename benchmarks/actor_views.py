@@ -108,7 +108,7 @@ def _views(args: argparse.Namespace, seed: int, detector) -> list[View]:
                 mask = np.append(geom_instance, 0)[geoms] == instance
                 rows, cols = np.nonzero(mask)
                 if rows.size == 0:
-                    raise SystemExit(f"seed {seed}, heading {heading:.0f}: the {args.kind} is out of view")
+                    raise ValueError(f"seed {seed}, heading {heading:.0f}°: the {args.kind} is out of view")
                 box = np.array([[cols.min(), rows.min(), cols.max() + 1, rows.max() + 1]], float)
                 found = detector.detect(DetectorFrame(len(views), 0.0, rgb))
                 score, called = _score(found, box, args.kind)
@@ -192,6 +192,8 @@ def main() -> int:
         parser.error(f"--sheet {args.sheet}: give a new .png path")
     if args.distance is None:
         args.distance = 3.0 if args.kind == "person" else 1.3
+    if min(args.seeds) < 0:
+        parser.error("--seeds must be 0 or more")
     if args.headings < 1 or args.moments < 1:
         parser.error("--headings and --moments must be at least 1")
     if not 0.3 <= args.distance <= 4.0:
@@ -210,7 +212,10 @@ def main() -> int:
         parser.error(str(exc))
     if args.kind not in detector.names:
         parser.error(f"--kind {args.kind}: {detector.name} has no class {args.kind!r}")
-    views = [v for seed in args.seeds for v in _views(args, seed, detector)]
+    try:
+        views = [v for seed in args.seeds for v in _views(args, seed, detector)]
+    except ValueError as exc:  # the actor out of view: --distance and --camera-height do not fit
+        parser.error(f"{exc}; try another --distance or --camera-height")
     print(
         f"{detector.name}: the {args.kind} alone, {args.distance} m from a static camera at "
         f"{args.camera_height} m; seeds {args.seeds}, {args.moments} moments per heading; "

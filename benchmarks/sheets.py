@@ -3,11 +3,12 @@ in a grid, written whole or not at all."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from sim.output import write_bytes_atomic
 
 
 def fit(image: np.ndarray, side: int) -> np.ndarray:
@@ -37,11 +38,8 @@ def grid(tiles: list[np.ndarray], columns: int) -> np.ndarray:
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """Write ``image`` (BGR) to ``path`` through a temporary file beside it, so that an
-    interrupted write leaves no half picture."""
+    """Write ``image`` (BGR) to ``path`` whole or not at all (``write_bytes_atomic``)."""
     ok, data = cv2.imencode(".png", image)
     if not ok:
         raise OSError(f"{path}: could not encode the picture")
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data.tobytes())
-    os.replace(tmp, path)
+    write_bytes_atomic(path, data.tobytes())

@@ -506,9 +506,9 @@ def wrapped(
     side = np.cross(axis, d)
     v = np.mod(np.arctan2(radial @ side, radial @ d) / (2 * np.pi), 1.0)
     corners = np.stack([along / width_m, v], axis=1)[surface.mesh.faces]  # (F, 3, 2)
-    cv = corners[:, :, 1]
-    across = (cv.max(axis=1) - cv.min(axis=1)) > 0.5
-    cv[across] = np.where(cv[across] < 0.5, cv[across] + 1.0, cv[across])
+    v = corners[:, :, 1]  # a view: the unwrapping writes into corners
+    across = (v.max(axis=1) - v.min(axis=1)) > 0.5
+    v[across[:, None] & (v < 0.5)] += 1.0
     return dataclasses.replace(surface, texcoord=corners.reshape(-1, 2))
 
 
@@ -648,10 +648,9 @@ def quadruped_surfaces(
 
     out = carve(body, bones + uppers + lowers, balls, frames, pieces, overlap=0.1 * hy)
     if kind in LAID_ON:  # the coat is laid on round each part, its belly side down (legs: inwards)
-        for bone in bones + uppers + lowers:
-            down = np.array([0.0, 0.0, -1.0])
-            if bone.part.endswith(("leg_0", "leg_1", "leg_2", "leg_3")):
-                down = np.array([0.0, -np.sign(bone.a[1]), 0.0])
+        downs = [np.array([0.0, 0.0, -1.0])] * len(bones)
+        downs += [np.array([0.0, -np.sign(bone.a[1]), 0.0]) for bone in uppers + lowers]
+        for bone, down in zip(bones + uppers + lowers, downs, strict=True):
             out[bone.part] = [
                 wrapped(s, bone.a, bone.b, down, frames[bone.part], COAT_WIDTH_M[kind])
                 if s.material == "coat"

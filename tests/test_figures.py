@@ -319,17 +319,17 @@ def test_cats_wear_the_photographed_fur_in_their_coat_colour():
     colours = [np.array(c, float) for c, pattern in textures.COATS["cat"] if pattern == "photo"]
     assert len(colours) == len(textures.COATS["cat"])
     flank = slice(256 // 4 - 8, 256 // 4 + 8)  # where neither shade nor cream reaches
+    # each channel scaled so that the photograph's mean is the coat colour (clipped at
+    # 255: the ginger's brightest strands); on the flank, within 5 levels of that (the
+    # shading begins at the band's edges)
+    scale = reference_rgb.reshape(-1, 3).mean(axis=0)
+    tinted = [reference_rgb * (c / scale) for c in colours]
+    expected = [np.clip(t[flank], 0, 255).reshape(-1, 3).mean(axis=0) for t in tinted]
     seen = set()
     for seed in range(12):
         image = textures.coat(np.random.default_rng(seed), "cat")
         assert image.shape == (256, 256, 3) and image.dtype == np.uint8
-        # each channel scaled so that the photograph's mean is the coat colour (clipped at
-        # 255: the ginger's brightest strands); on the flank, within 5 levels of that
-        # (the shading begins at the band's edges)
         means = image[flank].reshape(-1, 3).mean(axis=0)
-        scale = reference_rgb.reshape(-1, 3).mean(axis=0)
-        tinted = [reference_rgb * (c / scale) for c in colours]
-        expected = [np.clip(t[flank], 0, 255).reshape(-1, 3).mean(axis=0) for t in tinted]
         k = int(np.argmin([np.abs(means - e).max() for e in expected]))
         assert np.abs(means - expected[k]).max() < 5.0, (seed, means, expected[k])
         seen.add(k)
