@@ -2,8 +2,8 @@
 
 One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
 gives segmentation. Each visible instance's unoccluded area (what it would cover
-with everything else removed) comes from passes that draw only instances, several
-per pass when their projections are apart, reading back only their window. Geoms wholly
+with everything else removed) comes from a third pass that draws only the instances,
+each in its own bit, OR-ed together without a depth test. Geoms wholly
 outside the camera's view are left out of every pass: they draw no pixel. The GL context
 belongs to the thread that creates this object (rendering-notes.md): create one
 per worker, after any fork.
@@ -121,26 +121,70 @@ class FrameRenderer:
         self, data: mujoco.MjData, camera_id: int, instances: list[int]
     ) -> dict[int, tuple[int, bool]]:
         """Per instance asked: (pixels it covers with everything else removed, whether that
-        area reaches the image border). Exact: each is drawn without the rest of the
-        world, several per pass when their pixel windows (which hold their projections)
-        are apart, so that in an instance's window every drawn pixel is its own."""
+        area reaches the image border). Exact: one pass draws the instances without the
+        rest of the world, each in its own bit of the 24-bit colour, OR-ed into the
+        framebuffer with no depth buffer, so a pixel holds the bit of every instance that
+        covers it, hidden or not. Instances whose pixel windows (which hold their
+        projections) are apart share a bit; past 24 bits, another pass."""
         assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
         self._gl.make_current()
         windows = {i: self._window(self._projected_box(data, camera_id, i)) for i in instances}
-        groups = self.model.geom_group
         out = {}
-        for batch in _batches(instances, windows):
-            owned = np.isin(self.geom_instance, batch) & self._drawn
-            groups[owned] = SOLO_GROUP
-            try:
-                self._update_scene(data, camera_id, self._solo)
-            finally:
-                groups[owned] = INSTANCE_GROUP
-            self._draw_segmentation()
-            for instance in batch:
-                covered = self._covered(windows[instance])
+        for bits in _bit_passes(instances, windows):
+            self._draw_bits(data, camera_id, bits)
+            corners = np.array([windows[i] for i in bits])
+            union = (*corners[:, :2].min(axis=0).tolist(), *corners[:, 2:].max(axis=0).tolist())
+            words = self._read_words(union)
+            for instance, bit in bits.items():
+                row0, col0, row1, col1 = windows[instance]
+                part = words[row0 - union[0] : row1 - union[0], col0 - union[1] : col1 - union[1]]
+                covered = (part & (1 << bit)) > 0
                 out[instance] = (int(covered.sum()), bool(self._on_border(covered, windows[instance]).any()))
         return out
+
+    def _draw_bits(self, data: mujoco.MjData, camera_id: int, bits: dict[int, int]) -> None:
+        """Draw the instances of ``bits`` alone, each geom in its instance's bit, OR-ed."""
+        from OpenGL import GL
+
+        groups = self.model.geom_group
+        owned = np.isin(self.geom_instance, list(bits)) & self._drawn
+        groups[owned] = SOLO_GROUP
+        try:
+            self._update_scene(data, camera_id, self._solo)
+        finally:
+            groups[owned] = INSTANCE_GROUP
+        bit_of = np.full(int(self.geom_instance.max()) + 1, -1)
+        bit_of[list(bits)] = list(bits.values())
+        for geom in self._scene.geoms[: self._scene.ngeom]:
+            # A geom's colour is segid + 1 in 24 bits (R lowest): 2^bit.
+            is_geom = geom.objtype == mujoco.mjtObj.mjOBJ_GEOM
+            geom.segid = (1 << int(bit_of[self.geom_instance[geom.objid]])) - 1 if is_geom else -1
+        context = self._context
+        # Without a depth buffer every fragment passes (mjr_render enables the depth test);
+        # the logic op, which mjr_render leaves alone, ORs each into the pixel.
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, context.offFBO)
+        GL.glFramebufferRenderbuffer(GL.GL_FRAMEBUFFER, GL.GL_DEPTH_STENCIL_ATTACHMENT, GL.GL_RENDERBUFFER, 0)
+        GL.glEnable(GL.GL_COLOR_LOGIC_OP)
+        GL.glLogicOp(GL.GL_OR)
+        try:
+            self._draw_segmentation()
+        finally:
+            GL.glDisable(GL.GL_COLOR_LOGIC_OP)
+            GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, context.offFBO)
+            GL.glFramebufferRenderbuffer(
+                GL.GL_FRAMEBUFFER, GL.GL_DEPTH_STENCIL_ATTACHMENT, GL.GL_RENDERBUFFER, context.offDepthStencil
+            )
+
+    def _read_words(self, window: tuple[int, int, int, int]) -> np.ndarray:
+        """The 24-bit colours (R lowest) of ``window`` of the last pass, top row first."""
+        row0, col0, row1, col1 = window
+        rgb = np.empty((row1 - row0, col1 - col0, 3), np.uint8)
+        mujoco.mjr_readPixels(
+            rgb, None, mujoco.MjrRect(col0, self.height - row1, col1 - col0, row1 - row0), self._context
+        )
+        words = np.zeros((row1 - row0, col1 - col0, 4), np.uint8)
+        words[:, :, :3] = rgb
+        return np.flipud(words.view("<u4")[:, :, 0])
 
     def _window(self, box: np.ndarray) -> tuple[int, int, int, int]:
         """(row0, col0, row1, col1), top row first, of the pixels whose centres a projected
@@ -150,15 +194,6 @@ class FrameRenderer:
         row0 = int(np.clip(np.floor(box[1] + self.height / 2) - 1, 0, self.height - 1))
         row1 = int(np.clip(np.ceil(box[3] + self.height / 2) + 1, row0 + 1, self.height))
         return row0, col0, row1, col1
-
-    def _covered(self, window: tuple[int, int, int, int]) -> np.ndarray:
-        """Which pixels of ``window`` the last segmentation pass drew (top row first)."""
-        row0, col0, row1, col1 = window
-        part = np.empty((row1 - row0, col1 - col0, 3), np.uint8)
-        mujoco.mjr_readPixels(
-            part, None, mujoco.MjrRect(col0, self.height - row1, col1 - col0, row1 - row0), self._context
-        )
-        return np.flipud((part[:, :, 0] | part[:, :, 1] | part[:, :, 2]) > 0)
 
     def _on_border(self, pixels: np.ndarray, window: tuple[int, int, int, int]) -> np.ndarray:
         """The values of ``pixels`` (a window of the image) that lie on the image's border."""
@@ -258,15 +293,21 @@ def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def _batches(instances: list[int], windows: dict[int, tuple[int, int, int, int]]) -> list[list[int]]:
-    """Instances to draw alone, grouped so that one pass draws several: those whose
-    windows are apart cannot hide one another, nor stray into each other's window."""
-    batches: list[list[int]] = []
+BITS = 24
+"""Instances one unoccluded pass tells apart: the bits of an RGB8 colour."""
+
+
+def _bit_passes(instances: list[int], windows: dict[int, tuple[int, int, int, int]]) -> list[dict[int, int]]:
+    """Each instance's bit, pass by pass: instances whose windows overlap get different
+    bits; those apart may share one, as neither can stray into the other's window."""
+    passes: list[dict[int, int]] = []
     for instance in instances:
-        for batch in batches:
-            if not any(_overlap(windows[instance], windows[other]) for other in batch):
-                batch.append(instance)
+        for bits in passes:
+            taken = {bit for other, bit in bits.items() if _overlap(windows[instance], windows[other])}
+            free = next((bit for bit in range(BITS) if bit not in taken), None)
+            if free is not None:
+                bits[instance] = free
                 break
         else:
-            batches.append([instance])
-    return batches
+            passes.append({instance: 0})
+    return passes

@@ -438,10 +438,80 @@ def test_unoccluded_area_and_truncation_match_the_projected_rectangles():
     assert visible[2] == unoccluded[2][0] and visible[3] == unoccluded[3][0]
 
 
+def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits():
+    """Closed form, 30 boxes facing the camera, each overlapping the next in the image and
+    partly hidden by it: more instances with overlapping windows than one pass's 24 bits,
+    so a second pass runs. Each unoccluded area is its whole projected rectangle."""
+    from sim.mujoco_env import mujoco
+    from sim.render import BITS, FrameRenderer, _bit_passes
+
+    width, height, fovy, n = 96, 72, 60.0, 30
+    focal = (height / 2) / np.tan(np.radians(fovy) / 2)
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_camera(name="camera", pos=[0, 0, 0], fovy=fovy)
+    # (centre x, centre y, depth, half width, half height): all overlap; nearer further right.
+    boxes = {k + 1: (-0.3 + 0.02 * k, 0.03 * (k % 5), 4.0 - 0.05 * k, 0.3, 0.25) for k in range(n)}
+    for instance, (x, y, z, hx, hy) in boxes.items():
+        body = spec.worldbody.add_body(name=f"box{instance}", pos=[x, y, -z])
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, 0.01])
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    body_instance = np.zeros(model.nbody, np.uint16)
+    for instance in boxes:
+        body_instance[model.body(f"box{instance}").id] = instance
+    renderer = FrameRenderer(model, width, height, body_instance[model.geom_bodyid])
+    camera = model.camera("camera").id
+    try:
+        _, _, geom_ids = renderer.render(data, camera)
+        windows = {i: renderer._window(renderer._projected_box(data, camera, i)) for i in boxes}
+        unoccluded = renderer.unoccluded(data, camera, list(boxes))
+    finally:
+        renderer.close()
+    assert len(_bit_passes(list(boxes), windows)) == 2 and n > BITS
+    visible = np.bincount(
+        np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(), minlength=n + 1
+    )
+    hidden = 0
+    for instance, (x, y, z, hx, hy) in boxes.items():
+        z_front = z - 0.01
+        u0, u1 = cx + focal * (x - hx) / z_front, cx + focal * (x + hx) / z_front
+        v0, v1 = cy - focal * (y + hy) / z_front, cy - focal * (y - hy) / z_front
+        cols = _pixel_centres(max(u0, -0.5), min(u1, width - 0.5))
+        rows = _pixel_centres(max(v0, -0.5), min(v1, height - 0.5))
+        cut = u0 < 0 or v0 < 0 or u1 > width - 1 or v1 > height - 1
+        assert unoccluded[instance] == (cols * rows, cut), instance
+        hidden += visible[instance] < cols * rows
+    assert hidden > n // 2  # most are partly behind the next one
+
+
+def test_bit_passes_give_overlapping_windows_different_bits():
+    """Windows apart may share a bit; overlapping ones never do; past 24, a new pass."""
+    from sim.render import BITS, _bit_passes, _overlap
+
+    rng = np.random.default_rng(5)
+    corners = rng.integers(0, 400, size=(80, 2))
+    sizes = rng.integers(5, 120, size=(80, 2))
+    windows = {i + 1: (*corners[i].tolist(), *(corners[i] + sizes[i]).tolist()) for i in range(80)}
+    passes = _bit_passes(list(windows), windows)
+    assert sorted(i for bits in passes for i in bits) == list(windows)
+    for bits in passes:
+        assert set(bits.values()) <= set(range(BITS))
+        for a in bits:
+            for b in bits:
+                if a != b and _overlap(windows[a], windows[b]):
+                    assert bits[a] != bits[b], (a, b)
+    stacked = {i: (0, 0, 10, 10) for i in range(1, 31)}  # all on one another
+    assert [len(bits) for bits in _bit_passes(list(stacked), stacked)] == [BITS, 30 - BITS]
+    apart = {i: (0, 20 * i, 10, 20 * i + 10) for i in range(1, 31)}
+    assert _bit_passes(list(apart), apart) == [dict.fromkeys(apart, 0)]
+
+
 def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
     """Brute force: draw every visible instance of the default scene entirely alone over the
-    whole image, one per pass; the batched passes (several instances apart per pass, window
-    read back) must give the same areas and border flags."""
+    whole image, one per pass, with the depth test; the OR-ed bit passes (every instance at
+    once, no depth buffer) must give the same areas and border flags."""
     from sim.render import SOLO_GROUP, FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=2))
