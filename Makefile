@@ -12,9 +12,11 @@ export MUJOCO_GL ?= egl
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
 
+# Test files run side by side, one worker per core (at most 4: each renders with Mesa
+# and holds MuJoCo, ONNX Runtime and sometimes Ray); a file's tests stay in one worker.
 test: $(VENV)/.installed browser
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n logical --maxprocesses 4 --dist loadfile
 
 test-slow: $(VENV)/.installed
 	$(BIN)/python -m pytest -q -m slow
