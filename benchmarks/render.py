@@ -2,8 +2,8 @@
 
 Usage: python benchmarks/render.py [--width W --height H --frames N --threads T --seed S]
 
-Times the RGB + depth pass, the segmentation pass and the unoccluded passes (the
-visible instances drawn apart), with depotbench's tessellation (one quad per box
+Times the RGB + depth pass, the segmentation pass and the unoccluded pass (the
+visible instances drawn alone, each in its own bit, OR-ed), with depotbench's tessellation (one quad per box
 face, coarser spheres and capsules) and with MuJoCo's defaults beside it.
 ``--threads`` sets Mesa's rasterizer threads (suites' workers use 0: rasterise in the calling thread).
 """
@@ -83,7 +83,7 @@ def main() -> None:
             renderer.unoccluded(sim.data, world.camera_id, [int(i) for i in seen if i > 0])
             passes += time.perf_counter() - t0
         whole = (time.perf_counter() - start) / args.frames
-        timings["unoccluded passes"] = passes / args.frames
+        timings["unoccluded pass"] = passes / args.frames
         timings["full frame (advance, both passes, decode, unoccluded)"] = whole
         renderer.close()
         print(f"{label} (numquads {quads}, numslices {slices}, numstacks {stacks}):")
