@@ -75,7 +75,7 @@ def _run_every_strategy(sequence: Path, out: Path, max_lost: int = 0) -> dict[st
 def test_crowd_degrades_the_baseline_and_every_strategy_improves_on_it(crowd_seq: Path, tmp_path: Path):
     """Twelve people fill most of the image. The baseline tracks them and drifts; the
     strategies reject them and keep too few points on some frames, which they report as
-    lost, as ORB-SLAM3 does (default seed, 90 frames: box_rule loses 1, prior_flow 0,
+    lost (default seed, 90 frames: box_rule loses 1, prior_flow 0,
     box_epipolar_flow 9; ATE 0.83 m against 0.13, 0.09 and 0.15 m). Since the depot's
     lamps got wide beams (7e9e568) this is no longer 0 lost frames; on seeds 1 and 3
     the strategies lose 13-49 of 90 (seed 2: none)."""
