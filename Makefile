@@ -14,12 +14,14 @@ demo: $(VENV)/.installed
 
 # Test files run side by side, one worker per core (at most 4: each renders with Mesa
 # and holds MuJoCo, ONNX Runtime and sometimes Ray); a file's tests stay in one worker.
+SIDE_BY_SIDE := -n logical --maxprocesses 4 --dist loadfile
+
 test: $(VENV)/.installed browser
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -n logical --maxprocesses 4 --dist loadfile
+	$(BIN)/python -m pytest -q $(SIDE_BY_SIDE)
 
 test-slow: $(VENV)/.installed
-	$(BIN)/python -m pytest -q -m slow -n logical --maxprocesses 4 --dist loadfile
+	$(BIN)/python -m pytest -q -m slow $(SIDE_BY_SIDE)
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -3,8 +3,9 @@
 Usage: python benchmarks/render.py [--width W --height H --frames N --threads T --seed S]
 
 Times the RGB + depth pass, the segmentation pass and the unoccluded pass (the
-visible instances drawn alone, each in its own bit, OR-ed), with depotbench's tessellation (one quad per box
-face, coarser spheres and capsules) and with MuJoCo's defaults beside it.
+visible instances drawn alone, each in its own bit, OR-ed), with depotbench's
+tessellation (one quad per box face, coarser spheres and capsules) and with MuJoCo's
+defaults beside it.
 ``--threads`` sets Mesa's rasterizer threads (suites' workers use 0: rasterise in the calling thread).
 """
 

@@ -387,74 +387,26 @@ def _pixel_centres(low: float, high: float) -> int:
     return max(0, min(int(np.floor(high)), 10**6) - int(np.ceil(low)) + 1)
 
 
-def test_unoccluded_area_and_truncation_match_the_projected_rectangles():
-    """Closed form: flat boxes facing the camera cover the pixel centres inside their projected
-    rectangles. Box 1 is half behind a static wall and partly behind box 2; box 3 crosses the
-    image's right edge. The unoccluded areas are the whole rectangles (cut at the image edge)."""
+Box = tuple[float, float, float, float, float]
+"""(centre x, centre y, depth, half width, half height) of a flat box facing the camera,
+which sits at the origin and looks along -z."""
+
+
+def _render_facing_boxes(
+    boxes: dict[int, Box], width: int, height: int, fovy: float, walls: tuple[Box, ...] = ()
+) -> tuple[np.ndarray, dict[int, tuple[int, bool]], list[int]]:
+    """Render instance boxes (and static ``walls``): per-instance visible pixels and
+    unoccluded areas, and how many instances each unoccluded pass draws."""
     from sim.mujoco_env import mujoco
-    from sim.render import FrameRenderer
+    from sim.render import FrameRenderer, _bit_passes
 
-    width, height, fovy = 64, 48, 60.0
-    focal = (height / 2) / np.tan(np.radians(fovy) / 2)
-    cx, cy = (width - 1) / 2, (height - 1) / 2
-    spec = mujoco.MjSpec()
-    world = spec.worldbody
-    world.add_camera(name="camera", pos=[0, 0, 0], fovy=fovy)
-    # (centre x, centre y, depth, half width, half height); the camera looks along -z.
-    boxes = {
-        1: (0.1, 0.05, 3.0, 0.6, 0.45),
-        2: (0.62, -0.1, 2.5, 0.2, 0.2),
-        3: (2.0, 0.2, 3.0, 0.4, 0.3),
-    }
-    for instance, (x, y, z, hx, hy) in boxes.items():
-        body = world.add_body(name=f"box{instance}", pos=[x, y, -z])
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, 0.01])
-    world.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=[-0.5, 0.0, -2.0], size=[0.3, 1.0, 0.01])  # wall
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    body_instance = np.zeros(model.nbody, np.uint16)
-    for instance in boxes:
-        body_instance[model.body(f"box{instance}").id] = instance
-    renderer = FrameRenderer(model, width, height, body_instance[model.geom_bodyid])
-    try:
-        _, _, geom_ids = renderer.render(data, model.camera("camera").id)
-        unoccluded = renderer.unoccluded(data, model.camera("camera").id, [1, 2, 3])
-    finally:
-        renderer.close()
-    visible = np.bincount(
-        np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(), minlength=4
-    )
-    for instance, (x, y, z, hx, hy) in boxes.items():
-        z_front = z - 0.01
-        u0, u1 = cx + focal * (x - hx) / z_front, cx + focal * (x + hx) / z_front
-        v0, v1 = cy - focal * (y + hy) / z_front, cy - focal * (y - hy) / z_front
-        cols = _pixel_centres(max(u0, -0.5), min(u1, width - 0.5))
-        rows = _pixel_centres(max(v0, -0.5), min(v1, height - 0.5))
-        expected_cut = u0 < 0 or v0 < 0 or u1 > width - 1 or v1 > height - 1
-        assert unoccluded[instance] == (cols * rows, expected_cut), instance
-    assert [unoccluded[i][1] for i in (1, 2, 3)] == [False, False, True]
-    assert visible[1] < unoccluded[1][0]  # behind the wall and box 2
-    assert visible[2] == unoccluded[2][0] and visible[3] == unoccluded[3][0]
-
-
-def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits():
-    """Closed form, 30 boxes facing the camera, each overlapping the next in the image and
-    partly hidden by it: more instances with overlapping windows than one pass's 24 bits,
-    so a second pass runs. Each unoccluded area is its whole projected rectangle."""
-    from sim.mujoco_env import mujoco
-    from sim.render import BITS, FrameRenderer, _bit_passes
-
-    width, height, fovy, n = 96, 72, 60.0, 30
-    focal = (height / 2) / np.tan(np.radians(fovy) / 2)
-    cx, cy = (width - 1) / 2, (height - 1) / 2
     spec = mujoco.MjSpec()
     spec.worldbody.add_camera(name="camera", pos=[0, 0, 0], fovy=fovy)
-    # (centre x, centre y, depth, half width, half height): all overlap; nearer further right.
-    boxes = {k + 1: (-0.3 + 0.02 * k, 0.03 * (k % 5), 4.0 - 0.05 * k, 0.3, 0.25) for k in range(n)}
     for instance, (x, y, z, hx, hy) in boxes.items():
         body = spec.worldbody.add_body(name=f"box{instance}", pos=[x, y, -z])
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[hx, hy, 0.01])
+    for x, y, z, hx, hy in walls:
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, pos=[x, y, -z], size=[hx, hy, 0.01])
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -469,20 +421,62 @@ def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits()
         unoccluded = renderer.unoccluded(data, camera, list(boxes))
     finally:
         renderer.close()
-    assert len(_bit_passes(list(boxes), windows)) == 2 and n > BITS
     visible = np.bincount(
-        np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(), minlength=n + 1
+        np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(),
+        minlength=len(boxes) + 1,
     )
+    return visible, unoccluded, [len(bits) for bits in _bit_passes(list(boxes), windows)]
+
+
+def _projected_rectangle(box: Box, width: int, height: int, fovy: float) -> tuple[int, bool]:
+    """Closed form: the pixels a box's front face covers (cut at the image edge), and
+    whether the image edge cuts it."""
+    x, y, z, hx, hy = box
+    focal = (height / 2) / np.tan(np.radians(fovy) / 2)
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    z_front = z - 0.01
+    u0, u1 = cx + focal * (x - hx) / z_front, cx + focal * (x + hx) / z_front
+    v0, v1 = cy - focal * (y + hy) / z_front, cy - focal * (y - hy) / z_front
+    cols = _pixel_centres(max(u0, -0.5), min(u1, width - 0.5))
+    rows = _pixel_centres(max(v0, -0.5), min(v1, height - 0.5))
+    return cols * rows, bool(u0 < 0 or v0 < 0 or u1 > width - 1 or v1 > height - 1)
+
+
+def test_unoccluded_area_and_truncation_match_the_projected_rectangles():
+    """Closed form: flat boxes facing the camera cover the pixel centres inside their projected
+    rectangles. Box 1 is half behind a static wall and partly behind box 2; box 3 crosses the
+    image's right edge. The unoccluded areas are the whole rectangles (cut at the image edge)."""
+    width, height, fovy = 64, 48, 60.0
+    boxes = {
+        1: (0.1, 0.05, 3.0, 0.6, 0.45),
+        2: (0.62, -0.1, 2.5, 0.2, 0.2),
+        3: (2.0, 0.2, 3.0, 0.4, 0.3),
+    }
+    wall = (-0.5, 0.0, 2.0, 0.3, 1.0)
+    visible, unoccluded, _ = _render_facing_boxes(boxes, width, height, fovy, walls=(wall,))
+    for instance, box in boxes.items():
+        assert unoccluded[instance] == _projected_rectangle(box, width, height, fovy), instance
+    assert [unoccluded[i][1] for i in (1, 2, 3)] == [False, False, True]
+    assert visible[1] < unoccluded[1][0]  # behind the wall and box 2
+    assert visible[2] == unoccluded[2][0] and visible[3] == unoccluded[3][0]
+
+
+def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits():
+    """Closed form, 30 boxes facing the camera, each overlapping the next in the image and
+    partly hidden by it: more instances with overlapping windows than one pass's 24 bits,
+    so a second pass runs. Each unoccluded area is its whole projected rectangle."""
+    from sim.render import BITS
+
+    width, height, fovy, n = 96, 72, 60.0, 30
+    # all overlap; nearer ones further right
+    boxes = {k + 1: (-0.3 + 0.02 * k, 0.03 * (k % 5), 4.0 - 0.05 * k, 0.3, 0.25) for k in range(n)}
+    visible, unoccluded, passes = _render_facing_boxes(boxes, width, height, fovy)
+    assert passes == [BITS, n - BITS]
     hidden = 0
-    for instance, (x, y, z, hx, hy) in boxes.items():
-        z_front = z - 0.01
-        u0, u1 = cx + focal * (x - hx) / z_front, cx + focal * (x + hx) / z_front
-        v0, v1 = cy - focal * (y + hy) / z_front, cy - focal * (y - hy) / z_front
-        cols = _pixel_centres(max(u0, -0.5), min(u1, width - 0.5))
-        rows = _pixel_centres(max(v0, -0.5), min(v1, height - 0.5))
-        cut = u0 < 0 or v0 < 0 or u1 > width - 1 or v1 > height - 1
-        assert unoccluded[instance] == (cols * rows, cut), instance
-        hidden += visible[instance] < cols * rows
+    for instance, box in boxes.items():
+        expected = _projected_rectangle(box, width, height, fovy)
+        assert unoccluded[instance] == expected, instance
+        hidden += visible[instance] < expected[0]
     assert hidden > n // 2  # most are partly behind the next one
 
 
