@@ -81,6 +81,34 @@ def test_every_animal_piece_is_a_closed_outward_mesh(kind):
     _assert_closed_and_outward(_part_meshes(_quadruped(kind, 1).parts), 0.7)
 
 
+@pytest.mark.parametrize("kind, seed", [("person", 0), ("person", 4), ("dog", 3), ("pig", 2)])
+def test_every_piece_keeps_a_fifth_of_its_marching_cubes_triangles(monkeypatch, kind, seed):
+    """Decimation reaches its share on every piece, closed (twice it where a handle
+    closes up below that). fast-simplification's default aggressiveness opened a piece of
+    each of these figures, which was then drawn whole: five times the triangles, in every
+    render pass."""
+    import sim.shapes as shapes
+
+    kept: list[tuple[int, object]] = []
+    decimate = shapes.decimate
+
+    def recording(mesh, keep=shapes.KEEP_FACES):
+        out = decimate(mesh, keep)
+        kept.append((len(mesh.faces), out))
+        return out
+
+    monkeypatch.setattr(shapes, "decimate", recording)
+    if kind == "person":
+        person_surfaces(1.0, Look.draw(np.random.default_rng(seed)))
+    else:
+        _quadruped(kind, seed)
+    decimated = [(n, out) for n, out in kept if int(n * shapes.KEEP_FACES) >= shapes.MIN_FACES]
+    assert len(decimated) > 10
+    for n, out in decimated:
+        assert len(out.faces) <= 2 * int(n * shapes.KEEP_FACES), (n, len(out.faces))
+        assert _edges_shared_twice(out.faces) and _volume(out) > 0
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_cats_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(monkeypatch, seed):
     """The cat's tail is meshed in a box around its curve, not in the cube its bone's
