@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/recognition.py [--seeds 1 2 3] [--frames 40] [--scenes ...]
                                         [--min-pixels 2000] [--workers 2] [--misses DIR]
-                                        [--whole-clip]
+                                        [--whole-clip] [--per-seed]
 
 Generates each library scene with each seed, runs the shipped YOLOX-nano (confidence
 0.3) on every frame and matches its boxes to the true visible boxes (same class,
@@ -18,6 +18,10 @@ seeds (the first ``--frames`` of each clip at its 30 fps, the first 1.3 s by def
 - pigs: the share of pig sightings a ``person`` box claims (IoU >= 0.5).
 Issue 14's targets: >= 0.95, >= 0.7, >= 0.7, >= 0.8 and < 10 %.
 
+After the recall, what the misses were taken for: the class of the box overlapping
+each at IoU >= 0.5 (a cat called dog), its own class's box overlapping it less ("loose
+box"), or nothing. ``--per-seed`` adds each seed's counts, to see which seeds fail.
+
 With ``--misses DIR``, writes one picture per group (``DIR/misses_<group>.png``): a
 crop of every missed object (up to 96, evenly over the run), its true box in green,
 the detection overlapping it most in red with class and confidence, and the scene,
@@ -29,7 +33,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 
 import cv2
@@ -102,6 +106,7 @@ def _count(
     detections,
     min_pixels: int,
     tally: dict[str, list[int]],
+    called: dict[str, Counter],
     misses: dict[str, list[np.ndarray]] | None = None,
 ) -> None:
     for index, (found, objects) in enumerate(zip(detections.per_frame, sequence.objects(), strict=True)):
@@ -117,8 +122,25 @@ def _count(
             for group in groups:
                 tally[group][0] += hit
                 tally[group][1] += 1
-            if misses is not None and not hit and groups[0] != "pig":
-                misses[groups[0]].append(_miss_tile(sequence, index, obj.box_xyxy, found))
+            if not hit and groups[0] != "pig":
+                for group in groups:
+                    called[group][_called(obj, found)] += 1
+                if misses is not None:
+                    misses[groups[0]].append(_miss_tile(sequence, index, obj.box_xyxy, found))
+
+
+def _called(obj, found) -> str:
+    """What a missed object was taken for: the class of the box overlapping it most at
+    IoU >= 0.5 ("<class>"); its own class's box overlapping it less ("loose box"); or no
+    box at all at that overlap ("nothing")."""
+    truth = np.array([obj.box_xyxy], float)
+    boxes = np.array([d.box_xyxy for d in found], float).reshape(-1, 4)
+    ious = iou_matrix(truth, boxes)[0] if len(found) else np.zeros(0)
+    if len(ious) and ious.max() >= IOU_THRESHOLD:
+        return found[int(np.argmax(ious))].class_name
+    if any(d.class_name == obj.class_name and iou > 0 for d, iou in zip(found, ious, strict=True)):
+        return "loose box"
+    return "nothing"
 
 
 TILE = 160
@@ -168,6 +190,7 @@ def main() -> None:
     parser.add_argument("--min-pixels", type=int, default=2000)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--misses", type=Path, help="write a picture of each group's misses here")
+    parser.add_argument("--per-seed", action="store_true", help="also print each seed's counts")
     parser.add_argument(
         "--whole-clip",
         action="store_true",
@@ -185,13 +208,15 @@ def main() -> None:
         root = Path(tmp)
         cache = StageCache(root / "cache")
         per_seed: dict[int, dict[str, list[int]]] = {s: defaultdict(lambda: [0, 0]) for s in args.seeds}
+        called: dict[str, Counter] = defaultdict(Counter)
         for path in _generate(
             root / "sequences", args.scenes, args.seeds, args.frames, args.workers, args.whole_clip
         ):
             sequence = Sequence.open(path)
             detections = detect_sequence(sequence, detector, cache)
             assert detections is not None
-            _count(sequence, detections, args.min_pixels, per_seed[int(sequence.meta["seed"])], misses)
+            tally = per_seed[int(sequence.meta["seed"])]
+            _count(sequence, detections, args.min_pixels, tally, called, misses)
     print(
         f"YOLOX-nano, confidence 0.3, IoU >= {IOU_THRESHOLD}, objects >= {args.min_pixels} visible px; "
         f"{', '.join(args.scenes)}; seeds {args.seeds}, {args.frames} frames each"
@@ -215,8 +240,24 @@ def main() -> None:
             print(f"{label:36s}   -   (no sighting of {args.min_pixels} px or more) {target}")
             continue
         print(f"{label:36s} {found / total:5.2f} ({found}/{total}; {spread}) {target}")
+    print("misses taken for (class of the box at IoU >= 0.5; loose box: its own class, less overlap):")
+    for group in groups:
+        if called[group]:
+            print(f"  {group:34s} " + ", ".join(f"{name} {n}" for name, n in called[group].most_common()))
+    if args.per_seed:
+        _print_per_seed(per_seed, [g for g in groups if g != "pig"])
     if misses is not None:
         _write_misses(args.misses, misses)
+
+
+def _print_per_seed(per_seed: dict[int, dict[str, list[int]]], groups: list[str]) -> None:
+    """found/total of each group, one row per seed: which seeds fail, not only how many."""
+    shown = [g for g in groups if any(tally[g][1] for tally in per_seed.values())]
+    print("per seed, found/total:")
+    print("  seed " + "".join(f"{g:>16s}" for g in shown))
+    for seed, tally in per_seed.items():
+        cells = [f"{tally[g][0]}/{tally[g][1]}" if tally[g][1] else "-" for g in shown]
+        print(f"  {seed:4d} " + "".join(f"{cell:>16s}" for cell in cells))
 
 
 if __name__ == "__main__":
