@@ -1,7 +1,7 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
-                                       [--repeat R] [--scene NAME]
+                                       [--repeat R] [--scene NAME] [--stages [--seed S]]
 
 For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
 the rate of one process (Mesa's default threads) and of two processes with one thread
@@ -13,6 +13,12 @@ building the world (meshing the figures, textures, compiling) counted too.
 
 This 2-core machine's speed drifts by up to a fifth between runs of one build:
 ``--repeat R`` measures each line R times and prints the median with the range.
+
+``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
+workers run it): the RGB and depth pass, the segmentation pass, the unoccluded areas,
+poses and physics, boxes, object states, the sensor model, handing the frame to the
+writer, and the deflate in the writer's threads (their CPU time), with the rest of the
+loop as "other" and the world's build apart.
 """
 
 from __future__ import annotations
@@ -35,27 +41,32 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
 
         single_threaded()
     from sim.generate import generate
-    from sim.spec import default_scenario
     from sim.world import build_world
 
-    def spec_of(s: int):
-        if scene is None:
-            spec = default_scenario(frames=frames, seed=s)
-        else:
-            from scenes import library
-            from scenes.schema import to_scenario
-
-            update = {"frames": frames, "duration_s": None, "seed": s}
-            spec = to_scenario(library.get(scene).model_copy(update=update))
-        return dataclasses.replace(spec, width=width, height=height, focal_px=525.0 * width / 640)
-
-    build_world(spec_of(seed + 1000))  # warm imports and code paths on another seed's world
+    build_world(_spec(frames, width, height, seed + 1000, scene))  # warm imports and code paths
     start = time.perf_counter()
-    build_world(spec_of(seed))
+    build_world(_spec(frames, width, height, seed, scene))
     build = time.perf_counter() - start
     start = time.perf_counter()
-    generate(spec_of(seed), Path(out), progress=False, png_compression=png_compression)
+    generate(
+        _spec(frames, width, height, seed, scene), Path(out), progress=False, png_compression=png_compression
+    )
     return build, time.perf_counter() - start
+
+
+def _spec(frames: int, width: int, height: int, seed: int, scene: str | None):
+    """The default scenario, or a library scene, at this size and seed."""
+    from sim.spec import default_scenario
+
+    if scene is None:
+        spec = default_scenario(frames=frames, seed=seed)
+    else:
+        from scenes import library
+        from scenes.schema import to_scenario
+
+        update = {"frames": frames, "duration_s": None, "seed": seed}
+        spec = to_scenario(library.get(scene).model_copy(update=update))
+    return dataclasses.replace(spec, width=width, height=height, focal_px=525.0 * width / 640)
 
 
 def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
@@ -75,6 +86,82 @@ def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
     return steady, sum(job[0] / total for job, (_, total) in zip(jobs, results, strict=True))
 
 
+STAGES = (
+    ("RGB and depth pass", "sim.render", "FrameRenderer.render"),
+    ("segmentation pass", "sim.render", "FrameRenderer._segment"),
+    ("unoccluded areas", "sim.render", "FrameRenderer.unoccluded"),
+    ("poses and physics", "sim.simulation", "Simulation.advance_to"),
+    ("snapshots", "sim.simulation", "Simulation.snapshot"),
+    ("moving pixels' flow", "sim.generate", "flow_at"),
+    ("boxes", "sim.generate", "boxes_and_counts"),
+    ("object states", "sim.generate", "object_states"),
+    ("sensor model", "sim.sensor", "SensorModel.rgb"),
+    ("sensor model", "sim.sensor", "SensorModel.depth"),
+    ("hand to the writer", "sim.sequence", "SequenceWriter.add_frame"),
+    ("deflate (writer threads)", "sim.png", "_deflate"),
+)
+"""(label, module, attribute) of each timed stage. The segmentation pass runs inside
+``render``, whose time it is taken from; deflate runs in the writer's threads, so its
+thread CPU time is counted, which the frame loop does not wait for."""
+
+
+def _stages(frames: int, width: int, height: int, seed: int, png_compression: int, scene: str | None) -> None:
+    """Time each stage of one process's frames (one thread, as suites run their workers)."""
+    import importlib
+    from collections import defaultdict
+
+    from sim.executors import single_threaded
+
+    single_threaded()
+    from sim.generate import generate
+    from sim.world import build_world
+
+    spent: dict[str, float] = defaultdict(float)
+    for label, module_name, attribute in STAGES:
+        module = importlib.import_module(module_name)
+        owner_name, _, name = attribute.rpartition(".")
+        owner = getattr(module, owner_name) if owner_name else module
+        clock = time.thread_time if name == "_deflate" else time.perf_counter
+        setattr(owner, name, _timed(getattr(owner, name), label, spent, clock))
+    import sim.generate
+
+    loop: dict[str, float] = defaultdict(float)
+    sim.generate._write_frames = _timed(sim.generate._write_frames, "loop", loop, time.perf_counter)
+    spec = _spec(frames, width, height, seed, scene)
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        generate(spec, Path(tmp) / "s", progress=False, png_compression=png_compression)
+        whole = time.perf_counter() - start
+    total = loop["loop"]
+    start = time.perf_counter()
+    build_world(spec)  # once more, alone: generate's took as long
+    build = time.perf_counter() - start
+    spent["RGB and depth pass"] -= spent["segmentation pass"]
+    threads = spent.pop("deflate (writer threads)")
+    print(f"{scene or 'default scenario'}, seed {seed}, {frames} frames, one process, one thread")
+    print(f"  {'stage':28s} ms/frame  share of the loop")
+    for label in dict.fromkeys(label for label, _, _ in STAGES if label in spent):
+        seconds = spent[label]
+        print(f"  {label:28s} {seconds / frames * 1e3:7.2f}  {seconds / total:5.1%}")
+    other = total - sum(spent.values())
+    print(f"  {'other':28s} {other / frames * 1e3:7.2f}  {other / total:5.1%}")
+    print(f"  {'frame loop':28s} {total / frames * 1e3:7.2f}  ({frames / total:.1f} frames/s)")
+    print(f"  {'deflate (writer threads)':28s} {threads / frames * 1e3:7.2f}  CPU time beside the loop")
+    print(f"  {'building the world':28s} {build * 1e3:7.0f}  ms, once")
+    print(f"  {'the whole generate call':28s} {whole * 1e3:7.0f}  ms (with set-up and the last writes)")
+
+
+def _timed(function, label: str, spent: dict[str, float], clock):
+    def timed(*args, **kwargs):
+        start = clock()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            spent[label] += clock() - start
+
+    return timed
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--frames", type=int, default=90)
@@ -83,6 +170,8 @@ def main() -> None:
     parser.add_argument("--png-compression", type=int, nargs="+", default=[1, 0])
     parser.add_argument("--repeat", type=int, default=1, help="measure each line this many times")
     parser.add_argument("--scene", help="a library scene instead of the default scenario")
+    parser.add_argument("--stages", action="store_true", help="time each stage of one process's frames")
+    parser.add_argument("--seed", type=int, default=0, help="--stages: the seed")
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
@@ -94,6 +183,10 @@ def main() -> None:
             parser.error(
                 f"--scene: no library scene {args.scene!r}; choose one of {', '.join(library.names())}"
             )
+    if args.stages:
+        for level in args.png_compression[:1]:
+            _stages(args.frames, args.width, args.height, args.seed, level, args.scene)
+        return
     name = args.scene or "default scenario"
     print(f"{name}, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included")
     print("frames/s, summed over the processes: once the world is built | with building the world")
