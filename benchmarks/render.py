@@ -1,12 +1,19 @@
 """Renderer cost per pass on the default scenario (MuJoCo, Mesa llvmpipe via EGL).
 
 Usage: python benchmarks/render.py [--width W --height H --frames N --threads T --seed S]
+                                   [--figure-triangles SHARE ... [--scene NAME] [--moments M] [--repeat R]]
 
 Times the RGB + depth pass, the segmentation pass and the unoccluded pass (the
 visible instances drawn alone, each in its own bit, OR-ed), with depotbench's
 tessellation (one quad per box face, coarser spheres and capsules) and with MuJoCo's
 defaults beside it.
 ``--threads`` sets Mesa's rasterizer threads (suites' workers use 0: rasterise in the calling thread).
+
+``--figure-triangles 0.2 0.12`` instead builds the scene once per share of marching
+cubes' triangles the figures keep (sim/shapes.py KEEP_FACES, 0.2 shipped), all in one
+process, and renders the worlds in turn (both passes and the unoccluded areas, the
+fastest of ``--repeat`` calls at each of ``--moments`` moments): what the figures'
+triangles cost, measured side by side so that the machine's drift cancels.
 """
 
 from __future__ import annotations
@@ -24,9 +31,16 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--threads", type=int, help="LP_NUM_THREADS (default: Mesa's, one per core)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--figure-triangles", type=float, nargs="+", metavar="SHARE")
+    parser.add_argument("--scene", help="--figure-triangles: a library scene instead of the default")
+    parser.add_argument("--moments", type=int, default=8)
+    parser.add_argument("--repeat", type=int, default=8)
     args = parser.parse_args()
     if args.threads is not None:
         os.environ["LP_NUM_THREADS"] = str(args.threads)  # read when the GL context is made
+    if args.figure_triangles:
+        _figure_triangles(args)
+        return
 
     import numpy as np
 
@@ -90,6 +104,58 @@ def main() -> None:
         print(f"{label} (numquads {quads}, numslices {slices}, numstacks {stacks}):")
         for name, seconds in timings.items():
             print(f"  {name:55s} {seconds * 1e3:7.2f} ms  ({1 / seconds:6.1f} /s)")
+
+
+def _figure_triangles(args: argparse.Namespace) -> None:
+    """Render the scene built at each share of figure triangles, in turn, in one process."""
+    import numpy as np
+
+    import sim.shapes
+    from sim.render import FrameRenderer
+    from sim.simulation import Simulation
+    from sim.spec import default_scenario
+    from sim.world import build_world
+
+    if args.scene is None:
+        spec = default_scenario(seed=args.seed)
+    else:
+        from scenes import library
+        from scenes.schema import to_scenario
+
+        spec = to_scenario(library.get(args.scene).model_copy(update={"seed": args.seed}))
+    spec = dataclasses.replace(spec, width=args.width, height=args.height, focal_px=525.0 * args.width / 640)
+    shipped = sim.shapes.KEEP_FACES
+    worlds = []
+    try:
+        for share in args.figure_triangles:
+            sim.shapes.KEEP_FACES = share
+            world = build_world(spec)
+            instance = world.body_instance[world.model.geom_bodyid]
+            renderer = FrameRenderer(world.model, spec.width, spec.height, instance)
+            worlds.append((share, world, renderer, Simulation(world), instance))
+    finally:
+        sim.shapes.KEEP_FACES = shipped
+    fastest = np.full((len(worlds), args.moments), np.inf)
+    duration = spec.frames / spec.fps
+    for m, t in enumerate(np.linspace(0.1, 0.9, args.moments) * duration):
+        for _, _, _, simulation, _ in worlds:
+            simulation.advance_to(float(t))
+        for _ in range(args.repeat):
+            for w, (_, world, renderer, simulation, instance) in enumerate(worlds):
+                renderer._gl.make_current()
+                start = time.perf_counter()
+                _, _, geom_ids = renderer.render(simulation.data, world.camera_id)
+                seen = np.unique(instance[geom_ids[geom_ids >= 0]])
+                renderer.unoccluded(simulation.data, world.camera_id, [int(i) for i in seen if i > 0])
+                fastest[w, m] = min(fastest[w, m], time.perf_counter() - start)
+    print(
+        f"{args.scene or 'default scenario'}, seed {args.seed}, {args.width}x{args.height}: both passes and "
+        f"the unoccluded areas, fastest of {args.repeat} calls, mean over {args.moments} moments"
+    )
+    for w, (share, world, renderer, _, _) in enumerate(worlds):
+        triangles = int(world.model.nmeshface)
+        print(f"  figures keep {share:.2f}: {triangles:7d} mesh triangles  {fastest[w].mean() * 1e3:7.2f} ms")
+        renderer.close()
 
 
 if __name__ == "__main__":

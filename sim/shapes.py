@@ -170,12 +170,13 @@ pig_pen and crowd, seeds 1-2), which were then drawn whole: a quarter of the fig
 triangles (414k against 310k), drawn in every render pass."""
 
 
-def decimate(mesh: Mesh, keep: float = KEEP_FACES) -> Mesh:
+def decimate(mesh: Mesh, keep: float | None = None) -> Mesh:
     """The mesh with about ``keep`` of its triangles (quadric error collapses), at the
     first aggressiveness that leaves it closed; failing that, with twice as many (a
     handle, as a curled pig tail has, can close up below that); the mesh itself where
-    that would leave it tiny or where every try opens it."""
-    target = int(len(mesh.faces) * keep)
+    that would leave it tiny or where every try opens it. ``keep`` defaults to
+    ``KEEP_FACES`` as it is when called (benchmarks/render.py varies it)."""
+    target = int(len(mesh.faces) * (KEEP_FACES if keep is None else keep))
     if target < MIN_FACES:
         return mesh
     for count in (target, 2 * target):
