@@ -84,8 +84,8 @@ def main() -> None:
             start = time.perf_counter()
             for _ in range(args.frames):
                 mujoco.mjr_render(renderer._rect, scene, renderer._context)
-                mujoco.mjr_readPixels(
-                    renderer._rgb, None if seg else renderer._depth, renderer._rect, renderer._context
+                renderer._read(
+                    (0, 0, args.width, args.height), renderer._rgba, None if seg else renderer._depth
                 )
             timings[name] = (time.perf_counter() - start) / args.frames
         passes = 0.0

@@ -392,6 +392,44 @@ Box = tuple[float, float, float, float, float]
 which sits at the origin and looks along -z."""
 
 
+@pytest.mark.parametrize("offsamples", [0, 4])
+def test_reading_rgba_gives_mujocos_own_pixels_and_depth(offsamples):
+    """FrameRenderer reads the offscreen buffer as RGBA (llvmpipe's RGB read is a slow
+    path); it must give the pixels and depth mjr_readPixels gives, whole and in a window,
+    and through MuJoCo's own reader where the buffer is multisampled."""
+    from sim.mujoco_env import mujoco
+    from sim.render import FrameRenderer
+
+    spec = mujoco.MjSpec()
+    spec.visual.quality.offsamples = offsamples
+    spec.worldbody.add_camera(name="camera", pos=[0, 0, 0], fovy=60)
+    spec.worldbody.add_light(pos=[0, 0, 1], dir=[0, 0, -1])
+    spheres = [(-0.3, 0.1, 2.0, 0.4, [1, 0.2, 0.1, 1]), (0.2, -0.1, 3.0, 0.5, [0.1, 0.6, 1, 1])]
+    for x, y, z, radius, rgba in spheres:
+        sphere = mujoco.mjtGeom.mjGEOM_SPHERE
+        spec.worldbody.add_geom(type=sphere, size=[radius, 0, 0], pos=[x, y, -z], rgba=rgba)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    width, height = 96, 64
+    renderer = FrameRenderer(model, width, height, np.zeros(model.ngeom, np.uint16))
+    try:
+        renderer.render(data, model.camera("camera").id)
+        mujoco.mjr_render(renderer._rect, renderer._scene, renderer._context)  # the segmentation pass
+        for rect in [(0, 0, width, height), (13, 7, 41, 29)]:
+            rgb = np.empty((rect[3], rect[2], 3), np.uint8)
+            depth = np.empty((rect[3], rect[2]), np.float32)
+            mujoco.mjr_readPixels(rgb, depth, mujoco.MjrRect(*rect), renderer._context)
+            rgba = np.empty((rect[3], rect[2], 4), np.uint8)
+            ours = np.empty_like(depth)
+            renderer._read(rect, rgba, ours)
+            assert len(np.unique(rgb.reshape(-1, 3), axis=0)) > 2  # spheres and background
+            np.testing.assert_array_equal(rgba[:, :, :3], rgb)
+            np.testing.assert_array_equal(ours, depth)
+    finally:
+        renderer.close()
+
+
 def _render_facing_boxes(
     boxes: dict[int, Box], width: int, height: int, fovy: float, walls: tuple[Box, ...] = ()
 ) -> tuple[np.ndarray, dict[int, tuple[int, bool]], list[int]]:
@@ -401,6 +439,7 @@ def _render_facing_boxes(
     from sim.render import FrameRenderer, _bit_passes
 
     spec = mujoco.MjSpec()
+    spec.visual.quality.offsamples = 0  # as the bench's worlds: no multisampling, exact pixels
     spec.worldbody.add_camera(name="camera", pos=[0, 0, 0], fovy=fovy)
     for instance, (x, y, z, hx, hy) in boxes.items():
         body = spec.worldbody.add_body(name=f"box{instance}", pos=[x, y, -z])
@@ -417,7 +456,8 @@ def _render_facing_boxes(
     camera = model.camera("camera").id
     try:
         _, _, geom_ids = renderer.render(data, camera)
-        windows = {i: renderer._window(renderer._projected_box(data, camera, i)) for i in boxes}
+        projected = renderer._projected_boxes(data, camera, list(boxes))
+        windows = {i: renderer._window(box) for i, box in zip(boxes, projected, strict=True)}
         unoccluded = renderer.unoccluded(data, camera, list(boxes))
     finally:
         renderer.close()
