@@ -43,30 +43,40 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
     from sim.generate import generate
     from sim.world import build_world
 
-    build_world(_spec(frames, width, height, seed + 1000, scene))  # warm imports and code paths
+    spec = scenario_at(frames, width, height, seed, scene)
+    build_world(scenario_at(frames, width, height, seed + 1000, scene))  # warm imports and code paths
     start = time.perf_counter()
-    build_world(_spec(frames, width, height, seed, scene))
+    build_world(spec)
     build = time.perf_counter() - start
     start = time.perf_counter()
-    generate(
-        _spec(frames, width, height, seed, scene), Path(out), progress=False, png_compression=png_compression
-    )
+    generate(spec, Path(out), progress=False, png_compression=png_compression)
     return build, time.perf_counter() - start
 
 
-def _spec(frames: int, width: int, height: int, seed: int, scene: str | None):
-    """The default scenario, or a library scene, at this size and seed."""
+def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: str | None):
+    """The default scenario, or a library scene, at this image size and seed, with
+    ``frames`` frames (None: the scenario's own length). render.py uses it too."""
     from sim.spec import default_scenario
 
     if scene is None:
-        spec = default_scenario(frames=frames, seed=seed)
+        spec = default_scenario(seed=seed) if frames is None else default_scenario(frames=frames, seed=seed)
     else:
         from scenes import library
         from scenes.schema import to_scenario
 
-        update = {"frames": frames, "duration_s": None, "seed": seed}
+        update = {"seed": seed} if frames is None else {"frames": frames, "duration_s": None, "seed": seed}
         spec = to_scenario(library.get(scene).model_copy(update=update))
     return dataclasses.replace(spec, width=width, height=height, focal_px=525.0 * width / 640)
+
+
+def check_scene(parser: argparse.ArgumentParser, scene: str | None) -> None:
+    """A --scene that is no library scene: one line naming the choices, exit 2."""
+    if scene is None:
+        return
+    from scenes import library
+
+    if scene not in library.names():
+        parser.error(f"--scene: no library scene {scene!r}; choose one of {', '.join(library.names())}")
 
 
 def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
@@ -127,7 +137,7 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
 
     loop: dict[str, float] = defaultdict(float)
     sim.generate._write_frames = _timed(sim.generate._write_frames, "loop", loop, time.perf_counter)
-    spec = _spec(frames, width, height, seed, scene)
+    spec = scenario_at(frames, width, height, seed, scene)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         generate(spec, Path(tmp) / "s", progress=False, png_compression=png_compression)
@@ -176,16 +186,9 @@ def main() -> None:
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
     ctx = mp.get_context("spawn")
-    if args.scene is not None:
-        from scenes import library
-
-        if args.scene not in library.names():
-            parser.error(
-                f"--scene: no library scene {args.scene!r}; choose one of {', '.join(library.names())}"
-            )
-    if args.stages:
-        for level in args.png_compression[:1]:
-            _stages(args.frames, args.width, args.height, args.seed, level, args.scene)
+    check_scene(parser, args.scene)
+    if args.stages:  # at the first PNG level asked
+        _stages(args.frames, args.width, args.height, args.seed, args.png_compression[0], args.scene)
         return
     name = args.scene or "default scenario"
     print(f"{name}, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included")

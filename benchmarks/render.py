@@ -19,9 +19,10 @@ triangles cost, measured side by side so that the machine's drift cancels.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import time
+
+from generation import check_scene, scenario_at  # benchmarks/ is the script's folder
 
 
 def main() -> None:
@@ -36,6 +37,9 @@ def main() -> None:
     parser.add_argument("--moments", type=int, default=8)
     parser.add_argument("--repeat", type=int, default=8)
     args = parser.parse_args()
+    if args.moments < 1 or args.repeat < 1:
+        parser.error("--moments and --repeat must be at least 1")
+    check_scene(parser, args.scene)
     if args.threads is not None:
         os.environ["LP_NUM_THREADS"] = str(args.threads)  # read when the GL context is made
     if args.figure_triangles:
@@ -47,15 +51,9 @@ def main() -> None:
     from sim.mujoco_env import mujoco
     from sim.render import FrameRenderer
     from sim.simulation import Simulation
-    from sim.spec import default_scenario
     from sim.world import build_world
 
-    spec = dataclasses.replace(
-        default_scenario(seed=args.seed),
-        width=args.width,
-        height=args.height,
-        focal_px=525.0 * args.width / 640,
-    )
+    spec = scenario_at(None, args.width, args.height, args.seed, None)
     world = build_world(spec)
     model = world.model
     ours = (model.vis.quality.numquads, model.vis.quality.numslices, model.vis.quality.numstacks)
@@ -113,17 +111,9 @@ def _figure_triangles(args: argparse.Namespace) -> None:
     import sim.shapes
     from sim.render import FrameRenderer
     from sim.simulation import Simulation
-    from sim.spec import default_scenario
     from sim.world import build_world
 
-    if args.scene is None:
-        spec = default_scenario(seed=args.seed)
-    else:
-        from scenes import library
-        from scenes.schema import to_scenario
-
-        spec = to_scenario(library.get(args.scene).model_copy(update={"seed": args.seed}))
-    spec = dataclasses.replace(spec, width=args.width, height=args.height, focal_px=525.0 * args.width / 640)
+    spec = scenario_at(None, args.width, args.height, args.seed, args.scene)
     shipped = sim.shapes.KEEP_FACES
     worlds = []
     try:

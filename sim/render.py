@@ -130,7 +130,7 @@ class FrameRenderer:
         projections) are apart share a bit; past 24 bits, another pass."""
         assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
         self._gl.make_current()
-        boxes = self._projected_boxes(data, camera_id, instances) if instances else ()
+        boxes = self._projected_boxes(data, camera_id, instances)
         windows = {i: self._window(box) for i, box in zip(instances, boxes, strict=True)}
         out = {}
         for bits in _bit_passes(instances, windows):
