@@ -104,7 +104,8 @@ def _views(args: argparse.Namespace, seed: int, detector) -> list[View]:
             for k in range(args.moments):
                 moment = 0.5 + k / args.moments
                 _place(world, sim.data, moment, spot, math.radians(float(heading)))
-                rgb, _, geoms = renderer.render(sim.data, world.camera_id)
+                frame = renderer.render(sim.data, world.camera_id)
+                rgb, geoms = frame.rgb, frame.geom_ids
                 mask = np.append(geom_instance, 0)[geoms] == instance
                 rows, cols = np.nonzero(mask)
                 if rows.size == 0:

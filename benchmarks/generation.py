@@ -15,7 +15,7 @@ This 2-core machine's speed drifts by up to a fifth between runs of one build:
 ``--repeat R`` measures each line R times and prints the median with the range.
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
-workers run it): the RGB and depth pass, the segmentation pass, the unoccluded areas,
+workers run it): the colour pass, the instance pass, the unoccluded areas,
 poses and physics, boxes, object states, the sensor model, handing the frame to the
 writer, and the deflate in the writer's threads (their CPU time), with the rest of the
 loop as "other" and the world's build apart.
@@ -97,9 +97,10 @@ def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
 
 
 STAGES = (
-    ("RGB and depth pass", "sim.render", "FrameRenderer.render"),
-    ("segmentation pass", "sim.render", "FrameRenderer._segment"),
-    ("unoccluded areas", "sim.render", "FrameRenderer.unoccluded"),
+    ("colour pass (RGB and depth)", "sim.render", "FrameRenderer._colour_pass"),
+    ("instance pass", "sim.render", "FrameRenderer._instance_pass"),
+    ("unoccluded areas", "sim.render", "FrameRenderer._unoccluded_areas"),
+    ("rest of render", "sim.render", "FrameRenderer.render"),
     ("poses and physics", "sim.simulation", "Simulation.advance_to"),
     ("snapshots", "sim.simulation", "Simulation.snapshot"),
     ("moving pixels' flow", "sim.generate", "flow_at"),
@@ -110,9 +111,9 @@ STAGES = (
     ("hand to the writer", "sim.sequence", "SequenceWriter.add_frame"),
     ("deflate (writer threads)", "sim.png", "_deflate"),
 )
-"""(label, module, attribute) of each timed stage. The segmentation pass runs inside
-``render``, whose time it is taken from; deflate runs in the writer's threads, so its
-thread CPU time is counted, which the frame loop does not wait for."""
+"""(label, module, attribute) of each timed stage. The passes run inside ``render``,
+whose time they are taken from; deflate runs in the writer's threads, so its thread
+CPU time is counted, which the frame loop does not wait for."""
 
 
 def _stages(frames: int, width: int, height: int, seed: int, png_compression: int, scene: str | None) -> None:
@@ -146,7 +147,7 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
     start = time.perf_counter()
     build_world(spec)  # once more, alone: generate's took as long
     build = time.perf_counter() - start
-    spent["RGB and depth pass"] -= spent["segmentation pass"]
+    spent["rest of render"] -= sum(spent[label] for label, _, _ in STAGES[:3])
     threads = spent.pop("deflate (writer threads)")
     print(f"{scene or 'default scenario'}, seed {seed}, {frames} frames, one process, one thread")
     print(f"  {'stage':28s} ms/frame  share of the loop")

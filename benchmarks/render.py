@@ -46,9 +46,6 @@ def main() -> None:
         _figure_triangles(args)
         return
 
-    import numpy as np
-
-    from sim.mujoco_env import mujoco
     from sim.render import FrameRenderer
     from sim.simulation import Simulation
     from sim.world import build_world
@@ -73,31 +70,25 @@ def main() -> None:
         renderer = FrameRenderer(model, args.width, args.height, geom_instance)
         sim = Simulation(world)
         renderer.render(sim.data, world.camera_id)
-        flags = mujoco.mjtRndFlag
-        scene = renderer._scene
         timings = {}
-        for name, seg in (("RGB + depth pass", False), ("segmentation pass", True)):
-            scene.flags[flags.mjRND_SEGMENT] = seg
-            scene.flags[flags.mjRND_IDCOLOR] = seg
+        for name, run in (
+            ("colour pass (RGB + depth)", renderer._colour_pass),
+            ("instance pass (segmentation of the instances)", renderer._instance_pass),
+        ):
             start = time.perf_counter()
             for _ in range(args.frames):
-                mujoco.mjr_render(renderer._rect, scene, renderer._context)
-                renderer._read(
-                    (0, 0, args.width, args.height), renderer._rgba, None if seg else renderer._depth
-                )
+                run(sim.data, world.camera_id)
             timings[name] = (time.perf_counter() - start) / args.frames
-        passes = 0.0
+        rendering = 0.0
         start = time.perf_counter()
         for k in range(args.frames):
             sim.advance_to(k / spec.fps)
-            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
-            seen = np.unique(geom_instance[geom_ids[geom_ids >= 0]])
             t0 = time.perf_counter()
-            renderer.unoccluded(sim.data, world.camera_id, [int(i) for i in seen if i > 0])
-            passes += time.perf_counter() - t0
+            renderer.render(sim.data, world.camera_id)
+            rendering += time.perf_counter() - t0
         whole = (time.perf_counter() - start) / args.frames
-        timings["unoccluded pass"] = passes / args.frames
-        timings["full frame (advance, both passes, decode, unoccluded)"] = whole
+        timings["render: both passes, decode, unoccluded areas"] = rendering / args.frames
+        timings["full frame (advance and render)"] = whole
         renderer.close()
         print(f"{label} (numquads {quads}, numslices {slices}, numstacks {stacks}):")
         for name, seconds in timings.items():
@@ -131,12 +122,10 @@ def _figure_triangles(args: argparse.Namespace) -> None:
         for _, _, _, simulation, _ in worlds:
             simulation.advance_to(float(t))
         for _ in range(args.repeat):
-            for w, (_, world, renderer, simulation, instance) in enumerate(worlds):
+            for w, (_, world, renderer, simulation, _) in enumerate(worlds):
                 renderer._gl.make_current()
                 start = time.perf_counter()
-                _, _, geom_ids = renderer.render(simulation.data, world.camera_id)
-                seen = np.unique(instance[geom_ids[geom_ids >= 0]])
-                renderer.unoccluded(simulation.data, world.camera_id, [int(i) for i in seen if i > 0])
+                renderer.render(simulation.data, world.camera_id)
                 fastest[w, m] = min(fastest[w, m], time.perf_counter() - start)
     print(
         f"{args.scene or 'default scenario'}, seed {args.seed}, {args.width}x{args.height}: both passes and "

@@ -179,22 +179,20 @@ def _write_frames(
     """Simulate, render and write each frame with its ground truth; return the difficulty."""
     sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
     sim = Simulation(world)
-    # Index -1 (no geom) reads the appended 0: the static world, no instance.
+    # Index -1 (the static world, or nothing) reads the appended 0: the world body. Like
+    # every body of the static world, it never moves (test_only_instances_move).
     geom_body = np.append(world.model.geom_bodyid.astype(np.int64), 0)
-    geom_instance = np.append(world.body_instance[geom_body[:-1]], 0).astype(np.uint16)
     difficulty = DifficultyAccumulator()
     period = 1.0 / scenario.fps
     now = sim.snapshot()
     for k in frames:
-        rgb, depth, geom_ids = renderer.render(sim.data, world.camera_id)
-        instances = geom_instance[geom_ids]
+        frame = renderer.render(sim.data, world.camera_id)
+        rgb, depth, geom_ids, instances = frame.rgb, frame.depth, frame.geom_ids, frame.instances
         boxes, counts = boxes_and_counts(instances, len(world.instances))
-        seen = np.flatnonzero(counts[1:]) + 1
-        unoccluded = renderer.unoccluded(sim.data, world.camera_id, seen.tolist())
         sim.advance_to((k + 1) * period)
         nxt = sim.snapshot()
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)
-        objects = object_states(world, now, nxt, boxes, counts, unoccluded)
+        objects = object_states(world, now, nxt, boxes, counts, frame.unoccluded)
         is_moving = np.zeros(len(world.instances) + 1, bool)
         is_moving[[o.instance_id for o in objects if o.moving]] = True
         moving = is_moving[instances] & (depth > 0)

@@ -1,15 +1,22 @@
-"""Off-screen RGB, metric z-depth and per-pixel geom ids from MuJoCo's renderer.
+"""Off-screen RGB, metric z-depth, per-pixel instance geoms and unoccluded areas from
+MuJoCo's renderer.
 
-One pass gives RGB and depth (exact with ``offsamples = 0``), a second pass
-gives segmentation. Each visible instance's unoccluded area (what it would cover
-with everything else removed) comes from a third pass that draws only the instances,
-each in its own bit, OR-ed together without a depth test. Geoms wholly
-outside the camera's view are left out of every pass: they draw no pixel. The GL context
-belongs to the thread that creates this object (rendering-notes.md): create one
-per worker, after any fork.
+A colour pass gives RGB and depth (exact with ``offsamples = 0``). An instance pass
+draws only the instances, in their segmentation colours with the depth test: a pixel
+shows an instance's geom where that pass's depth equals the colour pass's (the same
+triangles through the same transform give the same depth, bit for bit), and the static
+world elsewhere. Drawing the world once, not twice, is what makes it cheaper than a
+full segmentation pass. Each visible instance's unoccluded area (what it would cover
+with everything else removed) is read from the instance pass when no other instance's
+window overlaps its own; the others come from a pass that draws only them, each in its
+own bit, OR-ed together without a depth test. Geoms wholly outside the camera's view
+are left out of every pass: they draw no pixel. The GL context belongs to the thread
+that creates this object (rendering-notes.md): create one per worker, after any fork.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import cv2
 import numpy as np
@@ -28,29 +35,47 @@ SOLO_GROUP for a pass that draws that instance alone; the rest of the world is g
 Geoms the model puts in HIDDEN_GROUP or above (collision stand-ins) are never drawn."""
 
 
+@dataclasses.dataclass(frozen=True)
+class RenderedFrame:
+    """One camera frame and which instance each of its pixels shows."""
+
+    rgb: np.ndarray
+    """(H, W, 3) uint8."""
+    depth: np.ndarray
+    """(H, W) z-depth in metres, float32; 0 where nothing is drawn."""
+    geom_ids: np.ndarray
+    """(H, W) int32: the instance geom each pixel shows; -1 for the static world (whose
+    bodies never move) and for empty pixels."""
+    instances: np.ndarray
+    """(H, W) uint16: the instance each pixel shows, 0 for the static world."""
+    unoccluded: dict[int, tuple[int, bool]]
+    """Per instance with a visible pixel: (pixels it covers with everything else removed,
+    whether that area reaches the image border)."""
+
+
 class FrameRenderer:
     def __init__(
         self,
         model: mujoco.MjModel,
         width: int,
         height: int,
-        geom_instance: np.ndarray | None = None,
+        geom_instance: np.ndarray,
         cull: bool = True,
     ) -> None:
-        """``geom_instance``: the instance id of every geom (0 for the static world); needed
-        only for ``unoccluded``. ``cull``: leave out geoms outside the view (the same pixels)."""
+        """``geom_instance``: the instance id of every geom (0 for the static world).
+        ``cull``: leave out geoms outside the view (the same pixels)."""
         from mujoco import gl_context
 
         self.model, self.width, self.height = model, width, height
         self.geom_instance = geom_instance
+        self._instance_of = np.append(geom_instance, 0).astype(np.uint16)  # index -1: none
         self._drawn = model.geom_group < HIDDEN_GROUP
         # Culled by their bounding spheres, a little enlarged; planes (rbound 0) never.
         self._cullable = (self._drawn & (model.geom_rbound > 0)) if cull else np.zeros(model.ngeom, bool)
         self._cull_radius = model.geom_rbound * (1 + 1e-6) + 1e-3
-        if geom_instance is not None:
-            model.geom_group[:] = np.where(
-                self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
-            )
+        model.geom_group[:] = np.where(
+            self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
+        )
         try:
             self._gl = gl_context.GLContext(width, height)
             self._gl.make_current()
@@ -69,36 +94,55 @@ class FrameRenderer:
         _sample_textures_bilinear(model, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._option = mujoco.MjvOption()
-        self._solo = mujoco.MjvOption()
-        self._solo.geomgroup[:] = [g == SOLO_GROUP for g in range(len(self._option.geomgroup))]
+        self._solo = _only_group(SOLO_GROUP)
+        self._instances_only = _only_group(INSTANCE_GROUP)
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._rect = mujoco.MjrRect(0, 0, width, height)
         self._rgba = np.empty((height, width, 4), np.uint8)
         self._depth = np.empty((height, width), np.float32)
         self._seg = np.empty((height, width, 4), np.uint8)
+        self._instance_depth = np.empty((height, width), np.float32)
         extent = model.stat.extent
         self._near = np.float32(model.vis.map.znear * extent)
         self._far = np.float32(model.vis.map.zfar * extent)
 
-    def render(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """RGB (H, W, 3) uint8, z-depth in metres (float32, 0 = nothing), geom ids (-1 = none)."""
+    def render(self, data: mujoco.MjData, camera_id: int) -> RenderedFrame:
+        """The colour pass, the instance pass, and the unoccluded areas of the instances seen."""
         self._gl.make_current()
+        rgb, depth = self._colour_pass(data, camera_id)
+        front, drawn = self._instance_pass(data, camera_id)
+        shown = np.flipud(np.where(self._instance_depth == self._depth, front, -1))
+        instances = self._instance_of[shown]
+        seen = np.flatnonzero(np.bincount(instances.ravel(), minlength=2)[1:]) + 1
+        unoccluded = self._unoccluded_areas(data, camera_id, np.flipud(front), drawn, seen.tolist())
+        return RenderedFrame(rgb, depth, shown, instances, unoccluded)
+
+    def _colour_pass(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, np.ndarray]:
+        """RGB and metric depth of the whole scene; the raw depth buffer stays in ``_depth``."""
         self._update_scene(data, camera_id, self._option)
-        scene, flags = self._scene, self._scene.flags
+        flags = self._scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = False
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = False
-        mujoco.mjr_render(self._rect, scene, self._context)
+        mujoco.mjr_render(self._rect, self._scene, self._context)
         self._read((0, 0, self.width, self.height), self._rgba, self._depth)
         rgb = cv2.cvtColor(np.flipud(self._rgba), cv2.COLOR_RGBA2RGB)  # numpy's strided copy: 25x slower
-        depth = self._metric_depth(np.flipud(self._depth))
-        geom_ids = np.flipud(self._segment())
-        return rgb, depth, geom_ids
+        return rgb, self._metric_depth(np.flipud(self._depth))
 
-    def _segment(self) -> np.ndarray:
-        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row first."""
+    def _instance_pass(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, list[int]]:
+        """Geom ids (-1 = none) of the instances alone, front-most first, bottom row first,
+        with their depth buffer in ``_instance_depth``; and the instances drawn."""
+        self._update_scene(data, camera_id, self._instances_only)
+        front = self._segment(self._instance_depth)
+        scene = self._scene
+        geoms = [g.objid for g in scene.geoms[: scene.ngeom] if g.objtype == mujoco.mjtObj.mjOBJ_GEOM]
+        return front, np.unique(self.geom_instance[geoms]).tolist()
+
+    def _segment(self, depth: np.ndarray | None = None) -> np.ndarray:
+        """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row
+        first; its depth buffer into ``depth`` if given."""
         self._draw_segmentation()
-        self._read((0, 0, self.width, self.height), self._seg)
+        self._read((0, 0, self.width, self.height), self._seg, depth)
         # A pixel's colour is segid + 1 in 24 bits (R lowest); below 2^16 blue is 0, so the
         # id is the little-endian 16 bits of red and green, read in place.
         seg = self._seg
@@ -111,6 +155,34 @@ class FrameRenderer:
             if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.segid >= 0:
                 lookup[geom.segid + 1] = geom.objid
         return lookup[segid]
+
+    def _unoccluded_areas(
+        self, data: mujoco.MjData, camera_id: int, front: np.ndarray, drawn: list[int], seen: list[int]
+    ) -> dict[int, tuple[int, bool]]:
+        """``unoccluded`` of the instances ``seen``. One whose window overlaps no other drawn
+        instance's has nothing in front of it in the instance pass (``front``, top row
+        first), so its area is read there; the rest take ``unoccluded``'s passes."""
+        windows = np.array([self._window(box) for box in self._projected_boxes(data, camera_id, drawn)])
+        windows = windows.reshape(-1, 4)
+        overlaps = (
+            (windows[:, None, 0] < windows[None, :, 2])
+            & (windows[None, :, 0] < windows[:, None, 2])
+            & (windows[:, None, 1] < windows[None, :, 3])
+            & (windows[None, :, 1] < windows[:, None, 3])
+        ).sum(axis=1) > 1  # each window overlaps itself
+        row_of = {instance: row for row, instance in enumerate(drawn)}
+        out, crowded = {}, []
+        for instance in seen:
+            if overlaps[row_of[instance]]:
+                crowded.append(instance)
+                continue
+            window = tuple(windows[row_of[instance]].tolist())
+            row0, col0, row1, col1 = window
+            covered = self._instance_of[front[row0:row1, col0:col1]] == instance
+            out[instance] = (int(covered.sum()), bool(self._on_border(covered, window).any()))
+        if crowded:
+            out.update(self.unoccluded(data, camera_id, crowded))
+        return {instance: out[instance] for instance in seen}
 
     def _draw_segmentation(self) -> None:
         """Draw the current scene with each geom in its id colour (black where none)."""
@@ -128,7 +200,6 @@ class FrameRenderer:
         framebuffer with no depth buffer, so a pixel holds the bit of every instance that
         covers it, hidden or not. Instances whose pixel windows (which hold their
         projections) are apart share a bit; past 24 bits, another pass."""
-        assert self.geom_instance is not None, "FrameRenderer needs geom_instance for this"
         self._gl.make_current()
         boxes = self._projected_boxes(data, camera_id, instances)
         windows = {i: self._window(box) for i, box in zip(instances, boxes, strict=True)}
@@ -230,7 +301,6 @@ class FrameRenderer:
         geoms' bounding boxes (conservative; the whole plane if a corner is behind the
         camera), one row per instance. u, v are pixel offsets from the image centre. All
         instances' corners in one go: one instance at a time cost 0.1 ms each."""
-        assert self.geom_instance is not None
         geoms = np.flatnonzero(np.isin(self.geom_instance, instances))
         aabb = self.model.geom_aabb[geoms]  # (centre, half size) in the geom's frame
         local = aabb[:, None, :3] + _BOX_CORNERS[None] * aabb[:, None, 3:]
@@ -312,6 +382,13 @@ def _sample_textures_bilinear(model: mujoco.MjModel, context: mujoco.MjrContext)
 
 _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
 """The 8 corners of a unit box, as signs of its half sizes."""
+
+
+def _only_group(group: int) -> mujoco.MjvOption:
+    """Scene options that draw the geoms of one group alone."""
+    option = mujoco.MjvOption()
+    option.geomgroup[:] = [g == group for g in range(len(option.geomgroup))]
+    return option
 
 
 def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:

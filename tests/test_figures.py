@@ -175,7 +175,7 @@ def test_moving_bodies_stay_in_one_piece(kind, speed):
     try:
         for k in range(12):
             sim.advance_to(0.25 + k / 6.0)
-            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            geom_ids = renderer.render(sim.data, world.camera_id).geom_ids
             mask = np.where(geom_ids >= 0, geom_instance[np.maximum(geom_ids, 0)], 0) == 1
             if mask.sum() < 300:
                 continue
@@ -197,7 +197,7 @@ def test_people_are_drawn_by_their_meshes_not_their_stand_ins():
     geom_instance = world.body_instance[world.model.geom_bodyid]
     renderer = FrameRenderer(world.model, 320, 240, geom_instance)
     try:
-        _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+        geom_ids = renderer.render(sim.data, world.camera_id).geom_ids
     finally:
         renderer.close()
     actor = geom_ids[(geom_ids >= 0) & (geom_instance[np.maximum(geom_ids, 0)] == 1)]
@@ -295,7 +295,7 @@ def test_a_bird_stays_in_one_piece_as_its_wings_open_and_flap(yaw_deg):
             sim.data.mocap_pos[ids] = positions
             sim.data.mocap_quat[ids] = quat_wxyz(rotations)
             mujoco.mj_forward(world.model, sim.data)
-            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            geom_ids = renderer.render(sim.data, world.camera_id).geom_ids
             mask = np.where(geom_ids >= 0, geom_instance[np.maximum(geom_ids, 0)], 0) == 1
             assert mask.sum() > 800, (spread, flap_deg)
             count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -325,7 +325,7 @@ def test_a_cat_seen_from_the_side_shows_an_eye():
     try:
         for k in range(6):
             sim.advance_to(1.5 + k / 10.0)  # crossing the view, head to one side
-            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
+            geom_ids = renderer.render(sim.data, world.camera_id).geom_ids
             assert np.isin(geom_ids, eye_geoms).sum() >= 15, k  # 28-35 px; buried: 0-1
     finally:
         renderer.close()

@@ -414,8 +414,7 @@ def test_reading_rgba_gives_mujocos_own_pixels_and_depth(offsamples):
     width, height = 96, 64
     renderer = FrameRenderer(model, width, height, np.zeros(model.ngeom, np.uint16))
     try:
-        renderer.render(data, model.camera("camera").id)
-        mujoco.mjr_render(renderer._rect, renderer._scene, renderer._context)  # the segmentation pass
+        renderer._colour_pass(data, model.camera("camera").id)
         for rect in [(0, 0, width, height), (13, 7, 41, 29)]:
             rgb = np.empty((rect[3], rect[2], 3), np.uint8)
             depth = np.empty((rect[3], rect[2]), np.float32)
@@ -434,7 +433,9 @@ def _render_facing_boxes(
     boxes: dict[int, Box], width: int, height: int, fovy: float, walls: tuple[Box, ...] = ()
 ) -> tuple[np.ndarray, dict[int, tuple[int, bool]], list[int]]:
     """Render instance boxes (and static ``walls``): per-instance visible pixels and
-    unoccluded areas, and how many instances each unoccluded pass draws."""
+    unoccluded areas, and how many instances each unoccluded pass draws. The areas the
+    frame gives (read from its instance pass where no other window overlaps) must be
+    the bit passes' for every instance seen."""
     from sim.mujoco_env import mujoco
     from sim.render import FrameRenderer, _bit_passes
 
@@ -455,16 +456,18 @@ def _render_facing_boxes(
     renderer = FrameRenderer(model, width, height, body_instance[model.geom_bodyid])
     camera = model.camera("camera").id
     try:
-        _, _, geom_ids = renderer.render(data, camera)
+        frame = renderer.render(data, camera)
         projected = renderer._projected_boxes(data, camera, list(boxes))
         windows = {i: renderer._window(box) for i, box in zip(boxes, projected, strict=True)}
         unoccluded = renderer.unoccluded(data, camera, list(boxes))
     finally:
         renderer.close()
+    geom_ids = frame.geom_ids
     visible = np.bincount(
         np.where(geom_ids >= 0, body_instance[model.geom_bodyid][geom_ids], 0).ravel(),
         minlength=len(boxes) + 1,
     )
+    assert frame.unoccluded == {i: unoccluded[i] for i in boxes if visible[i] > 0}
     return visible, unoccluded, [len(bits) for bits in _bit_passes(list(boxes), windows)]
 
 
@@ -545,7 +548,8 @@ def test_bit_passes_give_overlapping_windows_different_bits():
 def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
     """Brute force: draw every visible instance of the default scene entirely alone over the
     whole image, one per pass, with the depth test; the OR-ed bit passes (every instance at
-    once, no depth buffer) must give the same areas and border flags."""
+    once, no depth buffer) and the frame's areas (the instance pass's, where no other
+    instance's window overlaps) must give the same areas and border flags."""
     from sim.render import SOLO_GROUP, FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=2))
@@ -556,8 +560,9 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
     try:
         for k in range(0, 12, 3):
             sim.advance_to(k / 30)
-            _, _, geom_ids = renderer.render(sim.data, world.camera_id)
-            seen = [int(i) for i in np.unique(geom_instance[geom_ids[geom_ids >= 0]]) if i > 0]
+            frame = renderer.render(sim.data, world.camera_id)
+            seen = [int(i) for i in np.unique(frame.instances) if i > 0]
+            assert list(frame.unoccluded) == seen
             batched = renderer.unoccluded(sim.data, world.camera_id, seen)
             for instance in seen:
                 owned = (geom_instance == instance) & (groups < 5)
@@ -567,10 +572,63 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
                 groups[owned] = before
                 mask = renderer._segment() >= 0
                 border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
-                assert batched[instance] == (int(mask.sum()), border), (k, instance)
+                alone = (int(mask.sum()), border)
+                assert batched[instance] == frame.unoccluded[instance] == alone, (k, instance)
             assert len(seen) > 5
     finally:
         renderer.close()
+
+
+@pytest.mark.parametrize(("scene", "seed"), [(None, 0), ("crowd", 1), ("dog_and_cat_roaming", 2)])
+def test_instance_pass_shows_what_a_segmentation_pass_of_the_whole_scene_shows(scene, seed):
+    """MuJoCo's own segmentation of the whole scene (the world drawn too, with the depth
+    test) is the reference: the instance pass, whose pixels count where its depth equals
+    the colour pass's, must give each pixel the same instance geom, bit for bit."""
+    from scenes import library
+    from scenes.schema import to_scenario
+    from sim.render import FrameRenderer
+
+    changes = {"frames": 12, "duration_s": None, "seed": seed}
+    spec = (
+        default_scenario(frames=12, seed=seed)
+        if scene is None
+        else to_scenario(library.get(scene).model_copy(update=changes))
+    )
+    world = build_world(spec)
+    geom_instance = world.body_instance[world.model.geom_bodyid]
+    renderer = FrameRenderer(world.model, 320, 240, geom_instance)
+    sim = Simulation(world)
+    shown = 0
+    try:
+        for t in (0.2, 1.0, 1.9, 2.7):
+            sim.advance_to(t)
+            frame = renderer.render(sim.data, world.camera_id)
+            renderer._update_scene(sim.data, world.camera_id, renderer._option)
+            whole = np.flipud(renderer._segment())
+            reference = np.where(geom_instance[whole] > 0, whole, -1)
+            np.testing.assert_array_equal(frame.geom_ids, reference, err_msg=f"t={t}")
+            shown += int((reference >= 0).sum())
+    finally:
+        renderer.close()
+    assert shown > 20000
+
+
+def test_only_instances_move():
+    """Pixels of the static world are given the world body, whose motion (none) is the flow's:
+    so no body outside an instance may move, in any library scene; the camera rig, which
+    moves, draws nothing."""
+    from scenes import library
+    from scenes.schema import to_scenario
+
+    for name in library.names():
+        spec = to_scenario(library.get(name).model_copy(update={"frames": 2, "duration_s": None, "seed": 1}))
+        world = build_world(spec)
+        model = world.model
+        moves = (model.body_dofnum > 0) | (model.body_mocapid >= 0)
+        for body in range(1, model.nbody):  # parents come before their children
+            moves[body] |= moves[model.body_parentid[body]]
+        for body in np.flatnonzero(moves & (world.body_instance == 0)):
+            assert model.body(body).name == "camera_rig" and not (model.geom_bodyid == body).any(), name
 
 
 def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
@@ -590,9 +648,11 @@ def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
             a = culled.render(sim.data, world.camera_id)
             left_out.append(int(culled._outside_view(sim.data, world.camera_id).sum()))
             b = whole.render(sim.data, world.camera_id)
-            for x, y in zip(a, b, strict=True):
+            for field in ("rgb", "depth", "geom_ids", "instances"):
+                x, y = getattr(a, field), getattr(b, field)
                 assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), k
-            seen = [int(i) for i in np.unique(geom_instance[a[2][a[2] >= 0]]) if i > 0]
+            assert a.unoccluded == b.unoccluded, k
+            seen = list(a.unoccluded)
             assert culled.unoccluded(sim.data, world.camera_id, seen) == whole.unoccluded(
                 sim.data, world.camera_id, seen
             ), k
@@ -616,7 +676,7 @@ def test_rgb_matches_mujocos_own_renderer_but_for_texture_filtering():
     try:
         for t in (0.0, 0.5, 1.1):
             sim.advance_to(t)
-            rgb, _, _ = ours.render(sim.data, world.camera_id)
+            rgb = ours.render(sim.data, world.camera_id).rgb
             reference.update_scene(sim.data, world.camera_id)
             difference = np.abs(reference.render().astype(int) - rgb)
             assert difference.mean() < 1.0, t
