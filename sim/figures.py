@@ -32,6 +32,7 @@ from sim.shapes import (
     Shape,
     cut,
     ellipsoid,
+    far_version,
     mesh_field,
     round_cone,
     segment_distance,
@@ -61,6 +62,9 @@ class Surface:
     texcoord: np.ndarray | None = None
     """A mesh's texture coordinates (3F, 2), one per corner of each face in order: set
     where a coat is laid on along the body (``wrapped``), not projected by a cube map."""
+    far: Surface | None = None
+    """The same mesh piece with fewer triangles, drawn in its place when it is far from
+    the camera (``sim.render.FAR_M``); None for primitives and small pieces."""
 
 
 @dataclass(frozen=True)
@@ -408,7 +412,6 @@ def carve(
         mine = segment_distance(bone.a, bone.b, p) - bone.radius
         if others:
             mine = mine - np.min([segment_distance(b.a, b.b, p) - b.radius for b in others], axis=0) - overlap
-        origin, rotation = frames[bone.part]
         surfaces: list[Surface] = []
         for material, region, thickness in pieces(bone.part):
             d = np.maximum(inside - thickness, mine)
@@ -418,7 +421,7 @@ def carve(
                 d = np.maximum(d, region(p))
             mesh = grid.mesh(d)
             if mesh is not None:
-                surfaces.append(Surface(material, _to_frame(mesh, origin, rotation)))
+                surfaces.append(_piece(material, mesh, frames[bone.part]))
         out[bone.part] = surfaces
     return out
 
@@ -448,9 +451,19 @@ def person_surfaces(s: float, look: Look) -> dict[str, tuple[Surface, ...]]:
         mesh = mesh_field(hair, hair.lower, hair.upper, 0.011 * s)
         if mesh is not None:
             role = "hat" if look.hair in ("cap", "hardhat") else "hair"
-            out["head"].append(Surface(role, _to_frame(mesh, origin, rotation)))
+            out["head"].append(_piece(role, mesh, (origin, rotation)))
     out["head"] += _face(s, origin)
     return {part: tuple(surfaces) for part, surfaces in out.items()}
+
+
+def _piece(material: str, mesh: Mesh, frame: tuple[np.ndarray, np.ndarray]) -> Surface:
+    """A mesh piece (bind pose) in its part's ``frame``, with its far version."""
+    far = far_version(mesh)
+    return Surface(
+        material,
+        _to_frame(mesh, *frame),
+        far=None if far is None else Surface(material, _to_frame(far, *frame)),
+    )
 
 
 def _to_frame(mesh: Mesh, origin: np.ndarray, rotation: np.ndarray) -> Mesh:
@@ -509,7 +522,8 @@ def wrapped(
     v = corners[:, :, 1]  # a view: the unwrapping writes into corners
     across = (v.max(axis=1) - v.min(axis=1)) > 0.5
     v[across[:, None] & (v < 0.5)] += 1.0
-    return dataclasses.replace(surface, texcoord=corners.reshape(-1, 2))
+    far = None if surface.far is None else wrapped(surface.far, a, b, down, frame, width_m)
+    return dataclasses.replace(surface, texcoord=corners.reshape(-1, 2), far=far)
 
 
 def quadruped_surfaces(

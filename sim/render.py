@@ -35,6 +35,15 @@ SOLO_GROUP for a pass that draws that instance alone; the rest of the world is g
 Geoms the model puts in HIDDEN_GROUP or above (collision stand-ins) are never drawn."""
 
 
+FAR_SUFFIX = "_far"
+"""A mesh geom named as another with this suffix, on the same body, is that geom's far
+version: fewer triangles, drawn instead of it where it is far from the camera."""
+FAR_M = 3.0
+"""Depth (along the camera's axis, to the geom's centre) beyond which a geom's far
+version is drawn in its place, in every pass alike. The figures' triangles are most of
+each pass's cost on llvmpipe; past 3 m a person stands under 300 pixels tall."""
+
+
 @dataclasses.dataclass(frozen=True)
 class RenderedFrame:
     """One camera frame and which instance each of its pixels shows."""
@@ -73,6 +82,7 @@ class FrameRenderer:
         # Culled by their bounding spheres, a little enlarged; planes (rbound 0) never.
         self._cullable = (self._drawn & (model.geom_rbound > 0)) if cull else np.zeros(model.ngeom, bool)
         self._cull_radius = model.geom_rbound * (1 + 1e-6) + 1e-3
+        self._near_version, self._far_version = _detail_pairs(model)
         model.geom_group[:] = np.where(
             self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
         )
@@ -324,15 +334,24 @@ class FrameRenderer:
     def _update_scene(self, data: mujoco.MjData, camera_id: int, option: mujoco.MjvOption) -> None:
         self._camera.fixedcamid = camera_id
         groups = self.model.geom_group
-        outside = self._outside_view(data, camera_id)
-        kept = groups[outside]
-        groups[outside] = HIDDEN_GROUP
+        hidden = self._outside_view(data, camera_id)
+        far = self._far_from(data, camera_id)
+        hidden[self._near_version[far]] = True
+        hidden[self._far_version[~far]] = True
+        kept = groups[hidden]
+        groups[hidden] = HIDDEN_GROUP
         try:
             mujoco.mjv_updateScene(
                 self.model, data, option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
             )
         finally:
-            groups[outside] = kept
+            groups[hidden] = kept
+
+    def _far_from(self, data: mujoco.MjData, camera_id: int) -> np.ndarray:
+        """Which geoms with a far version lie beyond ``FAR_M``, by their near version's centre."""
+        offset = data.geom_xpos[self._near_version] - data.cam_xpos[camera_id]
+        axis = data.cam_xmat[camera_id].reshape(3, 3)[:, 2]  # MuJoCo cameras look along -z
+        return offset @ -axis > FAR_M
 
     def _outside_view(self, data: mujoco.MjData, camera_id: int) -> np.ndarray:
         """Which geoms lie wholly outside the camera's view: each bounding sphere on the far
@@ -382,6 +401,19 @@ def _sample_textures_bilinear(model: mujoco.MjModel, context: mujoco.MjrContext)
 
 _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
 """The 8 corners of a unit box, as signs of its half sizes."""
+
+
+def _detail_pairs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The ids of the geoms that have a far version, and of their far versions (named
+    for them with ``FAR_SUFFIX``, on the same body)."""
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom)]
+    ids = {name: g for g, name in enumerate(names) if name}
+    far = [g for g, name in enumerate(names) if name.endswith(FAR_SUFFIX)]
+    near = [ids.get(names[g].removesuffix(FAR_SUFFIX), -1) for g in far]
+    for n, f in zip(near, far, strict=True):
+        if n < 0 or model.geom_bodyid[n] != model.geom_bodyid[f]:
+            raise ValueError(f"geom {names[f]!r} is a far version of no geom on its body")
+    return np.array(near, dtype=int), np.array(far, dtype=int)
 
 
 def _only_group(group: int) -> mujoco.MjvOption:

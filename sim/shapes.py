@@ -25,6 +25,10 @@ Field = Callable[[np.ndarray], np.ndarray]
 
 KEEP_FACES = 0.2
 """Share of marching cubes' triangles a mesh keeps after decimation."""
+FAR_KEEP_FACES = 0.08
+"""Share of marching cubes' triangles a mesh's far version keeps: drawn beyond
+``sim.render.FAR_M``, three times as far as a person seen whole, its edges there are
+shorter on screen than the near version's at 2 m (benchmarks/render.py --detail)."""
 MIN_FACES = 48
 """Meshes with fewer triangles than this after decimation are kept whole."""
 FAR = 1.0
@@ -187,6 +191,13 @@ def decimate(mesh: Mesh, keep: float | None = None) -> Mesh:
             if trimesh.Trimesh(vertices, faces, process=False).is_watertight:
                 return Mesh(vertices.astype(np.float64), faces.astype(np.int32))
     return mesh
+
+
+def far_version(mesh: Mesh) -> Mesh | None:
+    """``mesh`` (kept at ``KEEP_FACES``) cut down to ``FAR_KEEP_FACES``; None where that
+    leaves nothing to gain (a small piece, or one decimation would open)."""
+    far = decimate(mesh, FAR_KEEP_FACES / KEEP_FACES)
+    return None if far is mesh else far
 
 
 def mesh_field(field: Field, lower: np.ndarray, upper: np.ndarray, step: float) -> Mesh | None:

@@ -8,7 +8,7 @@ actor's part pushes them (contact bits: actors touch chairs, nothing else).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from sim.figures import AnimalLook, Look, Surface
 from sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
 from sim.mujoco_env import mujoco
 from sim.paths import Path, plan_loop
-from sim.render import HIDDEN_GROUP
+from sim.render import FAR_SUFFIX, HIDDEN_GROUP
 from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
 
 STATIC_BITS, CHAIR_BITS, ACTOR_BITS = (1, 1), (1, 3), (2, 0)
@@ -309,7 +309,10 @@ def _add_surface(spec: mujoco.MjSpec, body: mujoco.MjsBody, surface: Surface, na
     if surface.texcoord is not None:
         mesh.usertexcoord = surface.texcoord.astype(np.float32).ravel().tolist()
         mesh.userfacetexcoord = list(range(len(surface.texcoord)))
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, mass=0.0, **common)
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, mass=0.0, name=name, **common)
+    if surface.far is not None:  # in the near version's material, whatever renamed it
+        far = replace(surface.far, material=surface.material)
+        _add_surface(spec, body, far, name + FAR_SUFFIX)
 
 
 def chair_footprints(chairs: tuple[ChairSpec, ...]) -> tuple[Rect, ...]:

@@ -41,21 +41,25 @@ def _assert_closed_and_outward(named_meshes, reach: float | None = None) -> None
                 assert np.linalg.norm(mesh.vertices, axis=1).max() < reach, name
 
 
+def _meshes(surfaces) -> list:
+    """The meshes of ``surfaces`` and of their far versions."""
+    return [m for s in surfaces for m in (s.mesh, s.far and s.far.mesh) if m is not None]
+
+
 def _part_meshes(parts) -> list:
-    return [(part.name, [s.mesh for s in part.surfaces if s.mesh is not None]) for part in parts]
+    return [(part.name, _meshes(part.surfaces)) for part in parts]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_piece_is_a_closed_outward_mesh_near_its_part(seed):
-    """Each drawn piece is watertight (every edge shared by two faces) with positive
-    volume, and lies near its own part's frame origin (a wrong frame would fling it away)."""
+    """Each drawn piece (and its far version) is watertight (every edge shared by two faces)
+    with positive volume, and lies near its own part's frame origin (a wrong frame would
+    fling it away)."""
     look = Look.draw(np.random.default_rng(seed))
     drawn = person_surfaces(1.0, look)
     frames, _ = person_bind(1.0)
     assert set(drawn) == set(frames)
-    _assert_closed_and_outward(
-        [(part, [s.mesh for s in surfaces if s.mesh is not None]) for part, surfaces in drawn.items()], 0.45
-    )
+    _assert_closed_and_outward([(part, _meshes(surfaces)) for part, surfaces in drawn.items()], 0.45)
 
 
 def test_looks_vary_with_the_seed_and_repeat_with_it():
@@ -94,7 +98,8 @@ def test_every_piece_keeps_a_fifth_of_its_marching_cubes_triangles(monkeypatch, 
 
     def recording(mesh, keep=None):
         out = decimate(mesh, keep)
-        kept.append((len(mesh.faces), out))
+        if keep is None:  # not a far version's
+            kept.append((len(mesh.faces), out))
         return out
 
     monkeypatch.setattr(shapes, "decimate", recording)
@@ -185,6 +190,52 @@ def test_moving_bodies_stay_in_one_piece(kind, speed):
     finally:
         renderer.close()
     assert seen >= 6
+
+
+@pytest.mark.render
+def test_far_versions_stand_in_beyond_far_m_and_keep_the_silhouette(monkeypatch):
+    """A person 5 m away is drawn by its pieces' far versions (two fifths of the triangles),
+    one 2 m away by the full pieces, never both; and at 5 m the far silhouette is the full
+    one's to within a few pixels in a hundred."""
+    import sim.render as render
+    from sim.render import FAR_M, FAR_SUFFIX
+
+    checked = []
+    for distance in (2.0, 5.0):
+        camera = CameraSpec(position_m=(0.0, -distance, 1.0), target_m=(0.0, 0.0, 0.9))
+        spec = dataclasses.replace(_scene("person", 1.4), camera=camera)
+        world = build_world(spec)
+        model = world.model
+        names = [model.geom(g).name for g in range(model.ngeom)]
+        far = {g for g, name in enumerate(names) if name.endswith(FAR_SUFFIX)}
+        with_far = {names.index(names[g].removesuffix(FAR_SUFFIX)) for g in far}
+        assert len(far) > 10
+        assert sum(model.mesh_facenum[model.geom_dataid[g]] for g in far) < 0.5 * sum(
+            model.mesh_facenum[model.geom_dataid[g]] for g in with_far
+        )
+        geom_instance = world.body_instance[model.geom_bodyid]
+        renderer = FrameRenderer(model, spec.width, spec.height, geom_instance)
+        sim = Simulation(world)
+        try:
+            for k in range(8):
+                sim.advance_to(k / 2)
+                frame = renderer.render(sim.data, world.camera_id)
+                shown = set(np.unique(frame.geom_ids[frame.geom_ids >= 0]).tolist())
+                if len(shown) < 10:
+                    continue  # out of view
+                if distance > FAR_M:
+                    assert shown & far and not shown & with_far, k
+                    monkeypatch.setattr(render, "FAR_M", np.inf)
+                    full = renderer.render(sim.data, world.camera_id).instances == 1
+                    monkeypatch.undo()
+                    mask = frame.instances == 1
+                    assert (mask ^ full).sum() < 0.05 * full.sum(), k
+                else:
+                    assert shown & with_far and not shown & far, k
+                checked.append(distance)
+        finally:
+            renderer.close()
+    assert checked.count(2.0) >= 2 and checked.count(5.0) >= 4, checked
 
 
 @pytest.mark.render

@@ -665,9 +665,10 @@ def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
 def test_rgb_matches_mujocos_own_renderer_but_for_texture_filtering():
     """FrameRenderer samples textures bilinearly from one mip level where MuJoCo's Renderer
     blends two (trilinear): faster on llvmpipe, and the images agree to within a grey level
-    on average, and geometry, lighting and colours are the same."""
+    on average, and geometry, lighting and colours are the same. MuJoCo's is shown the
+    pieces ours draws: far versions beyond FAR_M, the full ones nearer."""
     from sim.mujoco_env import mujoco
-    from sim.render import FrameRenderer
+    from sim.render import HIDDEN_GROUP, FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=1))
     ours = FrameRenderer(world.model, 320, 240, world.body_instance[world.model.geom_bodyid])
@@ -677,7 +678,13 @@ def test_rgb_matches_mujocos_own_renderer_but_for_texture_filtering():
         for t in (0.0, 0.5, 1.1):
             sim.advance_to(t)
             rgb = ours.render(sim.data, world.camera_id).rgb
+            far = ours._far_from(sim.data, world.camera_id)
+            left_out = np.concatenate([ours._near_version[far], ours._far_version[~far]])
+            assert far.any() and (~far).any(), t
+            groups = world.model.geom_group.copy()
+            world.model.geom_group[left_out] = HIDDEN_GROUP
             reference.update_scene(sim.data, world.camera_id)
+            world.model.geom_group[:] = groups
             difference = np.abs(reference.render().astype(int) - rgb)
             assert difference.mean() < 1.0, t
             assert np.percentile(difference, 99) <= 8, t
