@@ -2,11 +2,12 @@
 
 Usage: python benchmarks/render.py [--width W --height H --frames N --threads T --seed S]
                                    [--figure-triangles SHARE ... [--scene NAME] [--moments M] [--repeat R]]
+                                   [--far-from METRES ... [--scene NAME] [--moments M] [--repeat R]]
 
-Times the RGB + depth pass, the segmentation pass and the unoccluded pass (the
-visible instances drawn alone, each in its own bit, OR-ed), with depotbench's
-tessellation (one quad per box face, coarser spheres and capsules) and with MuJoCo's
-defaults beside it.
+Times the colour pass (RGB + depth), the instance pass (the instances alone, in their
+segmentation colours) and a whole render (both passes and the unoccluded areas), with
+depotbench's tessellation (one quad per box face, coarser spheres and capsules) and
+with MuJoCo's defaults beside it.
 ``--threads`` sets Mesa's rasterizer threads (suites' workers use 0: rasterise in the calling thread).
 
 ``--figure-triangles 0.2 0.12`` instead builds the scene once per share of marching
@@ -14,6 +15,11 @@ cubes' triangles the figures keep (sim/shapes.py KEEP_FACES, 0.2 shipped), all i
 process, and renders the worlds in turn (both passes and the unoccluded areas, the
 fastest of ``--repeat`` calls at each of ``--moments`` moments): what the figures'
 triangles cost, measured side by side so that the machine's drift cancels.
+
+``--far-from 3 inf`` renders one world the same way with each distance beyond which
+pieces are drawn by their far versions (sim/render.py FAR_M, 3 m shipped; ``inf``:
+never), and prints what share of the in-view figure triangles that puts in the far
+versions and how many pixels' colour and instance differ from the first distance's.
 """
 
 from __future__ import annotations
@@ -33,7 +39,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, help="LP_NUM_THREADS (default: Mesa's, one per core)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--figure-triangles", type=float, nargs="+", metavar="SHARE")
-    parser.add_argument("--scene", help="--figure-triangles: a library scene instead of the default")
+    parser.add_argument("--far-from", type=float, nargs="+", metavar="METRES")
+    parser.add_argument("--scene", help="--figure-triangles, --far-from: a library scene, not the default")
     parser.add_argument("--moments", type=int, default=8)
     parser.add_argument("--repeat", type=int, default=8)
     args = parser.parse_args()
@@ -44,6 +51,9 @@ def main() -> None:
         os.environ["LP_NUM_THREADS"] = str(args.threads)  # read when the GL context is made
     if args.figure_triangles:
         _figure_triangles(args)
+        return
+    if args.far_from:
+        _far_from(args)
         return
 
     from sim.render import FrameRenderer
@@ -135,6 +145,59 @@ def _figure_triangles(args: argparse.Namespace) -> None:
         triangles = int(world.model.nmeshface)
         print(f"  figures keep {share:.2f}: {triangles:7d} mesh triangles  {fastest[w].mean() * 1e3:7.2f} ms")
         renderer.close()
+
+
+def _far_from(args: argparse.Namespace) -> None:
+    """Render one world in turn with each ``--far-from`` distance as ``FAR_M``."""
+    import numpy as np
+
+    import sim.render
+    from sim.render import FrameRenderer
+    from sim.simulation import Simulation
+    from sim.world import build_world
+
+    spec = scenario_at(None, args.width, args.height, args.seed, args.scene)
+    world = build_world(spec)
+    model = world.model
+    renderer = FrameRenderer(model, spec.width, spec.height, world.body_instance[model.geom_bodyid])
+    simulation = Simulation(world)
+    faces = model.mesh_facenum[model.geom_dataid[renderer._near_version]]
+    shipped = sim.render.FAR_M
+    fastest = np.full((len(args.far_from), args.moments), np.inf)
+    far_share = np.zeros((len(args.far_from), 2))
+    changed = np.zeros((len(args.far_from), 2))
+    try:
+        for m, t in enumerate(np.linspace(0.1, 0.9, args.moments) * spec.frames / spec.fps):
+            simulation.advance_to(float(t))
+            in_view = ~renderer._outside_view(simulation.data, world.camera_id)[renderer._near_version]
+            for _ in range(args.repeat):
+                for d, far_m in enumerate(args.far_from):
+                    sim.render.FAR_M = far_m
+                    start = time.perf_counter()
+                    renderer.render(simulation.data, world.camera_id)
+                    fastest[d, m] = min(fastest[d, m], time.perf_counter() - start)
+            frames = []
+            for d, far_m in enumerate(args.far_from):
+                sim.render.FAR_M = far_m
+                frames.append(renderer.render(simulation.data, world.camera_id))
+                far = renderer._far_from(simulation.data, world.camera_id)
+                far_share[d] += faces[far & in_view].sum(), faces[in_view].sum()
+                changed[d, 0] += (frames[d].rgb != frames[0].rgb).any(axis=-1).sum()
+                changed[d, 1] += (frames[d].instances != frames[0].instances).sum()
+    finally:
+        sim.render.FAR_M = shipped
+        renderer.close()
+    print(
+        f"{args.scene or 'default scenario'}, seed {args.seed}, {spec.width}x{spec.height}: render (both "
+        f"passes and the unoccluded areas), fastest of {args.repeat} calls, mean over {args.moments} moments"
+    )
+    changed /= args.moments
+    for d, far_m in enumerate(args.far_from):
+        print(
+            f"  far versions beyond {far_m:4.1f} m: {fastest[d].mean() * 1e3:6.2f} ms, "
+            f"{far_share[d, 0] / max(far_share[d, 1], 1):4.0%} of in-view figure triangles far, pixels "
+            f"changed a frame: colour {changed[d, 0]:6.0f}, instance {changed[d, 1]:5.0f}"
+        )
 
 
 if __name__ == "__main__":

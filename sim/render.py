@@ -41,7 +41,7 @@ version: fewer triangles, drawn instead of it where it is far from the camera.""
 FAR_M = 3.0
 """Depth (along the camera's axis, to the geom's centre) beyond which a geom's far
 version is drawn in its place, in every pass alike. The figures' triangles are most of
-each pass's cost on llvmpipe; past 3 m a person stands under 300 pixels tall."""
+each pass's cost on llvmpipe; at 3 m a person stands about 300 pixels tall (f = 525)."""
 
 
 @dataclasses.dataclass(frozen=True)

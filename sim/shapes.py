@@ -26,9 +26,10 @@ Field = Callable[[np.ndarray], np.ndarray]
 KEEP_FACES = 0.2
 """Share of marching cubes' triangles a mesh keeps after decimation."""
 FAR_KEEP_FACES = 0.08
-"""Share of marching cubes' triangles a mesh's far version keeps: drawn beyond
-``sim.render.FAR_M``, three times as far as a person seen whole, its edges there are
-shorter on screen than the near version's at 2 m (benchmarks/render.py --detail)."""
+"""Share of marching cubes' triangles a mesh's far version keeps. Its edges are about
+1.6 times the near version's (the square root of 0.2 / 0.08); drawn beyond
+``sim.render.FAR_M`` (3 m), they are about as long on screen as the near version's at
+2 m (benchmarks/render.py --far-from)."""
 MIN_FACES = 48
 """Meshes with fewer triangles than this after decimation are kept whole."""
 FAR = 1.0
