@@ -7,7 +7,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
 
-.PHONY: demo test test-slow lint bench system-deps browser clean
+.PHONY: demo test test-slow lint bench system-deps browser clean readme-images
 
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
@@ -25,6 +25,25 @@ test-slow: $(VENV)/.installed
 
 lint: $(VENV)/.installed
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+# The README's pictures, taken again whenever the generator's output changes: the default
+# scenario (seed 0, frames 5, 45 and 85: RGB | depth | instances with boxes, halved), the
+# cat alone at eight headings on seeds 1 and 2, labelled with YOLOX-nano's scores, and the
+# demo's sweep report (its first screen, and the full crowd's best run) in Chromium.
+JPEG := $(BIN)/python -c "import sys, cv2; image = cv2.imread(sys.argv[1]); \
+	image = cv2.resize(image, None, fx=float(sys.argv[3]), fy=float(sys.argv[3]), interpolation=cv2.INTER_AREA); \
+	cv2.imwrite(sys.argv[2], image, [cv2.IMWRITE_JPEG_QUALITY, 85])"
+
+readme-images: $(VENV)/.installed browser
+	rm -rf build/readme
+	$(BIN)/depotbench generate default -o build/readme/default --seed 0 --frames 90
+	$(BIN)/depotbench preview build/readme/default --frames 5 45 85 -o build/readme/default.png
+	$(JPEG) build/readme/default.png assets/readme/default_scenario.jpg 0.5
+	$(BIN)/python benchmarks/actor_views.py --kind cat --seeds 1 2 --moments 1 --sheet build/readme/cat_views.png
+	$(JPEG) build/readme/cat_views.png assets/readme/cat_views.jpg 1
+	$(BIN)/depotbench demo -o build/readme/demo
+	$(BIN)/python benchmarks/screenshots.py build/readme/demo/report/index.html \
+		--top assets/readme/report_sweep.png --run "actors.0.count=12: best" assets/readme/report_run.jpg
 
 # MuJoCo renders off-screen through EGL (Mesa on CPU machines).
 system-deps:
