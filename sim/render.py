@@ -10,8 +10,10 @@ full segmentation pass. Each visible instance's unoccluded area (what it would c
 with everything else removed) is read from the instance pass when no other instance's
 window overlaps its own; the others come from a pass that draws only them, each in its
 own bit, OR-ed together without a depth test. Geoms wholly outside the camera's view
-are left out of every pass: they draw no pixel. The GL context belongs to the thread
-that creates this object (rendering-notes.md): create one per worker, after any fork.
+are left out of every pass: they draw no pixel; a mesh with a far version (fewer
+triangles) is drawn by it beyond ``FAR_M``, in every pass alike. The GL context belongs
+to the thread that creates this object (rendering-notes.md): create one per worker,
+after any fork.
 """
 
 from __future__ import annotations
@@ -140,8 +142,9 @@ class FrameRenderer:
         return rgb, self._metric_depth(np.flipud(self._depth))
 
     def _instance_pass(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, list[int]]:
-        """Geom ids (-1 = none) of the instances alone, front-most first, bottom row first,
-        with their depth buffer in ``_instance_depth``; and the instances drawn."""
+        """The front-most instance geom at each pixel (-1 = none) with only the instances
+        drawn, bottom row first, their depth buffer in ``_instance_depth``; and the
+        instances drawn."""
         self._update_scene(data, camera_id, self._instances_only)
         front = self._segment(self._instance_depth)
         scene = self._scene
