@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import bisect
+import math
+
 import numpy as np
 
 from sim.errors import ScenarioError
@@ -37,14 +40,47 @@ class Path:
         self._points = closed
         self._arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
         self.length = float(self._arc[-1])
+        self._arc_list = self._arc.tolist()
+        self._xy_lists = (closed[:, 0].tolist(), closed[:, 1].tolist())
 
     def point(self, s: float | np.ndarray) -> np.ndarray:
+        if np.ndim(s) == 0:
+            return np.array(self._point_at(float(s)))
         s = np.mod(s, self.length)
         return np.stack([np.interp(s, self._arc, self._points[:, k]) for k in (0, 1)], axis=-1)
 
     def tangent(self, s: float | np.ndarray) -> np.ndarray:
+        if np.ndim(s) == 0:
+            (x1, y1), (x0, y0) = self._point_at(float(s) + 0.02), self._point_at(float(s) - 0.02)
+            dx, dy = x1 - x0, y1 - y0
+            norm = math.sqrt(dx * dx + dy * dy)
+            return np.array([dx / norm, dy / norm])
         d = self.point(np.asarray(s) + 0.02) - self.point(np.asarray(s) - 0.02)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def _point_at(self, s: float) -> tuple[float, float]:
+        """``point`` of one arc length with Python floats: a walker's pose asks for dozens a
+        frame, and numpy's per-call overhead was most of their cost. The same arithmetic as
+        np.interp's (and np.mod's, np.linalg.norm's in ``tangent``), so the same bits
+        (tests/test_scenes.py checks them against numpy)."""
+        s %= self.length
+        arc = self._arc_list
+        j = bisect.bisect_right(arc, s) - 1
+        if j >= len(arc) - 1:
+            return self._xy_lists[0][-1], self._xy_lists[1][-1]
+        out = []
+        for fp in self._xy_lists:
+            if arc[j] == s:
+                out.append(fp[j])
+                continue
+            slope = (fp[j + 1] - fp[j]) / (arc[j + 1] - arc[j])
+            value = slope * (s - arc[j]) + fp[j]
+            if math.isnan(value):  # as np.interp: from the other end, then the flat value
+                value = slope * (s - arc[j + 1]) + fp[j + 1]
+                if math.isnan(value) and fp[j] == fp[j + 1]:
+                    value = fp[j]
+            out.append(value)
+        return out[0], out[1]
 
     def heading(self, s: float | np.ndarray) -> np.ndarray:
         t = self.tangent(s)

@@ -205,6 +205,25 @@ def test_pushed_chair_moves_untouched_chair_stays():
     assert moved[1] < 1e-3
 
 
+def test_a_paths_single_points_and_tangents_are_numpys_to_the_bit():
+    """Path.point and Path.tangent take a fast path for one arc length (Python floats with
+    np.interp's arithmetic): over seeded loops, at arc lengths wrapped both ways, on the
+    samples themselves and at the seam, they give the array path's bits."""
+    from sim.paths import Path as Loop
+
+    rng = np.random.default_rng(7)
+    for _ in range(6):
+        loop = Loop(rng.uniform(-4, 4, size=(int(rng.integers(2, 8)), 2)))
+        length = loop.length
+        edges = [length, -length, 1e-300, -1e-300]
+        arcs = np.concatenate([rng.uniform(-3 * length, 3 * length, 3000), loop._arc, -loop._arc, edges])
+        points, tangents = loop.point(arcs), loop.tangent(arcs)
+        for k, s in enumerate(arcs.tolist()):
+            assert loop.point(s).tobytes() == points[k].tobytes(), s
+            assert loop.tangent(s).tobytes() == tangents[k].tobytes(), s
+            assert loop.point(np.float64(s)).tobytes() == points[k].tobytes(), s
+
+
 def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
     """Two processes that differ in what must not matter: the string hash seed (set and
     dict layouts, memory), and llvmpipe rasterising in threads or, as suite workers do,
