@@ -11,8 +11,11 @@ its own seed. Two rates per line: per frame once the world is built (simulation,
 both render passes, the unoccluded passes, ground truth and PNG writes), and with
 building the world (meshing the figures, textures, compiling) counted too.
 
-This 2-core machine's speed drifts by up to a fifth between runs of one build:
-``--repeat R`` measures each line R times and prints the median with the range.
+This 2-core machine's speed drifts by up to a third between runs of one build:
+``--repeat R`` measures each line R times and prints the median with the range. To
+compare two checkouts, start ``--stages`` in each at the same moment (one worker each,
+as suites run two): both see the same machine, and their frame loops compare where
+runs taken in turn do not (README, "Generation rate").
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
 workers run it): the colour pass, the instance pass, the unoccluded areas,
