@@ -121,18 +121,19 @@ def _figure_triangles(args: argparse.Namespace) -> None:
         for share in args.figure_triangles:
             sim.shapes.KEEP_FACES = share
             world = build_world(spec)
-            instance = world.body_instance[world.model.geom_bodyid]
-            renderer = FrameRenderer(world.model, spec.width, spec.height, instance)
-            worlds.append((share, world, renderer, Simulation(world), instance))
+            renderer = FrameRenderer(
+                world.model, spec.width, spec.height, world.body_instance[world.model.geom_bodyid]
+            )
+            worlds.append((share, world, renderer, Simulation(world)))
     finally:
         sim.shapes.KEEP_FACES = shipped
     fastest = np.full((len(worlds), args.moments), np.inf)
     duration = spec.frames / spec.fps
     for m, t in enumerate(np.linspace(0.1, 0.9, args.moments) * duration):
-        for _, _, _, simulation, _ in worlds:
+        for _, _, _, simulation in worlds:
             simulation.advance_to(float(t))
         for _ in range(args.repeat):
-            for w, (_, world, renderer, simulation, _) in enumerate(worlds):
+            for w, (_, world, renderer, simulation) in enumerate(worlds):
                 renderer._gl.make_current()
                 start = time.perf_counter()
                 renderer.render(simulation.data, world.camera_id)
@@ -141,7 +142,7 @@ def _figure_triangles(args: argparse.Namespace) -> None:
         f"{args.scene or 'default scenario'}, seed {args.seed}, {args.width}x{args.height}: both passes and "
         f"the unoccluded areas, fastest of {args.repeat} calls, mean over {args.moments} moments"
     )
-    for w, (share, world, renderer, _, _) in enumerate(worlds):
+    for w, (share, world, renderer, _) in enumerate(worlds):
         triangles = int(world.model.nmeshface)
         print(f"  figures keep {share:.2f}: {triangles:7d} mesh triangles  {fastest[w].mean() * 1e3:7.2f} ms")
         renderer.close()

@@ -62,17 +62,16 @@ class Path:
         """``point`` of one arc length with Python floats: a walker's pose asks for dozens a
         frame, and numpy's per-call overhead was most of their cost. The same arithmetic as
         np.interp's (and np.mod's, np.linalg.norm's in ``tangent``), so the same bits
-        (tests/test_scenes.py checks them against numpy)."""
+        (tests/test_sim.py checks them against numpy)."""
         s %= self.length
         arc = self._arc_list
         j = bisect.bisect_right(arc, s) - 1
         if j >= len(arc) - 1:
             return self._xy_lists[0][-1], self._xy_lists[1][-1]
+        if arc[j] == s:
+            return self._xy_lists[0][j], self._xy_lists[1][j]
         out = []
         for fp in self._xy_lists:
-            if arc[j] == s:
-                out.append(fp[j])
-                continue
             slope = (fp[j + 1] - fp[j]) / (arc[j + 1] - arc[j])
             value = slope * (s - arc[j]) + fp[j]
             if math.isnan(value):  # as np.interp: from the other end, then the flat value

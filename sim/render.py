@@ -146,28 +146,33 @@ class FrameRenderer:
         drawn, bottom row first, their depth buffer in ``_instance_depth``; and the
         instances drawn."""
         self._update_scene(data, camera_id, self._instances_only)
-        front = self._segment(self._instance_depth)
-        scene = self._scene
-        geoms = [g.objid for g in scene.geoms[: scene.ngeom] if g.objtype == mujoco.mjtObj.mjOBJ_GEOM]
-        return front, np.unique(self.geom_instance[geoms]).tolist()
+        lookup = self._segment_lookup()
+        front = self._segment(self._instance_depth, lookup)
+        return front, np.unique(self.geom_instance[lookup[lookup >= 0]]).tolist()
 
-    def _segment(self, depth: np.ndarray | None = None) -> np.ndarray:
+    def _segment(self, depth: np.ndarray | None = None, lookup: np.ndarray | None = None) -> np.ndarray:
         """Geom ids (-1 = none) of a segmentation pass of the current scene, bottom row
-        first; its depth buffer into ``depth`` if given."""
+        first; its depth buffer into ``depth`` if given. ``lookup``: the scene's
+        ``_segment_lookup``, where the caller has it already."""
         self._draw_segmentation()
         self._read((0, 0, self.width, self.height), self._seg, depth)
         # A pixel's colour is segid + 1 in 24 bits (R lowest); below 2^16 blue is 0, so the
         # id is the little-endian 16 bits of red and green, read in place.
         seg = self._seg
         segid = np.ndarray(seg.shape[:2], np.dtype("<u2"), seg, 0, seg.strides[:2])
+        return (self._segment_lookup() if lookup is None else lookup)[segid]
+
+    def _segment_lookup(self) -> np.ndarray:
+        """The geom id of each segmentation colour (segid + 1) of the current scene; -1 for
+        colours no geom has (black: none drawn)."""
         scene = self._scene
-        lookup = np.full(1 << 16, -1, dtype=np.int32)  # ids no geom has (none drawn) read -1
+        lookup = np.full(1 << 16, -1, dtype=np.int32)
         geoms = scene.geoms  # each access of the property builds the whole list again
         for k in range(scene.ngeom):
             geom = geoms[k]
             if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.segid >= 0:
                 lookup[geom.segid + 1] = geom.objid
-        return lookup[segid]
+        return lookup
 
     def _unoccluded_areas(
         self, data: mujoco.MjData, camera_id: int, front: np.ndarray, drawn: list[int], seen: list[int]
@@ -175,26 +180,17 @@ class FrameRenderer:
         """``unoccluded`` of the instances ``seen``. One whose window overlaps no other drawn
         instance's has nothing in front of it in the instance pass (``front``, top row
         first), so its area is read there; the rest take ``unoccluded``'s passes."""
-        windows = np.array([self._window(box) for box in self._projected_boxes(data, camera_id, drawn)])
-        windows = windows.reshape(-1, 4)
-        overlaps = (
-            (windows[:, None, 0] < windows[None, :, 2])
-            & (windows[None, :, 0] < windows[:, None, 2])
-            & (windows[:, None, 1] < windows[None, :, 3])
-            & (windows[None, :, 1] < windows[:, None, 3])
-        ).sum(axis=1) > 1  # each window overlaps itself
-        row_of = {instance: row for row, instance in enumerate(drawn)}
-        out, crowded = {}, []
+        windows = self._windows(data, camera_id, drawn)
+        out, crowded = {}, {}
         for instance in seen:
-            if overlaps[row_of[instance]]:
-                crowded.append(instance)
+            window = windows[instance]
+            if any(_overlap(window, windows[other]) for other in drawn if other != instance):
+                crowded[instance] = window
                 continue
-            window = tuple(windows[row_of[instance]].tolist())
             row0, col0, row1, col1 = window
             covered = self._instance_of[front[row0:row1, col0:col1]] == instance
             out[instance] = (int(covered.sum()), bool(self._on_border(covered, window).any()))
-        if crowded:
-            out.update(self.unoccluded(data, camera_id, crowded))
+        out.update(self._bit_pass_areas(data, camera_id, crowded))
         return {instance: out[instance] for instance in seen}
 
     def _draw_segmentation(self) -> None:
@@ -214,10 +210,21 @@ class FrameRenderer:
         covers it, hidden or not. Instances whose pixel windows (which hold their
         projections) are apart share a bit; past 24 bits, another pass."""
         self._gl.make_current()
+        return self._bit_pass_areas(data, camera_id, self._windows(data, camera_id, instances))
+
+    def _windows(
+        self, data: mujoco.MjData, camera_id: int, instances: list[int]
+    ) -> dict[int, tuple[int, int, int, int]]:
+        """Each instance's pixel window (``_window`` of its projected box)."""
         boxes = self._projected_boxes(data, camera_id, instances)
-        windows = {i: self._window(box) for i, box in zip(instances, boxes, strict=True)}
+        return {i: self._window(box) for i, box in zip(instances, boxes, strict=True)}
+
+    def _bit_pass_areas(
+        self, data: mujoco.MjData, camera_id: int, windows: dict[int, tuple[int, int, int, int]]
+    ) -> dict[int, tuple[int, bool]]:
+        """``unoccluded`` of the instances of ``windows``, by the OR-ed bit passes."""
         out = {}
-        for bits in _bit_passes(instances, windows):
+        for bits in _bit_passes(list(windows), windows):
             self._draw_bits(data, camera_id, bits)
             corners = np.array([windows[i] for i in bits])
             union = (*corners[:, :2].min(axis=0).tolist(), *corners[:, 2:].max(axis=0).tolist())
