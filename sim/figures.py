@@ -594,10 +594,12 @@ def quadruped_surfaces(
                 )
             )
     tail_a, tail_b = tail
-    tail_r = (0.16 if cat else 0.12 if pig else 0.2) * hy
+    # A dog's tail is thick at the root and carried in a rising sweep (TAIL_BENDS): the
+    # straight 0.2 hy stick it was read as a cow's or a person's from behind (README).
+    tail_r = (0.16 if cat else 0.12 if pig else 0.36) * hy
     tail_pad, tail_box = 2 * tail_r, None
-    if cat:
-        curve = _cat_tail(tail_a, tail_b)
+    if kind in TAIL_BENDS:
+        curve = _tail_curve(tail_a, tail_b, TAIL_BENDS[kind])
         limbs = [
             round_cone(
                 a, b, tail_r * (1.0 - 0.35 * k / len(curve)), tail_r * (1.0 - 0.35 * (k + 1) / len(curve))
@@ -611,7 +613,7 @@ def quadruped_surfaces(
         tail_box = (curve.min(axis=0) - reach, curve.max(axis=0) + reach)
     else:
         limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r)]
-    leg_r = (0.42 if pig else 0.3 if cat else 0.42) * hy
+    leg_r = (0.42 if pig else 0.3 if cat else 0.34) * hy  # a dog's legs are slimmer than a pig's
     bones = [
         Bone(
             "body",
@@ -706,17 +708,25 @@ def _animal_eyes(
     ]
 
 
-def _cat_tail(a: np.ndarray, b: np.ndarray, count: int = 8) -> np.ndarray:
-    """Points along a cat's tail: out behind the body, dipping a little, then curving
-    up to an upright tip, as a walking cat carries it (a straight stick reads as a pole)."""
+TAIL_BENDS = {
+    # out behind the body, dipping a little, then curving up to an upright tip, as a
+    # walking cat carries it (a straight stick reads as a pole)
+    "cat": ((0.45, -0.1), (0.8, 0.25), (0.8, 0.65)),
+    # level out of the rump, then sweeping up behind it, as a dog walking at ease
+    # carries it
+    "dog": ((0.55, 0.05), (0.95, 0.35), (0.9, 0.75)),
+}
+"""A curved tail's Bézier controls after its root, in tail lengths (back, up)."""
+
+
+def _tail_curve(
+    a: np.ndarray, b: np.ndarray, bends: tuple[tuple[float, float], ...], count: int = 8
+) -> np.ndarray:
+    """``count + 1`` points along a tail from its root ``a`` (``b`` gives its length),
+    a cubic Bézier through ``bends`` (``TAIL_BENDS``)."""
     length = float(np.linalg.norm(b - a))
     back, up = np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
-    controls = [
-        a,
-        a + length * (0.45 * back - 0.1 * up),
-        a + length * (0.8 * back + 0.25 * up),
-        a + length * (0.8 * back + 0.65 * up),
-    ]
+    controls = [a] + [a + length * (k_back * back + k_up * up) for k_back, k_up in bends]
     u = np.linspace(0.0, 1.0, count + 1)[:, None]
     weights = [(1 - u) ** 3, 3 * u * (1 - u) ** 2, 3 * u**2 * (1 - u), u**3]
     return sum(w * c for w, c in zip(weights, controls, strict=True))

@@ -114,13 +114,19 @@ def test_every_piece_keeps_a_fifth_of_its_marching_cubes_triangles(monkeypatch, 
         assert _edges_shared_twice(out.faces) and _volume(out) > 0
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_a_cats_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(monkeypatch, seed):
-    """The cat's tail is meshed in a box around its curve, not in the cube its bone's
-    reach would give (a fifth of the build time): the same tail, to the grid's alignment."""
+@pytest.mark.parametrize(
+    ("kind", "seed", "step"),
+    [("cat", 1, 0.004), ("cat", 2, 0.004), ("cat", 3, 0.004), ("dog", 1, 0.013), ("dog", 4, 0.013)],
+)
+def test_a_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(
+    monkeypatch, kind, seed, step
+):
+    """A cat's or dog's tail is meshed in a box around its curve, not in the cube its
+    bone's reach would give (a fifth of the build time): the same tail, to the grid's
+    alignment (``step``: about one step of the tail's grid, 0.3 of its root radius)."""
     import sim.figures as figures
 
-    boxed = [s.mesh for p in _quadruped("cat", seed).parts if p.name == "tail" for s in p.surfaces]
+    boxed = [s.mesh for p in _quadruped(kind, seed).parts if p.name == "tail" for s in p.surfaces]
     carve = figures.carve
     monkeypatch.setattr(
         figures,
@@ -129,10 +135,25 @@ def test_a_cats_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole
             body, [dataclasses.replace(b, box=None) for b in bones], *rest, **kw
         ),
     )
-    whole = [s.mesh for p in _quadruped("cat", seed).parts if p.name == "tail" for s in p.surfaces]
+    whole = [s.mesh for p in _quadruped(kind, seed).parts if p.name == "tail" for s in p.surfaces]
     assert len(boxed) == len(whole) == 1
     assert _volume(boxed[0]) == pytest.approx(_volume(whole[0]), rel=0.005)  # not cut by the box
-    assert np.ptp(boxed[0].vertices, axis=0) == pytest.approx(np.ptp(whole[0].vertices, axis=0), abs=0.004)
+    assert np.ptp(boxed[0].vertices, axis=0) == pytest.approx(np.ptp(whole[0].vertices, axis=0), abs=step)
+
+
+def test_a_dogs_tail_leaves_the_rump_level_and_sweeps_up():
+    """The dog's tail (TAIL_BENDS) starts out nearly level behind the rump and ends
+    steeply up, thick at the root: a straight stick at the tail's rise was called cow
+    or person (README); the curve's shape, not the bone's rise, carries that."""
+    from sim.figures import TAIL_BENDS, _tail_curve
+
+    curve = _tail_curve(np.zeros(3), np.array([-0.3, 0.0, 0.0]), TAIL_BENDS["dog"])
+    steps = np.diff(curve, axis=0)
+    rise = np.degrees(np.arctan2(steps[:, 2], -steps[:, 0]))
+    assert rise[0] < 15 and rise[-1] > 60 and (np.diff(rise) > 0).all()
+    assert curve[-1, 2] > 0.6 * 0.3  # the tip well above the root
+    tail = [s.mesh for p in _quadruped("dog", 1).parts if p.name == "tail" for s in p.surfaces][0]
+    assert np.ptp(tail.vertices, axis=0).min() > 0.06  # over 6 cm across at its widest
 
 
 @pytest.mark.parametrize(("kind", "raised"), [("dog", True), ("cat", True), ("pig", False)])
