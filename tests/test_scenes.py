@@ -57,16 +57,41 @@ def test_library_has_the_named_scenarios():
     assert "smoke" in library.names("smoke")
 
 
+def _assert_only_instances_move(world, name: str) -> None:
+    """Pixels of the static world are given the world body, whose motion (none) is the
+    flow's: so no body outside an instance may move; the camera rig, which moves, draws
+    nothing."""
+    model = world.model
+    moves = (model.body_dofnum > 0) | (model.body_mocapid >= 0)
+    for body in range(1, model.nbody):  # parents come before their children
+        moves[body] |= moves[model.body_parentid[body]]
+    for body in np.flatnonzero(moves & (world.body_instance == 0)):
+        assert model.body(body).name == "camera_rig" and not (model.geom_bodyid == body).any(), name
+
+
 @pytest.mark.render
-def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: Path):
+def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: Path, monkeypatch):
+    """Every library scene generates a sequence that verifies, its difficulty measures
+    order the scenes as their names say, and in each only instances move (checked on
+    the world generate builds, so that no scene is built twice)."""
+    import sim.generate
     from scenes.generation import read_difficulty
     from sim.generate import generate
 
+    built = []
+    build_world = sim.generate.build_world
+
+    def recording(spec):
+        built.append(build_world(spec))
+        return built[-1]
+
+    monkeypatch.setattr(sim.generate, "build_world", recording)
     difficulty = {}
     for name in library.names():
         out = generate(to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False)
         Sequence.open(out).verify()
         difficulty[name] = read_difficulty(out)
+        _assert_only_instances_move(built.pop(), name)
     fractions = {n: d["dynamic_pixel_fraction_mean"] for n, d in difficulty.items()}
     assert fractions["static_depot"] == 0.0 and difficulty["static_depot"]["dynamic_pixel_fraction_max"] == 0
     assert max(fractions, key=fractions.get) == "crowd"

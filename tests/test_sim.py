@@ -632,24 +632,6 @@ def test_instance_pass_shows_what_a_segmentation_pass_of_the_whole_scene_shows(s
     assert shown > 20000
 
 
-def test_only_instances_move():
-    """Pixels of the static world are given the world body, whose motion (none) is the flow's:
-    so no body outside an instance may move, in any library scene; the camera rig, which
-    moves, draws nothing."""
-    from scenes import library
-    from scenes.schema import to_scenario
-
-    for name in library.names():
-        spec = to_scenario(library.get(name).model_copy(update={"frames": 2, "duration_s": None, "seed": 1}))
-        world = build_world(spec)
-        model = world.model
-        moves = (model.body_dofnum > 0) | (model.body_mocapid >= 0)
-        for body in range(1, model.nbody):  # parents come before their children
-            moves[body] |= moves[model.body_parentid[body]]
-        for body in np.flatnonzero(moves & (world.body_instance == 0)):
-            assert model.body(body).name == "camera_rig" and not (model.geom_bodyid == body).any(), name
-
-
 def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
     """Culling by bounding spheres leaves out many geoms yet gives the same RGB, depth, geom
     ids and unoccluded areas, bit for bit, along the default scenario's path."""
