@@ -107,7 +107,7 @@ STAGES = (
     ("poses and physics", "sim.simulation", "Simulation.advance_to"),
     ("snapshots", "sim.simulation", "Simulation.snapshot"),
     ("moving pixels' flow", "sim.generate", "flow_at"),
-    ("boxes", "sim.generate", "boxes_and_counts"),
+    ("boxes", "sim.generate", "visible_boxes"),
     ("object states", "sim.generate", "object_states"),
     ("sensor model", "sim.sensor", "SensorModel.rgb"),
     ("sensor model", "sim.sensor", "SensorModel.depth"),

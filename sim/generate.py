@@ -14,7 +14,7 @@ from tqdm import tqdm
 from sim.errors import ScenarioError
 from sim.files import DEFAULT_PNG_COMPRESSION
 from sim.flow import exact_flow, flow_at, rigid_motions
-from sim.ground_truth import ObjectState, boxes_and_counts
+from sim.ground_truth import ObjectState, visible_boxes
 from sim.mujoco_env import mujoco
 from sim.render import FrameRenderer
 from sim.sensor import SensorModel
@@ -38,8 +38,9 @@ def object_states(
     unoccluded: dict[int, tuple[int, bool]],
 ) -> list[ObjectState]:
     """Every instance's ground truth at ``now``; ``nxt`` (one frame later) gives part speeds;
-    ``boxes`` and ``counts`` are its visible box and pixels (``boxes_and_counts``),
-    ``unoccluded`` each visible instance's unoccluded area (``FrameRenderer.unoccluded``)."""
+    ``boxes`` and ``counts`` are its visible box and pixels (``visible_boxes``,
+    ``RenderedFrame.counts``), ``unoccluded`` each visible instance's unoccluded area
+    (``FrameRenderer.unoccluded``)."""
     dt = nxt.time_s - now.time_s
     part_speed = np.linalg.norm(nxt.body_positions - now.body_positions, axis=1) / dt
     poses = []
@@ -180,7 +181,7 @@ def _write_frames(
     sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
     sim = Simulation(world)
     # Index -1 (the static world, or nothing) reads the appended 0: the world body. Like
-    # every body of the static world, it never moves (test_only_instances_move).
+    # every body of the static world, it never moves (test_scenes: _assert_only_instances_move).
     geom_body = np.append(world.model.geom_bodyid.astype(np.int64), 0)
     difficulty = DifficultyAccumulator()
     period = 1.0 / scenario.fps
@@ -188,7 +189,7 @@ def _write_frames(
     for k in frames:
         frame = renderer.render(sim.data, world.camera_id)
         rgb, depth, geom_ids, instances = frame.rgb, frame.depth, frame.geom_ids, frame.instances
-        boxes, counts = boxes_and_counts(instances, len(world.instances))
+        boxes, counts = visible_boxes(instances, len(world.instances)), frame.counts
         sim.advance_to((k + 1) * period)
         nxt = sim.snapshot()
         motion = rigid_motions(now.body_positions, now.body_rotations, nxt.body_positions, nxt.body_rotations)

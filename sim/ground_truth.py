@@ -131,9 +131,13 @@ def _numbers(values: Any, n: int, kind: type) -> tuple:
 
 def boxes_and_counts(instances: np.ndarray, n_instances: int) -> tuple[list, np.ndarray]:
     """Per instance id 1..n: visible box (pixel-edge xyxy) or None, and pixel count."""
-    counts = np.bincount(instances.ravel(), minlength=n_instances + 1)
-    slices = ndimage.find_objects(instances, max_label=n_instances)
-    boxes = []
-    for sl in slices:
-        boxes.append(None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop))
-    return boxes, counts
+    return visible_boxes(instances, n_instances), np.bincount(instances.ravel(), minlength=n_instances + 1)
+
+
+def visible_boxes(instances: np.ndarray, n_instances: int) -> list:
+    """Per instance id 1..n: visible box (pixel-edge xyxy) or None (generation takes the
+    pixel counts from the renderer, which has them already)."""
+    return [
+        None if sl is None else (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+        for sl in ndimage.find_objects(instances, max_label=n_instances)
+    ]

@@ -59,6 +59,9 @@ class RenderedFrame:
     bodies never move) and for empty pixels."""
     instances: np.ndarray
     """(H, W) uint16: the instance each pixel shows, 0 for the static world."""
+    counts: np.ndarray
+    """Pixels of each instance id (index 0: the static world and empty pixels), one entry
+    for every id ``geom_instance`` names: the visible areas ground truth reports."""
     unoccluded: dict[int, tuple[int, bool]]
     """Per instance with a visible pixel: (pixels it covers with everything else removed,
     whether that area reaches the image border)."""
@@ -80,6 +83,7 @@ class FrameRenderer:
         self.model, self.width, self.height = model, width, height
         self.geom_instance = geom_instance
         self._instance_of = np.append(geom_instance, 0).astype(np.uint16)  # index -1: none
+        self._instance_count = int(geom_instance.max(initial=0))
         self._drawn = model.geom_group < HIDDEN_GROUP
         # Culled by their bounding spheres, a little enlarged; planes (rbound 0) never.
         self._cullable = (self._drawn & (model.geom_rbound > 0)) if cull else np.zeros(model.ngeom, bool)
@@ -126,9 +130,10 @@ class FrameRenderer:
         front, drawn = self._instance_pass(data, camera_id)
         shown = np.flipud(np.where(self._instance_depth == self._depth, front, -1))
         instances = self._instance_of[shown]
-        seen = np.flatnonzero(np.bincount(instances.ravel(), minlength=2)[1:]) + 1
+        counts = np.bincount(instances.ravel(), minlength=self._instance_count + 1)
+        seen = np.flatnonzero(counts[1:]) + 1
         unoccluded = self._unoccluded_areas(data, camera_id, np.flipud(front), drawn, seen.tolist())
-        return RenderedFrame(rgb, depth, shown, instances, unoccluded)
+        return RenderedFrame(rgb, depth, shown, instances, counts, unoccluded)
 
     def _colour_pass(self, data: mujoco.MjData, camera_id: int) -> tuple[np.ndarray, np.ndarray]:
         """RGB and metric depth of the whole scene; the raw depth buffer stays in ``_depth``."""

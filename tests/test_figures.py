@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sim.figures import AnimalLook, Look, person_bind, person_surfaces
-from sim.generate import boxes_and_counts
+from sim.ground_truth import boxes_and_counts
 from sim.render import HIDDEN_GROUP, FrameRenderer
 from sim.simulation import Simulation
 from sim.spec import ActorSpec, CameraSpec, ChairSpec, LayoutSpec, ScenarioSpec

@@ -72,8 +72,9 @@ def _assert_only_instances_move(world, name: str) -> None:
 @pytest.mark.render
 def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: Path, monkeypatch):
     """Every library scene generates a sequence that verifies, its difficulty measures
-    order the scenes as their names say, and in each only instances move (checked on
-    the world generate builds, so that no scene is built twice)."""
+    order the scenes as their names say, and in each only instances move and every
+    instance has geoms (checked on the world generate builds, so that no scene is built
+    twice)."""
     import sim.generate
     from scenes.generation import read_difficulty
     from sim.generate import generate
@@ -91,7 +92,12 @@ def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: P
         out = generate(to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False)
         Sequence.open(out).verify()
         difficulty[name] = read_difficulty(out)
-        _assert_only_instances_move(built.pop(), name)
+        world = built.pop()
+        _assert_only_instances_move(world, name)
+        # every instance has geoms: the renderer's pixel counts (RenderedFrame.counts) run to
+        # the largest instance id its geoms carry, and ground truth reads one per instance
+        drawn = set(world.body_instance[world.model.geom_bodyid].tolist()) - {0}
+        assert drawn == set(range(1, len(world.instances) + 1)), name
     fractions = {n: d["dynamic_pixel_fraction_mean"] for n, d in difficulty.items()}
     assert fractions["static_depot"] == 0.0 and difficulty["static_depot"]["dynamic_pixel_fraction_max"] == 0
     assert max(fractions, key=fractions.get) == "crowd"
