@@ -1,0 +1,77 @@
+"""The scripts in benchmarks/ still run: they print the figures the README and the issue
+notes quote, and nothing else exercises them. A renamed function (generation.py's
+``--stages`` times functions by name) or a changed signature breaks them silently."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import re
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import REPO
+
+BENCHMARKS = REPO / "benchmarks"
+SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py") if p.name != "sheets.py")  # sheets: a helper
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=300, check=False
+    )
+
+
+def _generation_module():
+    spec = importlib.util.spec_from_file_location("generation_benchmark", BENCHMARKS / "generation.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_every_benchmark_script_parses_its_arguments(script: str):
+    result = _run(str(BENCHMARKS / script), "--help")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage:"), result.stdout[:200]
+
+
+def test_every_stage_generation_times_names_a_function_that_exists():
+    for label, module_name, attribute in _generation_module().STAGES:
+        owner = importlib.import_module(module_name)
+        for name in attribute.split("."):
+            assert hasattr(owner, name), f"--stages {label!r}: {module_name}.{attribute} does not exist"
+            owner = getattr(owner, name)
+        assert callable(owner), f"{module_name}.{attribute}"
+
+
+@pytest.mark.render
+def test_generation_stages_prints_every_stage_with_its_time():
+    small = ("--frames", "2", "--width", "80", "--height", "60")
+    result = _run(str(BENCHMARKS / "generation.py"), "--stages", *small)
+    assert result.returncode == 0, result.stderr
+    # The default scenario's sensor model is off: a stage that never ran is not printed.
+    labels = {label for label, _, _ in _generation_module().STAGES} - {"sensor model"}
+    labels |= {"other", "frame loop"}
+    for label in labels:
+        assert re.search(rf"^  {re.escape(label)}\s+\d+\.\d\d", result.stdout, re.M), (label, result.stdout)
+
+
+@pytest.mark.render
+def test_recognition_counts_what_a_tiny_run_sees():
+    """Two frames of walking_static, seed 1: the people in view are counted (found <= seen)
+    and every group of the issue's targets gets a line."""
+    result = _run(
+        str(BENCHMARKS / "recognition.py"),
+        *("--scenes", "walking_static", "--seeds", "1", "--frames", "2", "--workers", "1"),
+    )
+    assert result.returncode == 0, result.stderr
+    counts = re.findall(r"^recall standing[^(]*\((\d+)/(\d+);", result.stdout, re.M)
+    assert counts, result.stdout
+    assert all(0 <= int(found) <= int(seen) and int(seen) > 0 for found, seen in counts)
+    for group in ("standing, whole", "standing, cut by the edge", "seated", "dog", "cat"):
+        assert re.search(rf"^recall {re.escape(group)}\s", result.stdout, re.M), group
+    assert re.search(r"^pig called person\s", result.stdout, re.M)
