@@ -12,6 +12,7 @@ pays for in every pass (benchmarks/generation.py).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -65,9 +66,10 @@ def ellipsoid(
     Quilez's bound: exact on the surface, close to the distance near it."""
     c, r = np.asarray(centre, float), np.asarray(radii, float)
     rotation = np.eye(3) if axes is None else np.asarray(axes, float)
+    turned = axes is not None  # the identity's product is the points themselves
 
     def field(p: np.ndarray) -> np.ndarray:
-        q = (p - c) @ rotation
+        q = (p - c) @ rotation if turned else p - c
         k0 = _norm(q / r)
         k1 = np.maximum(_norm(q / (r * r)), 1e-12)
         return k0 * (k0 - 1.0) / k1
@@ -82,8 +84,9 @@ def round_cone(a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> Shape:
 
     def field(p: np.ndarray) -> np.ndarray:
         ab = b - a
-        t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-        return _norm(p - a - t[:, None] * ab) - (ra + (rb - ra) * t)
+        pa = p - a
+        t = np.clip(pa @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+        return _norm(pa - t[:, None] * ab) - (ra + (rb - ra) * t)
 
     r = max(ra, rb)
     return Shape(field, np.minimum(a, b) - r, np.maximum(a, b) + r)
@@ -91,8 +94,9 @@ def round_cone(a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> Shape:
 
 def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     ab = np.asarray(b, float) - np.asarray(a, float)
-    t = np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-    return _norm(p - a - t[:, None] * ab)
+    pa = p - a
+    t = np.clip(pa @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+    return _norm(pa - t[:, None] * ab)
 
 
 def cut(shape: Shape, region: Field) -> Shape:
@@ -100,12 +104,29 @@ def cut(shape: Shape, region: Field) -> Shape:
     return Shape(lambda p: np.maximum(shape(p), region(p)), shape.lower, shape.upper)
 
 
+_last = threading.local()
+"""Per thread: the last points ``_bounds`` was asked about, and their box."""
+
+
+def _bounds(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The box of points ``p``. Nested unions ask it of the same points again and again:
+    computing it once took a tenth off building a crowd's figures (same meshes). Only
+    read-only points (``Grid``'s) are remembered: others could change in place."""
+    last = getattr(_last, "bounds", None)
+    if last is not None and last[0] is p:
+        return last[1]
+    bounds = p.min(axis=0), p.max(axis=0)
+    if not p.flags.writeable:
+        _last.bounds = (p, bounds)
+    return bounds
+
+
 def smooth_union(shapes: list[Shape], k: float) -> Shape:
     """Polynomial smooth minimum: surfaces closer than ``k`` blend into one. Members
     more than ``k`` from the points asked cannot change the surface and are skipped."""
 
     def field(p: np.ndarray) -> np.ndarray:
-        lower, upper = p.min(axis=0), p.max(axis=0)
+        lower, upper = _bounds(p)
         d = None
         for shape in shapes:
             if not shape.near(lower, upper, k):
@@ -149,6 +170,7 @@ class Grid:
         counts = np.maximum(np.ceil((upper - lower) / step).astype(int) + 1, 2)
         axes = [lower[i] + step * np.arange(counts[i]) for i in range(3)]
         points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        points.flags.writeable = False  # fixed: fields may keep what they learnt of them (_bounds)
         return Grid(lower, step, (int(counts[0]), int(counts[1]), int(counts[2])), points)
 
     def mesh(self, values: np.ndarray) -> Mesh | None:

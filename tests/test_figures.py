@@ -141,6 +141,30 @@ def test_a_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(
     assert np.ptp(boxed[0].vertices, axis=0) == pytest.approx(np.ptp(whole[0].vertices, axis=0), abs=step)
 
 
+def test_a_union_remembers_the_box_only_of_points_that_cannot_change():
+    """``smooth_union`` skips members far from the points asked, by the points' box; the
+    box is remembered for the grid's read-only points. Points changed in place between
+    two calls get a fresh box (a stale one would skip the member they now lie on)."""
+    from sim.shapes import Grid, ellipsoid, smooth_union
+
+    body = smooth_union(
+        [ellipsoid((0.0, 0.0, 0.0), (0.1, 0.1, 0.1)), ellipsoid((1.0, 0.0, 0.0), (0.1, 0.1, 0.1))], 0.05
+    )
+    near_first = np.array([[0.02, 0.0, 0.0], [0.05, 0.0, 0.0]])
+    assert (body(near_first) < 0).all()
+    moved = near_first.copy()
+    assert (body(moved) < 0).all()
+    moved += [1.0, 0.0, 0.0]  # now on the second member, far from the first
+    assert body(moved) == pytest.approx(body(near_first + [1.0, 0.0, 0.0]))
+    assert (body(moved) < 0).all()
+
+    grid = Grid.around(np.array([-0.2, -0.2, -0.2]), np.array([1.2, 0.2, 0.2]), 0.02)
+    assert not grid.points.flags.writeable
+    once, again = body(grid.points), body(grid.points)
+    fresh = body(grid.points.copy())  # writeable: its box is computed anew
+    assert np.array_equal(once, again) and np.array_equal(once, fresh)
+
+
 def test_a_dogs_tail_leaves_the_rump_level_and_sweeps_up():
     """The dog's tail (TAIL_BENDS) starts out nearly level behind the rump and ends
     steeply up, thick at the root: a straight stick at the tail's rise was called cow
