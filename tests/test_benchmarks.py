@@ -4,6 +4,7 @@ notes quote, and nothing else exercises them. A renamed function (generation.py'
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import re
@@ -24,7 +25,9 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@functools.cache
 def _generation_module():
+    """benchmarks/generation.py, loaded once (benchmarks/ is not a package)."""
     spec = importlib.util.spec_from_file_location("generation_benchmark", BENCHMARKS / "generation.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
