@@ -69,7 +69,7 @@ $(VENV)/.installed: pyproject.toml | system-deps
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "depotbench needs Python >= 3.11"'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@# uv resolves the same versions as pip and installs them in a fifth of the time (20 s
-	@# against 97 s from a clean clone with no cache, README); pip does it where uv cannot.
+	@# against 97 s from a clean clone, no cache: docs/performance.md); pip where uv cannot.
 	$(BIN)/python -m pip install -q uv && $(BIN)/uv pip install -q --python $(BIN)/python $(PACKAGE) \
 		|| $(BIN)/python -m pip install -q $(PACKAGE)
 	touch $@

@@ -15,7 +15,7 @@ This 2-core machine's speed drifts by up to a third between runs of one build:
 ``--repeat R`` measures each line R times and prints the median with the range. To
 compare two checkouts, start ``--stages`` in each at the same moment (one worker each,
 as suites run two): both see the same machine, and their frame loops compare where
-runs taken in turn do not (README, "Generation rate").
+runs taken in turn do not (docs/performance.md, "Generation rate").
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
 workers run it): the colour pass, the instance pass, the unoccluded areas,

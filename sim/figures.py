@@ -555,7 +555,7 @@ def quadruped_surfaces(
         ]
     # A cat's head is large for its body: this head (a tenth larger than it was) and the
     # stockier body (actors.QUADRUPEDS) raised the cats YOLOX-nano finds in
-    # dog_and_cat_roaming from 0.52 to 0.63 (seeds 1-10; README).
+    # dog_and_cat_roaming from 0.52 to 0.63 (seeds 1-10; docs/recognition.md).
     skull_r = (0.9 * hy, 0.78 * hy, 0.8 * hy) if not cat else (1.012 * hy, 1.045 * hy, 0.968 * hy)
     if pig:
         skull_r = (0.75 * hy, 0.62 * hy, 0.68 * hy)
@@ -596,7 +596,7 @@ def quadruped_surfaces(
     tail_a, tail_b = tail
     # A dog's tail is thick at the root and carried in a rising sweep (TAIL_BENDS): with
     # the straight 0.2 hy stick it had, side-on dogs were called cow and back halves
-    # person (README: 0.78 of dogs found on dog_and_cat_roaming seeds 1-40, now 0.81).
+    # person (docs/recognition.md: 0.78 of dogs found on dog_and_cat_roaming seeds 1-40, now 0.81).
     tail_r = (0.16 if cat else 0.12 if pig else 0.36) * hy
     tail_pad, tail_box = 2 * tail_r, None
     if kind in TAIL_BENDS:

@@ -445,7 +445,7 @@ COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
     # warm coats here raised cats from 10 to 19 of 200 (dog_and_cat_roaming, seeds 1-5).
     # Every cat wears the photographed tabby fur in its coat's colour ("photo", laid on
     # along the body: ``tabby``): drawn stripes and strands were called bird (22 of 200);
-    # the photograph raised cats to about half (README). A white cat with patches is left
+    # the photograph raised cats to about half (docs/recognition.md). A white cat with patches is left
     # out: the photograph is a tabby's, and recoloured white it read as bird (with it,
     # 0.36 of sightings). The ginger is a pale one: a saturated orange (210, 135, 65) was
     # called dog, in dog_and_cat_roaming's ginger seeds 5, 6, 9 and 10 0.41 of sightings

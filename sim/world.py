@@ -387,7 +387,7 @@ def build_world(scenario: ScenarioSpec) -> World:
     # (45 degree cutoff, exponent 10) lit pools on the floor and left the sides of people
     # and animals in ambient grey, flat as cut-outs. Widened, YOLOX-nano finds seated
     # people in 0.93 of sightings (was 0.83) and dogs in 0.69 (was 0.61), seeds 1-5
-    # (benchmarks/recognition.py; README).
+    # (benchmarks/recognition.py; docs/recognition.md).
     for lx, ly, lz in layout.lights:
         world_body.add_light(
             pos=[lx, ly, lz],

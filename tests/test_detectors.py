@@ -502,7 +502,7 @@ def test_run_with_the_onnx_detector_works_with_every_strategy(one_person: Path, 
 def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(tmp_path: Path):
     """The cats' coat and build are what made them cats to a COCO detector (0.11 of
     sightings with drawn stripes, 0.53 with the photographed fur, 0.63 with a stockier
-    body and larger head, 0.87 with the fur laid on along the body; README). A
+    body and larger head, 0.87 with the fur laid on along the body; docs/recognition.md). A
     regression guard over dog_and_cat_roaming's seeds 1-3, 40 frames each,
     recognition.py's rule (a cat box with IoU >= 0.5 at confidence 0.3, sightings of
     >= 2000 visible px): drawn coats gave 17 of 120 here (version 0.3.4), the

@@ -168,7 +168,7 @@ def test_a_union_remembers_the_box_only_of_points_that_cannot_change():
 def test_a_dogs_tail_leaves_the_rump_level_and_sweeps_up():
     """The dog's tail (TAIL_BENDS) starts out nearly level behind the rump and ends
     steeply up, thick at the root: a straight stick at the tail's rise was called cow
-    or person (README); the curve's shape, not the bone's rise, carries that."""
+    or person (docs/recognition.md); the curve's shape, not the bone's rise, carries that."""
     from sim.figures import TAIL_BENDS, _tail_curve
 
     curve = _tail_curve(np.zeros(3), np.array([-0.3, 0.0, 0.0]), TAIL_BENDS["dog"])
