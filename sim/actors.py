@@ -26,6 +26,7 @@ from sim.figures import (
     quadruped_surfaces,
 )
 from sim.paths import Path
+from sim.products import product
 
 FD_STEP_S = 1e-3
 """Step of the central differences that give an actor's velocity."""
@@ -58,7 +59,7 @@ def axis_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
     """Rodrigues' rotation about a unit axis."""
     k = np.asarray(axis, dtype=float)
     kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+    return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * product(kx, kx)
 
 
 def two_link_knee(hip: np.ndarray, ankle: np.ndarray, l1: float, l2: float, bend: np.ndarray) -> np.ndarray:
@@ -157,7 +158,7 @@ class Actor:
         p0, r0 = self.root(t - FD_STEP_S)
         p1, r1 = self.root(t + FD_STEP_S)
         linear = (p1 - p0) / (2 * FD_STEP_S)
-        delta = r1 @ r0.T
+        delta = product(r1, r0.T)
         angle = math.acos(min(1.0, max(-1.0, (np.trace(delta) - 1) / 2)))
         if angle < 1e-12:
             return linear, np.zeros(3)
@@ -251,26 +252,28 @@ class Walker(Actor):
         pelvis, body = self.root(t)
         fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
         positions, rotations = [pelvis], [body]
-        lean = axis_rotation(left, math.radians(4.0)) @ body
-        torso = pelvis + lean @ np.array([0.0, 0.0, 0.33 * s])
+        lean = product(axis_rotation(left, math.radians(4.0)), body)
+        torso = pelvis + product(lean, np.array([0.0, 0.0, 0.33 * s]))
         positions.append(torso)
         rotations.append(lean)
-        positions.append(pelvis + lean @ np.array([0.0, 0.0, 0.72 * s]))
+        positions.append(pelvis + product(lean, np.array([0.0, 0.0, 0.72 * s])))
         rotations.append(lean)
         phase = 2 * math.pi * (self.gait.arc(t) - self.gait.start_s) / self.gait.stride
         swing_amp = math.radians(25.0) * min(1.0, self.gait.speed / 1.2)
         arms = {}
         for side, sign in (("l", 1.0), ("r", -1.0)):
-            shoulder = pelvis + lean @ np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s])
+            shoulder = pelvis + product(lean, np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s]))
             if self.push:
                 upper_angle, elbow = math.radians(30.0), math.radians(45.0)
             else:
                 upper_angle = sign * swing_amp * math.sin(phase)
                 elbow = math.radians(15.0) + 0.5 * max(0.0, upper_angle)
-            down = axis_rotation(fwd, sign * ARM_HANG) @ axis_rotation(left, -upper_angle) @ (-up)
+            down = product(
+                product(axis_rotation(fwd, sign * ARM_HANG), axis_rotation(left, -upper_angle)), -up
+            )
             elbow_pos = shoulder + 0.3 * s * down
-            fore_dir = (
-                axis_rotation(fwd, sign * ARM_HANG) @ axis_rotation(left, -(upper_angle + elbow)) @ (-up)
+            fore_dir = product(
+                product(axis_rotation(fwd, sign * ARM_HANG), axis_rotation(left, -(upper_angle + elbow))), -up
             )
             hand = elbow_pos + 0.3 * s * fore_dir
             arms[side] = (shoulder, elbow_pos, hand)
@@ -284,7 +287,7 @@ class Walker(Actor):
             rotations.append(frame_along(c - b, fwd))
         legs = []
         for leg in self.legs:
-            hip = pelvis + body @ np.array(leg.hip_body)
+            hip = pelvis + product(body, np.array(leg.hip_body))
             foot, heading, _ = self.gait.foot(leg, t, 0.0)
             ankle = foot + np.array([0.0, 0.0, self.ankle_h])
             knee = two_link_knee(hip, ankle, leg.thigh_m, leg.shin_m, fwd)
@@ -297,7 +300,7 @@ class Walker(Actor):
             rotations.append(frame_along(knee - ankle, fwd))
         for _, _, _, foot, heading in legs:
             r = yaw_matrix(heading)
-            positions.append(foot + r @ np.array([0.05 * s, 0.0, 0.04 * s]))
+            positions.append(foot + product(r, np.array([0.05 * s, 0.0, 0.04 * s])))
             rotations.append(r)
         return np.array(positions), np.array(rotations)
 
@@ -332,22 +335,24 @@ class SittingPerson(Actor):
         s = self.scale
         pelvis, body = self.root(t)
         fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
-        sway = (
-            axis_rotation(left, math.radians(6.0) + self._wave(0, t, math.radians(4.0)))
-            @ axis_rotation(fwd, self._wave(1, t, math.radians(3.0)))
-            @ body
+        sway = product(
+            product(
+                axis_rotation(left, math.radians(6.0) + self._wave(0, t, math.radians(4.0))),
+                axis_rotation(fwd, self._wave(1, t, math.radians(3.0))),
+            ),
+            body,
         )
-        positions = [pelvis, pelvis + sway @ np.array([0.0, 0.0, 0.33 * s])]
-        head_turn = axis_rotation(sway[:, 2], self._wave(2, 0.7 * t, math.radians(30.0))) @ sway
-        positions.append(pelvis + sway @ np.array([0.0, 0.0, 0.72 * s]))
+        positions = [pelvis, pelvis + product(sway, np.array([0.0, 0.0, 0.33 * s]))]
+        head_turn = product(axis_rotation(sway[:, 2], self._wave(2, 0.7 * t, math.radians(30.0))), sway)
+        positions.append(pelvis + product(sway, np.array([0.0, 0.0, 0.72 * s])))
         rotations = [body, sway, head_turn]
         uppers, fores = [], []
         for k, sign in ((3, 1.0), (4, -1.0)):
-            shoulder = pelvis + sway @ np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s])
+            shoulder = pelvis + product(sway, np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s]))
             lift = math.radians(35.0) + self._wave(k, 2.5 * t, math.radians(8.0))
-            down = axis_rotation(left, -lift) @ (-sway[:, 2])
+            down = product(axis_rotation(left, -lift), -sway[:, 2])
             elbow = shoulder + 0.3 * s * down
-            fore = axis_rotation(left, -(lift + math.radians(55.0))) @ (-sway[:, 2])
+            fore = product(axis_rotation(left, -(lift + math.radians(55.0))), -sway[:, 2])
             hand = elbow + 0.3 * s * fore
             uppers.append(((shoulder + elbow) / 2, frame_along(elbow - shoulder, fwd)))
             fores.append(((elbow + hand) / 2, frame_along(hand - elbow, fwd)))
@@ -356,7 +361,7 @@ class SittingPerson(Actor):
             rotations.append(r)
         thighs, shins, feet = [], [], []
         for sign in (1.0, -1.0):
-            hip = pelvis + body @ np.array([0.0, sign * 0.1 * s, -0.02 * s])
+            hip = pelvis + product(body, np.array([0.0, sign * 0.1 * s, -0.02 * s]))
             knee = hip + fwd * 0.42 * s
             ankle = np.array([knee[0], knee[1], 0.08 * s]) + fwd * 0.05 * s
             thighs.append(((hip + knee) / 2, frame_along(knee - hip, up)))
@@ -478,7 +483,7 @@ class Quadruped(Actor):
         """Every part's pose for the body at (centre, body) and the paws at ``feet``."""
         hx, hy, hz = self.build.body_half
         fwd, up = body[:, 0], body[:, 2]
-        head = centre + body @ np.array([hx + 0.3 * hy, 0.0, 0.9 * hz + self.build.head_rise * hy])
+        head = centre + product(body, np.array([hx + 0.3 * hy, 0.0, 0.9 * hz + self.build.head_rise * hy]))
         snout = head + fwd * (0.9 * hy)
         tail_dir = -fwd + self.build.tail_rise * up
         tail_len = 2 * self.parts[3].size[1]
@@ -487,7 +492,7 @@ class Quadruped(Actor):
         rotations = [body, body, frame_along(fwd, up), frame_along(tail_dir, fwd)]
         uppers, lowers = [], []
         for leg, foot in zip(self.legs, feet, strict=True):
-            hip = centre + body @ np.array(leg.hip_body)
+            hip = centre + product(body, np.array(leg.hip_body))
             bend = fwd if leg.knee_forward else -fwd
             knee = two_link_knee(hip, foot, leg.thigh_m, leg.shin_m, bend)
             uppers.append(((hip + knee) / 2, frame_along(hip - knee, fwd)))
@@ -580,8 +585,10 @@ class Bird(Actor):
         sweep = (1.0 - spread) * math.pi / 2
         roll = spread * flap - (1.0 - spread) * self.TUCK
         for sign in (1.0, -1.0):
-            positions.append(centre + body @ np.array([sx, sign * sy, sz]))
-            rotations.append(axis_rotation(fwd, sign * roll) @ axis_rotation(up, sign * sweep) @ body)
+            positions.append(centre + product(body, np.array([sx, sign * sy, sz])))
+            rotations.append(
+                product(product(axis_rotation(fwd, sign * roll), axis_rotation(up, sign * sweep)), body)
+            )
         for sign in (1.0, -1.0):
             positions.append(centre + sign * 0.03 * left - up * 0.075)
             rotations.append(body)

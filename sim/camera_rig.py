@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.conventions import look_at
 from sim.paths import Path
+from sim.products import product
 from sim.spec import CameraSpec
 
 ROBOT_LOOP = np.array([[-2.6, -2.0], [2.6, -2.0], [2.6, 2.95], [-2.6, 2.95]])
@@ -50,16 +51,18 @@ class CameraRig:
             return self._robot(t)
         assert self.base is not None
         if motion == "static":
-            return self.base @ self._jitter(t, 0.002, 0.2)
+            return product(self.base, self._jitter(t, 0.002, 0.2))
         if motion == "xyz":
             pose = self.base.copy()
-            pose[:3, 3] += self.base[:3, :3] @ (s.amplitude_m * np.array([1.0, 0.6, 0.8]) * self._wave(0, t))
-            return pose @ self._jitter(t, 0.0, 0.3)
+            pose[:3, 3] += product(
+                self.base[:3, :3], s.amplitude_m * np.array([1.0, 0.6, 0.8]) * self._wave(0, t)
+            )
+            return product(pose, self._jitter(t, 0.0, 0.3))
         if motion == "rpy":
             pose = self.base.copy()
             rotvec = math.radians(s.amplitude_deg) * np.array([0.6, 1.0, 0.5]) * self._wave(1, t)
-            pose[:3, :3] = pose[:3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
-            return pose @ self._jitter(t, 0.002, 0.0)
+            pose[:3, :3] = product(pose[:3, :3], Rotation.from_rotvec(rotvec).as_matrix())
+            return product(pose, self._jitter(t, 0.002, 0.0))
         if motion == "halfsphere":
             target = np.array(s.target_m)
             offset = np.array(s.position_m) - target
@@ -75,7 +78,7 @@ class CameraRig:
                     math.sin(elevation),
                 ]
             )
-            return look_at(eye, target) @ self._jitter(t, 0.0, 0.3)
+            return product(look_at(eye, target), self._jitter(t, 0.0, 0.3))
         raise ValueError(f"camera.motion: unknown motion {motion!r}")
 
     def _robot(self, t: float) -> np.ndarray:

@@ -9,16 +9,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from sim.products import product
+
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0])
 """Right-multiplying a rotation by this flips between the optical and the OpenGL camera axes."""
 
 
 def gl_from_cv_rotation(world_from_cv: np.ndarray) -> np.ndarray:
-    return world_from_cv @ GL_FROM_CV
+    return product(world_from_cv, GL_FROM_CV)
 
 
 def cv_from_gl_rotation(world_from_gl: np.ndarray) -> np.ndarray:
-    return world_from_gl @ GL_FROM_CV
+    return product(world_from_gl, GL_FROM_CV)
 
 
 UP_PARALLEL_TOLERANCE = 1e-6

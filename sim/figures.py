@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.conventions import frame_along
+from sim.products import product
 from sim.shapes import (
     Field,
     Grid,
@@ -283,7 +284,7 @@ def _person_materials(
     def along(a: str, b: str, side: str) -> Field:
         p0, p1 = joints[f"{a}_{side}"], joints[f"{b}_{side}"]
         d = p1 - p0
-        return lambda p: (p - p0) @ d / (d @ d)
+        return lambda p: product(p - p0, d) / (d @ d)
 
     side = part[-1]
     if part == "torso":
@@ -468,7 +469,7 @@ def _piece(material: str, mesh: Mesh, frame: tuple[np.ndarray, np.ndarray]) -> S
 
 def _to_frame(mesh: Mesh, origin: np.ndarray, rotation: np.ndarray) -> Mesh:
     """Bind-pose vertices expressed in a part's frame."""
-    return Mesh((mesh.vertices - origin) @ rotation, mesh.faces)
+    return Mesh(product(mesh.vertices - origin, rotation), mesh.faces)
 
 
 @dataclass(frozen=True)
@@ -509,15 +510,15 @@ def wrapped(
     corners' v unwrapped past 1 (the texture repeats), not squeezed across the texture."""
     assert surface.mesh is not None
     origin, rotation = frame
-    points = surface.mesh.vertices @ rotation.T + origin
+    points = product(surface.mesh.vertices, rotation.T) + origin
     axis = (b - a) / np.linalg.norm(b - a)
     rel = points - a
-    along = rel @ axis
+    along = product(rel, axis)
     radial = rel - along[:, None] * axis
     d = down - (down @ axis) * axis
     d /= np.linalg.norm(d)
     side = np.cross(axis, d)
-    v = np.mod(np.arctan2(radial @ side, radial @ d) / (2 * np.pi), 1.0)
+    v = np.mod(np.arctan2(product(radial, side), product(radial, d)) / (2 * np.pi), 1.0)
     corners = np.stack([along / width_m, v], axis=1)[surface.mesh.faces]  # (F, 3, 2)
     v = corners[:, :, 1]  # a view: the unwrapping writes into corners
     across = (v.max(axis=1) - v.min(axis=1)) > 0.5
@@ -704,7 +705,9 @@ def _animal_eyes(
             ("eye", surface + 0.3 * eye_r * normal, 0.45 * eye_r),
         ]
     return [
-        Surface(role, shape="sphere", size=(radius,), pos=tuple(float(v) for v in (at - origin) @ rotation))
+        Surface(
+            role, shape="sphere", size=(radius,), pos=tuple(float(v) for v in product(at - origin, rotation))
+        )
         for role, at, radius in spheres
     ]
 
@@ -802,7 +805,10 @@ def bird_surfaces(frames: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str,
         at = np.array([0.138, sign * 0.02, 0.068])
         out["head"].append(
             Surface(
-                "eye", shape="sphere", size=(0.005,), pos=tuple(float(v) for v in (at - origin) @ rotation)
+                "eye",
+                shape="sphere",
+                size=(0.005,),
+                pos=tuple(float(v) for v in product(at - origin, rotation)),
             )
         )
     return {part: tuple(surfaces) for part, surfaces in out.items()}

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from sim.camera import Intrinsics
+from sim.products import product, rigid_inverse
 
 
 def rigid_motions(pos0: np.ndarray, rot0: np.ndarray, pos1: np.ndarray, rot1: np.ndarray) -> np.ndarray:
     """Per body, the 4x4 world transform taking its points at t to t+1."""
     n = len(pos0)
     motion = np.tile(np.eye(4), (n, 1, 1))
-    r = rot1 @ np.transpose(rot0, (0, 2, 1))
+    r = product(rot1, np.transpose(rot0, (0, 2, 1)))
     motion[:, :3, :3] = r
     motion[:, :3, 3] = pos1 - np.einsum("nij,nj->ni", r, pos0)
     return motion
@@ -32,7 +33,7 @@ def flow_at(
     z = z.astype(np.float64)
     x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
     # Camera 1 from camera 0 through each body's motion: one 3x4 per body, not per pixel.
-    through = np.linalg.inv(world_from_cam1) @ body_motion @ world_from_cam0
+    through = product(product(rigid_inverse(world_from_cam1), body_motion), world_from_cam0)
     t = through[bodies, :3]
     cam1 = t[:, :, 0] * x[:, None] + t[:, :, 1] * y[:, None] + t[:, :, 2] * z[:, None] + t[:, :, 3]
     u1 = k.fx * cam1[:, 0] / cam1[:, 2] + k.cx

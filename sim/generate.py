@@ -16,6 +16,7 @@ from sim.files import DEFAULT_PNG_COMPRESSION
 from sim.flow import exact_flow, flow_at, rigid_motions
 from sim.ground_truth import ObjectState, visible_boxes
 from sim.mujoco_env import mujoco
+from sim.products import product
 from sim.render import FrameRenderer
 from sim.sensor import SensorModel
 from sim.sequence import SequenceWriter
@@ -54,7 +55,7 @@ def object_states(
             position, rotation = now.body_positions[body], now.body_rotations[body]
             dof = world.chair_qvel[info.index]
             linear = now.qvel[dof : dof + 3]
-            angular = rotation @ now.qvel[dof + 3 : dof + 6]
+            angular = product(rotation, now.qvel[dof + 3 : dof + 6])
         else:
             position = world.object_positions[info.index]
             rotation, linear, angular = np.eye(3), np.zeros(3), np.zeros(3)

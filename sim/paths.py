@@ -6,6 +6,7 @@ import bisect
 import math
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from sim.errors import ScenarioError
 from sim.layout import Rect, is_free
@@ -28,14 +29,17 @@ class Path:
         loop = np.vstack([pts, pts[:1]])
         dense = [loop[0]]
         for a, b in zip(loop[:-1], loop[1:], strict=True):
-            n = max(1, int(np.ceil(np.linalg.norm(b - a) / SAMPLE_SPACING_M)))
+            n = max(1, math.ceil(_length(b - a) / SAMPLE_SPACING_M))
             dense += list(a + (b - a) * (np.arange(1, n + 1)[:, None] / n))
         dense_arr = np.array(dense[:-1])
         window = max(1, int(smoothing_m / SAMPLE_SPACING_M))
         if len(dense_arr) > 2 * window + 1:
-            kernel = np.ones(2 * window + 1) / (2 * window + 1)
+            # A moving mean, not np.convolve: convolve sums through BLAS (ddot), whose
+            # kernels OpenBLAS picks by CPU, so the walkers' paths differed in their last
+            # bits from one CPU type to another (tests/test_sim.py); a reduction's
+            # summation order is numpy's own.
             padded = np.vstack([dense_arr[-window:], dense_arr, dense_arr[:window]])
-            dense_arr = np.stack([np.convolve(padded[:, k], kernel, mode="valid") for k in (0, 1)], axis=1)
+            dense_arr = sliding_window_view(padded, 2 * window + 1, axis=0).mean(axis=-1)
         closed = np.vstack([dense_arr, dense_arr[:1]])
         self._points = closed
         self._arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
@@ -86,10 +90,16 @@ class Path:
         return np.arctan2(t[..., 1], t[..., 0])
 
 
+def _length(d: np.ndarray) -> float:
+    """A 2-vector's length as np.linalg.norm gives it (the same bits on 800,000 vectors),
+    without its trip through BLAS, whose kernels differ from one CPU type to another."""
+    return math.sqrt(d[0] * d[0] + d[1] * d[1])
+
+
 def _segment_free(
     a: np.ndarray, b: np.ndarray, obstacles: tuple[Rect, ...], margin: float, bounds: Rect
 ) -> bool:
-    n = max(2, int(np.linalg.norm(b - a) / 0.1))
+    n = max(2, int(_length(b - a) / 0.1))
     return all(is_free(a + (b - a) * k / n, obstacles, margin, bounds) for k in range(n + 1))
 
 

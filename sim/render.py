@@ -25,6 +25,7 @@ import numpy as np
 
 from sim.errors import EnvironmentProblem
 from sim.mujoco_env import mujoco
+from sim.products import product
 
 
 class RenderingUnavailable(EnvironmentProblem):
@@ -331,7 +332,9 @@ class FrameRenderer:
         local = aabb[:, None, :3] + _BOX_CORNERS[None] * aabb[:, None, 3:]
         rotation = data.geom_xmat[geoms].reshape(-1, 3, 3)
         world = np.einsum("gij,gkj->gki", rotation, local) + data.geom_xpos[geoms][:, None]
-        camera = (world.reshape(-1, 3) - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
+        camera = product(
+            world.reshape(-1, 3) - data.cam_xpos[camera_id], data.cam_xmat[camera_id].reshape(3, 3)
+        )
         depth = -camera[:, 2]  # MuJoCo cameras look along -z
         focal = (self.height / 2) / np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
         with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: replaced below
@@ -366,12 +369,12 @@ class FrameRenderer:
         """Which geoms with a far version lie beyond ``FAR_M``, by their near version's centre."""
         offset = data.geom_xpos[self._near_version] - data.cam_xpos[camera_id]
         axis = data.cam_xmat[camera_id].reshape(3, 3)[:, 2]  # MuJoCo cameras look along -z
-        return offset @ -axis > FAR_M
+        return product(offset, -axis) > FAR_M
 
     def _outside_view(self, data: mujoco.MjData, camera_id: int) -> np.ndarray:
         """Which geoms lie wholly outside the camera's view: each bounding sphere on the far
         side of one of the frustum's side planes, or behind the camera."""
-        camera = (data.geom_xpos - data.cam_xpos[camera_id]) @ data.cam_xmat[camera_id].reshape(3, 3)
+        camera = product(data.geom_xpos - data.cam_xpos[camera_id], data.cam_xmat[camera_id].reshape(3, 3))
         x, y, z = camera[:, 0], camera[:, 1], -camera[:, 2]  # MuJoCo cameras look along -z
         radius = self._cull_radius
         tan_v = np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)

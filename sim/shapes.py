@@ -21,6 +21,8 @@ import mcubes
 import numpy as np
 import trimesh
 
+from sim.products import product
+
 Field = Callable[[np.ndarray], np.ndarray]
 """Signed distance (negative inside) at points (N, 3)."""
 
@@ -69,12 +71,12 @@ def ellipsoid(
     turned = axes is not None  # the identity's product is the points themselves
 
     def field(p: np.ndarray) -> np.ndarray:
-        q = (p - c) @ rotation if turned else p - c
+        q = product(p - c, rotation) if turned else p - c
         k0 = _norm(q / r)
         k1 = np.maximum(_norm(q / (r * r)), 1e-12)
         return k0 * (k0 - 1.0) / k1
 
-    half = np.abs(rotation) @ r
+    half = product(np.abs(rotation), r)
     return Shape(field, c - half, c + half)
 
 
@@ -85,7 +87,7 @@ def round_cone(a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> Shape:
     def field(p: np.ndarray) -> np.ndarray:
         ab = b - a
         pa = p - a
-        t = np.clip(pa @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+        t = np.clip(product(pa, ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
         return _norm(pa - t[:, None] * ab) - (ra + (rb - ra) * t)
 
     r = max(ra, rb)
@@ -95,7 +97,7 @@ def round_cone(a: np.ndarray, b: np.ndarray, ra: float, rb: float) -> Shape:
 def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     ab = np.asarray(b, float) - np.asarray(a, float)
     pa = p - a
-    t = np.clip(pa @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+    t = np.clip(product(pa, ab) / max(ab @ ab, 1e-12), 0.0, 1.0)
     return _norm(pa - t[:, None] * ab)
 
 

@@ -265,6 +265,106 @@ def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
     assert meta[0] == meta[1]
 
 
+def test_product_is_matmul_summed_in_one_order():
+    """sim.products.product: numpy's ``@`` to rounding for every shape the generator
+    multiplies (matrices, points, batches, row and column vectors), and to the bit the
+    sum of Python floats taken in order, whatever the CPU."""
+    from sim.products import product, rigid_inverse
+
+    rng = np.random.default_rng(3)
+    shapes = [((3, 3), (3, 3)), ((3, 3), (3,)), ((500, 3), (3, 3)), ((500, 3), (3,)), ((3,), (3, 3))]
+    shapes += [((7, 3, 3), (7, 3, 3)), ((4, 4), (6, 4, 4)), ((6, 4, 4), (4, 4)), ((3,), (3,))]
+    for sa, sb in shapes:
+        a, b = rng.normal(size=sa), rng.normal(size=sb)
+        np.testing.assert_allclose(product(a, b), a @ b, rtol=1e-13, atol=1e-14)
+    a, b = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    expected = [
+        [(a[i, 0] * b[0, j] + a[i, 1] * b[1, j]) + a[i, 2] * b[2, j] for j in range(3)] for i in range(3)
+    ]
+    assert product(a, b).tolist() == [[float(v) for v in row] for row in expected]
+    points = rng.normal(size=(40, 3))
+    assert product(points, a).tolist() == [product(p, a).tolist() for p in points]
+    with pytest.raises(ValueError, match="do not chain"):
+        product(np.ones((3, 3)), np.ones(4))
+    pose = look_at(np.array([1.0, -2.0, 1.5]), np.zeros(3))
+    np.testing.assert_allclose(rigid_inverse(pose) @ pose, np.eye(4), atol=1e-14)
+
+
+def _blas_kernels_differ() -> str | None:
+    """Why the two-kernel test cannot run here, or None: OpenBLAS's Haswell kernels need
+    AVX2 and FMA, and the test only means something where the two kernels round a
+    product differently."""
+    from numpy._core._multiarray_umath import __cpu_features__
+
+    if not (__cpu_features__.get("AVX2") and __cpu_features__.get("FMA3")):
+        return "this CPU cannot run OpenBLAS's Haswell kernels"
+    probe = (
+        "import numpy as n; r = n.random.default_rng(0); "
+        "print((r.random((50, 3)) @ r.random((3, 3))).tobytes().hex())"
+    )
+    outs = {
+        subprocess.run(
+            [sys.executable, "-c", probe],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "OPENBLAS_CORETYPE": core},
+        ).stdout
+        for core in ("Haswell", "Nehalem")
+    }
+    return None if len(outs) == 2 else "OpenBLAS gives the same product on both kernels here"
+
+
+def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
+    """OpenBLAS picks its kernels by CPU type, and Haswell's fuse multiply and add where
+    Nehalem's do not: poses, meshes and ground truth computed through ``@`` (and paths
+    smoothed by np.convolve) differed in their last bits, so gt/objects.jsonl and now and
+    then a pixel differed from one CPU type to another (sim/products.py). Every kind of
+    actor, a pushed chair, flow and a moving camera, generated on both kernels."""
+    why_not = _blas_kernels_differ()
+    if why_not:
+        pytest.skip(why_not)
+    spec = tmp_path / "kernels.yaml"
+    spec.write_text(
+        json.dumps(
+            {
+                "name": "kernels",
+                "seed": 5,
+                "frames": 4,
+                "image": {"width": 96, "height": 72},
+                "intrinsics": {"fx": 78.75},
+                "flow": True,
+                "actors": [
+                    {"kind": "person"},
+                    {"kind": "chair_pusher", "speed_mps": 0.8},
+                    {"kind": "sitting_person", "path": "seated", "speed_mps": 0},
+                    {"kind": "dog", "speed_mps": 1.3},
+                    {"kind": "pig"},
+                    {"kind": "bird"},
+                ],
+                "chairs": [{"position_m": [0.8, 0.2]}],
+                "camera": {"motion": "xyz"},
+            }
+        )
+    )
+    runs = {
+        core: subprocess.Popen(
+            [sys.executable, "-m", "eval.cli", "generate", str(spec), "-o", str(tmp_path / core)],
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "OPENBLAS_CORETYPE": core},
+        )
+        for core in ("Haswell", "Nehalem")
+    }
+    for core, run in runs.items():
+        _, err = run.communicate(timeout=300)
+        assert run.returncode == 0, f"{core}: {err}"
+    assert len(list((tmp_path / "Haswell").rglob("*.png"))) > 10
+    differences = tree_differences(tmp_path / "Haswell", tmp_path / "Nehalem", skip=("meta.json",))
+    assert not differences, "\n".join(differences)
+
+
 @pytest.mark.parametrize("motion", ["static", "rpy", "robot"])
 def test_camera_rigs_are_smooth(motion):
     world = build_world(ScenarioSpec(frames=1, camera=CameraSpec(motion=motion)))
