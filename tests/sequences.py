@@ -125,6 +125,8 @@ def _how_they_differ(suffix: str, data_a: bytes, data_b: bytes) -> str:
     lines_a = data_a.decode(errors="replace").splitlines()
     lines_b = data_b.decode(errors="replace").splitlines()
     for k, (x, y) in enumerate(zip(lines_a, lines_b, strict=False)):
-        if x != y:
-            return f"line {k + 1} differs: {x[:200]!r} and {y[:200]!r}"
+        if x != y:  # around the first differing character: long JSON lines share a prefix
+            at = next((i for i, (p, q) in enumerate(zip(x, y, strict=False)) if p != q), min(len(x), len(y)))
+            window = slice(max(0, at - 80), at + 80)
+            return f"line {k + 1} differs at character {at + 1}: {x[window]!r} and {y[window]!r}"
     return f"{len(lines_a)} and {len(lines_b)} lines"

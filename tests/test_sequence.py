@@ -130,12 +130,21 @@ def test_tree_differences_says_how_two_sequences_differ(tmp_path: Path):
     arrays["flow"][0, 0, 0] += 0.5
     np.savez_compressed(flow, **arrays)
     (tmp_path / "b" / "stray.txt").write_text("x")
+    objects = tmp_path / "b" / "gt" / "objects.jsonl"
+    lines = objects.read_text().splitlines(keepends=True)
+    at = lines[1].rindex("}") - 1  # near the end of a long line, past any shared prefix shown
+    lines[1] = lines[1][:at] + ("7" if lines[1][at] != "7" else "8") + lines[1][at + 1 :]
+    objects.write_text("".join(lines))
     report = tree_differences(tmp_path / "a", tmp_path / "b")
     rel = depth_png.relative_to(tmp_path / "b")
+    original = (tmp_path / "a" / "gt" / "objects.jsonl").read_text().splitlines()[1]
+    window = slice(max(0, at - 80), at + 80)
     assert report == [
         f"stray.txt: only in {tmp_path / 'b'}",
         f"{rel}: 1 pixels differ, by up to 3 (first at row 4, column 9: {depth[4, 9] - 3} and {depth[4, 9]})",
         f"{flow.relative_to(tmp_path / 'b')}: flow: 1 values differ, by up to 0.5",
+        f"gt/objects.jsonl: line 2 differs at character {at + 1}: "
+        f"{original[window]!r} and {lines[1].rstrip(chr(10))[window]!r}",
     ]
 
 
