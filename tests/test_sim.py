@@ -319,7 +319,8 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     Nehalem's do not: poses, meshes and ground truth computed through ``@`` (and paths
     smoothed by np.convolve) differed in their last bits, so gt/objects.jsonl and now and
     then a pixel differed from one CPU type to another (sim/products.py). Every kind of
-    actor, a pushed chair, flow and a moving camera, generated on both kernels."""
+    actor, a pushed chair, flow, the depth sensor's model and a moving camera, generated
+    on both kernels."""
     why_not = _blas_kernels_differ()
     if why_not:
         pytest.skip(why_not)
@@ -333,6 +334,7 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
                 "image": {"width": 96, "height": 72},
                 "intrinsics": {"fx": 78.75},
                 "flow": True,
+                "sensor": "kinect",
                 "actors": [
                     {"kind": "person"},
                     {"kind": "chair_pusher", "speed_mps": 0.8},
