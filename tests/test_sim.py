@@ -224,26 +224,24 @@ def test_a_paths_single_points_and_tangents_are_numpys_to_the_bit():
             assert loop.point(np.float64(s)).tobytes() == points[k].tobytes(), s
 
 
+def _tiny_spec(path: Path, **fields) -> Path:
+    """A 96x72 scenario file with flow and the Kinect sensor model, for determinism tests."""
+    base = {"name": path.stem, "image": {"width": 96, "height": 72}, "intrinsics": {"fx": 78.75}}
+    path.write_text(json.dumps(base | {"flow": True, "sensor": "kinect"} | fields))
+    return path
+
+
 def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
     """Two processes that differ in what must not matter: the string hash seed (set and
     dict layouts, memory), and llvmpipe rasterising in threads or, as suite workers do,
     in the calling thread. A failure names each differing file and how it differs."""
-    spec = tmp_path / "tiny.yaml"
-    spec.write_text(
-        json.dumps(
-            {
-                "name": "tiny",
-                "seed": 7,
-                "frames": 3,
-                "image": {"width": 96, "height": 72},
-                "intrinsics": {"fx": 78.75},
-                "flow": True,
-                "sensor": "kinect",
-                "actors": [{"kind": "person"}, {"kind": "cat", "speed_mps": 0.6}],
-                "chairs": [{"position_m": [1.0, 0.5]}],
-                "camera": {"motion": "halfsphere"},
-            }
-        )
+    spec = _tiny_spec(
+        tmp_path / "tiny.yaml",
+        seed=7,
+        frames=3,
+        actors=[{"kind": "person"}, {"kind": "cat", "speed_mps": 0.6}],
+        chairs=[{"position_m": [1.0, 0.5]}],
+        camera={"motion": "halfsphere"},
     )
     outs = []
     for name, env in (("a", {"PYTHONHASHSEED": "1"}), ("b", {"PYTHONHASHSEED": "2", "LP_NUM_THREADS": "0"})):
@@ -324,29 +322,20 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     why_not = _blas_kernels_differ()
     if why_not:
         pytest.skip(why_not)
-    spec = tmp_path / "kernels.yaml"
-    spec.write_text(
-        json.dumps(
-            {
-                "name": "kernels",
-                "seed": 5,
-                "frames": 4,
-                "image": {"width": 96, "height": 72},
-                "intrinsics": {"fx": 78.75},
-                "flow": True,
-                "sensor": "kinect",
-                "actors": [
-                    {"kind": "person"},
-                    {"kind": "chair_pusher", "speed_mps": 0.8},
-                    {"kind": "sitting_person", "path": "seated", "speed_mps": 0},
-                    {"kind": "dog", "speed_mps": 1.3},
-                    {"kind": "pig"},
-                    {"kind": "bird"},
-                ],
-                "chairs": [{"position_m": [0.8, 0.2]}],
-                "camera": {"motion": "xyz"},
-            }
-        )
+    spec = _tiny_spec(
+        tmp_path / "kernels.yaml",
+        seed=5,
+        frames=4,
+        actors=[
+            {"kind": "person"},
+            {"kind": "chair_pusher", "speed_mps": 0.8},
+            {"kind": "sitting_person", "path": "seated", "speed_mps": 0},
+            {"kind": "dog", "speed_mps": 1.3},
+            {"kind": "pig"},
+            {"kind": "bird"},
+        ],
+        chairs=[{"position_m": [0.8, 0.2]}],
+        camera={"motion": "xyz"},
     )
     runs = {
         core: subprocess.Popen(
