@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from sim.ipp import without_ipp
 from sim.spec import SensorSpec
 
 KINECT_FOCAL_PX = 580.0
@@ -77,11 +78,12 @@ class SensorModel:
         v, u = np.mgrid[0:h, 0:w].astype(np.float32)
         total = np.zeros_like(image)
         for a in np.linspace(-0.5, 0.5, samples, dtype=np.float32):
-            total += cv2.remap(
-                image,
-                u + a * motion_px[:, :, 0],
-                v + a * motion_px[:, :, 1],
-                cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_REPLICATE,
-            )
+            with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+                total += cv2.remap(
+                    image,
+                    u + a * motion_px[:, :, 0],
+                    v + a * motion_px[:, :, 1],
+                    cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE,
+                )
         return total / samples

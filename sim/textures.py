@@ -16,6 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from sim.ipp import without_ipp
+
 Colour = tuple[int, int, int]
 _LETTERS = "ABCDEFGHJKLMNPRSTUVWXYZ0123456789"
 
@@ -27,7 +29,8 @@ def _noise(rng: np.random.Generator, size: int, octaves: int = 4, amplitude: flo
     for octave in range(octaves):
         cells = 4 * 2**octave
         grid = rng.uniform(-1, 1, (cells, cells)).astype(np.float32)
-        total += weight * cv2.resize(grid, (size, size), interpolation=cv2.INTER_CUBIC)
+        with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+            total += weight * cv2.resize(grid, (size, size), interpolation=cv2.INTER_CUBIC)
         weight *= 0.55
     return total * (amplitude / max(1e-6, float(np.abs(total).max())))
 
@@ -540,6 +543,7 @@ def tabby(colour: Colour, size: int = 256) -> np.ndarray:
     photo = _fur_photo()
     tile = np.concatenate([photo, photo[:, ::-1]], axis=1)
     tile = np.concatenate([tile, tile[::-1]], axis=0)
-    tile = cv2.resize(tile, (size // 2, size // 2), interpolation=cv2.INTER_AREA)
+    with without_ipp():
+        tile = cv2.resize(tile, (size // 2, size // 2), interpolation=cv2.INTER_AREA)
     fur = np.tile(tile, (2, 2, 1)) * (np.asarray(colour, np.float32) / tile.reshape(-1, 3).mean(axis=0))
     return _finish(countershaded(fur, back=0.3, cream=0.55))

@@ -312,6 +312,46 @@ def _blas_kernels_differ() -> str | None:
     return None if len(outs) == 2 else "OpenBLAS gives the same product on both kernels here"
 
 
+IPP_PROBE = """
+import hashlib, numpy as np
+from sim import textures
+from sim.sensor import SensorModel
+from sim.spec import SensorSpec
+h = hashlib.sha256()
+for seed in range(4):
+    rng = np.random.default_rng(seed)
+    for draw in (textures.concrete, textures.wall, textures.crate, textures.cardboard, textures.wood):
+        h.update(draw(rng).tobytes())
+    for kind in ("dog", "cat", "pig"):
+        h.update(textures.coat(rng, kind).tobytes())
+rng = np.random.default_rng(9)
+rgb = rng.integers(0, 256, (48, 64, 3)).astype(np.uint8)
+flow = rng.normal(0, 3, (48, 64, 2)).astype(np.float32)
+sensor = SensorModel(SensorSpec(motion_blur_exposure_s=0.02, rgb_noise_sigma=2.0), np.random.default_rng(1))
+h.update(sensor.rgb(rgb, flow, 30.0).tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_textures_and_motion_blur_do_not_depend_on_intel_ipps_cpu_path():
+    """OpenCV hands cubic and area resizes and remaps to Intel IPP, which picks its code
+    by CPU and rounds differently on each: textures drawn on IPP's SSE 4.2 path differed
+    from those on its AVX2 path (sim/ipp.py). Drawn on both, and with IPP off, they and
+    the sensor model's motion blur are the same bytes."""
+    digests = {
+        path: subprocess.run(
+            [sys.executable, "-c", IPP_PROBE],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "OPENCV_IPP": path},
+        ).stdout
+        for path in ("sse42", "disabled", "")
+    }
+    assert len(set(digests.values())) == 1, digests
+
+
 def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     """OpenBLAS picks its kernels by CPU type, and Haswell's fuse multiply and add where
     Nehalem's do not: poses, meshes and ground truth computed through ``@`` (and paths
