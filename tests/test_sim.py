@@ -292,7 +292,10 @@ def _blas_kernels_differ() -> str | None:
     """Why the two-kernel test cannot run here, or None: OpenBLAS's Haswell kernels need
     AVX2 and FMA, and the test only means something where the two kernels round a
     product differently."""
-    from numpy._core._multiarray_umath import __cpu_features__
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__
+    except ImportError:  # numpy 1.26
+        from numpy.core._multiarray_umath import __cpu_features__
 
     if not (__cpu_features__.get("AVX2") and __cpu_features__.get("FMA3")):
         return "this CPU cannot run OpenBLAS's Haswell kernels"
