@@ -77,8 +77,8 @@ class SensorModel:
         h, w = image.shape[:2]
         v, u = np.mgrid[0:h, 0:w].astype(np.float32)
         total = np.zeros_like(image)
-        for a in np.linspace(-0.5, 0.5, samples, dtype=np.float32):
-            with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+        with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+            for a in np.linspace(-0.5, 0.5, samples, dtype=np.float32):
                 total += cv2.remap(
                     image,
                     u + a * motion_px[:, :, 0],

@@ -26,12 +26,12 @@ def _noise(rng: np.random.Generator, size: int, octaves: int = 4, amplitude: flo
     """Multi-octave value noise in [-amplitude, amplitude] (float32, size x size)."""
     total = np.zeros((size, size), np.float32)
     weight = 1.0
-    for octave in range(octaves):
-        cells = 4 * 2**octave
-        grid = rng.uniform(-1, 1, (cells, cells)).astype(np.float32)
-        with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+    with without_ipp():  # the same bits on every CPU (sim/ipp.py)
+        for octave in range(octaves):
+            cells = 4 * 2**octave
+            grid = rng.uniform(-1, 1, (cells, cells)).astype(np.float32)
             total += weight * cv2.resize(grid, (size, size), interpolation=cv2.INTER_CUBIC)
-        weight *= 0.55
+            weight *= 0.55
     return total * (amplitude / max(1e-6, float(np.abs(total).max())))
 
 
