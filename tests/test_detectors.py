@@ -498,16 +498,12 @@ def test_run_with_the_onnx_detector_works_with_every_strategy(one_person: Path, 
     capsys.readouterr()
 
 
-@pytest.mark.render
-def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(tmp_path: Path):
-    """The cats' coat and build are what made them cats to a COCO detector (0.11 of
-    sightings with drawn stripes, 0.53 with the photographed fur, 0.63 with a stockier
-    body and larger head, 0.87 with the fur laid on along the body; docs/recognition.md). A
-    regression guard over dog_and_cat_roaming's seeds 1-3, 40 frames each,
-    recognition.py's rule (a cat box with IoU >= 0.5 at confidence 0.3, sightings of
-    >= 2000 visible px): drawn coats gave 17 of 120 here (version 0.3.4), the
-    photographed fur on the slim cat 62 of 120, the stocky cat 72 of 120, the fur laid on
-    (0.3.8) 92 of 120; the floor is 0.7."""
+@pytest.fixture(scope="module")
+def animal_sightings(tmp_path_factory) -> dict[str, list[tuple[bool, bool]]]:
+    """dog_and_cat_roaming's seeds 1-3, their first 40 frames, through the shipped model
+    by recognition.py's rule: per class ("dog", "cat"), one (found, cut by the image
+    edge) per sighting of >= 2000 visible px, found when a box of that class at
+    confidence 0.3 overlaps the true visible box at IoU >= 0.5."""
     from detectors.config import SHIPPED_MODEL
     from eval.detection_eval import iou_matrix
     from scenes import library
@@ -515,25 +511,83 @@ def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(tmp_path: Path)
     from sim.generate import generate
     from sim.sequence import Sequence
 
+    root = tmp_path_factory.mktemp("animals")
     detector = OnnxDetector(SHIPPED_MODEL)
-    hits = sightings = 0
+    sightings: dict[str, list[tuple[bool, bool]]] = {"dog": [], "cat": []}
     for seed in (1, 2, 3):
         scenario = library.get("dog_and_cat_roaming").model_copy(
             update={"seed": seed, "frames": 40, "duration_s": None}
         )
-        sequence = Sequence.open(generate(to_scenario(scenario), tmp_path / f"s{seed}", progress=False))
-        cat = next(i["instance_id"] for i in sequence.meta["instances"] if i["class_name"] == "cat")
+        sequence = Sequence.open(generate(to_scenario(scenario), root / f"s{seed}", progress=False))
+        animal = {i["instance_id"]: i["class_name"] for i in sequence.meta["instances"]}
         for index, objects in enumerate(sequence.objects()):
-            (truth,) = [o for o in objects if o.instance_id == cat] or [None]
-            if truth is None or truth.box_xyxy is None or truth.visible_pixels < 2000:
+            truths = [o for o in objects if animal[o.instance_id] in sightings and o.visible_pixels >= 2000]
+            if not truths:
                 continue
-            found = [
-                d.box_xyxy
-                for d in detector.detect(DetectorFrame(index, 0.0, sequence.rgb(index)))
-                if d.class_name == "cat"
-            ]
-            ious = iou_matrix(np.array([truth.box_xyxy], float), np.array(found, float).reshape(-1, 4))
-            sightings += 1
-            hits += bool((ious >= 0.5).any())
-    assert sightings >= 100
-    assert hits / sightings >= 0.7, (hits, sightings)
+            detections = detector.detect(DetectorFrame(index, 0.0, sequence.rgb(index)))
+            for truth in truths:
+                found = [d.box_xyxy for d in detections if d.class_name == truth.class_name]
+                ious = iou_matrix(np.array([truth.box_xyxy], float), np.array(found, float).reshape(-1, 4))
+                sightings[truth.class_name].append((bool((ious >= 0.5).any()), bool(truth.truncated)))
+    return sightings
+
+
+@pytest.mark.render
+def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(animal_sightings):
+    """The cats' coat and build are what made them cats to a COCO detector (0.11 of
+    sightings with drawn stripes, 0.53 with the photographed fur, 0.63 with a stockier
+    body and larger head, 0.87 with the fur laid on along the body; docs/recognition.md). A
+    regression guard: drawn coats gave 17 of 120 here (version 0.3.4), the photographed
+    fur on the slim cat 62 of 120, the stocky cat 72 of 120, the fur laid on (0.3.8) 92
+    of 120, 96 of 120 with 0.3.14 and 98 of 120 with 0.3.15's loops; the floor is 0.7."""
+    cats = animal_sightings["cat"]
+    hits = sum(found for found, _ in cats)
+    assert len(cats) >= 100
+    assert hits / len(cats) >= 0.7, (hits, len(cats))
+
+
+@pytest.mark.render
+def test_the_shipped_model_takes_the_animal_scenes_dogs_for_dogs(animal_sightings):
+    """A regression guard for the dog's look (coat, tail, legs; docs/recognition.md):
+    117 of 120 sightings here with version 0.3.15, 118 of 120 with 0.3.14's wider loop;
+    over seeds 1-240, 0.84 of sightings (docs/recognition.md)."""
+    dogs = animal_sightings["dog"]
+    hits = sum(found for found, _ in dogs)
+    assert len(dogs) >= 100
+    assert hits / len(dogs) >= 0.8, (hits, len(dogs))
+
+
+@pytest.mark.render
+def test_the_animal_scenes_dog_and_cat_are_seen_whole_in_most_sightings(tmp_path: Path):
+    """Issue 14 asks for dogs and cats "at such sizes in the animal scenes" that a
+    detector can find them. Whole, they are found in about nine sightings of ten; cut by
+    the image edge (a rump, a chest) in six or seven (docs/recognition.md). Their loops
+    ran past the view's edges (the dog's to x = +-1.9 m where its near leg sees +-1.4 m),
+    so nearly half their sightings were cut; now they turn about at the edges. Over
+    seeds 1-4's whole 10 s, sampled at 3 frames/s at 320x240 (truncation depends on the
+    field of view, not the size; sightings of >= 500 px, 2000 at 640x480), 0.3.14 cut
+    52 of 108 dog sightings and 51 of 119 cat sightings; 0.3.15 cuts 43 of 120 and 22 of
+    120. The ground truth's own truncation flag is the measure: no detector involved."""
+    import dataclasses
+
+    from scenes import library
+    from scenes.schema import to_scenario
+    from sim.generate import generate
+    from sim.sequence import Sequence
+
+    sightings = {"dog": [0, 0], "cat": [0, 0]}  # [sightings, cut by the edge]
+    for seed in (1, 2, 3, 4):
+        scenario = to_scenario(
+            library.get("dog_and_cat_roaming").model_copy(update={"seed": seed, "fps": 3.0})
+        )
+        scenario = dataclasses.replace(scenario, width=320, height=240, focal_px=525.0 / 2)
+        sequence = Sequence.open(generate(scenario, tmp_path / f"s{seed}", progress=False))
+        kind = {i["instance_id"]: i["class_name"] for i in sequence.meta["instances"]}
+        for objects in sequence.objects():
+            for o in objects:
+                if kind[o.instance_id] in sightings and o.visible_pixels >= 500:
+                    sightings[kind[o.instance_id]][0] += 1
+                    sightings[kind[o.instance_id]][1] += bool(o.truncated)
+    (dogs, dogs_cut), (cats, cats_cut) = sightings["dog"], sightings["cat"]
+    assert dogs >= 100 and cats >= 100, sightings
+    assert dogs_cut / dogs <= 0.4 and cats_cut / cats <= 0.3, sightings
