@@ -1,7 +1,7 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
-                                       [--repeat R] [--scene NAME] [--stages [--seed S]]
+                                       [--repeat R] [--peer] [--scene NAME] [--stages [--seed S]]
 
 For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
 the rate of one process (Mesa's default threads) and of two processes with one thread
@@ -16,6 +16,14 @@ This 2-core machine's speed drifts by up to a third between runs of one build:
 compare two checkouts, start ``--stages`` in each at the same moment (one worker each,
 as suites run two): both see the same machine, and their frame loops compare where
 runs taken in turn do not (docs/performance.md, "Generation rate").
+
+``--peer`` also runs, after each measurement, a peer beside which the rates read as
+ratios: MuJoCo alone rendering the same worlds the plain way (one pass for RGB and
+depth, one segmentation pass, read with ``mjr_readPixels``; no culling, far versions,
+instance or unoccluded passes, ground truth or writes), in two one-thread processes as
+suites run theirs. Issue 14 set 30 frames/s against MuJoCo alone at about 35 a process
+(rendering-notes.md); this machine's speed drifts by a third between hours, and the
+ratio to the peer measured in the same minutes does not.
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
 workers run it): the colour pass, the instance pass, the unoccluded areas,
@@ -80,6 +88,64 @@ def check_scene(parser: argparse.ArgumentParser, scene: str | None) -> None:
 
     if scene not in library.names():
         parser.error(f"--scene: no library scene {scene!r}; choose one of {', '.join(library.names())}")
+
+
+def _peer(args: tuple[int, int, int, int, str | None]) -> float:
+    """Seconds MuJoCo alone takes to render ``frames`` frames of a world the plain way:
+    ``mjr_render`` then ``mjr_readPixels`` of RGB and depth, then a segmentation pass
+    read as RGB, at the world's states along the clip (moving them is not timed)."""
+    frames, width, height, seed, scene = args
+    from sim.executors import single_threaded
+
+    single_threaded()
+    from mujoco import gl_context
+
+    from sim.mujoco_env import mujoco
+    from sim.simulation import Simulation
+    from sim.world import build_world
+
+    spec = scenario_at(frames, width, height, seed, scene)
+    world = build_world(spec)
+    model, sim = world.model, Simulation(world)
+    gl = gl_context.GLContext(width, height)
+    gl.make_current()
+    try:
+        scene_ = mujoco.MjvScene(model, maxgeom=max(1000, 2 * model.ngeom))
+        context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, context)
+        option, camera = mujoco.MjvOption(), mujoco.MjvCamera()
+        camera.type, camera.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, world.camera_id
+        rect = mujoco.MjrRect(0, 0, width, height)
+        rgb = np.empty((height, width, 3), np.uint8)
+        depth = np.empty((height, width), np.float32)
+        spent = 0.0
+        for k in range(frames):
+            sim.advance_to(k / spec.fps)
+            start = time.perf_counter()
+            mujoco.mjv_updateScene(model, sim.data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene_)
+            for segment in (False, True):
+                scene_.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = segment
+                scene_.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = segment
+                mujoco.mjr_render(rect, scene_, context)
+                mujoco.mjr_readPixels(rgb, None if segment else depth, rect, context)
+            spent += time.perf_counter() - start
+        context.free()
+    finally:
+        gl.free()
+    return spent
+
+
+def _measure_peer(ctx, jobs: list[tuple]) -> float:
+    """Total frames/s of MuJoCo alone (``_peer``) in the jobs' processes, side by side."""
+    pool = ctx.Pool(len(jobs))
+    try:
+        seconds = pool.map(_peer, jobs)
+    except BaseException:
+        pool.terminate()
+        raise
+    pool.close()
+    pool.join()
+    return sum(job[0] / s for job, s in zip(jobs, seconds, strict=True))
 
 
 def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
@@ -185,6 +251,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=1, help="measure each line this many times")
     parser.add_argument("--scene", help="a library scene instead of the default scenario")
     parser.add_argument("--stages", action="store_true", help="time each stage of one process's frames")
+    parser.add_argument(
+        "--peer", action="store_true", help="also measure MuJoCo alone rendering the same worlds, for ratios"
+    )
     parser.add_argument("--seed", type=int, default=0, help="--stages: the seed")
     args = parser.parse_args()
     if args.repeat < 1:
@@ -217,24 +286,32 @@ def main() -> None:
                     for s in range(first, first + n)
                 ]
 
-            singles, doubles = [], []
+            singles, doubles, peers = [], [], []
             for run in range(args.repeat):
                 singles.append(_measure(ctx, jobs(0, 1, False, run)))
                 doubles.append(_measure(ctx, jobs(1, 2, True, run)))
+                if args.peer:
+                    peer_jobs = [(args.frames, args.width, args.height, s, args.scene) for s in (1, 2)]
+                    peers.append(_measure_peer(ctx, peer_jobs))
             single, double = _summary(singles), _summary(doubles)
             print(f"PNG level {level}")
             print(f"  1 process               : {single}")
             ratio = np.median([d[0] for d in doubles]) / np.median([s[0] for s in singles])
             print(f"  2 processes, 1 thread each: {double}  (x{ratio:.2f} of one process, once built)")
+            if peers:
+                peer = _summary([(p,) for p in peers])
+                print(f"  MuJoCo alone, 2 processes : {peer}  (RGB and depth, segmentation)")
+                shares = _summary([(d[0] / p,) for d, p in zip(doubles, peers, strict=True)], digits=2)
+                print(f"  2 processes / MuJoCo alone: {shares}  (each run's own)")
 
 
-def _summary(rates: list[tuple[float, float]]) -> str:
+def _summary(rates: list[tuple[float, ...]], digits: int = 1) -> str:
     """'steady | with building' as a median, with the range when measured more than once."""
     columns = []
     for values in zip(*rates, strict=True):
-        text = f"{np.median(values):5.1f}"
+        text = f"{np.median(values):5.{digits}f}"
         if len(values) > 1:
-            text += f" [{min(values):.1f}-{max(values):.1f}]"
+            text += f" [{min(values):.{digits}f}-{max(values):.{digits}f}]"
         columns.append(text)
     return " | ".join(columns)
 

@@ -64,6 +64,23 @@ def test_generation_stages_prints_every_stage_with_its_time():
 
 
 @pytest.mark.render
+def test_generation_peer_prints_mujoco_alone_and_the_ratio_of_the_same_run():
+    """``--peer``: MuJoCo alone in two processes, and the two-process rate over it, which is
+    the printed rates' quotient (to their rounding)."""
+    small = ("--frames", "3", "--width", "80", "--height", "60", "--png-compression", "1")
+    result = _run(str(BENCHMARKS / "generation.py"), "--peer", *small)
+    assert result.returncode == 0, result.stderr
+    double = re.search(r"^  2 processes, 1 thread each:\s+(\d+\.\d)", result.stdout, re.M)
+    peer = re.search(r"^  MuJoCo alone, 2 processes :\s+(\d+\.\d)", result.stdout, re.M)
+    share = re.search(r"^  2 processes / MuJoCo alone:\s+(\d+\.\d\d)", result.stdout, re.M)
+    assert double and peer and share, result.stdout
+    rate, alone = float(double[1]), float(peer[1])
+    assert alone > 0
+    # Rates are printed to 0.05, the ratio to 0.005.
+    assert float(share[1]) == pytest.approx(rate / alone, abs=0.006 + 0.06 / alone)
+
+
+@pytest.mark.render
 def test_recognition_counts_what_a_tiny_run_sees():
     """Two frames of walking_static, seed 1: the people in view are counted (found <= seen)
     and every group of the issue's targets gets a line."""
