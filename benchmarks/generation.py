@@ -135,32 +135,30 @@ def _peer(args: tuple[int, int, int, int, str | None]) -> float:
     return spent
 
 
-def _measure_peer(ctx, jobs: list[tuple]) -> float:
-    """Total frames/s of MuJoCo alone (``_peer``) in the jobs' processes, side by side."""
+def _side_by_side(ctx, function, jobs: list[tuple]) -> list:
+    """``function`` of each job, the jobs run side by side, one fresh process each. The
+    pool is closed and joined, not terminated as ``with Pool`` does: terminating spawned
+    workers left four semaphores for the resource tracker to warn about at exit."""
     pool = ctx.Pool(len(jobs))
     try:
-        seconds = pool.map(_peer, jobs)
+        results = pool.map(function, jobs)
     except BaseException:
         pool.terminate()
         raise
     pool.close()
     pool.join()
+    return results
+
+
+def _measure_peer(ctx, jobs: list[tuple]) -> float:
+    """Total frames/s of MuJoCo alone (``_peer``) in the jobs' processes, side by side."""
+    seconds = _side_by_side(ctx, _peer, jobs)
     return sum(job[0] / s for job, s in zip(jobs, seconds, strict=True))
 
 
 def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
-    """Total frames/s of the jobs run side by side, one fresh process each: once built,
-    and with building. The pool is closed and joined, not terminated as ``with Pool``
-    does: terminating spawned workers left four semaphores for the resource tracker
-    to warn about at exit."""
-    pool = ctx.Pool(len(jobs))
-    try:
-        results = pool.map(_run, jobs)
-    except BaseException:
-        pool.terminate()
-        raise
-    pool.close()
-    pool.join()
+    """Total frames/s of the jobs run side by side: once built, and with building."""
+    results = _side_by_side(ctx, _run, jobs)
     steady = sum(job[0] / (total - build) for job, (build, total) in zip(jobs, results, strict=True))
     return steady, sum(job[0] / total for job, (_, total) in zip(jobs, results, strict=True))
 
