@@ -23,7 +23,8 @@ depth, one segmentation pass, read with ``mjr_readPixels``; no culling, far vers
 instance or unoccluded passes, ground truth or writes), in two one-thread processes as
 suites run theirs. Issue 14 set 30 frames/s against MuJoCo alone at about 35 a process
 (rendering-notes.md); this machine's speed drifts by a third between hours, and the
-ratio to the peer measured in the same minutes does not.
+ratio to a peer measured in the same minutes should not. The peer draws every figure
+piece at full detail (no far versions) and no collision stand-ins.
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
 workers run it): the colour pass, the instance pass, the unoccluded areas,
@@ -101,12 +102,15 @@ def _peer(args: tuple[int, int, int, int, str | None]) -> float:
     from mujoco import gl_context
 
     from sim.mujoco_env import mujoco
+    from sim.render import HIDDEN_GROUP, detail_pairs
     from sim.simulation import Simulation
     from sim.world import build_world
 
     spec = scenario_at(frames, width, height, seed, scene)
     world = build_world(spec)
     model, sim = world.model, Simulation(world)
+    # Each figure piece once, at full detail: its far version (sim.render) stays hidden.
+    model.geom_group[detail_pairs(model)[1]] = HIDDEN_GROUP
     gl = gl_context.GLContext(width, height)
     gl.make_current()
     try:

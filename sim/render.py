@@ -89,7 +89,7 @@ class FrameRenderer:
         # Culled by their bounding spheres, a little enlarged; planes (rbound 0) never.
         self._cullable = (self._drawn & (model.geom_rbound > 0)) if cull else np.zeros(model.ngeom, bool)
         self._cull_radius = model.geom_rbound * (1 + 1e-6) + 1e-3
-        self._near_version, self._far_version = _detail_pairs(model)
+        self._near_version, self._far_version = detail_pairs(model)
         model.geom_group[:] = np.where(
             self._drawn, np.where(geom_instance > 0, INSTANCE_GROUP, 0), model.geom_group
         )
@@ -421,7 +421,7 @@ _BOX_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-
 """The 8 corners of a unit box, as signs of its half sizes."""
 
 
-def _detail_pairs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+def detail_pairs(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     """The ids of the geoms that have a far version, and of their far versions (named
     for them with ``FAR_SUFFIX``, on the same body)."""
     names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom)]
