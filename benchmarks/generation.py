@@ -262,6 +262,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
+    if args.stages and args.peer:
+        parser.error("--peer goes with whole runs, not --stages (which times one process's stages)")
     ctx = mp.get_context("spawn")
     check_scene(parser, args.scene)
     if args.stages:  # at the first PNG level asked

@@ -80,6 +80,14 @@ def test_generation_peer_prints_mujoco_alone_and_the_ratio_of_the_same_run():
     assert float(share[1]) == pytest.approx(rate / alone, abs=0.006 + 0.06 / alone)
 
 
+def test_generation_refuses_peer_with_stages_in_one_line():
+    """--peer would be ignored by --stages, which returns before any whole run."""
+    result = _run(str(BENCHMARKS / "generation.py"), "--stages", "--peer")
+    assert result.returncode == 2 and result.stderr.strip().splitlines()[-1].endswith(
+        "--peer goes with whole runs, not --stages (which times one process's stages)"
+    ), result.stderr
+
+
 @pytest.mark.render
 def test_recognition_counts_what_a_tiny_run_sees():
     """Two frames of walking_static, seed 1: the people in view are counted (found <= seen)
