@@ -9,7 +9,9 @@ cheap and seeded, so changing a fault setting never re-runs a network.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import time
 from dataclasses import dataclass
 
@@ -23,10 +25,12 @@ from detectors.faults import inject
 from detectors.groundtruth import GroundTruthDetector
 from eval.cache import StageCache, content_hash
 from sim.errors import InputError
+from sim.files import file_digest
 from sim.sequence import Sequence
 
 CACHE_STAGE = "detections"
 CACHE_FORMAT = 1
+FINGERPRINT_FORMAT = "sequence-files-v2"
 
 
 @dataclass(frozen=True)
@@ -38,22 +42,21 @@ class SequenceDetections:
 
 
 def sequence_fingerprint(sequence: Sequence) -> str:
-    """What a sequence's detections depend on: its generator key, lists and image files.
+    """What every result on a sequence depends on: where the folder is and the bytes of
+    every file of the sequence format it holds (``Sequence.files``).
 
-    File sizes and modification times stand for the images' bytes, so editing or
-    replacing a frame invalidates what was cached for it.
+    It keys cached stages and sweep rows, so it hashes content, not stat: a depth PNG
+    rewritten in place, a corrected groundtruth.txt or a copy of the folder elsewhere
+    each get a key of their own. Hashing a 300-frame 640x480 sequence reads about
+    150 MB once, at about 1.5 GB/s with SHA-256's CPU instructions.
     """
-    root = sequence.root
-    parts: list[object] = []
-    for name in ("associations.txt", "rgb.txt", "meta.json", "camera.yaml", "gt/objects.jsonl"):
-        path = root / name
-        if path.is_file():
-            st = path.stat()
-            parts.append((name, st.st_size, st.st_mtime_ns))
-    for frame in sequence.frames:
-        st = frame.rgb_path.stat()
-        parts.append((st.st_size, st.st_mtime_ns))
-    return content_hash(*parts)
+    digest = hashlib.sha256(FINGERPRINT_FORMAT.encode())
+    root = sequence.root.resolve()
+    digest.update(os.fsencode(root) + b"\0")
+    for path in sequence.files():
+        digest.update(os.fsencode(path.relative_to(sequence.root)) + b"\0")
+        digest.update(file_digest(path, "sequence file"))
+    return digest.hexdigest()[:32]
 
 
 def build_detector(config: DetectorConfig, sequence: Sequence):

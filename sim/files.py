@@ -8,6 +8,7 @@ hit, is named in the error.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -84,6 +85,20 @@ def read_bytes(path: Path, limit: int, what: str) -> bytes:
     if len(data) > limit:
         raise FileError(path, None, f"grew beyond the {_limit_text(limit)} limit for a {what} while read")
     return data
+
+
+def file_digest(path: Path, what: str, limit: int = 1 << 40) -> bytes:
+    """SHA-256 of a regular file's bytes, read in blocks (a device or pipe is refused).
+
+    Cache and row keys hash content, not stat: two writes of the same size inside one
+    kernel clock tick (4 ms here) leave the size and mtime unchanged.
+    """
+    fd = open_regular(path, limit, what)
+    try:
+        with os.fdopen(fd, "rb") as handle:
+            return hashlib.file_digest(handle, "sha256").digest()
+    except OSError as exc:
+        raise FileError(path, None, f"cannot be read ({exc.strerror or exc})") from None
 
 
 def read_text(path: Path, limit: int, what: str) -> str:

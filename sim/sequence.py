@@ -45,7 +45,7 @@ from sim.tum_files import (
     FrameList,
     PoseTable,
     check_increasing,
-    parse_float,
+    parse_timestamp,
     read_frame_list,
     read_pose_file,
     read_rows,
@@ -56,6 +56,8 @@ from sim.version import FORMAT_VERSION, SUPPORTED_FORMAT_VERSIONS, generator_ver
 
 PNG_WRITER_THREADS = 2
 ASSOCIATION_MAX_DIFF_S = 0.02
+TEXT_FILES = ("associations.txt", "rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml", "meta.json")
+"""The text files of the format at a sequence's root (design.md)."""
 """Largest RGB/depth timestamp gap paired when a folder has no associations.txt (TUM)."""
 
 
@@ -312,6 +314,21 @@ class Sequence:
         if self.is_generated:
             self.objects()
 
+    def files(self) -> list[Path]:
+        """Every file of the sequence format this folder holds, in a fixed order: the lists,
+        camera, meta and ground-truth files, then each frame's RGB, depth, instance, clean
+        depth and flow files. What any reader of the sequence may read is here, so a key
+        built on these files changes whenever a result could."""
+        root = self.root
+        names = (*TEXT_FILES, "gt/objects.jsonl")
+        paths = [root / name for name in names if (root / name).is_file()]
+        for frame in self.frames:
+            paths += [frame.rgb_path, frame.depth_path]
+            stem = timestamp_name(frame.timestamp_s)
+            extras = (f"gt/instances/{stem}.png", f"gt/depth/{stem}.png", f"gt/flow/{stem}.npz")
+            paths += [root / name for name in extras if (root / name).is_file()]
+        return paths
+
     def _require_generated(self) -> None:
         if not self.is_generated:
             raise ValueError(f"{self.root}: not a generated sequence (no meta.json, no gt/)")
@@ -361,13 +378,13 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
         rows = read_rows(assoc_path, 4)
         if not rows:
             raise SequenceFormatError(assoc_path, None, "lists no frames")
-        stamps = np.array([parse_float(assoc_path, r, 0, "timestamp") for r in rows])
+        stamps = np.array([parse_timestamp(assoc_path, r, 0) for r in rows])
         check_increasing(assoc_path, stamps, [r.line for r in rows])
         frames = [
             FrameRef(
                 float(stamps[k]),
                 _inside(root, r.fields[1], assoc_path, r.line),
-                parse_float(assoc_path, r, 2, "timestamp"),
+                parse_timestamp(assoc_path, r, 2),
                 _inside(root, r.fields[3], assoc_path, r.line),
                 assoc_path,
                 r.line,
@@ -401,8 +418,10 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
                 root / "depth.txt", None, f"no depth frame within {max_diff_s} s of any RGB frame"
             )
     seen: dict[Path, int] = {}
+    real_root = root.resolve()
     for frame in frames:
         for path in (frame.rgb_path, frame.depth_path):
+            _check_contained(real_root, path, root, frame)
             if path in seen:
                 raise SequenceFormatError(
                     frame.list_path,
@@ -425,6 +444,23 @@ def _inside(root: Path, name: str, list_path: Path, line: int) -> Path:
     if posixpath.isabs(normal) or normal == ".." or normal.startswith("../"):
         raise SequenceFormatError(list_path, line, f"path {name!r} points outside the sequence folder")
     return root / normal
+
+
+def _check_contained(real_root: Path, path: Path, root: Path, frame: FrameRef) -> None:
+    """Refuse a frame file that a link leads out of the sequence folder.
+
+    The lists' text is checked by ``_inside``; links are checked here, on the resolved
+    path, so a sequence from someone else cannot make depotbench read (and an export
+    copy) ``/etc/passwd`` through ``x/root -> /``. A whole folder that is a link is fine.
+    """
+    real = path.resolve()
+    if real != real_root and real_root not in real.parents:
+        raise SequenceFormatError(
+            frame.list_path,
+            frame.list_line,
+            f"frame file {path.relative_to(root)} is a link out of the sequence folder (to {real}); "
+            "copy the file into the folder",
+        )
 
 
 def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list[tuple[int, int]]:

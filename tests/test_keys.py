@@ -1,0 +1,220 @@
+"""Cache keys and sweep row keys cover every input that can change a result.
+
+A stale key gives a wrong result without a word (reliability probe D1: a sequence
+whose depth was zeroed in place still reported "tracked 6/6" from the stage cache), so
+the property is checked file kind by file kind of the sequence format: each edit, even
+one that keeps the file's size and modification time, changes the key, and the next
+run computes its stages again instead of reading them from the cache.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from eval.cache import StageCache
+from eval.cli import main
+from eval.detections import sequence_fingerprint
+from eval.harness import RunJob, track
+from sim.sequence import Sequence
+
+SPEC = (
+    "name: keyed\nframes: 4\nimage: {width: 160, height: 120}\nintrinsics: {fx: 131.25}\n"
+    "actors:\n  - {kind: person, speed_mps: 1.2}\ncamera: {motion: xyz}\nsensor: kinect\n"
+)
+"""Small, with every optional file of the format: gt/depth (a sensor model) and gt/flow."""
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("keyed")
+    spec = root / "keyed.yaml"
+    spec.write_text(SPEC)
+    assert main(["generate", str(spec), "-o", str(root / "seq"), "--flow"]) == 0
+    return root / "seq"
+
+
+def _keep_stat(edit: Callable[[Path], None]) -> Callable[[Path], None]:
+    """Run ``edit`` and put the file's modification time back, as a careless copy would."""
+
+    def edited(path: Path) -> None:
+        before = path.stat()
+        edit(path)
+        os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))
+
+    return edited
+
+
+def _bump_digit_after(anchor: str) -> Callable[[Path], None]:
+    """Change the last digit of the first number after ``anchor``: same size, still valid."""
+
+    def edit(path: Path) -> None:
+        text = path.read_text()
+        start = text.index(anchor) + len(anchor)
+        match = re.compile(r"\d(?=[,\s\]}])").search(text, start)
+        digit = int(match.group())
+        text = text[: match.start()] + str(digit - 1 if digit == 9 else digit + 1) + text[match.end() :]
+        path.write_text(text)
+
+    return edit
+
+
+def _comment_case(path: Path) -> None:
+    """Swap the case of a letter in the first comment line: same size, same meaning."""
+    lines = path.read_text().split("\n")
+    i = next(k for k, line in enumerate(lines) if line.startswith("#") and re.search("[A-Za-z]", line))
+    j = re.search("[A-Za-z]", lines[i]).start()
+    lines[i] = lines[i][:j] + lines[i][j].swapcase() + lines[i][j + 1 :]
+    path.write_text("\n".join(lines))
+
+
+def _pixel(path: Path) -> None:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image.flat[image.size // 2] ^= 1
+    cv2.imwrite(str(path), image)
+
+
+def _flow(path: Path) -> None:
+    with np.load(path) as data:
+        arrays = {name: data[name].copy() for name in data.files}
+    arrays["flow"].flat[0] += 0.5
+    np.savez(path, **arrays)
+
+
+EDITS: dict[str, Callable[[Path], None]] = {
+    "associations.txt": _bump_digit_after("rgb/1.000000.png "),  # a depth timestamp, +1 us
+    "rgb.txt": _comment_case,
+    "depth.txt": _comment_case,
+    "groundtruth.txt": _bump_digit_after("\n1.000000 "),  # tx of the first pose, +1 nm
+    "camera.yaml": _comment_case,
+    "meta.json": _bump_digit_after('"camera_speed_mps_mean": '),
+    "gt/objects.jsonl": _bump_digit_after('"position_m":['),
+    "rgb/*.png": _pixel,
+    "depth/*.png": _pixel,
+    "gt/instances/*.png": _pixel,
+    "gt/depth/*.png": _pixel,
+    "gt/flow/*.npz": _flow,
+}
+"""One edit per file kind of the sequence format (design.md); each keeps the sequence valid."""
+
+
+def _kind(relative: Path) -> str:
+    return (
+        str(relative)
+        if relative.parent == Path(".") or relative.suffix == ".jsonl"
+        else (f"{relative.parent}/*{relative.suffix}")
+    )
+
+
+def test_every_file_kind_of_the_format_changes_the_key_and_the_stages_are_computed_again(
+    generated: Path, tmp_path: Path
+):
+    seq = tmp_path / "seq"
+    shutil.copytree(generated, seq)
+    sequence = Sequence.open(seq)
+    kinds = {_kind(p.relative_to(seq)) for p in sequence.files()}
+    assert kinds == set(EDITS), "the sequence format has a file kind this test does not edit"
+    cache = StageCache(tmp_path / "cache")
+    job = RunJob(seq, "box_epipolar_flow")
+    track(job, cache)
+    key = sequence_fingerprint(sequence)
+    for kind, edit in EDITS.items():
+        path = sorted(seq.glob(kind))[1] if "*" in kind else seq / kind
+        size = path.stat().st_size
+        _keep_stat(edit)(path)
+        if path.suffix in (".txt", ".yaml", ".json", ".jsonl"):
+            assert path.stat().st_size == size  # size and mtime alone cannot tell
+        sequence = Sequence.open(seq)
+        new_key = sequence_fingerprint(sequence)
+        assert new_key != key, f"editing {kind} left the key unchanged"
+        key = new_key
+        misses = cache.misses
+        track(job, cache)
+        assert cache.misses == misses + 3, f"after editing {kind}, a stage came from the cache"
+
+
+def test_the_folder_is_part_of_the_key(generated: Path, tmp_path: Path):
+    shutil.copytree(generated, tmp_path / "a")
+    shutil.copytree(generated, tmp_path / "b")  # the same bytes and times, elsewhere
+    a, b = (sequence_fingerprint(Sequence.open(tmp_path / name)) for name in "ab")
+    assert a != b
+
+
+def _zero_depth(seq: Path) -> None:
+    for path in (seq / "depth").glob("*.png"):
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(path), np.zeros_like(image))
+
+
+def _tracked(capsys) -> str:
+    return re.search(r"tracked \d+/\d+", capsys.readouterr().out).group()
+
+
+def test_a_run_after_its_depth_was_zeroed_in_place_is_the_run_without_the_cache(
+    generated: Path, tmp_path: Path, capsys, monkeypatch
+):
+    """Probe D1 `stale-depth-cached`: it reported the old "tracked 6/6" from the cache."""
+    monkeypatch.setenv("DEPOTBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    seq = tmp_path / "seq"
+    shutil.copytree(generated, seq)
+    assert main(["run", str(seq), "-o", str(tmp_path / "a"), "--strategy", "box_epipolar_flow"]) == 0
+    assert _tracked(capsys) == "tracked 4/4"
+    _zero_depth(seq)
+    assert main(["run", str(seq), "-o", str(tmp_path / "b"), "--strategy", "box_epipolar_flow"]) == 0
+    cached = _tracked(capsys)
+    monkeypatch.setenv("DEPOTBENCH_CACHE", "off")
+    assert main(["run", str(seq), "-o", str(tmp_path / "c"), "--strategy", "box_epipolar_flow"]) == 0
+    assert cached == _tracked(capsys) == "tracked 0/4"
+
+
+def _rows(sweep: Path) -> list[dict[str, str]]:
+    with (sweep / "results.csv").open() as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_a_sweep_over_a_folder_and_its_altered_copy_keeps_a_row_for_each(generated: Path, tmp_path: Path):
+    """Probe D1 `sweep-two-copies`: one row, labelled with the copy, holding the original's result."""
+    shutil.copytree(generated, tmp_path / "a")
+    shutil.copytree(generated, tmp_path / "b")
+    _zero_depth(tmp_path / "b")
+    spec = tmp_path / "two.yaml"
+    spec.write_text("sweep: two\nsequences: [a, b]\nstrategies: [none]\n")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    rows = {Path(r["sequence"]).name: r for r in _rows(tmp_path / "sw")}
+    assert sorted(rows) == ["a", "b"]
+    assert float(rows["a"]["tracked_fraction"]) == 1.0
+    assert float(rows["b"]["tracked_fraction"]) == 0.0
+
+
+def test_a_resumed_sweep_scores_a_corrected_ground_truth_again(generated: Path, tmp_path: Path):
+    """Probe D1 `tum-sweep-2-after-gt-change`: "1 already done", with the old ATE."""
+    tum = tmp_path / "tum"
+    shutil.copytree(generated, tum)
+    for name in ("meta.json", ".depotbench.json"):
+        (tum / name).unlink()
+    shutil.rmtree(tum / "gt")
+    spec = tmp_path / "tum.yaml"
+    spec.write_text("sweep: tum\nsequences: [tum]\ndetectors: [none]\nstrategies: [none]\n")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    gt = tum / "groundtruth.txt"
+    lines = gt.read_text().splitlines()
+    scaled = [line if line.startswith("#") else _scale_position(line, 3.0) for line in lines]
+    gt.write_text("\n".join(scaled) + "\n")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "fresh")]) == 0
+    resumed, fresh = _rows(tmp_path / "sw"), _rows(tmp_path / "fresh")
+    assert [r["ate_rmse_m"] for r in resumed] == [r["ate_rmse_m"] for r in fresh]
+
+
+def _scale_position(line: str, factor: float) -> str:
+    fields = line.split()
+    fields[1:4] = [f"{float(v) * factor:.9f}" for v in fields[1:4]]
+    return " ".join(fields)
