@@ -58,9 +58,22 @@ def parse_float(path: Path, row: Row, index: int, what: str) -> float:
         raise SequenceFormatError(path, row.line, f"{what} {row.fields[index]!r} is not a number") from None
 
 
+def parse_timestamp(path: Path, row: Row, index: int) -> float:
+    """A timestamp field: a finite number (``nan`` would pass every order check, as any
+    comparison with NaN is false, and ``inf`` cannot be paired with a frame)."""
+    value = parse_float(path, row, index, "timestamp")
+    if not np.isfinite(value):
+        raise SequenceFormatError(path, row.line, f"timestamp {row.fields[index]!r} is not a finite number")
+    return value
+
+
 def check_increasing(path: Path, timestamps: np.ndarray, lines: list[int]) -> None:
-    """Refuse unsorted or duplicate timestamps, naming the offending line."""
-    bad = np.flatnonzero(np.diff(timestamps) <= 0)
+    """Refuse unsorted, duplicate or non-finite timestamps, naming the offending line."""
+    finite = np.isfinite(timestamps)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise SequenceFormatError(path, lines[i], f"timestamp {timestamps[i]} is not a finite number")
+    bad = np.flatnonzero(~(np.diff(timestamps) > 0))
     if bad.size:
         i = int(bad[0])
         kind = "duplicates" if timestamps[i + 1] == timestamps[i] else "is earlier than"
@@ -85,7 +98,7 @@ def read_frame_list(path: Path) -> FrameList:
     rows = read_rows(path, 2)
     if not rows:
         raise SequenceFormatError(path, None, "lists no frames")
-    stamps = np.array([parse_float(path, r, 0, "timestamp") for r in rows])
+    stamps = np.array([parse_timestamp(path, r, 0) for r in rows])
     lines = [r.line for r in rows]
     check_increasing(path, stamps, lines)
     return FrameList(stamps, tuple(r.fields[1] for r in rows), tuple(lines))

@@ -351,3 +351,49 @@ def test_objects_written_before_visibility_was_recorded_still_read(tmp_path: Pat
     path.write_text("".join(json.dumps(r, separators=(",", ":")) + "\n" for r in records))
     person = Sequence.open(root).objects()[0][0]
     assert person.unoccluded_pixels is None and person.truncated is None and person.visible_fraction is None
+
+
+@pytest.mark.parametrize("stamp", ["nan", "inf", "-inf"])
+def test_a_timestamp_that_is_not_finite_is_refused_by_its_line(tmp_path: Path, stamp: str):
+    """Probe D4: `nan` passed the order check (every comparison with NaN is false), the frame
+    was dropped and the rest tracked out of time order."""
+    root = tmp_path / "tum"
+    make_tum_folder(root)
+    rgb = root / "rgb.txt"
+    line = _data_line(rgb, 1)
+    _rewrite_line(rgb, line, f"{stamp} {rgb.read_text().splitlines()[line - 1].split()[1]}")
+    with pytest.raises(SequenceFormatError, match=rf"rgb.txt:{line}: timestamp '{stamp}' is not a finite"):
+        Sequence.open(root)
+
+
+def test_an_associations_timestamp_that_is_not_finite_is_refused(seq_dir: Path):
+    assoc = seq_dir / "associations.txt"
+    fields = assoc.read_text().splitlines()[1].split()
+    _rewrite_line(assoc, 2, " ".join([fields[0], fields[1], "nan", fields[3]]))
+    with pytest.raises(SequenceFormatError, match=r"associations.txt:2: timestamp 'nan' is not a finite"):
+        Sequence.open(seq_dir)
+
+
+@pytest.mark.parametrize("kind", ["file link", "folder link"])
+def test_a_frame_reached_through_a_link_out_of_the_folder_is_refused(seq_dir: Path, tmp_path: Path, kind):
+    """Probe S1: `x/root -> /` let a listed frame be /etc/passwd (and an export copy it)."""
+    secret = tmp_path / "secret.png"
+    shutil.copyfile(seq_dir / "rgb" / "1.000000.png", secret)  # a valid PNG: only the link is wrong
+    assoc = seq_dir / "associations.txt"
+    if kind == "file link":
+        (seq_dir / "rgb" / "1.000000.png").unlink()
+        (seq_dir / "rgb" / "1.000000.png").symlink_to(secret)
+        name = "rgb/1.000000.png"
+    else:
+        (seq_dir / "x").mkdir()
+        (seq_dir / "x" / "root").symlink_to(tmp_path)
+        name = "x/root/secret.png"
+        fields = assoc.read_text().splitlines()[0].split()
+        _rewrite_line(assoc, 1, " ".join([fields[0], name, *fields[2:]]))
+    with pytest.raises(SequenceFormatError, match=rf"associations.txt:1: frame file {name} is a link out of"):
+        Sequence.open(seq_dir)
+
+
+def test_a_sequence_folder_that_is_itself_a_link_is_read(seq_dir: Path, tmp_path: Path):
+    (tmp_path / "alias").symlink_to(seq_dir)
+    assert len(Sequence.open(tmp_path / "alias")) == len(Sequence.open(seq_dir))
