@@ -24,7 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from eval.detections import sequence_fingerprint
-from eval.harness import job_key
+from eval.harness import job_key, tracker_identity
 from eval.record import DETERMINISTIC_FIELDS
 from eval.store import ResultStore
 from eval.sweep import SweepJob, expand, run_jobs
@@ -95,7 +95,8 @@ def main() -> None:
             fingerprint = sequence_fingerprint(Sequence.open(base.job.sequence))
             for combo in combos:
                 settings = tuple(zip(GRID, (repr(float(v)) for v in combo), strict=True))
-                key = job_key(fingerprint, base.job.tracker, base.job.detector, "box_epipolar_flow", settings)
+                tracker = tracker_identity(base.job.tracker)
+                key = job_key(fingerprint, tracker, base.job.detector, "box_epipolar_flow", settings)
                 work.append(SweepJob(key, base.family, replace(base.job, settings=settings), fingerprint))
         print(
             f"{len(sequences)} walking_static sequences x {args.frames} frames; {len(work)} runs "

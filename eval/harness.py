@@ -14,6 +14,8 @@ boxes blanked in RGB and depth before the frames reach them).
 from __future__ import annotations
 
 import re
+import shlex
+import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +33,7 @@ from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
 from eval.trajectory import Trajectory, write_tum
 from sim.errors import InputError
-from sim.files import dumps_json
+from sim.files import dumps_json, file_digest
 from sim.output import OutputKind, StagedOutput
 from sim.sequence import Sequence
 from sim.version import generator_version
@@ -228,16 +230,50 @@ def _header(job: RunJob) -> str:
     return f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
 
 
+def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
+    """What of an external tracker shapes its results: the command template, the bytes of
+    the program it starts and of the vocabulary it is given (a rebuilt program or another
+    vocabulary is a new run, not a row to resume). A sweep computes it once per tracker:
+    ORB-SLAM's own vocabulary is 145 MB."""
+    identity: dict[str, Any] = {"kind": tracker.kind.value}
+    if tracker.kind is TrackerKind.BUILTIN:
+        return tuple(identity.items())
+    identity["timeout_s"] = tracker.timeout_s
+    if tracker.command:
+        identity["command"] = tracker.command
+        program = _program_path(tracker.command)
+        identity["program_sha256"] = file_digest(program, "program").hex() if program else None
+    if tracker.vocabulary is not None:
+        identity["vocabulary"] = str(tracker.vocabulary.resolve())
+        identity["vocabulary_sha256"] = file_digest(tracker.vocabulary, "vocabulary").hex()
+    return tuple(sorted(identity.items()))
+
+
+def _program_path(command: str) -> Path | None:
+    """The file a command template starts (None when it cannot be found: the run says so)."""
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        return None
+    found = shutil.which(words[0]) if words else None
+    return Path(found) if found else None
+
+
 def job_key(
-    fingerprint: str, tracker: TrackerConfig, detector: DetectorConfig, strategy: str, settings
+    fingerprint: str,
+    tracker: tuple[tuple[str, Any], ...],
+    detector: DetectorConfig,
+    strategy: str,
+    settings,
 ) -> str:
-    """A run's identity: its inputs' content (the sequence fingerprint), the tracker,
-    detector with faults, strategy, settings and the bench's version."""
+    """A run's identity: its inputs' content (the sequence fingerprint), the tracker (with
+    its program and vocabulary), detector with faults, strategy, settings and the bench's
+    version."""
     return content_hash(
         RECORD_VERSION,
         generator_version(),
         fingerprint,
-        tracker.kind.value,
+        tracker,
         detector.key(),
         detector.faults.to_dict(),
         strategy,
@@ -255,7 +291,7 @@ def family_of(sequence: Sequence) -> str:
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
     fingerprint = sequence_fingerprint(sequence)
-    key = job_key(fingerprint, job.tracker, job.detector, job.strategy, job.settings)
+    key = job_key(fingerprint, tracker_identity(job.tracker), job.detector, job.strategy, job.settings)
     return RunRecord.from_metrics(
         key, family_of(sequence), dict(job.settings), metrics, generator_version(), fingerprint
     )

@@ -28,6 +28,7 @@ from eval.harness import (
     stages_for,
     track,
     track_tree,
+    tracker_identity,
     uses_stages,
 )
 from eval.record import RunRecord
@@ -84,6 +85,7 @@ def jobs_for(
 ) -> list[SweepJob]:
     """Sequences x trackers x detectors x variants, in this order (external trackers: none/mask)."""
     jobs = []
+    identities = {tracker: tracker_identity(tracker) for tracker in trackers}
     for root, family in sequences:
         fingerprint = sequence_fingerprint(Sequence.open(root))
         for tracker in trackers:
@@ -91,7 +93,7 @@ def jobs_for(
                 for v in found:
                     if tracker.kind is not TrackerKind.BUILTIN and v.strategy not in ("none", "mask"):
                         continue
-                    key = job_key(fingerprint, tracker, detector, v.strategy, v.settings)
+                    key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings)
                     run = RunJob(root, v.strategy, detector, v.settings, tracker)
                     jobs.append(SweepJob(key, family, run, fingerprint))
     return jobs
