@@ -31,6 +31,7 @@ import json
 import os
 import shutil
 import socket
+import stat
 import sys
 import time
 import uuid
@@ -117,10 +118,7 @@ class OutputLock:
 
     def acquire(self) -> None:
         while True:
-            try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-            except OSError as exc:
-                raise OutputError(f"{self.target}: cannot write here ({exc.strerror})") from None
+            fd = self._open()
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | (0 if self.wait else fcntl.LOCK_NB))
             except BlockingIOError:
@@ -133,7 +131,7 @@ class OutputLock:
             # The previous holder may have unlinked the file between our open and our lock:
             # then we hold a lock on a file nobody else can see, and must try again.
             try:
-                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+                same = os.lstat(self.path).st_ino == os.fstat(fd).st_ino
             except FileNotFoundError:
                 same = False
             if same:
@@ -148,6 +146,27 @@ class OutputLock:
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(holder).encode(), 0)
         self._fd = fd
+
+    def _open(self) -> int:
+        """The lock file, opened without following a link and refused when it is another
+        file's second name: it is truncated and written, and through a link planted in a
+        shared folder that would overwrite the link's target."""
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                raise OutputError(
+                    f"{self.path}: the lock file is a symbolic link; depotbench never writes through "
+                    "one: remove it"
+                ) from None
+            raise OutputError(f"{self.target}: cannot write here ({exc.strerror})") from None
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_nlink > 1:
+            os.close(fd)
+            what = "not a regular file" if not stat.S_ISREG(info.st_mode) else "another file's second name"
+            raise OutputError(f"{self.path}: the lock file is {what}; depotbench never writes it: remove it")
+        os.set_blocking(fd, True)
+        return fd
 
     def release(self) -> None:
         if self._fd is None:

@@ -596,3 +596,24 @@ def test_a_ctrl_c_taken_by_another_thread_waits_until_the_workers_are_spawned(py
         other.join()
     assert spawned
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.mark.parametrize("how", ["symbolic link", "hard link"])
+def test_a_lock_file_planted_as_a_link_is_refused_and_its_target_untouched(
+    sequence: Path, tmp_path: Path, capsys, how: str
+):
+    """Probe S2: `.NAME.lock -> ../precious.txt` was truncated and the holder's JSON written
+    into its target."""
+    precious = tmp_path / "precious.txt"
+    precious.write_text("precious user data\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    if how == "symbolic link":
+        (out / ".victim.lock").symlink_to(precious)
+    else:
+        os.link(precious, out / ".victim.lock")
+    code, _, err = cli(capsys, "run", sequence, "-o", out / "victim", "--detector", "none")
+    assert code == 2
+    one_error_line(err, ".victim.lock", "remove it")
+    assert precious.read_text() == "precious user data\n"
+    assert not (out / "victim").exists()
