@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass, field, fields, replace
 from enum import StrEnum
 from pathlib import Path
@@ -19,10 +20,16 @@ from typing import Any
 from detectors.detection import Prior
 from detectors.faults import Faults, check_range
 from detectors.priors import DEFAULT_PRIORS, PriorTable
+from sim.errors import FileError, InputError
+from sim.files import MIB, open_regular
 
 SHIPPED_MODEL = (
     Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "yolox_nano.onnx"
 )
+MAX_MODEL_BYTES = 1024 * MIB
+"""An ONNX model file: the shipped YOLOX-nano is 3.6 MB and YOLOv8x about 260 MB. A larger
+file is refused before it is hashed: a 5 GB sparse "model" took 37 s to hash in full before
+ONNX Runtime refused it."""
 
 
 class DetectorKind(StrEnum):
@@ -158,12 +165,38 @@ def parse_detector(
     return config
 
 
+def check_model_file(path: Path) -> None:
+    """Refuse, in one line naming it, a model path that is missing, not a regular file (a FIFO
+    blocks its reader, /dev/zero never ends) or larger than ``MAX_MODEL_BYTES``."""
+    os.close(_open_model(path))
+
+
 def file_sha256(path: Path) -> str:
+    """The model file's content hash, read only from a regular file within ``MAX_MODEL_BYTES``."""
     digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
+    size = 0
+    with os.fdopen(_open_model(path), "rb") as handle:
+        try:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                size += len(block)
+                if size > MAX_MODEL_BYTES:
+                    limit = f"{MAX_MODEL_BYTES // MIB} MiB"
+                    raise FileError(
+                        path, None, f"grew beyond the {limit} limit for a model file while hashed"
+                    )
+                digest.update(block)
+        except OSError as exc:
+            raise FileError(path, None, f"cannot be read ({exc.strerror or exc})") from None
     return digest.hexdigest()
+
+
+def _open_model(path: Path) -> int:
+    try:
+        return open_regular(path, MAX_MODEL_BYTES, "model file")
+    except FileNotFoundError:
+        raise InputError(f"--detector onnx: model file {path} does not exist") from None
+    except OSError as exc:  # a folder on the way that is a file, no permission, a loop of links
+        raise FileError(path, None, f"cannot be opened ({exc.strerror or exc})") from None
 
 
 def _number(name: str, text: str, kind: Any) -> int | float:
@@ -177,4 +210,12 @@ def _in_range(name: str, value: float, low: float, high: float) -> None:
     check_range(f"detector setting {name}", value, low, high, DetectorConfigError)
 
 
-__all__ = ["DetectorConfig", "DetectorConfigError", "DetectorKind", "OnnxSettings", "Prior", "parse_detector"]
+__all__ = [
+    "DetectorConfig",
+    "DetectorConfigError",
+    "DetectorKind",
+    "OnnxSettings",
+    "Prior",
+    "check_model_file",
+    "parse_detector",
+]
