@@ -8,6 +8,10 @@ The layout is recognised from the output's shape for the model's input size:
 Input: YOLOX takes BGR 0-255 placed top-left; YOLOv5/v8 take RGB 0-1, centred;
 both letterboxed with grey 114. Scores are objectness x class probability (v8:
 class probability); each box keeps its best class; then class-wise NMS.
+
+A model is a user's file and may be hostile: its size, declared input, output shape and
+class table are checked when it loads (or, for a symbolic output, when it first runs),
+each refusal one line naming the model; a NaN or infinite output is no box.
 """
 
 from __future__ import annotations
@@ -20,17 +24,33 @@ import cv2
 import numpy as np
 
 from detectors.base import DetectorFrame
-from detectors.config import OnnxSettings
+from detectors.config import OnnxSettings, check_model_file
 from detectors.detection import Detection
 from detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
+from sim.errors import FileError, InputError
+from sim.files import KIB, read_text
 
 COCO_NAMES = Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "coco.names"
 STRIDES = (8, 16, 32)
 PAD_VALUE = 114
+DEFAULT_SIDE = 640
+"""The input side assumed where the model leaves it symbolic (Ultralytics' default)."""
+MAX_INPUT_SIDE = 4096
+"""The largest declared input side, px. YOLO exports use 320 to 1280 (1280: the P6 models);
+4096 keeps the letterboxed input tensor within 4096 x 4096 x 3 float32 = 192 MiB, where a
+212-byte model declaring 65536 x 65536 asked for about 22 GB."""
+MAX_NAMES_BYTES = 64 * KIB
+"""A class table (names file or metadata): COCO's 80 names take 624 bytes, LVIS's 1203 about 20 KiB."""
+LAYOUT_SHAPES = {
+    "yolox": "1 x N x (5+C), N the grid cells",
+    "yolov5": "1 x 3N x (5+C)",
+    "yolov8": "1 x (4+C) x N",
+}
 
 
-class OnnxModelError(ValueError):
-    """A model this detector cannot use (the message names the file)."""
+class OnnxModelError(InputError):
+    """A model this detector cannot use (the message names the file): the user's to fix, so
+    one line wherever it is raised, at load or at detection time."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +97,23 @@ def recognise_layout(shape: tuple[int, ...], size_hw: tuple[int, int]) -> str:
     )
 
 
+def class_count(shape: tuple[int, ...], layout: str, size_hw: tuple[int, int]) -> int:
+    """The classes C of an output of ``shape`` in ``layout``; refused where ``decode`` could not
+    read it (no class column, or YOLOX rows that are not the grid's cells)."""
+    fits = len(shape) == 3 and shape[0] == 1
+    classes = 0
+    if fits:
+        _, a, b = shape
+        classes = a - 4 if layout == "yolov8" else b - 5
+        fits = classes >= 1 and (layout != "yolox" or a == grid_cells(size_hw))
+    if not fits:
+        raise OnnxModelError(
+            f"output shape {shape} does not fit layout {layout} ({LAYOUT_SHAPES[layout]}, C >= 1; "
+            f"{grid_cells(size_hw)} grid cells for a {size_hw[1]}x{size_hw[0]} input)"
+        )
+    return classes
+
+
 def decode(
     output: np.ndarray, layout: str, size_hw: tuple[int, int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,7 +133,8 @@ def decode(
         probs = rows[:, 5:]
         classes = probs.argmax(axis=1)
         scores = rows[:, 4] * probs[np.arange(len(rows)), classes]
-    boxes = np.concatenate([xywh[:, :2] - xywh[:, 2:] / 2, xywh[:, :2] + xywh[:, 2:] / 2], axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):  # inf - inf: such a row is dropped (class_wise_nms)
+        boxes = np.concatenate([xywh[:, :2] - xywh[:, 2:] / 2, xywh[:, :2] + xywh[:, 2:] / 2], axis=1)
     return boxes.astype(np.float64), scores.astype(np.float64), classes
 
 
@@ -113,8 +151,12 @@ def _yolox_grid(size_hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
 def class_wise_nms(
     boxes: np.ndarray, scores: np.ndarray, classes: np.ndarray, score_threshold: float, iou: float
 ) -> np.ndarray:
-    """Indices kept by OpenCV's batched (per-class) NMS, best score first."""
-    keep = scores >= score_threshold
+    """Indices kept by OpenCV's batched (per-class) NMS, best score first.
+
+    A row whose box or score is NaN or infinite is dropped like one under the threshold: it
+    is no box, and one infinite coordinate in OpenCV's per-class offsets spoils every box."""
+    finite = np.isfinite(boxes).all(axis=1) & np.isfinite(scores)
+    keep = finite & (scores >= score_threshold)
     if not keep.any():
         return np.zeros(0, int)
     index = np.flatnonzero(keep)
@@ -130,50 +172,47 @@ class OnnxDetector:
     def __init__(
         self, model: Path, settings: OnnxSettings | None = None, priors: PriorTable = DEFAULT_PRIORS
     ) -> None:
-        import onnxruntime as ort
-
         self.settings = settings or OnnxSettings()
         self.priors = priors
+        self.model = model
         self.name = f"onnx:{model.stem}"
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = self.settings.threads
-        options.inter_op_num_threads = 1
-        options.log_severity_level = 3
-        try:
-            self.session = ort.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own types for unreadable models
-            raise OnnxModelError(f"{model}: not a usable ONNX model: {str(exc).splitlines()[0]}") from None
-        inputs = self.session.get_inputs()
-        if len(inputs) != 1 or len(inputs[0].shape) != 4:
-            raise OnnxModelError(f"{model}: expected one image input of shape 1 x 3 x H x W")
-        self.input_name = inputs[0].name
-        h, w = inputs[0].shape[2:]
-        self.size_hw = (h if isinstance(h, int) else 640, w if isinstance(w, int) else 640)
-        if self.size_hw[0] % 32 or self.size_hw[1] % 32:
-            raise OnnxModelError(
-                f"{model}: input {self.size_hw[1]}x{self.size_hw[0]} is not a multiple of 32"
-            )
+        check_model_file(model)
+        self.session = _session(model, self.settings.threads)
+        self.input_name, self.size_hw = _image_input(model, self.session)
+        shape = tuple(self.session.get_outputs()[0].shape)
+        known = all(isinstance(d, int) for d in shape)
         self.layout = self.settings.layout
         if self.layout == "auto":
-            shape = self.session.get_outputs()[0].shape
-            if not all(isinstance(d, int) for d in shape):
-                shape = self._run(np.zeros((1, 3, *self.size_hw), np.float32)).shape
-            self.layout = recognise_layout(tuple(shape), self.size_hw)
-        self.names = [bench_name(n) for n in self._class_names(model)]
+            if not known:
+                shape, known = self._run(np.zeros((1, 3, *self.size_hw), np.float32)).shape, True
+            self.layout = self._about_model(recognise_layout, shape, self.size_hw)
+        self.names, self.names_from = self._class_names(model)
+        if known:  # else its class count is known only once it runs: detect checks the boxes kept
+            self._check_class_table(self._about_model(class_count, shape, self.layout, self.size_hw))
 
-    def _class_names(self, model: Path) -> list[str]:
+    def _about_model(self, check, *args):
+        """``check(*args)``, its refusal prefixed with the model file."""
+        try:
+            return check(*args)
+        except OnnxModelError as exc:
+            raise OnnxModelError(f"{self.model}: {exc}") from None
+
+    def _check_class_table(self, classes: int) -> None:
+        if classes > len(self.names):
+            raise OnnxModelError(
+                f"{self.model}: the output has {classes} classes, but {self.names_from} "
+                f"lists {_names(len(self.names))}"
+            )
+
+    def _class_names(self, model: Path) -> tuple[list[str], str]:
+        """The class table and where it came from (for messages)."""
         if self.settings.names:
-            return _read_names(Path(self.settings.names))
+            path = Path(self.settings.names)
+            return _bench_names(_read_names(model, path)), f"names file {path}"
         meta = self.session.get_modelmeta().custom_metadata_map
         if "names" in meta:  # ultralytics writes "{0: 'person', 1: 'bicycle', ...}"
-            try:
-                table = ast.literal_eval(meta["names"])
-                if isinstance(table, dict):
-                    return [str(table[i]) for i in sorted(table)]
-                return [str(n) for n in table]
-            except (ValueError, SyntaxError, KeyError, TypeError):
-                raise OnnxModelError(f"{model}: metadata 'names' is not a class list") from None
-        return _read_names(COCO_NAMES)
+            return _bench_names(_metadata_names(model, meta["names"])), "its metadata 'names'"
+        return _bench_names(_read_names(model, COCO_NAMES)), f"names file {COCO_NAMES}"
 
     def _run(self, tensor: np.ndarray) -> np.ndarray:
         return np.asarray(self.session.run(None, {self.input_name: tensor})[0])
@@ -188,12 +227,14 @@ class OnnxDetector:
     def detect(self, frame: DetectorFrame) -> tuple[Detection, ...]:
         tensor, fit = self.preprocess(frame.rgb)
         output = self._run(tensor)
+        self._about_model(class_count, output.shape, self.layout, self.size_hw)  # a symbolic output
         boxes, scores, classes = decode(output, self.layout, self.size_hw)
-        if classes.size and int(classes.max()) >= len(self.names):
-            raise OnnxModelError(
-                f"{self.name}: class {int(classes.max())} has no name ({len(self.names)} given)"
-            )
         kept = class_wise_nms(boxes, scores, classes, self.settings.confidence, self.settings.nms_iou)
+        if kept.size and int(classes[kept].max()) >= len(self.names):
+            raise OnnxModelError(
+                f"{self.model}: a box of class {int(classes[kept].max())} was kept, but "
+                f"{self.names_from} lists {_names(len(self.names))}"
+            )
         height, width = frame.rgb.shape[:2]
         out = []
         for i in kept:
@@ -210,11 +251,83 @@ class OnnxDetector:
         return tuple(out)
 
 
-def _read_names(path: Path) -> list[str]:
+def _session(model: Path, threads: int):
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    options.log_severity_level = 3
     try:
-        names = [line.strip() for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+        return ort.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own types for unreadable models
+        raise OnnxModelError(f"{model}: not a usable ONNX model: {str(exc).splitlines()[0]}") from None
+
+
+def _image_input(model: Path, session) -> tuple[str, tuple[int, int]]:
+    """The input's name and (H, W): one float image 1 x 3 x H x W, each side a multiple of 32
+    from 32 to ``MAX_INPUT_SIDE`` (checked before anything of that size is allocated)."""
+    inputs = session.get_inputs()
+    dims = inputs[0].shape if len(inputs) == 1 else []
+    image = len(dims) == 4 and _takes(dims[0], 1) and _takes(dims[1], 3)
+    if not image or inputs[0].type != "tensor(float)":
+        raise OnnxModelError(f"{model}: expected one float image input of shape 1 x 3 x H x W")
+    h, w = (d if isinstance(d, int) else DEFAULT_SIDE for d in dims[2:])
+    if not (32 <= h <= MAX_INPUT_SIDE and 32 <= w <= MAX_INPUT_SIDE):
+        raise OnnxModelError(
+            f"{model}: declared input {w}x{h} is out of range: each side must be 32 to {MAX_INPUT_SIDE} px"
+        )
+    if h % 32 or w % 32:
+        raise OnnxModelError(f"{model}: input {w}x{h} is not a multiple of 32")
+    return inputs[0].name, (h, w)
+
+
+def _takes(dim: int | str | None, size: int) -> bool:
+    """Whether a declared dimension takes ``size`` (a symbolic one, a name or None, takes any)."""
+    return not isinstance(dim, int) or dim == size
+
+
+def _names(count: int) -> str:
+    return f"{count} name" if count == 1 else f"{count} names"
+
+
+def _bench_names(names: list[str]) -> list[str]:
+    return [bench_name(n) for n in names]
+
+
+def _metadata_names(model: Path, text: str) -> list[str]:
+    """Ultralytics' table, "{0: 'person', 1: 'bicycle', ...}" (or a list), in class order."""
+    if len(text) > MAX_NAMES_BYTES:
+        raise OnnxModelError(
+            f"{model}: metadata 'names' is {len(text)} characters, more than the "
+            f"{MAX_NAMES_BYTES // KIB} KiB limit for a class table"
+        )
+    try:
+        table = ast.literal_eval(text)
+        if not isinstance(table, dict | list | tuple):
+            raise TypeError(type(table))
+        keys = sorted(table) if isinstance(table, dict) else list(range(len(table)))
+        names = [str(table[k]) for k in keys]
+    # The parser reports nesting too deep for its stack (thousands of "-" in 64 KiB) as
+    # MemoryError or RecursionError: a malformed table, not a machine out of memory.
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        raise OnnxModelError(f"{model}: metadata 'names' is not a class list") from None
+    if keys != list(range(len(keys))):  # a gap would give every later class its neighbour's name
+        raise OnnxModelError(f"{model}: metadata 'names' keys are not the classes 0 to {len(keys) - 1}")
+    return names
+
+
+def _read_names(model: Path, path: Path) -> list[str]:
+    """One class name a line, from a regular file within ``MAX_NAMES_BYTES``."""
+    try:
+        text = read_text(path, MAX_NAMES_BYTES, "class names file")
+    except FileNotFoundError:
+        raise OnnxModelError(f"{model}: class names file {path} does not exist") from None
     except OSError as exc:
-        raise OnnxModelError(f"{path}: cannot read class names: {exc.strerror}") from None
+        raise OnnxModelError(f"{model}: class names file {path}: cannot be read ({exc.strerror})") from None
+    except FileError as exc:
+        raise OnnxModelError(f"{model}: class names file {exc}") from None
+    names = [line.strip() for line in text.splitlines() if line.strip()]
     if not names:
-        raise OnnxModelError(f"{path}: no class names")
+        raise OnnxModelError(f"{model}: class names file {path} holds no names")
     return names
