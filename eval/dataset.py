@@ -16,19 +16,25 @@ Boxes are the true visible boxes (``gt/objects.jsonl``); objects with fewer than
 
 from __future__ import annotations
 
+import dataclasses
+import errno
 import json
 import math
-import shutil
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from sim.errors import InputError
-from sim.files import dumps_json
-from sim.output import OutputKind, StagedOutput
+from sim.errors import FileError, InputError
+from sim.files import MAX_IMAGE_BYTES, dumps_json
+from sim.ground_truth import ObjectState
+from sim.output import OutputError, OutputKind, StagedOutput
 from sim.sequence import Sequence, timestamp_name
+
+PARTS = ("train", "val")
 
 
 @dataclass(frozen=True)
@@ -70,82 +76,209 @@ def export_dataset(roots: list[Path], out: Path, options: ExportOptions, overwri
         dup = next(n for n in names if names.count(n) > 1)
         raise InputError(f"two sequences are named {dup!r}: image names would collide")
     split = split_sequences(names, options)
-    classes = list(options.names) or sorted({o.class_name for s in sequences for f in s.objects() for o in f})
-    class_id = {c: i for i, c in enumerate(classes)}
-    skipped: dict[str, int] = {}
-    coco = {
-        part: {
-            "images": [],
-            "annotations": [],
-            "categories": [{"id": i + 1, "name": c} for i, c in enumerate(classes)],
-        }
-        for part in ("train", "val")
-    }
-    counts = {part: {"images": 0, "boxes": 0} for part in ("train", "val")}
+    classes = list(options.names) or sorted({o.class_name for s in sequences for f in _objects(s) for o in f})
     with StagedOutput(out, OutputKind.DATASET, overwrite=overwrite, inputs=tuple(roots)) as staged:
-        root = staged.path
-        for part in ("train", "val"):
-            (root / "images" / part).mkdir(parents=True)
-            (root / "labels" / part).mkdir(parents=True)
-        (root / "annotations").mkdir()
+        files = _DatasetFiles(staged.path, out)
+        exporter = _Exporter(files, classes, options)
         total = sum(len(range(0, len(s), options.every)) for s in sequences)
         with tqdm(total=total, desc="export", unit="frame", disable=None, leave=False) as bar:
             for seq in sequences:
-                part = split[seq.root.name]
-                objects = seq.objects()
-                k = seq.intrinsics
-                for i in range(0, len(seq), options.every):
-                    stem = f"{seq.root.name}_{timestamp_name(seq.frames[i].timestamp_s)}"
-                    shutil.copyfile(seq.frames[i].rgb_path, root / "images" / part / f"{stem}.png")
-                    image_id = len(coco[part]["images"]) + 1
-                    coco[part]["images"].append(
-                        {"id": image_id, "file_name": f"{stem}.png", "width": k.width, "height": k.height}
-                    )
-                    lines = []
-                    for o in objects[i]:
-                        if o.box_xyxy is None or o.visible_pixels < options.min_visible_pixels:
-                            continue
-                        if o.class_name not in class_id:
-                            skipped[o.class_name] = skipped.get(o.class_name, 0) + 1
-                            continue
-                        x0, y0, x1, y1 = o.box_xyxy
-                        c = class_id[o.class_name]
-                        lines.append(
-                            f"{c} {(x0 + x1) / 2 / k.width:.6f} {(y0 + y1) / 2 / k.height:.6f} "
-                            f"{(x1 - x0) / k.width:.6f} {(y1 - y0) / k.height:.6f}"
-                        )
-                        coco[part]["annotations"].append(
-                            {
-                                "id": len(coco[part]["annotations"]) + 1,
-                                "image_id": image_id,
-                                "category_id": c + 1,
-                                "bbox": [x0, y0, x1 - x0, y1 - y0],
-                                "area": o.visible_pixels,
-                                "iscrowd": 0,
-                            }
-                        )
-                    (root / "labels" / part / f"{stem}.txt").write_text(
-                        "".join(line + "\n" for line in lines), encoding="utf-8"
-                    )
-                    counts[part]["images"] += 1
-                    counts[part]["boxes"] += len(lines)
-                    bar.update()
-        for part in ("train", "val"):
-            (root / "annotations" / f"instances_{part}.json").write_text(
-                json.dumps(coco[part]), encoding="utf-8"
-            )
-        (root / "data.yaml").write_text(_data_yaml(classes), encoding="utf-8")
-        summary = {
-            "classes": classes,
-            "splits": {n: split[n] for n in sorted(split)},
-            "counts": counts,
-            "skipped_classes": skipped,
-            "every": options.every,
-            "min_visible_pixels": options.min_visible_pixels,
-        }
-        (root / "splits.json").write_text(dumps_json(summary) + "\n", encoding="utf-8")
+                exporter.add_sequence(seq, split[seq.root.name], bar)
+        summary = exporter.finish(split)
         staged.commit()
     return summary
+
+
+class _DatasetFiles:
+    """Writes inside the staged dataset; a failed write names the dataset and the cause.
+
+    ``shutil.copyfile`` named the *source* frame when the disk filled ("seqs/s1/rgb/1.png: No
+    space left on device"), which sent users to the wrong disk.
+    """
+
+    def __init__(self, root: Path, shown: Path) -> None:
+        self.root = root
+        self.shown = shown
+
+    def mkdirs(self, *relative: str) -> None:
+        for name in relative:
+            self._do(name, lambda path: path.mkdir(parents=True))
+
+    def write(self, relative: str, data: bytes | str) -> Path:
+        raw = data.encode("utf-8") if isinstance(data, str) else data
+        return self._do(relative, lambda path: path.write_bytes(raw))
+
+    def _do(self, relative: str, action) -> Path:
+        path = self.root / relative
+        try:
+            action(path)
+        except OSError as exc:
+            raise OutputError(
+                f"{self.shown}: cannot write the output ({exc.strerror or exc}, at {relative})"
+            ) from None
+        return path
+
+
+class _Exporter:
+    """Collects one dataset: images and YOLO labels as frames come, COCO and splits at the end."""
+
+    def __init__(self, files: _DatasetFiles, classes: list[str], options: ExportOptions) -> None:
+        self.files = files
+        self.classes = classes
+        self.class_id = {c: i for i, c in enumerate(classes)}
+        self.options = options
+        self.skipped: dict[str, int] = {}
+        categories = [{"id": i + 1, "name": c} for i, c in enumerate(classes)]
+        self.coco = {part: {"images": [], "annotations": [], "categories": categories} for part in PARTS}
+        self.counts = {part: {"images": 0, "boxes": 0} for part in PARTS}
+        files.mkdirs(*(f"{kind}/{part}" for kind in ("images", "labels") for part in PARTS), "annotations")
+
+    def add_sequence(self, seq: Sequence, part: str, bar: tqdm) -> None:
+        objects = _objects(seq)
+        real_root = seq.root.resolve()
+        for i in range(0, len(seq), self.options.every):
+            stem = f"{seq.root.name}_{timestamp_name(seq.frames[i].timestamp_s)}"
+            image = self.files.write(
+                f"images/{part}/{stem}.png", read_inside(real_root, seq.frames[i].rgb_path)
+            )
+            check_frame_copy(seq, i, image)
+            image_id = len(self.coco[part]["images"]) + 1
+            k = seq.intrinsics
+            self.coco[part]["images"].append(
+                {"id": image_id, "file_name": f"{stem}.png", "width": k.width, "height": k.height}
+            )
+            lines = self._boxes(objects[i], part, image_id, k.width, k.height)
+            self.files.write(f"labels/{part}/{stem}.txt", "".join(line + "\n" for line in lines))
+            self.counts[part]["images"] += 1
+            self.counts[part]["boxes"] += len(lines)
+            bar.update()
+
+    def _boxes(
+        self, states: tuple[ObjectState, ...], part: str, image_id: int, width: int, height: int
+    ) -> list[str]:
+        """YOLO label lines of one frame; the same boxes go into the COCO annotations."""
+        lines = []
+        for o in states:
+            if o.box_xyxy is None or o.visible_pixels < self.options.min_visible_pixels:
+                continue
+            if o.class_name not in self.class_id:
+                self.skipped[o.class_name] = self.skipped.get(o.class_name, 0) + 1
+                continue
+            x0, y0, x1, y1 = o.box_xyxy
+            c = self.class_id[o.class_name]
+            lines.append(
+                f"{c} {(x0 + x1) / 2 / width:.6f} {(y0 + y1) / 2 / height:.6f} "
+                f"{(x1 - x0) / width:.6f} {(y1 - y0) / height:.6f}"
+            )
+            self.coco[part]["annotations"].append(
+                {
+                    "id": len(self.coco[part]["annotations"]) + 1,
+                    "image_id": image_id,
+                    "category_id": c + 1,
+                    "bbox": [x0, y0, x1 - x0, y1 - y0],
+                    "area": o.visible_pixels,
+                    "iscrowd": 0,
+                }
+            )
+        return lines
+
+    def finish(self, split: dict[str, str]) -> dict:
+        for part in PARTS:
+            self.files.write(f"annotations/instances_{part}.json", json.dumps(self.coco[part]))
+        self.files.write("data.yaml", _data_yaml(self.classes))
+        summary = {
+            "classes": self.classes,
+            "splits": {n: split[n] for n in sorted(split)},
+            "counts": self.counts,
+            "skipped_classes": self.skipped,
+            "every": self.options.every,
+            "min_visible_pixels": self.options.min_visible_pixels,
+        }
+        self.files.write("splits.json", dumps_json(summary) + "\n")
+        return summary
+
+
+# -- reading a sequence's files without leaving its folder ------------------------------------
+
+
+def _objects(seq: Sequence) -> list[tuple[ObjectState, ...]]:
+    """The sequence's object records: the labels, so they too must come from inside its folder."""
+    path = seq.root / "gt" / "objects.jsonl"
+    _check_inside(seq.root.resolve(), path)
+    return seq.objects()
+
+
+def _check_inside(real_root: Path, path: Path) -> Path:
+    """``path`` resolved, refused when a link leads it out of the folder ``real_root``."""
+    real = path.resolve()
+    if real != real_root and real_root not in real.parents:
+        raise FileError(
+            path, None, f"is a link out of the sequence folder (to {real}); copy the file into the folder"
+        )
+    return real
+
+
+def read_inside(real_root: Path, path: Path) -> bytes:
+    """The bytes of a frame file, read without following any link out of ``real_root``.
+
+    A sequence may come from someone else (a tarball, a shared drive): ``x/root -> /`` with
+    ``x/root/etc/passwd`` listed as a frame once put the password file into a dataset. The
+    path is resolved and checked, then opened one component at a time with ``O_NOFOLLOW``
+    from the root, so a link swapped in after the check is refused rather than followed.
+    """
+    relative = _check_inside(real_root, path).relative_to(real_root)
+    if not relative.parts:
+        raise FileError(path, None, "is the sequence folder, not a frame file")
+    fd = os.open(real_root, os.O_RDONLY | os.O_DIRECTORY)
+    for part in relative.parts[:-1]:
+        fd = _step(fd, part, path, os.O_RDONLY | os.O_DIRECTORY)
+    fd = _step(fd, relative.parts[-1], path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO must not block
+    try:
+        return _read_regular(fd, path)
+    finally:
+        os.close(fd)
+
+
+def _step(dir_fd: int, name: str, shown: Path, flags: int) -> int:
+    """Open ``name`` in ``dir_fd`` without following a link; ``dir_fd`` is closed either way."""
+    try:
+        return os.open(name, flags | os.O_NOFOLLOW, dir_fd=dir_fd)
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.ENOTDIR):
+            raise FileError(shown, None, "became a link while it was read; it is not followed") from None
+        raise FileError(shown, None, f"cannot be read ({exc.strerror or exc})") from None
+    finally:
+        os.close(dir_fd)
+
+
+def _read_regular(fd: int, shown: Path) -> bytes:
+    """A regular file's bytes, at most ``MAX_IMAGE_BYTES`` of them (the reader's limit for a frame)."""
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise FileError(shown, None, "is not a regular file (a device, pipe or socket), not a PNG image")
+        if info.st_size > MAX_IMAGE_BYTES:
+            raise FileError(shown, None, f"is {info.st_size} bytes, more than the limit for a PNG image")
+        os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb", closefd=False) as handle:  # buffered: loops over short reads
+            data = handle.read(MAX_IMAGE_BYTES + 1)
+    except OSError as exc:
+        raise FileError(shown, None, f"cannot be read ({exc.strerror or exc})") from None
+    if len(data) > MAX_IMAGE_BYTES:
+        raise FileError(shown, None, "grew beyond the limit for a PNG image while read")
+    return data
+
+
+def check_frame_copy(seq: Sequence, index: int, copy: Path) -> None:
+    """Decode the exported copy of frame ``index`` with the sequence reader's own checks (a PNG
+    of the camera's size, 8-bit RGB, not truncated), so the bytes checked are the bytes exported.
+    ``run`` refuses such a frame; a training set must not take it silently."""
+    frame = seq.frames[index]
+    as_copied = dataclasses.replace(seq, frames=(dataclasses.replace(frame, rgb_path=copy),))
+    try:
+        as_copied.rgb(0)
+    except FileError as exc:
+        raise FileError(frame.rgb_path, None, exc.problem) from None
 
 
 def _data_yaml(classes: list[str]) -> str:
