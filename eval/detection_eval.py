@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +23,7 @@ from detectors.faults import Difficulty
 from detectors.groundtruth import GroundTruthDetector, is_truncated
 from eval.cache import StageCache
 from eval.detections import detect_sequence
+from sim.errors import InputError
 from sim.sequence import Sequence
 
 IOU_THRESHOLD = 0.5
@@ -140,6 +142,18 @@ def truth_boxes(
     ]
 
 
+def refuse_repeats(sequences: list[Sequence]) -> None:
+    """Refuse a sequence folder given twice, as ``export-dataset`` does: its truths would count
+    twice (``detect-eval seq seq ./seq/`` reported 18 frames of a 6-frame sequence)."""
+    first: dict[Path, Path] = {}
+    for sequence in sequences:
+        real = sequence.root.resolve()
+        if real in first:
+            also = "" if first[real] == sequence.root else f" (also as {first[real]})"
+            raise InputError(f"{sequence.root}: the sequence is given twice{also}; give each once")
+        first[real] = sequence.root
+
+
 def evaluate_detector(
     sequences: list[Sequence],
     config: DetectorConfig,
@@ -148,6 +162,7 @@ def evaluate_detector(
     min_visible_pixels: int = 1000,
 ) -> dict:
     """Per class and for dynamic priors: precision, recall, AP50 and recall splits; latency."""
+    refuse_repeats(sequences)
     tallies: dict[str, _Tally] = defaultdict(_Tally)
     latency = []
     for sequence in sequences:

@@ -180,3 +180,12 @@ def test_export_on_a_full_disk_names_the_dataset_not_the_input(seq: Path, tmp_pa
     assert str(seq) not in line, line
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
     assert snapshot(seq) == before
+
+
+# -- D13: one sequence given twice -----------------------------------------------------------------
+
+
+def test_detect_eval_refuses_a_sequence_given_twice(seq: Path, tmp_path: Path, capfd, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    args = ["detect-eval", "seq", "seq", "./seq/", "--detector", "groundtruth", "--min-pixels", "1"]
+    refused(tmp_path, capfd, args, "seq", "given twice")
