@@ -189,3 +189,42 @@ def test_detect_eval_refuses_a_sequence_given_twice(seq: Path, tmp_path: Path, c
     monkeypatch.chdir(tmp_path)
     args = ["detect-eval", "seq", "seq", "./seq/", "--detector", "groundtruth", "--min-pixels", "1"]
     refused(tmp_path, capfd, args, "seq", "given twice")
+
+
+# -- D2 and M6: the --json file -----------------------------------------------------------------------
+
+EVAL = ["detect-eval", "--detector", "groundtruth", "--min-pixels", "1"]
+
+
+def test_detect_eval_json_keeps_an_existing_file_unless_told(seq: Path, tmp_path: Path, capfd):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine\n")
+    refused(tmp_path, capfd, [*EVAL, str(seq), "--json", str(notes)], str(notes), "--overwrite")
+    assert main([*EVAL, str(seq), "--json", str(notes), "--overwrite"]) == 0
+    assert '"frames": 4' in notes.read_text()
+    capfd.readouterr()
+
+
+@pytest.mark.parametrize("inside", ["groundtruth.txt", "new.json"])
+def test_detect_eval_json_never_writes_into_an_input(seq: Path, tmp_path: Path, capfd, inside: str):
+    target = seq / inside
+    args = [*EVAL, str(seq), "--json", str(target), "--overwrite"]
+    refused(tmp_path, capfd, args, str(target), "inside the input")
+
+
+@pytest.mark.parametrize(
+    ("where", "needle"),
+    [
+        ("nodir/x.json", "nodir"),
+        ("afile/x.json", "afile"),
+        ("/proc/x.json", "/proc"),
+        ("folder", "is a folder"),
+    ],
+)
+def test_detect_eval_json_refuses_an_unwritable_place_before_any_work(
+    seq: Path, tmp_path: Path, capfd, where: str, needle: str
+):
+    (tmp_path / "afile").write_text("x\n")
+    (tmp_path / "folder").mkdir()
+    target = Path(where) if where.startswith("/") else tmp_path / where
+    refused(tmp_path, capfd, [*EVAL, str(seq), "--json", str(target), "--overwrite"], str(target), needle)
