@@ -18,6 +18,7 @@ import numpy as np
 
 from detectors.detection import Detection, Prior
 from sim.camera import OrbSlamSettings, orbslam_yaml
+from sim.errors import InputError
 from sim.sequence import Sequence, timestamp_name
 from sim.tum_files import write_frame_list
 
@@ -88,10 +89,20 @@ class FrameSource:
         return rgb, depth
 
     def folder(self, scratch: Path) -> Path:
-        """A TUM folder holding these frames: the sequence itself, or a masked copy in ``scratch``."""
+        """A TUM folder holding these frames: the sequence itself, or a masked copy in ``scratch``.
+
+        Raises InputError naming the copy when it cannot be written (a full disk, say).
+        """
         if self.mask is None:
             return self.sequence.root
         root = scratch / "masked"
+        try:
+            self._write_masked(root)
+        except OSError as exc:
+            raise InputError(f"{root}: cannot write the masked frames: {exc.strerror or exc}") from None
+        return root
+
+    def _write_masked(self, root: Path) -> None:
         frames = self.sequence.frames
         rgb_names = [f"rgb/{timestamp_name(f.timestamp_s)}.png" for f in frames]
         depth_names = [f"depth/{timestamp_name(f.depth_timestamp_s)}.png" for f in frames]
@@ -99,8 +110,8 @@ class FrameSource:
             (root / sub).mkdir(parents=True, exist_ok=True)
         for i in range(len(frames)):
             rgb, depth = self.images(i)
-            cv2.imwrite(str(root / rgb_names[i]), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-            cv2.imwrite(str(root / depth_names[i]), depth)
+            _write_png(root / rgb_names[i], cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            _write_png(root / depth_names[i], depth)
         rgb_stamps = np.array([f.timestamp_s for f in frames])
         depth_stamps = np.array([f.depth_timestamp_s for f in frames])
         write_frame_list(root / "rgb.txt", "color images (masked)", rgb_stamps, rgb_names)
@@ -117,4 +128,12 @@ class FrameSource:
         )
         if (self.sequence.root / "groundtruth.txt").is_file():
             shutil.copyfile(self.sequence.root / "groundtruth.txt", root / "groundtruth.txt")
-        return root
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    """Encoded here and written by Python: ``cv2.imwrite`` on a full disk printed "libpng
+    error: Write Error", left a broken PNG and went on."""
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode {path.name} as PNG")
+    path.write_bytes(data.tobytes())
