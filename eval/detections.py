@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from detectors.base import DetectorFrame
-from detectors.config import DetectorConfig, DetectorKind
+from detectors.config import DetectorConfig, DetectorKind, check_model_file
 from detectors.detection import Detection, Prior
 from detectors.faults import inject
 from detectors.groundtruth import GroundTruthDetector
@@ -82,8 +82,8 @@ def detect_sequence(
     if config.kind is DetectorKind.NONE:
         return None
     base = config.base()
-    if config.kind is DetectorKind.ONNX and not config.model_path.is_file():
-        raise InputError(f"--detector onnx: model file {config.model_path} does not exist")
+    if config.kind is DetectorKind.ONNX:
+        check_model_file(config.model_path)
     # The ground-truth detector is cheap and refuses a sequence it cannot serve, so it is
     # built first; a network is loaded only when the cache does not have its boxes.
     detector = build_detector(base, sequence) if config.kind is DetectorKind.GROUNDTRUTH else None

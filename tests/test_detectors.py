@@ -6,6 +6,7 @@ import json
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -383,6 +384,10 @@ def test_detections_are_cached_per_sequence_and_detector_and_invalidated_by_an_e
     assert not other.from_cache and other.per_frame[0] == ()
     rgb = sequence.frames[2].rgb_path
     os.utime(rgb, ns=(rgb.stat().st_atime_ns, rgb.stat().st_mtime_ns + 10**9))
+    assert detect_sequence(Sequence.open(tmp_path / "seq"), DetectorConfig(), cache).from_cache  # same bytes
+    image = cv2.imread(str(rgb))
+    image[0, 0] ^= 1
+    cv2.imwrite(str(rgb), image)
     assert not detect_sequence(Sequence.open(tmp_path / "seq"), DetectorConfig(), cache).from_cache
 
 

@@ -300,11 +300,6 @@ def test_a_fifo_model_is_not_a_regular_file_and_opening_it_does_not_block(tmp_pa
             call(path)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="until eval/detections.py's detect_sequence calls detectors.config.check_model_file "
-    "instead of Path.is_file (not this file's owner's to edit); then delete this marker",
-)
 def test_a_fifo_model_is_refused_as_not_a_regular_file(seq, tmp_path, capfd):
     """M9: 'model file models/fifo.onnx does not exist'; it exists but is not a regular file."""
     path = fifo(tmp_path)
