@@ -7,6 +7,7 @@ other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import signal
@@ -60,14 +61,6 @@ def _workers(text: str) -> int:
     if not 1 <= value <= 256:
         raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
     return value
-
-
-def _check_output_file(path: Path, overwrite: bool) -> None:
-    """An output file may replace only a file, and only when asked."""
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder")
-    if path.exists() and not overwrite:
-        raise InputError(f"{path}: already exists (pass --overwrite to replace it)")
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
@@ -478,6 +471,7 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
 def _cmd_vocab(args: argparse.Namespace) -> int:
     from eval.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
     from scenes import library
+    from sim.output import check_output_file
 
     for name in args.scenes:
         library.get(name)  # refuses an unknown scene by name, before any work
@@ -485,7 +479,7 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
     if args.output is None:
         path = default_vocabulary(progress=True, spec=spec)
     else:
-        _check_output_file(args.output, args.overwrite)
+        check_output_file(args.output, overwrite=args.overwrite, option="-o")
         path = args.output
         build_file(spec, path, progress=True)
     words = read_text(path).words
@@ -506,11 +500,12 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     import numpy as np
 
     from eval.preview import preview, save_png
+    from sim.output import check_output_file
     from sim.sequence import Sequence
 
     if args.output.suffix.lower() != ".png":
         raise InputError(f"{args.output}: the preview is a PNG; give a file name ending in .png")
-    _check_output_file(args.output, args.overwrite)
+    check_output_file(args.output, overwrite=args.overwrite, inputs=(args.sequence,), option="-o")
     if len(args.frames) > MAX_PREVIEW_FRAMES:
         raise InputError(f"--frames: give at most {MAX_PREVIEW_FRAMES} frames, got {len(args.frames)}")
     seq = Sequence.open(args.sequence)
@@ -561,9 +556,32 @@ def _raise_terminated(signum: int, frame: object) -> None:
     raise Terminated
 
 
+class _Warnings(logging.Handler):
+    """The library's warnings as ``depotbench VERB: warning: ...`` lines on stderr (looked
+    up when a line is written: tests and callers replace it)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.verb = ""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(f"depotbench {self.verb}: warning: {record.getMessage()}", file=sys.stderr)
+
+
+_WARNINGS = _Warnings()
+
+
+def _show_warnings(verb: str) -> None:
+    logger = logging.getLogger("depotbench")
+    _WARNINGS.verb = verb
+    if _WARNINGS not in logger.handlers:
+        logger.addHandler(_WARNINGS)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    _show_warnings(args.verb)
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         return _run(args)

@@ -21,7 +21,8 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         help="run a gate file's matrix and check its budgets (exit 1 naming each failed budget)",
     )
     p.add_argument("gates", type=Path, help="the gate file (see assets/gates/)")
-    p.add_argument("--junit", type=Path, help="also write JUnit XML here")
+    p.add_argument("--junit", type=Path, help="also write JUnit XML here (a new file, or see --overwrite)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --junit file")
     p.add_argument(
         "-o",
         "--output",
@@ -36,22 +37,22 @@ def add_check(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from eval.gates import format_report, junit_xml, load_gates
-    from eval.sweep import validate
+    from eval.sweep import spec_inputs, validate
     from sim.errors import InputError
-    from sim.output import OutputContainer, OutputKind, write_text_atomic
+    from sim.output import OutputContainer, OutputKind, check_output_file, write_text_atomic
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     gates = load_gates(args.gates)
     validate(gates.run, args.gates)  # before any folder is made
-    if args.junit is not None and args.junit.is_dir():
-        raise InputError(f"--junit {args.junit}: is a folder; give a file name")
+    inputs = spec_inputs(gates.run, args.gates)
+    if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
+        check_output_file(args.junit, overwrite=args.overwrite, inputs=inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates}"
-    with OutputContainer(out, OutputKind.SWEEP, inputs=(args.gates,)) as container:
+    with OutputContainer(out, OutputKind.SWEEP, inputs=inputs) as container:
         report = run_gates(gates, args.gates, container.path, args.workers, args.backend, args.address)
     print(format_report(report))
     if args.junit is not None:
-        args.junit.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(args.junit, junit_xml(report))
         print(f"wrote {args.junit}")
     for failure in report.failures:

@@ -36,7 +36,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from eval.sweep import validate
+    from eval.sweep import spec_inputs, validate
     from eval.sweep_report import format_best
     from eval.sweep_run import execute_sweep
     from eval.sweep_spec import load_sweep
@@ -46,7 +46,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise InputError("--address applies to --backend ray only")
     spec = load_sweep(args.spec)
     validate(spec, args.spec)  # before the output folder is made
-    with OutputContainer(args.output, OutputKind.SWEEP, inputs=(args.spec,)) as container:
+    with OutputContainer(args.output, OutputKind.SWEEP, inputs=spec_inputs(spec, args.spec)) as container:
         outcome = execute_sweep(
             spec,
             args.spec,

@@ -120,6 +120,15 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
         load_suite(suite_path)
 
 
+def spec_inputs(spec: SweepSpec, spec_path: Path) -> tuple[Path, ...]:
+    """What a sweep or gate run reads and must never write into: the spec file, the
+    sequence folders it names and its suite file."""
+    named = [resolve(spec, spec_path, name) for name in spec.sequences]
+    if spec.suite is not None:
+        named.append(resolve(spec, spec_path, spec.suite))
+    return (spec_path, *named)
+
+
 def sequences_of(
     spec: SweepSpec,
     spec_path: Path,

@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import tempfile
 import time
 from collections import deque
@@ -32,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from eval.cache import cache_home
 from sim.errors import InputError
 from sim.output import OutputLock, write_text_atomic
 from sim.version import generator_version
@@ -222,13 +222,6 @@ def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarra
     return images
 
 
-def cache_dir() -> Path:
-    base = os.environ.get("DEPOTBENCH_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "depotbench"
-    )
-    return Path(base)
-
-
 def build_file(spec: VocabularySpec, path: Path, progress: bool) -> tuple[Vocabulary, float]:
     """Build ``spec``'s vocabulary into ``path`` (atomically); return it and the seconds taken."""
     started = time.perf_counter()
@@ -243,11 +236,17 @@ def build_file(spec: VocabularySpec, path: Path, progress: bool) -> tuple[Vocabu
 def default_vocabulary(progress: bool = True, spec: VocabularySpec | None = None) -> Path:
     """The cached vocabulary of ``spec`` (the default one), built first if missing."""
     spec = spec or VocabularySpec()
-    folder = cache_dir() / "vocabulary"
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = cache_home() / "vocabulary"
     path = folder / f"orb-k{spec.branching}-L{spec.levels}-{spec.key()}.txt"
     if path.is_file():
         return path
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            f"{folder}: cannot keep the ORB vocabulary here ({exc.strerror or exc}); set XDG_CACHE_HOME "
+            "to a writable folder, or build one with `depotbench vocab -o FILE` and pass --vocabulary FILE"
+        ) from None
     with OutputLock(path, wait=True):  # one builder at a time; the others then find it built
         if not path.is_file():
             if progress:

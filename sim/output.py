@@ -27,12 +27,14 @@ import ctypes.util
 import errno
 import fcntl
 import glob
+import hashlib
 import json
 import os
 import shutil
 import socket
 import stat
 import sys
+import tempfile
 import time
 import uuid
 from dataclasses import asdict, dataclass
@@ -95,8 +97,28 @@ def read_marker(folder: Path) -> Marker | None:
 # -- locks ------------------------------------------------------------------------
 
 
+NAME_MAX_BYTES = 255
+"""A file name's limit on Linux and macOS file systems."""
+SIBLING_STEM_BYTES = 200
+"""Hidden siblings (``.NAME.partial-1a2b3c4d``, ``.NAME.lock``) add up to 18 bytes to a
+name: a longer one goes in shortened, so that every legal output name can be written."""
+
+
+def hidden_sibling(target: Path, suffix: str) -> Path:
+    """``target``'s hidden sibling ``.NAME<suffix>``; a name too long to take the suffix
+    is shortened and marked with a hash of the whole, so that two long names never share
+    a sibling."""
+    name = target.name
+    encoded = os.fsencode(name)
+    if len(encoded) > SIBLING_STEM_BYTES:
+        digest = hashlib.sha256(encoded).hexdigest()[:12]
+        head = encoded[: SIBLING_STEM_BYTES - 13].decode("utf-8", "ignore")
+        name = f"{head}~{digest}"
+    return target.parent / f".{name}{suffix}"
+
+
 def lock_path(target: Path) -> Path:
-    return target.parent / f".{target.name}.lock"
+    return hidden_sibling(target, ".lock")
 
 
 def _describe_holder(text: str) -> str:
@@ -275,7 +297,8 @@ def exchange(a: Path, b: Path) -> bool:
 
 
 def _leftovers(target: Path, tag: str) -> list[Path]:
-    return sorted(target.parent.glob(f".{glob.escape(target.name)}.{tag}-*"))
+    pattern = glob.escape(hidden_sibling(target, f".{tag}-").name) + "*"
+    return sorted(target.parent.glob(pattern))
 
 
 def recover_and_clean(target: Path) -> None:
@@ -316,7 +339,7 @@ def replace_folder(new: Path, target: Path) -> None:
     if exchange(new, target):
         shutil.rmtree(new)  # ``new`` now holds the old output
         return
-    old = target.parent / f".{target.name}.old-{uuid.uuid4().hex[:8]}"
+    old = hidden_sibling(target, f".old-{uuid.uuid4().hex[:8]}")
     os.rename(target, old)
     os.rename(new, target)
     shutil.rmtree(old)
@@ -378,7 +401,7 @@ class StagedOutput:
         try:
             recover_and_clean(self.target)
             check_replaceable(self.target, self.shown, self.kind, self.overwrite)
-            staging = self.target.parent / f".{self.target.name}.partial-{uuid.uuid4().hex[:8]}"
+            staging = hidden_sibling(self.target, f".partial-{uuid.uuid4().hex[:8]}")
             try:
                 staging.mkdir()
             except OSError as exc:
@@ -449,9 +472,52 @@ class OutputContainer:
             self._lock.release()
 
 
+def check_output_file(
+    path: Path, *, overwrite: bool, inputs: tuple[Path, ...] = (), option: str = ""
+) -> None:
+    """Refuse, before any work, an output file that must not or cannot be written.
+
+    An input, or a file inside an input folder, is never replaced; an existing file only
+    with ``overwrite``; a folder, a device or a link's target never. The folder is made
+    if missing, and must take a new file: that is tried (a file created and removed),
+    since permission bits do not tell (root may write anywhere but ``/proc``).
+    """
+    shown = f"{option} {path}".strip()
+    resolved = path.expanduser().resolve()
+    for item in inputs:
+        source = item.expanduser().resolve()
+        if resolved == source or source in resolved.parents:
+            what = "is an input" if resolved == source else f"lies inside the input {item}"
+            raise OutputError(f"{shown}: {what}; give another file for the output")
+    if path.is_dir():
+        raise OutputError(f"{shown}: is a folder; give a file name")
+    if path.is_symlink():
+        raise OutputError(f"{shown}: is a symbolic link; give a plain file name")
+    if path.exists():
+        if not path.is_file():
+            raise OutputError(f"{shown}: is not a regular file (a device, pipe or socket)")
+        if not overwrite:
+            raise OutputError(f"{shown}: already exists (pass --overwrite to replace it)")
+    folder = resolved.parent
+    try:  # CI writes reports into folders a clean clone lacks (``--junit reports/gates.xml``)
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{shown}: {folder} is not a folder") from None
+    except OSError as exc:
+        raise OutputError(f"{shown}: cannot make the folder {folder} ({exc.strerror or exc})") from None
+    try:
+        handle, probe = tempfile.mkstemp(
+            prefix=hidden_sibling(resolved, ".").name, suffix=".probe", dir=folder
+        )
+        os.close(handle)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"{shown}: cannot write in {folder} ({exc.strerror or exc})") from None
+
+
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write a file through a temporary sibling, so it is never seen half-written."""
-    tmp = path.parent / f".{path.name}.{uuid.uuid4().hex[:8]}.tmp"
+    tmp = hidden_sibling(path, f".{uuid.uuid4().hex[:8]}.tmp")
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)

@@ -617,3 +617,104 @@ def test_a_lock_file_planted_as_a_link_is_refused_and_its_target_untouched(
     one_error_line(err, ".victim.lock", "remove it")
     assert precious.read_text() == "precious user data\n"
     assert not (out / "victim").exists()
+
+
+def _gate(tmp_path: Path, sequence: Path) -> Path:
+    path = tmp_path / "g.yaml"
+    path.write_text(
+        f"gates: g\nrun:\n  sequences: [{sequence}]\n  strategies: [none]\n"
+        "checks:\n  - name: c\n    budgets: {ate_rmse_m: {max: 1}}\n"
+    )
+    return path
+
+
+def _no_run(monkeypatch) -> None:
+    def refuse(*args, **kwargs):
+        raise AssertionError("the matrix ran before the output was checked")
+
+    monkeypatch.setattr("eval.cli_gates.run_gates", refuse)
+
+
+@pytest.mark.parametrize(
+    ("target", "needle"),
+    [
+        ("g.yaml", "is an input"),
+        ("seq/groundtruth.txt", "lies inside the input"),
+        ("notes.txt", "already exists (pass --overwrite"),
+        ("afile/j.xml", "is not a folder"),
+        ("afile/sub/j.xml", "Not a directory"),
+        ("/proc/j.xml", "/proc"),
+    ],
+)
+def test_a_junit_file_that_must_not_or_cannot_be_written_is_refused_before_the_run(
+    sequence: Path, tmp_path: Path, capsys, monkeypatch, target: str, needle: str
+):
+    """Probe D2 (`check --junit` replaced the gate file, an input's groundtruth.txt or any
+    file) and M6 (an unwritable place was found after the whole matrix had run)."""
+    gate = _gate(tmp_path, sequence)
+    (tmp_path / "notes.txt").write_text("mine\n")
+    (tmp_path / "afile").write_text("x")
+    before = snapshot(tmp_path)
+    _no_run(monkeypatch)
+    junit = target if target.startswith("/") else tmp_path / target
+    code, _, err = cli(capsys, "check", gate, "-o", tmp_path / "chk", "--junit", junit)
+    assert code == 2
+    one_error_line(err, "--junit", needle)
+    assert snapshot(tmp_path) == before and not (tmp_path / "chk").exists()
+
+
+def test_a_junit_file_is_replaced_when_asked_and_written_whole(sequence: Path, tmp_path: Path, capsys):
+    gate = _gate(tmp_path, sequence)
+    junit = tmp_path / "gates.xml"
+    junit.write_text("old\n")
+    code, out, _ = cli(capsys, "check", gate, "-o", tmp_path / "chk", "--junit", junit, "--overwrite")
+    assert code in (0, 1) and f"wrote {junit}" in out  # the verdict aside, the file is written
+    assert junit.read_text().startswith("<?xml")
+
+
+def test_a_vocabulary_that_cannot_be_written_is_refused_before_it_is_built(
+    tmp_path: Path, capsys, monkeypatch
+):
+    """Probe M6 `vocab-nodir`: about 4 minutes of building, then 'cannot write the output'.
+    A missing folder is made first; a file where the folder should be is refused."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the vocabulary was built before its file was checked")
+
+    monkeypatch.setattr("eval.vocabulary.build_file", refuse)
+    (tmp_path / "afile").write_text("x")
+    code, _, err = cli(capsys, "vocab", "-o", tmp_path / "afile" / "v.txt", "--scenes", "smoke")
+    assert code == 2
+    one_error_line(err, "afile", "is not a folder")
+
+
+def test_a_junit_file_in_a_folder_a_clean_clone_lacks_is_written(sequence: Path, tmp_path: Path, capsys):
+    """docs/ci-example.yml writes `--junit reports/gates.xml` from a clean clone."""
+    gate, reports = _gate(tmp_path, sequence), tmp_path / "reports"
+    code, _, _ = cli(capsys, "check", gate, "-o", tmp_path / "chk", "--junit", reports / "g.xml")
+    assert code in (0, 1) and (reports / "g.xml").read_text().startswith("<?xml")
+
+
+def test_a_sweep_or_gate_output_inside_an_input_sequence_is_refused(sequence: Path, tmp_path: Path, capsys):
+    """Probe D12: `sweep in.yaml -o seq/results` wrote into the input sequence folder."""
+    before = snapshot(sequence)
+    spec = tmp_path / "in.yaml"
+    spec.write_text(f"sweep: in\nsequences: [{sequence}]\nstrategies: [none]\n")
+    code, _, err = cli(capsys, "sweep", spec, "-o", sequence / "results")
+    assert code == 2
+    one_error_line(err, "lies inside the input")
+    code, _, err = cli(capsys, "check", _gate(tmp_path, sequence), "-o", sequence / "results")
+    assert code == 2
+    one_error_line(err, "lies inside the input")
+    assert snapshot(sequence) == before
+
+
+def test_an_output_name_as_long_as_the_system_allows_is_written(sequence: Path, tmp_path: Path, capsys):
+    """Probe M9 `longname-240-run`: the hidden `.NAME.partial-XXXXXXXX` sibling went past
+    the 255-byte limit of a name, and the run failed with 'File name too long'."""
+    for length in (240, 255):
+        out = tmp_path / ("r" * length)
+        code, _, err = cli(capsys, "run", sequence, "-o", out, "--detector", "none")
+        assert code == 0, err
+        assert (out / "metrics.json").is_file()
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
