@@ -4,10 +4,7 @@ with a time limit and a progress bar, and reading their trajectories back."""
 from __future__ import annotations
 
 import collections
-import contextlib
 import os
-import queue
-import signal
 import subprocess
 import threading
 import time
@@ -17,10 +14,18 @@ import numpy as np
 from tqdm import tqdm
 
 from eval.trackers.base import TrackerError
+from eval.trackers.watcher import kill_group
 from sim.camera import OrbSlamSettings, orbslam_yaml
 from sim.sequence import Sequence
 
 STDERR_TAIL_LINES = 20
+STDERR_LINE_CHARS = 500
+"""A line of the program's stderr is kept to this many characters (the error shows the last)."""
+READ_BYTES = 1 << 16
+"""Stderr is read in pieces of 64 KiB: a program that writes without newlines once grew
+one string to 2.4 GB."""
+POLL_S = 0.1
+READER_JOIN_S = 5.0
 
 
 def write_settings(sequence: Sequence, path: Path) -> Path:
@@ -38,12 +43,16 @@ def run_child(
     frames: int,
     progress: bool,
     env: dict[str, str] | None = None,
+    group: int | None = None,
+    program: str | None = None,
 ) -> float:
     """Run a program without a shell; return its wall time.
 
     Lines of plain integers on its stderr advance a progress bar (frames done); the
-    rest is kept for the error message. Past ``timeout_s`` its process group is killed,
-    whether or not it still prints.
+    last other lines are kept for the error message. It runs in process group ``group``
+    (``eval.trackers.reaper``), or in a new one: past ``timeout_s``, on any exception
+    and once it has exited, that group is killed, with whatever the program left in it.
+    ``program`` names it in a "cannot start" error (default: ``argv[0]``).
     """
     started = time.perf_counter()
     try:
@@ -54,62 +63,147 @@ def run_child(
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
-            text=True,
-            errors="replace",
-            start_new_session=True,
+            **({"start_new_session": True} if group is None else {"process_group": group}),
         )
     except OSError as exc:
-        raise TrackerError(f"{what}: cannot start {argv[0]!r}: {exc.strerror or exc}") from None
-    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
-    reader = threading.Thread(target=_read_lines, args=(child, lines), daemon=True)
+        shown = program or repr(argv[0])
+        raise TrackerError(f"{what}: cannot start {shown}: {exc.strerror or exc}") from None
+    group = child.pid if group is None else group
+    assert child.stderr is not None
+    tail = StderrTail()
+    reader = threading.Thread(target=tail.pump, args=(child.stderr.fileno(),), daemon=True)
     reader.start()
-    tail: collections.deque[str] = collections.deque(maxlen=STDERR_TAIL_LINES)
-    bar = tqdm(total=frames, desc=what, unit="frame", disable=None if progress else True, leave=False)
     try:
-        with bar:
-            while True:
-                finished = _wait(child, POLL_S)
-                while not lines.empty():
-                    text = lines.get().strip()
-                    if text.isdigit():
-                        bar.update(int(text) - bar.n)
-                    elif text:
-                        tail.append(text)
-                if finished:
-                    break
-                if time.perf_counter() - started > timeout_s:
-                    raise TrackerError(f"{what}: stopped after the time limit of {timeout_s:g} s")
+        _watch(child, tail, what=what, started=started, timeout_s=timeout_s, frames=frames, progress=progress)
     except BaseException:
-        _kill(child)
+        _kill(child, group)
         raise
-    reader.join(timeout=5)
+    _kill(child, group)  # it has exited: this ends what it left running, which may hold stderr open
+    reader.join(timeout=READER_JOIN_S)
+    if not reader.is_alive():
+        child.stderr.close()
     if child.returncode != 0:
-        detail = tail[-1] if tail else "no message"
-        raise TrackerError(f"{what}: exited with code {child.returncode} ({detail})")
+        raise TrackerError(f"{what}: exited with code {child.returncode} ({tail.last() or 'no message'})")
     return time.perf_counter() - started
 
 
-POLL_S = 0.2
+def _watch(
+    child: subprocess.Popen,
+    tail: StderrTail,
+    *,
+    what: str,
+    started: float,
+    timeout_s: float,
+    frames: int,
+    progress: bool,
+) -> None:
+    """Until the program exits (left unreaped, so its group's number stays its own)."""
+    bar = tqdm(total=frames, desc=what, unit="frame", disable=None if progress else True, leave=False)
+    with bar:
+        while True:
+            finished = _exited(child, POLL_S)
+            bar.update(min(tail.done_frames, frames) - bar.n)
+            if tail.failure is not None:
+                raise TrackerError(f"{what}: cannot read its stderr: {tail.failure}")
+            if finished:
+                return
+            if time.perf_counter() - started > timeout_s:
+                raise TrackerError(f"{what}: stopped after the time limit of {timeout_s:g} s")
 
 
-def _read_lines(child: subprocess.Popen, lines: queue.SimpleQueue) -> None:
-    assert child.stderr is not None
-    for line in child.stderr:
-        lines.put(line)
+def _exited(child: subprocess.Popen, seconds: float) -> bool:
+    """Whether the program has exited, waiting up to ``seconds``; it is not reaped."""
+    deadline = time.monotonic() + seconds
+    while True:
+        if hasattr(os, "waitid"):
+            if os.waitid(os.P_PID, child.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None:
+                return True
+        elif child.poll() is not None:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.02)
 
 
-def _wait(child: subprocess.Popen, seconds: float) -> bool:
-    try:
-        child.wait(timeout=seconds)
-    except subprocess.TimeoutExpired:
-        return False
-    return True
-
-
-def _kill(child: subprocess.Popen) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(child.pid, signal.SIGKILL)
+def _kill(child: subprocess.Popen, group: int) -> None:
+    kill_group(group)
     child.wait()
+
+
+class StderrTail:
+    """What a program's stderr tells, in bounded memory and time: the last integer line
+    (frames done) and the last ``lines`` other lines, each cut to ``line_chars`` characters.
+
+    ``pump`` reads a file descriptor to its end in 64 KiB pieces. Of each piece only the
+    last ``SCAN_LINES`` lines are looked at, from the end, so that a flood of short lines
+    costs no Python step per line (splitting every line of a piece took 8 ms a piece: a
+    program that printed 200 MB of them waited 18 s on its pipe).
+    """
+
+    SCAN_LINES = 1000
+
+    def __init__(self, lines: int = STDERR_TAIL_LINES, line_chars: int = STDERR_LINE_CHARS) -> None:
+        self.lines: collections.deque[str] = collections.deque(maxlen=lines)
+        self.line_chars = line_chars
+        self.done_frames = 0
+        self.failure: OSError | None = None
+        self._partial = b""
+        self._partial_cut = False
+        self._keep_bytes = 4 * line_chars + 4  # UTF-8 takes up to 4 bytes a character
+
+    def pump(self, fd: int) -> None:
+        """Read ``fd`` to its end (in a thread: the program never blocks on a full pipe)."""
+        try:
+            while chunk := os.read(fd, READ_BYTES):
+                self.feed(chunk)
+        except OSError as exc:
+            self.failure = exc  # the watching loop reports it and ends the program
+            return
+        self.end()
+
+    def feed(self, chunk: bytes) -> None:
+        data = (self._partial + chunk).replace(b"\r", b"\n")  # \r ends a line too: progress bars
+        cut = data.rfind(b"\n")
+        if cut >= 0:
+            self._complete(data[:cut])
+            data = data[cut + 1 :]
+        if len(data) > self._keep_bytes:
+            data, self._partial_cut = data[: self._keep_bytes], True
+        self._partial = data
+
+    def end(self) -> None:
+        """The last line may have had no newline."""
+        if self._partial.strip():
+            self._complete(self._partial)
+        self._partial, self._partial_cut = b"", False
+
+    def last(self) -> str | None:
+        return self.lines[-1] if self.lines else None
+
+    def _complete(self, block: bytes) -> None:
+        """The lines this piece ended, the first of which began in earlier pieces."""
+        first_cut, self._partial_cut = self._partial_cut, False
+        pieces = block.rsplit(b"\n", self.SCAN_LINES)
+        whole = len(pieces) <= self.SCAN_LINES  # pieces[0] is a line, not the rest of the block
+        texts: list[tuple[bytes, bool]] = []
+        counted = False
+        for i in range(len(pieces) - 1, -1 if whole else 0, -1):
+            line = pieces[i].strip()
+            if line.isdigit() and len(line) <= 12:
+                if not counted:
+                    self.done_frames, counted = int(line), True
+            elif line and len(texts) < (self.lines.maxlen or 0):
+                texts.append((line, first_cut and whole and i == 0))
+            elif counted and line:
+                break  # the count and enough lines: the rest would be pushed out anyway
+        for line, cut in reversed(texts):
+            self._add(line, cut)
+
+    def _add(self, line: bytes, cut: bool) -> None:
+        text = line.decode("utf-8", "replace").strip()
+        if cut or len(text) > self.line_chars:
+            text = text[: self.line_chars] + "\u2026"
+        self.lines.append(text)
 
 
 def poses_by_frame(
