@@ -24,10 +24,18 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
+
+from sim.errors import InputError
+from sim.output import OutputLock
+
+if TYPE_CHECKING:
+    from eval.sweep_spec import SweepSpec
+    from sim.spec import ScenarioSpec
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -54,14 +62,34 @@ def pytest_configure(config: pytest.Config) -> None:
     )
 
 
+def _bench_dir(config: pytest.Config) -> Path | None:
+    """``--depotbench-dir`` as an absolute path, resolved once against the folder pytest
+    started in: a sweep resolves a relative ``sequences:`` entry against its spec's folder
+    (``runs/HASH/``, not the working directory), and a test may change directory."""
+    chosen = config.getoption("--depotbench-dir")
+    if not chosen:
+        return None
+    return (config.invocation_params.dir / Path(chosen).expanduser()).resolve()
+
+
 @pytest.fixture(scope="session")
 def depotbench_dir(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    chosen = request.config.getoption("--depotbench-dir")
-    if chosen:
-        path = Path(chosen)
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-    return tmp_path_factory.mktemp("depotbench")
+    path = _bench_dir(request.config)
+    if path is None:
+        return tmp_path_factory.mktemp("depotbench").resolve()
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _claim(target: Path) -> OutputLock:
+    """An exclusive claim on ``target`` across processes, waiting for its holder: pytest-xdist
+    workers sharing ``--depotbench-dir`` ask for the same sequence or run at once.
+
+    It is ``.NAME.claim.lock``, not the target's own ``.NAME.lock``: the writer
+    (``sim.output.StagedOutput``) takes that one without waiting, and a second ``flock``
+    on it from this process would be refused."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return OutputLock(target.with_name(f"{target.name}.claim"), wait=True)
 
 
 def _fail_on(report) -> None:
@@ -85,7 +113,9 @@ def depotbench_gates(request: pytest.FixtureRequest, depotbench_dir: Path) -> Ca
             path = Path(request.config.rootpath) / path
         gates = load_gates(path)
         validate(gates.run, path)
-        report = run_gates(gates, path, depotbench_dir / f"gates-{gates.gates}", workers)
+        out = depotbench_dir / f"gates-{gates.gates}"
+        with _claim(out):  # a suite's folder refuses a second writer: wait for it instead
+            report = run_gates(gates, path, out, workers)
         if check:
             _fail_on(report)
         return report
@@ -111,32 +141,95 @@ def pytest_runtest_call(item: pytest.Item) -> None:
     runner.report = runner(marker.args[0])
 
 
-def _sequence(scenario: str, frames: int | None, seed: int, root: Path) -> Path:
+@dataclass(frozen=True)
+class _Sequence:
+    """The sequence a run asks for: the simulator's spec, its folder and its content key."""
+
+    scenario: ScenarioSpec
+    path: Path
+    key: str
+
+
+def _plan_sequence(scenario: str, frames: int | None, seed: int, root: Path, job: str) -> _Sequence:
+    """Where ``scenario`` (a library name or a YAML file) with this seed and length lives
+    under ``root``: named by a hash of the scenario, so no work is needed to know it. The
+    seed and length are checked as a scenario file's would be (``frames=0`` is refused)."""
     from scenes import library
-    from scenes.schema import load_scenario, to_scenario
-    from sim.generate import generate
+    from scenes.schema import Scenario, load_scenario, to_scenario, validate_model
+    from sim.spec import content_key
 
     path = Path(scenario)
     spec = load_scenario(path) if path.suffix in (".yaml", ".yml") else library.get(scenario)
     update: dict[str, Any] = {"seed": seed}
     if frames is not None:
         update |= {"frames": frames, "duration_s": None}
-    spec = spec.model_copy(update=update)
+    spec = validate_model(Scenario, spec.model_dump() | update, job)
     name = hashlib.sha256(spec.model_dump_json().encode()).hexdigest()[:12]
-    out = root / "sequences" / f"{spec.name}-{name}"
-    if not (out / "meta.json").is_file():
-        generate(to_scenario(spec), out, progress=False)
-    return out
+    simulated = to_scenario(spec)
+    return _Sequence(simulated, root / "sequences" / f"{spec.name}-{name}", content_key(simulated))
+
+
+def _generate(sequence: _Sequence) -> None:
+    """Generate the sequence unless it is complete and current (its marker holds this
+    content key, as ``scenes.generation`` decides); one process at a time."""
+    from scenes.generation import is_complete
+    from sim.generate import generate
+
+    if is_complete(sequence.path, sequence.key):
+        return
+    with _claim(sequence.path):
+        # Another process may have written it while this one waited for the claim.
+        if not is_complete(sequence.path, sequence.key):
+            generate(sequence.scenario, sequence.path, progress=False, overwrite=True)
+
+
+def _check_configuration(spec: SweepSpec, strategy: str, job: str) -> None:
+    """Refuse what cannot run as asked, before any generation or vocabulary build: the
+    sweep's own checks of trackers and detectors, and every job it will run checked
+    against the tracker (the sweep skips those an external tracker cannot run, and then
+    no row comes back)."""
+    from eval.harness import slam_config
+    from eval.sweep_spec import detector_configs, tracker_configs, variants
+
+    trackers = tracker_configs(spec, job)
+    detector_configs(spec, job)
+    if strategy == "none" and spec.thresholds.get("none"):
+        # none is the baseline every rho is measured against: the sweep runs it once, bare.
+        name = sorted(spec.thresholds["none"])[0]
+        raise InputError(
+            f"{job}: setting {name!r} does not apply to strategy 'none' (the baseline takes no "
+            "settings; give them to a rejection strategy)"
+        )
+    for variant in variants(spec):
+        for tracker in trackers:
+            try:
+                slam_config(variant.strategy, dict(variant.settings), tracker.kind)
+            except InputError as exc:
+                raise InputError(f"{job}: {exc}") from None
+
+
+def the_row(rows: list[dict[str, Any]], strategy: str, job: str) -> dict[str, Any]:
+    """The row of ``strategy`` (for ``none``, the bare baseline) among a run's derived rows."""
+    found = [r for r in rows if r["strategy"] == strategy and (strategy != "none" or r["settings"] == "{}")]
+    if not found:
+        raise InputError(
+            f"{job}: the run matrix gave no row for strategy {strategy!r} "
+            f"(rows for: {', '.join(sorted({r['strategy'] for r in rows})) or 'nothing'})"
+        )
+    return found[0]
 
 
 @pytest.fixture
 def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Callable[..., dict[str, Any]]:
     """Call with a scenario (library name or file) and a configuration; returns the run's
     row (ATE, RPE, rho, rejection precision/recall, lost fraction, time ratio to the
-    ``none`` run). ``budgets`` (and a ``depotbench_budgets`` marker) are checked."""
+    ``none`` run). ``budgets`` (and a ``depotbench_budgets`` marker) are checked.
+    Everything is checked before any work: a configuration that cannot run is refused
+    in one line, before a sequence is generated or a vocabulary built."""
     from eval.gates import Check, GateFile, derived_rows, evaluate
     from eval.sweep_run import execute_sweep
     from eval.sweep_spec import SweepSpec
+    from scenes.schema import validate_model
 
     workers = request.config.getoption("--depotbench-workers")
     marker = request.node.get_closest_marker("depotbench_budgets")
@@ -153,33 +246,31 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
         settings: dict[str, float] | None = None,
         budgets: dict[str, dict[str, float]] | None = None,
     ) -> dict[str, Any]:
-        sequence = _sequence(scenario, frames, seed, depotbench_dir)
+        job = f"depotbench_run({scenario!r}, strategy={strategy!r}, tracker={tracker!r})"
         settings = settings or {}
-        spec = SweepSpec(
-            sweep="pytest",
-            sequences=[str(sequence)],
-            trackers=[tracker],
-            detectors=[detector],
-            strategies=sorted({"none", strategy}),
-            thresholds={strategy: {k: {"grid": [v]} for k, v in settings.items()}} if settings else {},
-        )
-        out = depotbench_dir / "runs" / hashlib.sha256(spec.model_dump_json().encode()).hexdigest()[:12]
-        out.mkdir(parents=True, exist_ok=True)
-        outcome = execute_sweep(spec, out / "spec.yaml", out, workers, progress=False, announce=False)
+        sequence = _plan_sequence(scenario, frames, seed, depotbench_dir, job)
+        data = {
+            "sweep": "pytest",
+            "sequences": [str(sequence.path)],  # absolute: see _bench_dir
+            "trackers": [tracker],
+            "detectors": [detector],
+            "strategies": sorted({"none", strategy}),
+            "thresholds": {strategy: {k: {"grid": [v]} for k, v in settings.items()}} if settings else {},
+        }
+        spec = validate_model(SweepSpec, data, job)
+        _check_configuration(spec, strategy, job)
         wanted = {**marked, **(budgets or {})}
+        gates = None
         if wanted:
-            check = Check(
-                name=f"{Path(scenario).stem}-{strategy}",
-                strategies=[strategy],
-                settings=settings,
-                budgets=wanted,
-            )
-            _fail_on(evaluate(GateFile(gates="pytest", run=spec, checks=[check]), outcome.rows))
-        rows = [
-            r
-            for r in derived_rows(outcome.rows, "none")
-            if r["strategy"] == strategy and (strategy != "none" or r["settings"] == "{}")
-        ]
-        return rows[0]
+            name = f"{Path(scenario).stem}-{strategy}"
+            check = {"name": name, "strategies": [strategy], "settings": settings, "budgets": wanted}
+            gates = GateFile(gates="pytest", run=spec, checks=[validate_model(Check, check, job)])
+        _generate(sequence)
+        out = depotbench_dir / "runs" / hashlib.sha256(spec.model_dump_json().encode()).hexdigest()[:12]
+        with _claim(out):  # two processes with one spec share its results database
+            outcome = execute_sweep(spec, out / "spec.yaml", out, workers, progress=False, announce=False)
+        if gates is not None:
+            _fail_on(evaluate(gates, outcome.rows))
+        return the_row(derived_rows(outcome.rows, "none"), strategy, job)
 
     return run

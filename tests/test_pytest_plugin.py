@@ -1,0 +1,223 @@
+"""The pytest plugin's reliability: relative --depotbench-dir, processes sharing it, and
+configurations refused before any work (each test runs the plugin in a child session)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+# Imported here, before any pytester fixture: pytester drops the modules a test imported when
+# it ends, and numpy's C core cannot be loaded twice in one process.
+import eval.sweep_run  # noqa: F401
+import eval.vocabulary
+import scenes.generation  # noqa: F401
+import sim.generate
+from sim.errors import InputError
+
+FAST_S = 5.0
+"""A refused configuration returns within this: the refusal comes before generation
+(about 2 s for 3 smoke frames) and before an ORB vocabulary build (about 4 min)."""
+
+
+@pytest.mark.render
+def test_a_relative_depotbench_dir_is_resolved_once_against_where_pytest_started(pytester):
+    """C16: a relative --depotbench-dir reached the sweep as a relative ``sequences:`` entry,
+    resolved against runs/HASH/ (the spec's folder): every run failed."""
+    pytester.makepyfile(
+        """
+        def test_first(depotbench_run):
+            assert depotbench_run("smoke", strategy="box_rule", frames=3)["strategy"] == "box_rule"
+
+        def test_after_a_chdir(depotbench_run, tmp_path, monkeypatch):
+            monkeypatch.chdir(tmp_path)
+            assert depotbench_run("smoke", strategy="box_rule", frames=3)["strategy"] == "box_rule"
+        """
+    )
+    result = pytester.runpytest_subprocess(
+        "--depotbench-dir=bench", "--depotbench-workers=1", "-p", "no:cacheprovider"
+    )
+    result.assert_outcomes(passed=2)
+    # The test that changed directory used the same sequence, under the same folder.
+    assert len(list((pytester.path / "bench" / "sequences").glob("smoke-*"))) == 1
+
+
+CONFTEST = """
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+import sim.generate
+
+_build_world = sim.generate.build_world
+
+
+def _slow_build_world(scenario):
+    # The writer holds the sequence's output lock from here: 2 s more, so the other
+    # process (released by the same barrier within milliseconds) surely arrives meanwhile.
+    time.sleep(2.0)
+    return _build_world(scenario)
+
+
+sim.generate.build_world = _slow_build_world
+
+
+@pytest.fixture
+def meet():
+    \"\"\"A barrier of the two processes: each waits here until the other has arrived.\"\"\"
+
+    def wait(name):
+        (Path({barrier!r}) / f"{{name}}-{{os.getpid()}}").touch()
+        deadline = time.monotonic() + 120
+        while len(list(Path({barrier!r}).glob(f"{{name}}-*"))) < 2:
+            if time.monotonic() > deadline:
+                pytest.fail(f"the other process never reached {{name}}")
+            time.sleep(0.01)
+
+    return wait
+"""
+
+SAME_RUN = """
+def test_same_run_then_same_gates(meet, depotbench_run, depotbench_gates):
+    meet("run")
+    assert depotbench_run("smoke", strategy="box_rule", frames=3, seed=7)["strategy"] == "box_rule"
+    meet("gates")
+    assert depotbench_gates("gates.yaml").passed
+"""
+
+GATES = """
+gates: shared
+run: {suite: suite.yaml, strategies: [none, box_rule]}
+checks: [{name: runs, strategies: [box_rule], budgets: {lost_fraction: {max: 1.0}}}]
+"""
+
+
+@pytest.mark.render
+def test_two_processes_sharing_the_dir_ask_for_the_same_sequence_run_and_gates_at_once(pytester):
+    """C17: pytest-xdist workers sharing --depotbench-dir both saw a sequence missing and
+    generated it; the second hit its lock ("another depotbench is writing it"). Here two
+    sessions meet at a barrier before each request, so the overlap happens every time."""
+    barrier = pytester.mkdir("barrier")
+    pytester.makeconftest(CONFTEST.format(barrier=str(barrier)))
+    pytester.makepyfile(test_same=SAME_RUN)
+    (pytester.path / "suite.yaml").write_text("suite: tiny\nbase: smoke\noverrides: {frames: 3}\n")
+    (pytester.path / "gates.yaml").write_text(GATES)
+    command = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-p",
+        "no:cacheprovider",
+        f"--depotbench-dir={pytester.path / 'bench'}",
+        "--depotbench-workers=1",
+        "test_same.py",
+    ]
+    children = [
+        subprocess.Popen(
+            command, cwd=pytester.path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for _ in range(2)
+    ]
+    outputs = [child.communicate(timeout=300)[0] for child in children]
+    for child, output in zip(children, outputs, strict=True):
+        assert child.returncode == 0, output
+    assert len(list((pytester.path / "bench" / "sequences").glob("smoke-*"))) == 1
+
+
+def _refused(pytester, monkeypatch, call: str) -> pytest.RunResult:
+    """Run ``call`` in a child session that fails if anything is generated or a vocabulary
+    is built, and that expects one InputError line within FAST_S seconds."""
+
+    def tripwire(*args, **kwargs):
+        raise AssertionError("depotbench_run did work before refusing the configuration")
+
+    monkeypatch.setattr(sim.generate, "generate", tripwire)
+    monkeypatch.setattr(eval.vocabulary, "default_vocabulary", tripwire)
+    pytester.makepyfile(
+        textwrap.dedent(
+            f"""
+            import time
+
+            import pytest
+
+            from sim.errors import InputError
+
+            def test_refused(depotbench_run):
+                started = time.monotonic()
+                with pytest.raises(InputError) as caught:
+                    {call}
+                assert time.monotonic() - started < {FAST_S}
+                assert "\\n" not in str(caught.value)
+                print("REFUSED:", caught.value)
+            """
+        )
+    )
+    result = pytester.runpytest_inprocess(
+        "--depotbench-workers=1",
+        "-p",
+        "no:cacheprovider",
+        "-s",
+        "-W",
+        "ignore::pytest.PytestAssertRewriteWarning",
+    )
+    result.assert_outcomes(passed=1)
+    return result
+
+
+def test_a_strategy_the_tracker_cannot_run_is_refused_before_any_work(pytester, monkeypatch):
+    """C18: orbslam3 with box_rule built the ORB vocabulary (about 4 min) for the none run,
+    skipped the box_rule job silently and failed with IndexError."""
+    result = _refused(
+        pytester, monkeypatch, 'depotbench_run("smoke", strategy="box_rule", frames=3, tracker="orbslam3")'
+    )
+    result.stdout.fnmatch_lines(
+        ["*REFUSED: *tracker='orbslam3'*box_rule needs the built-in tracker*none or mask"]
+    )
+
+
+@pytest.mark.parametrize(
+    "call, line",
+    [
+        # none is the baseline every rho is measured against: the sweep runs it once, bare.
+        (
+            'depotbench_run("smoke", strategy="none", frames=3, settings={"k": 2})',
+            "*REFUSED: *setting 'k' does not apply to strategy 'none'*",
+        ),
+        (
+            'depotbench_run("smoke", strategy="box_rule", frames=3, settings={"kk": 2})',
+            "*REFUSED: *unknown setting 'kk'; known: *box_dilation_px*",
+        ),
+        (
+            'depotbench_run("smoke", strategy="mask", tracker="orbslam3", frames=3, settings={"k": 2})',
+            "*REFUSED: *--set k: --slam orbslam3 takes only box_dilation_px, min_confidence",
+        ),
+        (
+            'depotbench_run("smoke", strategy="box_rule", frames=3, budgets={"ate": {"max": 1}})',
+            "*REFUSED: *unknown budget 'ate'*",
+        ),
+        (
+            'depotbench_run("smoke", strategy="box_rule", frames=0)',
+            "*REFUSED: *frames: Input should be greater than or equal to 1*",
+        ),
+    ],
+    ids=["none-settings", "unknown-setting", "orbslam3-mask-setting", "unknown-budget", "zero-frames"],
+)
+def test_settings_and_values_that_cannot_run_are_refused_before_any_work(pytester, monkeypatch, call, line):
+    """M9: strategy none with settings ignored them, then failed with "no run matches this
+    check"; an unknown setting, budget or frame count was refused only after the sequence
+    was generated (or not at all)."""
+    _refused(pytester, monkeypatch, call).stdout.fnmatch_lines([line])
+
+
+def test_a_run_without_its_row_is_an_error_naming_the_job():
+    """C18: ``rows[0]`` of an empty list was an IndexError naming nothing."""
+    from eval.pytest_plugin import the_row
+
+    row = {"strategy": "none", "settings": "{}"}
+    assert the_row([row], "none", "depotbench_run('smoke')") is row
+    with pytest.raises(InputError, match=r"depotbench_run\('smoke'\): .*no row for strategy 'box_rule'"):
+        the_row([row], "box_rule", "depotbench_run('smoke')")
