@@ -16,7 +16,10 @@ def test_walking(depotbench_run):
 ```
 
 Sequences are generated once per session (and the stage cache serves every run);
-``--depotbench-dir`` keeps them between sessions.
+``--depotbench-dir`` keeps them between sessions, and pytest-xdist workers may share it
+(one of them makes a sequence or run while the others wait for it). A configuration that
+cannot run (a strategy the tracker does not take, an unknown setting) is refused in one
+line before anything is generated.
 """
 
 from __future__ import annotations
