@@ -1,7 +1,7 @@
 """Any SLAM program as a tracker, through a command template.
 
-The template is split like a shell command line (``shlex``) but run without a
-shell; each word may hold placeholders:
+The template is split like a shell command line (``shlex``) and run without a
+shell. Placeholders stand for whole words (arguments):
 
 ``{sequence}``      the sequence folder (a masked copy under ``mask``)
 ``{associations}``  its associations.txt (written when the folder has none)
@@ -13,13 +13,35 @@ shell; each word may hold placeholders:
 
 e.g. ``rgbd_tum {vocabulary} {settings} {sequence} {associations}``. Frames with
 a pose in the trajectory count as tracked; the program reports no per-frame time.
+
+A placeholder must be a whole word, with no format spec or conversion (``{sequence:d}``
+once raised a traceback, ``{sequence:>1000000000}`` built a 1 GB argument). Each value
+reaches the program as exactly one argument, whatever its characters: a folder named
+``x;rm -rf ~`` is just a name. Inside a word it would be text that a program may parse
+again (``sh -c 'test -d {sequence}'`` ran the shell syntax of a hostile folder name),
+and which programs do that (shells, ``python -c``, ``ssh``) cannot be told from here,
+so the rule has no exceptions. A shell script takes the values as its arguments,
+``sh -c 'cd "$1" && slam "$2"' sh {sequence} {settings}``, or from the environment:
+every value is also in ``DEPOTBENCH_SEQUENCE``, ``DEPOTBENCH_ASSOCIATIONS``,
+``DEPOTBENCH_SETTINGS``, ``DEPOTBENCH_TRAJECTORY`` and, when the template names
+``{vocabulary}`` or ``DEPOTBENCH_VOCABULARY`` (building one takes minutes),
+``DEPOTBENCH_VOCABULARY``. For the same reason a placeholder may not be the script of a
+shell (``sh -c {sequence}``).
+
+The program runs in a scratch folder (its working directory) in ``$TMPDIR``; a
+program word with a slash (``./my_slam.sh``) is found from the folder depotbench was
+started in, a bare name in ``PATH``. Other relative paths in the template are the
+program's to resolve, from the scratch folder. The program, whatever it started in
+its process group, and the scratch folder end with depotbench, SIGKILL included
+(``eval.trackers.reaper``).
 """
 
 from __future__ import annotations
 
+import os
+import re
 import shlex
 import string
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -28,6 +50,7 @@ import numpy as np
 from eval.frames import FrameSource
 from eval.trackers.base import TrackerError, TrackerRun
 from eval.trackers.external import poses_by_frame, run_child, write_settings
+from eval.trackers.reaper import Scratch
 from eval.trajectory import read_tum
 from sim.errors import InputError
 from sim.sequence import timestamp_name
@@ -35,10 +58,15 @@ from slam.types import TrackingState
 
 PLACEHOLDERS = ("sequence", "associations", "settings", "vocabulary", "trajectory")
 DEFAULT_TRAJECTORY = "CameraTrajectory.txt"
+ENVIRONMENT_PREFIX = "DEPOTBENCH_"
+SHELLS = frozenset({"sh", "bash", "dash", "zsh", "ksh", "mksh", "ash", "yash", "fish", "busybox"})
+SCRIPT_OPTION = re.compile(r"-[A-Za-z]*c[A-Za-z]*")
+"""``-c`` and clusters holding it (``-ec``, ``-lc``): the next word is a shell's script."""
 
 
 def parse_template(template: str) -> list[str]:
-    """The template's words, refused when empty, unbalanced or naming unknown placeholders."""
+    """The template's words, refused when empty, unbalanced, naming unknown placeholders,
+    or using one in any way but as a whole word (see the module's docstring)."""
     try:
         words = shlex.split(template)
     except ValueError as exc:
@@ -46,21 +74,68 @@ def parse_template(template: str) -> list[str]:
     if not words:
         raise InputError("--command: the template is empty")
     for word in words:
-        try:
-            names = {name for _, name, _, _ in string.Formatter().parse(word) if name is not None}
-        except ValueError as exc:
-            raise InputError(f"--command: {word!r}: {exc}") from None
-        unknown = names - set(PLACEHOLDERS)
-        if unknown:
-            raise InputError(
-                f"--command: unknown placeholder {{{sorted(unknown)[0]}}}; "
-                f"known: {', '.join('{' + p + '}' for p in PLACEHOLDERS)}"
-            )
+        _check_word(word)
+    _refuse_shell_scripts(words)
     return words
 
 
+def _check_word(word: str) -> None:
+    try:
+        fields = [(name, spec, conversion) for _, name, spec, conversion in string.Formatter().parse(word)]
+    except ValueError as exc:
+        raise InputError(f"--command: {word!r}: {exc}") from None
+    names = [name for name, _, _ in fields if name is not None]
+    for name, spec, conversion in fields:
+        if name is not None and (spec or conversion):
+            raise InputError(
+                f"--command: {word!r}: a placeholder takes no format spec or conversion "
+                f"(write {{{name.split('.')[0].split('[')[0]}}})"
+            )
+    unknown = sorted(set(names) - set(PLACEHOLDERS))
+    if unknown:
+        raise InputError(
+            f"--command: unknown placeholder {{{unknown[0]}}}; "
+            f"known: {', '.join('{' + p + '}' for p in PLACEHOLDERS)}"
+        )
+    if names and word != "{" + names[0] + "}":
+        raise InputError(
+            f"--command: {word!r}: a placeholder must be a whole word: its value is passed as one "
+            f"argument and never through a shell; a shell script takes it as an argument "
+            f'(sh -c \'cd "$1" && ...\' sh {{{names[0]}}}) or from "${ENVIRONMENT_PREFIX}{names[0].upper()}"'
+        )
+
+
+def _refuse_shell_scripts(words: list[str]) -> None:
+    """``sh -c {sequence}`` would run a folder's name as shell commands."""
+    shell = None
+    for option, word in zip(words, words[1:], strict=False):
+        if Path(option).name in SHELLS:
+            shell = Path(option).name
+        elif shell and SCRIPT_OPTION.fullmatch(option) and _placeholder(word):
+            raise InputError(
+                f"--command: {word} is the script of {shell} {option}: a shell would run "
+                f"its value as commands; pass it as an argument (sh -c 'cd \"$1\" && ...' sh {word})"
+            )
+
+
+def _placeholder(word: str) -> str | None:
+    """The placeholder a checked word stands for, None for a literal word."""
+    return word[1:-1] if word[1:-1] in PLACEHOLDERS and word == "{" + word[1:-1] + "}" else None
+
+
 def uses(words: list[str], placeholder: str) -> bool:
-    return any("{" + placeholder + "}" in word for word in words)
+    """Whether the template names the placeholder or its environment variable."""
+    variable = ENVIRONMENT_PREFIX + placeholder.upper()
+    return any(_placeholder(word) == placeholder or variable in word for word in words)
+
+
+def resolve_program(word: str, cwd: Path) -> tuple[str, str]:
+    """The program to start and how to name it in an error: a word with a slash is a
+    path from ``cwd`` (the program runs in a scratch folder), a bare name is found in PATH."""
+    if _placeholder(word) is not None or "/" not in word:
+        return word, f"{word!r} (looked in PATH)" if _placeholder(word) is None else repr(word)
+    path = cwd / word
+    return str(path), f"{word!r} (looked for {path})" if word != str(path) else repr(word)
 
 
 class CommandTracker:
@@ -70,64 +145,109 @@ class CommandTracker:
         self, template: str, vocabulary: Callable[[], Path] | None = None, timeout_s: float = 3600.0
     ) -> None:
         self.words = parse_template(template)
+        # Now, while the working directory is still the user's: the program runs elsewhere.
+        self.program, self.shown = resolve_program(self.words[0], Path.cwd())
         self.vocabulary = vocabulary
         self.timeout_s = timeout_s
 
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         sequence = frames.sequence
-        with tempfile.TemporaryDirectory(prefix="depotbench-cmd-") as scratch_dir:
-            scratch = Path(scratch_dir)
-            folder = frames.folder(scratch).resolve()
-            associations = folder / "associations.txt"
-            if not associations.is_file():
-                associations = scratch / "associations.txt"
-                associations.write_text(
-                    "".join(
-                        f"{timestamp_name(f.timestamp_s)} {f.rgb_path.relative_to(sequence.root)} "
-                        f"{timestamp_name(f.depth_timestamp_s)} {f.depth_path.relative_to(sequence.root)}\n"
-                        for f in sequence.frames
-                    ),
-                    encoding="utf-8",
-                )
-            trajectory = scratch / (
-                "trajectory.txt" if uses(self.words, "trajectory") else DEFAULT_TRAJECTORY
-            )
-            values = {
-                "sequence": str(folder),
-                "associations": str(associations),
-                "settings": str(write_settings(sequence, scratch / "settings.yaml")),
-                "trajectory": str(trajectory),
-                "vocabulary": "",
-            }
-            if uses(self.words, "vocabulary"):
-                if self.vocabulary is None:
-                    raise TrackerError("--command uses {vocabulary}, but no vocabulary was given")
-                values["vocabulary"] = str(self.vocabulary().resolve())
-            argv = [word.format(**values) for word in self.words]
+        try:
+            scratch = Scratch("depotbench-cmd-")
+        except OSError as exc:
+            raise TrackerError(
+                f"cmd: cannot make a scratch folder in {exc.filename}: {exc.strerror}"
+            ) from None
+        with scratch:
+            values = self._values(frames, scratch.path)
+            argv = [self.program, *(word.format(**values) for word in self.words[1:])]
+            if _placeholder(self.words[0]) is not None:
+                argv[0] = values[_placeholder(self.words[0])]
             total_s = run_child(
                 argv,
                 what=f"cmd {Path(argv[0]).name}",
-                cwd=scratch,
+                cwd=scratch.path,
                 timeout_s=self.timeout_s,
                 frames=len(sequence),
                 progress=progress,
+                env=_environment(values),
+                group=scratch.group,
+                program=self.shown,
             )
+            trajectory = Path(values["trajectory"])
             if not trajectory.is_file():
                 raise TrackerError(f"cmd {argv[0]}: wrote no trajectory ({trajectory.name})")
             estimate = read_tum(trajectory)
-        poses = poses_by_frame(sequence, estimate.timestamps_s, estimate.poses)
-        first = next((i for i, pose in enumerate(poses) if pose is not None), len(poses))
-        states = tuple(
-            TrackingState.OK
-            if pose is not None
-            else (TrackingState.NOT_INITIALIZED if i < first else TrackingState.LOST)
-            for i, pose in enumerate(poses)
-        )
-        return TrackerRun(
-            timestamps_s=sequence.timestamps_s,
-            states=states,
-            poses=tuple(poses),
-            track_ms=np.full(len(sequence), np.nan),
-            keyframes=None,
-            total_s=total_s,
-        )
+        return _tracker_run(frames, estimate.timestamps_s, estimate.poses, total_s)
+
+    def _values(self, frames: FrameSource, scratch: Path) -> dict[str, str]:
+        """The placeholders' values; what they name is written into ``scratch``."""
+        try:
+            folder = frames.folder(scratch).resolve()
+            associations = folder / "associations.txt"
+            if not associations.is_file():
+                associations = _write_associations(frames, scratch / "associations.txt")
+            settings = write_settings(frames.sequence, scratch / "settings.yaml")
+        except OSError as exc:
+            raise TrackerError(f"cmd: cannot write to the scratch folder {scratch}: {exc.strerror}") from None
+        trajectory = scratch / ("trajectory.txt" if uses(self.words, "trajectory") else DEFAULT_TRAJECTORY)
+        values = {
+            "sequence": str(folder),
+            "associations": str(associations),
+            "settings": str(settings),
+            "trajectory": str(trajectory),
+            "vocabulary": "",
+        }
+        if uses(self.words, "vocabulary"):
+            if self.vocabulary is None:
+                raise TrackerError("--command uses {vocabulary}, but no vocabulary was given")
+            values["vocabulary"] = str(self.vocabulary().resolve())
+        return values
+
+
+def _write_associations(frames: FrameSource, path: Path) -> Path:
+    sequence = frames.sequence
+    path.write_text(
+        "".join(
+            f"{timestamp_name(f.timestamp_s)} {f.rgb_path.relative_to(sequence.root)} "
+            f"{timestamp_name(f.depth_timestamp_s)} {f.depth_path.relative_to(sequence.root)}\n"
+            for f in sequence.frames
+        ),
+        encoding="utf-8",
+    )
+    return path
+
+
+def _environment(values: dict[str, str]) -> dict[str, str]:
+    """depotbench's environment with the values as ``DEPOTBENCH_SEQUENCE`` and so on
+    (one left unset when it has none, so that a stale one from outside does not pass)."""
+    env = dict(os.environ)
+    for name, value in values.items():
+        variable = ENVIRONMENT_PREFIX + name.upper()
+        if value:
+            env[variable] = value
+        else:
+            env.pop(variable, None)
+    return env
+
+
+def _tracker_run(
+    frames: FrameSource, timestamps_s: np.ndarray, poses_in: np.ndarray, total_s: float
+) -> TrackerRun:
+    sequence = frames.sequence
+    poses = poses_by_frame(sequence, timestamps_s, poses_in)
+    first = next((i for i, pose in enumerate(poses) if pose is not None), len(poses))
+    states = tuple(
+        TrackingState.OK
+        if pose is not None
+        else (TrackingState.NOT_INITIALIZED if i < first else TrackingState.LOST)
+        for i, pose in enumerate(poses)
+    )
+    return TrackerRun(
+        timestamps_s=sequence.timestamps_s,
+        states=states,
+        poses=tuple(poses),
+        track_ms=np.full(len(sequence), np.nan),
+        keyframes=None,
+        total_s=total_s,
+    )
