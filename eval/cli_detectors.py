@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import os
-import uuid
 from pathlib import Path
 
 from sim.errors import InputError
 from sim.files import dumps_json
-from sim.output import OutputError, check_target
 
 
 def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth") -> None:
@@ -72,42 +69,6 @@ def detector_config(args: argparse.Namespace):
         raise InputError(f"--detector: {exc}") from None
 
 
-def check_output_file(path: Path, overwrite: bool, inputs: tuple[Path, ...] = ()) -> None:
-    """Refuse, before any work, an output file that could not or must not be written.
-
-    The rule (shared with ``check --junit`` and ``vocab -o``): not a folder; not an input, nor
-    inside an input folder (even with ``--overwrite``); its folder exists and takes a new file;
-    an existing file is replaced only with ``--overwrite``, and never a device or pipe. Checked
-    after the work, ``detect-eval --json nodir/x.json`` printed a whole evaluation, then failed.
-    """
-    check_target(path, inputs)  # first: "is the input" says more than "is a folder"
-    if path.is_dir():
-        raise OutputError(f"{path}: is a folder; give a file name for the output")
-    _check_folder_takes_files(path)
-    if path.is_symlink() or path.exists():
-        if not (path.is_symlink() or path.is_file()):
-            raise OutputError(f"{path}: is not a regular file (a device, pipe or socket); give a file name")
-        if not overwrite:
-            raise OutputError(f"{path}: already exists (pass --overwrite to replace it)")
-
-
-def _check_folder_takes_files(path: Path) -> None:
-    """The output's folder exists and a file can be made in it: the file is written atomically,
-    through a temporary sibling, so that is what the write needs. ``os.access`` is no test: it
-    says yes to root for ``/proc``, where creating a file fails."""
-    folder = path.parent
-    if not folder.is_dir():
-        what = "is not a folder" if folder.exists() else "does not exist"
-        raise OutputError(f"{path}: cannot be written: {folder} {what}")
-    probe = folder / f".{path.name}.{uuid.uuid4().hex[:8]}.probe"
-    try:
-        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
-    except OSError as exc:
-        problem = exc.strerror or exc
-        raise OutputError(f"{path}: cannot be written: no file can be made in {folder} ({problem})") from None
-    os.unlink(probe)
-
-
 def add_detect_eval(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "detect-eval",
@@ -131,7 +92,7 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
     from detectors.config import DetectorKind
     from eval.cache import StageCache
     from eval.detection_eval import evaluate_detector, format_evaluation
-    from sim.output import write_text_atomic
+    from sim.output import check_output_file, write_text_atomic
     from sim.sequence import Sequence
 
     config = detector_config(args)
@@ -140,7 +101,7 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
     if args.min_pixels < 1:
         raise InputError(f"--min-pixels must be at least 1, got {args.min_pixels}")
     if args.json is not None:
-        check_output_file(args.json, args.overwrite, tuple(args.sequences))
+        check_output_file(args.json, overwrite=args.overwrite, inputs=tuple(args.sequences), option="--json")
     sequences = [Sequence.open(root) for root in args.sequences]
     for seq in sequences:
         if not seq.is_generated:

@@ -487,7 +487,7 @@ def check_output_file(
     for item in inputs:
         source = item.expanduser().resolve()
         if resolved == source or source in resolved.parents:
-            what = "is an input" if resolved == source else f"lies inside the input {item}"
+            what = "is the input" if resolved == source else f"lies inside the input {item}"
             raise OutputError(f"{shown}: {what}; give another file for the output")
     if path.is_dir():
         raise OutputError(f"{shown}: is a folder; give a file name")

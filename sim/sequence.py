@@ -175,10 +175,16 @@ class Sequence:
         objects_path = self.root / "gt" / "objects.jsonl"
         if not objects_path.exists():
             raise SequenceFormatError(objects_path, None, "file is missing")
+        real_root = self.root.resolve()
+        _check_inside(real_root, objects_path)
         for frame in self.frames:
             mask = self._instance_path(frame)
             if not mask.exists():
                 raise SequenceFormatError(mask, None, "instance image is missing")
+            _check_inside(real_root, mask)
+        for sub, suffix in (("depth", ".png"), ("flow", ".npz")):  # optional, read on demand
+            for path in (self.root / "gt" / sub).glob(f"*{suffix}"):
+                _check_inside(real_root, path)
 
     # -- frames ---------------------------------------------------------------
 
@@ -440,10 +446,19 @@ def _read_frames(root: Path, max_diff_s: float) -> tuple[FrameRef, ...]:
 
 def _inside(root: Path, name: str, list_path: Path, line: int) -> Path:
     """``root / name``, refused when ``name`` is absolute or climbs out of the sequence."""
+    if "\0" in name:
+        raise SequenceFormatError(list_path, line, f"path {name!r} holds a NUL character")
     normal = posixpath.normpath(name.replace("\\", "/"))
     if posixpath.isabs(normal) or normal == ".." or normal.startswith("../"):
         raise SequenceFormatError(list_path, line, f"path {name!r} points outside the sequence folder")
     return root / normal
+
+
+def _check_inside(real_root: Path, path: Path) -> None:
+    """Refuse a ground-truth file that a link leads out of the sequence folder."""
+    real = path.resolve()
+    if real_root not in real.parents:
+        raise SequenceFormatError(path, None, f"is a link out of the sequence folder (to {real})")
 
 
 def _check_contained(real_root: Path, path: Path, root: Path, frame: FrameRef) -> None:

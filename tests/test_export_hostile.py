@@ -215,7 +215,7 @@ def test_detect_eval_json_never_writes_into_an_input(seq: Path, tmp_path: Path, 
 @pytest.mark.parametrize(
     ("where", "needle"),
     [
-        ("nodir/x.json", "nodir"),
+        ("afile/sub/x.json", "afile"),
         ("afile/x.json", "afile"),
         ("/proc/x.json", "/proc"),
         ("folder", "is a folder"),

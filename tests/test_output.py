@@ -638,7 +638,7 @@ def _no_run(monkeypatch) -> None:
 @pytest.mark.parametrize(
     ("target", "needle"),
     [
-        ("g.yaml", "is an input"),
+        ("g.yaml", "is the input"),
         ("seq/groundtruth.txt", "lies inside the input"),
         ("notes.txt", "already exists (pass --overwrite"),
         ("afile/j.xml", "is not a folder"),

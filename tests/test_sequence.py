@@ -397,3 +397,15 @@ def test_a_frame_reached_through_a_link_out_of_the_folder_is_refused(seq_dir: Pa
 def test_a_sequence_folder_that_is_itself_a_link_is_read(seq_dir: Path, tmp_path: Path):
     (tmp_path / "alias").symlink_to(seq_dir)
     assert len(Sequence.open(tmp_path / "alias")) == len(Sequence.open(seq_dir))
+
+
+@pytest.mark.parametrize("name", ["gt/objects.jsonl", "gt/instances/1.033333.png"])
+def test_ground_truth_reached_through_a_link_out_of_the_folder_is_refused(
+    seq_dir: Path, tmp_path: Path, name: str
+):
+    outside = tmp_path / "outside"
+    shutil.copyfile(seq_dir / name, outside)
+    (seq_dir / name).unlink()
+    (seq_dir / name).symlink_to(outside)
+    with pytest.raises(SequenceFormatError, match=rf"{name}: is a link out of the sequence folder"):
+        Sequence.open(seq_dir)
