@@ -85,18 +85,17 @@ def _check_word(word: str) -> None:
     except ValueError as exc:
         raise InputError(f"--command: {word!r}: {exc}") from None
     names = [name for name, _, _ in fields if name is not None]
-    for name, spec, conversion in fields:
-        if name is not None and (spec or conversion):
-            raise InputError(
-                f"--command: {word!r}: a placeholder takes no format spec or conversion "
-                f"(write {{{name.split('.')[0].split('[')[0]}}})"
-            )
     unknown = sorted(set(names) - set(PLACEHOLDERS))
     if unknown:
         raise InputError(
             f"--command: unknown placeholder {{{unknown[0]}}}; "
             f"known: {', '.join('{' + p + '}' for p in PLACEHOLDERS)}"
         )
+    for name, spec, conversion in fields:
+        if name is not None and (spec or conversion):
+            raise InputError(
+                f"--command: {word!r}: a placeholder takes no format spec or conversion (write {{{name}}})"
+            )
     if names and word != "{" + names[0] + "}":
         raise InputError(
             f"--command: {word!r}: a placeholder must be a whole word: its value is passed as one "
