@@ -8,61 +8,147 @@ unfinished transaction back). Rerunning a sweep skips the keys already present.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
+import os
 import sqlite3
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
 from typing import Any
 
 from eval.record import FIELDS, RECORD_VERSION, RunRecord
 from sim.errors import InputError
+from sim.files import open_regular
 from sim.output import write_text_atomic
 
-_TYPES = {
-    "frames": "INTEGER",
-    "lost_frames": "INTEGER",
-    "keyframes": "INTEGER",
-    "moving_inliers": "INTEGER",
-    "record_version": "INTEGER",
-}
-_TEXT = {
-    "key",
-    "family",
-    "sequence",
-    "tracker",
-    "detector",
-    "strategy",
-    "settings",
-    "bench_version",
-    "signature",
-    "computed_by",
-}
+_KIND_OF_TYPE = {"str": str, "int": int, "float": float}
+_KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_fields(RunRecord)}
+"""Each column's Python type, from ``RunRecord``'s annotations (one source of truth)."""
+_NULLABLE = {f.name for f in dataclass_fields(RunRecord) if str(f.type).endswith("| None")}
+_SQL = {str: "TEXT", int: "INTEGER", float: "REAL"}
 
 
 def _column(name: str) -> str:
-    kind = "TEXT" if name in _TEXT else _TYPES.get(name, "REAL")
-    return f"{name} {kind}{' PRIMARY KEY' if name == 'key' else ''}"
+    return f"{name} {_SQL[_KINDS[name]]}{' PRIMARY KEY' if name == 'key' else ''}"
+
+
+SQLITE_HEADER = b"SQLite format 3\x00"
+LOCK_WAIT_S = 30.0
+"""How long a write waits for another program's lock on the file (a viewer, a backup)."""
+
+
+class StoreError(InputError):
+    """A results database that cannot be used: the message names the file and the cause."""
+
+
+def store_error(path: Path, exc: sqlite3.Error) -> StoreError:
+    """One line for what SQLite says, naming the file and what to do (the messages of
+    SQLite's error codes, not one "not a database" for all of them)."""
+    text = str(exc)
+    causes = {
+        "database is locked": "another program holds it locked (a viewer, a backup); close it and run again",
+        "database or disk is full": "the disk is full; the rows written so far are kept: free space, rerun",
+        "unable to open database file": "cannot be opened (a missing, unreadable or read-only folder)",
+        "attempt to write a readonly database": "is read-only",
+        "disk I/O error": "cannot be read or written (disk I/O error)",
+    }
+    for needle, cause in causes.items():
+        if needle in text:
+            return StoreError(f"{path}: {cause}")
+    return StoreError(f"{path}: not a depotbench results database ({text})")
 
 
 class ResultStore:
-    def __init__(self, path: Path) -> None:
+    """``readonly`` opens an existing database for reading only: a report never changes it,
+    and reads it from a read-only place."""
+
+    def __init__(self, path: Path, readonly: bool = False) -> None:
         self.path = path
+        self.readonly = readonly
+        existing = path.exists()
+        if existing or readonly:
+            self._check_existing()  # read-only: a refused file is left byte for byte as it was
         try:
-            self._db = sqlite3.connect(path, timeout=30.0)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute(f"CREATE TABLE IF NOT EXISTS runs ({', '.join(_column(f) for f in FIELDS)})")
-            self._db.execute("CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value TEXT)")
-            self._db.commit()
-            columns = [row[1] for row in self._db.execute("PRAGMA table_info(runs)")]
-        except sqlite3.DatabaseError as exc:
-            raise InputError(f"{path}: not a depotbench results database ({exc})") from None
-        if tuple(columns) != FIELDS:
-            raise InputError(
+            if readonly:
+                self._db = self._open_readonly()
+            else:
+                self._db = sqlite3.connect(path, timeout=LOCK_WAIT_S)
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute(f"CREATE TABLE IF NOT EXISTS runs ({', '.join(_column(f) for f in FIELDS)})")
+                self._db.execute("CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value TEXT)")
+                self._db.commit()
+        except sqlite3.Error as exc:
+            raise store_error(path, exc) from None
+
+    def _open_readonly(self) -> sqlite3.Connection:
+        uri = f"{self.path.resolve().as_uri()}?mode=ro"
+        try:
+            db = sqlite3.connect(uri, uri=True, timeout=LOCK_WAIT_S)
+            db.execute("SELECT count(*) FROM runs").fetchone()
+            return db
+        except sqlite3.OperationalError as exc:
+            if "unable to open" not in str(exc):
+                raise
+        # A write-ahead-log database on a read-only mount: nothing can write it, so SQLite
+        # may read it as immutable (without the shared-memory file it cannot create).
+        db = sqlite3.connect(f"{uri}&immutable=1", uri=True)
+        db.execute("SELECT count(*) FROM runs").fetchone()
+        return db
+
+    def _check_existing(self) -> None:
+        """Refuse a file that is not a results database of this record version, reading it only."""
+        path = self.path
+        try:
+            with os.fdopen(open_regular(path, 1 << 50, "results database"), "rb") as handle:
+                header = handle.read(len(SQLITE_HEADER))
+        except FileNotFoundError:
+            raise StoreError(f"{path}: no results database here") from None
+        except OSError as exc:
+            raise StoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        if not header:
+            return  # an empty file is an empty database: SQLite starts it
+        if header != SQLITE_HEADER:
+            raise StoreError(f"{path}: not a depotbench results database (not an SQLite file)")
+        try:
+            db = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=LOCK_WAIT_S)
+            try:
+                tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+                columns = [row[1] for row in db.execute("PRAGMA table_info(runs)")]
+            finally:
+                db.close()
+        except sqlite3.Error as exc:
+            if "unable to open" in str(exc) and not self.readonly:
+                return  # a WAL database in a read-only folder: the write opens it, or says why
+            raise store_error(path, exc) from None
+        if not tables:
+            return
+        if "runs" not in tables or tuple(columns) != FIELDS:
+            raise StoreError(
                 f"{path}: its runs table has other columns than record version {RECORD_VERSION}; "
                 "give a new output folder"
             )
 
+    def _write(self, sql: str, params: list | tuple) -> None:
+        """One statement in its own transaction: the row is there whole, or not at all."""
+        try:
+            with self._db:
+                self._db.execute(sql, params)
+        except sqlite3.Error as exc:
+            raise store_error(self.path, exc) from None
+
+    def _read(self, sql: str, params: tuple = ()) -> list[tuple]:
+        try:
+            return self._db.execute(sql, params).fetchall()
+        except sqlite3.Error as exc:
+            raise store_error(self.path, exc) from None
+
     def close(self) -> None:
+        """Close; a writer first leaves write-ahead logging, so that the file alone holds every
+        row and a reader (``report``) opens it without making -wal and -shm files beside it."""
+        if not self.readonly:  # with another reader open the log stays; SQLite reads it still
+            with contextlib.suppress(sqlite3.OperationalError):
+                self._db.execute("PRAGMA journal_mode=DELETE")
         self._db.close()
 
     def __enter__(self) -> ResultStore:
@@ -72,38 +158,55 @@ class ResultStore:
         self.close()
 
     def keys(self) -> set[str]:
-        return {row[0] for row in self._db.execute("SELECT key FROM runs")}
+        return {row[0] for row in self._read("SELECT key FROM runs")}
 
     def add(self, record: RunRecord) -> None:
         row = record.to_row()
         names = ", ".join(FIELDS)
         marks = ", ".join("?" for _ in FIELDS)
-        with self._db:  # one transaction: the row is there whole, or not at all
-            self._db.execute(
-                f"INSERT OR REPLACE INTO runs ({names}) VALUES ({marks})", [row[f] for f in FIELDS]
-            )
+        self._write(f"INSERT OR REPLACE INTO runs ({names}) VALUES ({marks})", [row[f] for f in FIELDS])
 
     def by_signature(self, signature: str) -> RunRecord | None:
         """A tracked row with this decision signature, if the store has one."""
-        cursor = self._db.execute(
+        found = self._read(
             f"SELECT {', '.join(FIELDS)} FROM runs WHERE signature = ? AND computed_by = key LIMIT 1",
             (signature,),
         )
-        row = cursor.fetchone()
-        return None if row is None else RunRecord(**dict(zip(FIELDS, row, strict=True)))
+        return RunRecord(**self._typed(found[0])) if found else None
 
     def set_meta(self, name: str, value: str) -> None:
-        with self._db:
-            self._db.execute("INSERT OR REPLACE INTO meta (name, value) VALUES (?, ?)", (name, value))
+        self._write("INSERT OR REPLACE INTO meta (name, value) VALUES (?, ?)", (name, value))
 
     def meta(self, name: str) -> str | None:
-        row = self._db.execute("SELECT value FROM meta WHERE name = ?", (name,)).fetchone()
-        return None if row is None else row[0]
+        found = self._read("SELECT value FROM meta WHERE name = ?", (name,))
+        return None if not found else found[0][0]
 
     def rows(self) -> list[dict[str, Any]]:
-        """Every row, ordered by key (a stable order for comparisons and exports)."""
-        cursor = self._db.execute(f"SELECT {', '.join(FIELDS)} FROM runs ORDER BY key")
-        return [dict(zip(FIELDS, values, strict=True)) for values in cursor]
+        """Every row, ordered by key (a stable order for comparisons and exports), each value
+        of its column's type."""
+        return [
+            self._typed(values) for values in self._read(f"SELECT {', '.join(FIELDS)} FROM runs ORDER BY key")
+        ]
+
+    def _typed(self, values: tuple) -> dict[str, Any]:
+        """A row whose every value has its column's type: SQLite keeps what it is given, so a
+        row edited by hand (``ate_rmse_m = 'oops'``) is refused here, by key and column, not
+        met later as a TypeError in a mean."""
+        row = dict(zip(FIELDS, values, strict=True))
+        for name, value in row.items():
+            kind = _KINDS[name]
+            if value is None and (name in _NULLABLE or kind is str):
+                continue
+            good = isinstance(value, kind) and not isinstance(value, bool)
+            if kind is float and isinstance(value, int):
+                row[name], good = float(value), True
+            if not good:
+                raise StoreError(
+                    f"{self.path}: row {str(row.get('key'))[:16]}: {name} is {value!r}, not "
+                    f"{'a number' if kind in (int, float) else 'text'}; the file was changed outside "
+                    "depotbench: give a new output folder"
+                )
+        return row
 
     def export_csv(self, path: Path, rows: list[dict[str, Any]] | None = None) -> None:
         rows = self.rows() if rows is None else rows
