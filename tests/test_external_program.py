@@ -305,6 +305,22 @@ def test_a_killed_caller_leaves_no_scratch_before_the_program_starts(tmp_path: P
     assert gone_within(5, lambda: not folder.exists())
 
 
+def test_an_interrupted_cleanup_is_finished_by_the_watcher(tmp_path: Path, tmpdir_env: Path, monkeypatch):
+    from eval.trackers import reaper
+
+    scratch = reaper.Scratch("depotbench-cmd-")
+    (scratch.path / "masked").mkdir()
+
+    def interrupted(path) -> None:
+        raise KeyboardInterrupt  # Ctrl-C while depotbench removes the folder itself
+
+    monkeypatch.setattr(reaper.shutil, "rmtree", interrupted)
+    with pytest.raises(KeyboardInterrupt), scratch:
+        pass
+    assert scratch._watcher.wait(timeout=5) == 0
+    assert scratch_folders(tmpdir_env) == []
+
+
 # -- M7: a relative program is found where depotbench was started ------------------------------
 
 

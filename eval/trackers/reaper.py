@@ -74,11 +74,16 @@ class Scratch:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        watcher.kill_group(self.group)  # what the program left running
         try:
-            watcher.kill_group(self.group)  # what the program left running
             shutil.rmtree(self.path)
-        finally:
-            self._quit()
+        except OSError:
+            self._quit()  # it could do no better: the error (naming the file) is ours to show
+            raise
+        except BaseException:  # Ctrl-C in the middle: the watcher, told nothing, removes the rest
+            os.close(self._control)
+            raise
+        self._quit()
 
     def _quit(self) -> None:
         """The watcher exits without touching anything (it did its work if we died first)."""
