@@ -603,10 +603,14 @@ def _run(args: argparse.Namespace) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
     except OSError as exc:
-        if exc.filename is None:
+        from sim.output import WRITE_FAILURES
+
+        if exc.filename is None and exc.errno not in WRITE_FAILURES:
             raise
-        # A path the system refused (missing, unreadable, full disk): the user's to fix.
-        print(f"depotbench {args.verb}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        # A path the system refused (missing, unreadable) or a write that failed (a full disk,
+        # which names no file: the command's output is where it was writing).
+        where = exc.filename if exc.filename is not None else getattr(args, "output", None) or "the output"
+        print(f"depotbench {args.verb}: error: {where}: {exc.strerror}", file=sys.stderr)
         return EXIT_INPUT_ERROR
     except KeyboardInterrupt as exc:
         fresh_line = "\n" if sys.stderr.isatty() else ""  # after a progress bar

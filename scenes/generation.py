@@ -76,6 +76,9 @@ def _generate_all(
         failed = False
     finally:
         pool.close(failed)
+        if failed:  # the killed workers' staging folders and locks: nothing half-written stays
+            for name, _ in pending:
+                clean_if_unowned(out_dir / name)
 
 
 def run_suite(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -19,6 +20,8 @@ from sim.errors import InputError
 from sim.processes import children_block_sigint, exit_with_parent, release_sigint
 
 BACKENDS = ("local", "ray")
+KILL_WAIT_S = 5.0
+"""How long a killed worker may take to be gone (it dies at once; this bounds a stuck kernel)."""
 
 
 def single_threaded() -> None:
@@ -44,6 +47,12 @@ def _init_local_worker(parent_pid: int) -> None:
     release_sigint()
     exit_with_parent(parent_pid)
     single_threaded()
+    # tqdm's default lock is a multiprocessing RLock, whose semaphore a killed worker never
+    # unregisters: Python then warns of a "leaked semaphore" after the error. A worker's bars
+    # are off, so a thread lock serves.
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
 
 
 class LocalPool:
@@ -81,9 +90,14 @@ class LocalPool:
         if self.pool is None:
             return
         if failed:
-            for process in list(getattr(self.pool, "_processes", {}).values()):
+            processes = list(getattr(self.pool, "_processes", {}).values())
+            for process in processes:
                 process.kill()
-            self.pool.shutdown(wait=False, cancel_futures=True)
+            for process in processes:  # dead before the caller cleans what they were writing
+                process.join(KILL_WAIT_S)
+            # Waiting lets the pool's queues be finalised: left to the interpreter's exit,
+            # their semaphores were reported as leaked (two lines after the error's one).
+            self.pool.shutdown(wait=True, cancel_futures=True)
         else:
             self.pool.shutdown(wait=True)
 

@@ -435,6 +435,8 @@ class StagedOutput:
         finally:
             if self._lock is not None:
                 self._lock.release()
+        if isinstance(exc, OSError) and _failed_write(exc, self.target.parent):
+            raise _os_error(self.shown, exc) from None
 
 
 class OutputContainer:
@@ -450,6 +452,7 @@ class OutputContainer:
         self.inputs = inputs
         self.path = self.shown
         self._lock: OutputLock | None = None
+        self._created = False
 
     def __enter__(self) -> OutputContainer:
         self.path, self._lock = _claim(self.shown, self.inputs)
@@ -457,6 +460,7 @@ class OutputContainer:
             if self.path.exists() and not _is_empty_dir(self.path):
                 check_replaceable(self.path, self.shown, self.kind, overwrite=True)
             try:
+                self._created = not self.path.exists()
                 self.path.mkdir(exist_ok=True)
                 if read_marker(self.path) is None:
                     write_text_atomic(self.path / MARKER_NAME, Marker(self.kind).to_json())
@@ -467,9 +471,46 @@ class OutputContainer:
             raise
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc is not None and self._created:
+            self._remove_if_unused()
         if self._lock is not None:
             self._lock.release()
+        if isinstance(exc, OSError) and _failed_write(exc, self.path):
+            raise _os_error(self.shown, exc) from None
+
+    def _remove_if_unused(self) -> None:
+        """A container this run made and that holds nothing but its marker after a failure
+        goes again: a failed command leaves no empty output behind."""
+        try:
+            if [p.name for p in self.path.iterdir()] == [MARKER_NAME]:
+                (self.path / MARKER_NAME).unlink()
+                self.path.rmdir()
+        except OSError:
+            pass  # something else appeared in it meanwhile: it stays, as any output would
+
+
+WRITE_FAILURES = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
+"""What a write into a full, capped or read-only file system fails with."""
+
+
+def _failed_write(exc: OSError, place: Path) -> bool:
+    """Whether ``exc`` is a write into the output failing (a full disk, say), to be told as
+    such: ``write()`` names no file, and a copy names its source, not where it wrote."""
+    if exc.errno not in WRITE_FAILURES:
+        return False
+    written = getattr(exc, "filename2", None) or exc.filename
+    if written is None:
+        return True
+    try:
+        return place.resolve() in Path(os.fsdecode(written)).resolve().parents
+    except (OSError, TypeError, ValueError):
+        return False
 
 
 def check_output_file(

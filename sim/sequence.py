@@ -596,6 +596,7 @@ class SequenceWriter:
         tb: TracebackType | None,
     ) -> None:
         assert self._pool is not None
+        raised = exc
         try:
             self._pool.shutdown(wait=True, cancel_futures=exc_type is not None)
             for future in self._pending:
@@ -604,8 +605,11 @@ class SequenceWriter:
             if exc_type is None:
                 self._finish()
                 self._output.commit()
+        except BaseException as error:
+            raised = error  # a failed write (a full disk): the output names itself in the error
+            raise
         finally:
-            self._output.__exit__(exc_type, exc, tb)
+            self._output.__exit__(type(raised) if raised else None, raised, tb)
 
     def add_frame(
         self,
