@@ -12,12 +12,17 @@ run, the search path only from a fresh start with ``mean_ate``.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from eval.store import ResultStore
+from detectors.config import DetectorConfig
+from eval.cache import content_hash
+from eval.detections import sequence_fingerprint
+from eval.harness import TrackerConfig, tracker_identity
+from eval.store import SQLITE_HEADER, ResultStore
 from eval.sweep import jobs_for, run_jobs
 from eval.sweep_spec import (
     Search,
@@ -29,6 +34,8 @@ from eval.sweep_spec import (
     tracker_configs,
 )
 from sim.errors import InputError
+from sim.files import open_regular
+from sim.sequence import Sequence
 
 STUDY = "optuna.sqlite"
 
@@ -53,6 +60,53 @@ def objective(rows: list[dict[str, Any]], search: Search) -> float:
     return value
 
 
+def study_name(
+    spec: SweepSpec,
+    sequences: list[tuple[Path, str]],
+    trackers: list[TrackerConfig],
+    detectors: list[DetectorConfig],
+) -> str:
+    """The study's name: the sweep's, and a hash of everything a trial's value depends on
+    (the space, objective, weight and seed; the sequences' content, trackers and detectors).
+    A study resumed by the sweep's name alone counted trials of an old space or objective,
+    and could report a "best" outside the space asked for."""
+    assert spec.search is not None
+    key = content_hash(
+        spec.search.model_dump(mode="json"),
+        [sequence_fingerprint(Sequence.open(root)) for root, _ in sequences],
+        [tracker_identity(t) for t in trackers],
+        [(d.key(), d.faults.to_dict()) for d in detectors],
+    )
+    return f"{spec.sweep}-{key[:12]}"
+
+
+def _open_study(optuna, path: Path, name: str, seed: int):
+    """The study ``name`` in ``path``, created or resumed (a trial cut short by a kill is
+    marked failed); a file that is not a readable Optuna database is refused untouched."""
+    if path.exists():
+        with os.fdopen(open_regular(path, 1 << 40, "Optuna study"), "rb") as handle:
+            if handle.read(len(SQLITE_HEADER)) not in (b"", SQLITE_HEADER):
+                raise InputError(f"{path}: not an Optuna study (not an SQLite file); move it away")
+    from sqlalchemy.exc import SQLAlchemyError
+
+    try:
+        study = optuna.create_study(
+            study_name=name,
+            storage=f"sqlite:///{path}",
+            sampler=optuna.samplers.TPESampler(seed=seed),
+            direction="minimize",
+            load_if_exists=True,
+        )
+        for stale in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+            study.tell(stale.number, state=optuna.trial.TrialState.FAIL)
+    except (SQLAlchemyError, optuna.exceptions.StorageInternalError) as exc:
+        reason = str(getattr(exc, "orig", None) or exc).splitlines()[0]
+        raise InputError(
+            f"{path}: not a readable Optuna study ({reason}); move it away to search again"
+        ) from None
+    return study
+
+
 def run_search(
     spec: SweepSpec,
     spec_path: Path,
@@ -71,15 +125,7 @@ def run_search(
     optuna = _optuna()
     source = str(spec_path)
     trackers, detectors = tracker_configs(spec, source), detector_configs(spec, source)
-    study = optuna.create_study(
-        study_name=spec.sweep,
-        storage=f"sqlite:///{out / STUDY}",
-        sampler=optuna.samplers.TPESampler(seed=search.seed),
-        direction="minimize",
-        load_if_exists=True,
-    )
-    for stale in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
-        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)  # cut short by a kill
+    study = _open_study(optuna, out / STUDY, study_name(spec, sequences, trackers, detectors), search.seed)
     complete = optuna.trial.TrialState.COMPLETE
     families: dict[str, str] = {}
     for trial in study.get_trials(deepcopy=False, states=(complete,)):  # earlier trials' rows

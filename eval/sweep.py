@@ -38,10 +38,12 @@ from eval.sweep_spec import (
     MAX_JOBS,
     SweepSpec,
     Variant,
+    check_search,
     check_variants,
     detector_configs,
     resolve,
     tracker_configs,
+    variant_count,
     variants,
 )
 from eval.trackers.base import TrackerKind
@@ -69,11 +71,11 @@ def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) 
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
     detectors = detector_configs(spec, source)
+    total = len(sequences) * len(trackers) * len(detectors) * variant_count(spec)
+    if total > MAX_JOBS:  # counted before a job is built: the grid may be far larger than memory
+        raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
     found = variants(spec)
     check_variants(spec, found, trackers, source)
-    total = len(sequences) * len(trackers) * len(detectors) * len(found)
-    if total > MAX_JOBS:
-        raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
     return jobs_for(found, trackers, detectors, sequences)
 
 
@@ -104,8 +106,12 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
     detectors, threshold values, the sequence folders and the suite file."""
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
-    detector_configs(spec, source)
+    detectors = detector_configs(spec, source)
+    count = len(trackers) * len(detectors) * variant_count(spec)
+    if count > MAX_JOBS:  # per sequence; ``expand`` counts the sequences too
+        raise SpecError(f"{source}: thresholds: {count} jobs per sequence exceed the limit of {MAX_JOBS}")
     check_variants(spec, variants(spec), trackers, source)
+    check_search(spec, trackers, source)
     for i, name in enumerate(spec.sequences):
         root = resolve(spec, spec_path, name)
         if not root.is_dir():

@@ -33,8 +33,14 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field, model_validator
 
-from detectors.config import DetectorConfig, DetectorConfigError, parse_detector
-from eval.harness import STRATEGY_CHOICES, TrackerConfig, slam_config
+from detectors.config import (
+    DetectorConfig,
+    DetectorConfigError,
+    DetectorKind,
+    check_model_file,
+    parse_detector,
+)
+from eval.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, TrackerConfig, slam_config
 from eval.trackers.base import TrackerKind
 from scenes.schema import SpecError, Strict, load_model
 from sim.errors import InputError
@@ -153,6 +159,8 @@ class SweepSpec(Strict):
         stray = sorted(set(self.thresholds) - set(self.strategies))
         if stray:
             raise ValueError(f"thresholds for {stray[0]!r}, which is not among the strategies")
+        if "none" in self.thresholds:
+            raise ValueError("thresholds for 'none': the baseline takes no thresholds (it rejects nothing)")
         return self
 
 
@@ -186,6 +194,25 @@ def variants(spec: SweepSpec) -> list[Variant]:
     return out
 
 
+def variant_count(spec: SweepSpec) -> int:
+    """How many variants ``variants`` would list, counted without listing them: three axes
+    within their 10,000-value limits make 10^12 variants, which must be refused, not built."""
+    count = 1
+    for strategy in dict.fromkeys(spec.strategies):
+        if strategy != "none":
+            count += math.prod(_count(axis) for axis in spec.thresholds.get(strategy, {}).values())
+    return count
+
+
+def _count(axis: Grid | Range | Random) -> int:
+    if isinstance(axis, Grid):
+        return len(axis.grid)
+    if isinstance(axis, Range):
+        start, stop, step = axis.range
+        return int(math.floor((stop - start) / step + 1e-9)) + 1
+    return axis.random.samples
+
+
 def _values(axis: Grid | Range | Random) -> list[float]:
     if isinstance(axis, Grid):
         return list(axis.grid)
@@ -195,21 +222,30 @@ def _values(axis: Grid | Range | Random) -> list[float]:
 
 
 def detector_configs(spec: SweepSpec, source: str) -> list[DetectorConfig]:
+    """The detectors, their files (``onnx:PATH``, ``names``) relative to the spec's folder as
+    every path of a spec is, and checked to exist before any output is made."""
+    folder = Path(source).parent
     configs = []
     for i, entry in enumerate(spec.detectors):
         e = DetectorEntry(detector=entry) if isinstance(entry, str) else entry
+        settings = {k: str(v) for k, v in e.settings.items()}
+        if settings.get("names"):
+            settings["names"] = str(_beside(folder, settings["names"]))
+        kind, colon, model = e.detector.partition(":")
+        text = f"{kind}:{_beside(folder, model)}" if colon and model else e.detector
         try:
-            configs.append(
-                parse_detector(
-                    e.detector,
-                    {k: str(v) for k, v in e.settings.items()},
-                    {k: str(v) for k, v in e.faults.items()},
-                    e.class_priors,
-                )
-            )
-        except DetectorConfigError as exc:
+            config = parse_detector(text, settings, {k: str(v) for k, v in e.faults.items()}, e.class_priors)
+            if config.kind is DetectorKind.ONNX:
+                check_model_file(config.model_path)
+        except (DetectorConfigError, InputError) as exc:
             raise SpecError(f"{source}: detectors.{i}: {exc}") from None
+        configs.append(config)
     return configs
+
+
+def _beside(folder: Path, name: str) -> Path:
+    path = Path(name).expanduser()
+    return path if path.is_absolute() else folder / path
 
 
 def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
@@ -227,6 +263,14 @@ def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
 
 def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[TrackerConfig], source: str) -> None:
     """Every value against the SLAM configuration and the trackers, before anything runs."""
+    builtin = any(t.kind is TrackerKind.BUILTIN for t in trackers)
+    for strategy in spec.strategies:
+        if not builtin and strategy not in EXTERNAL_STRATEGIES:
+            names = ", ".join(t.kind.value for t in trackers)
+            raise SpecError(
+                f"{source}: strategies: {strategy} needs the built-in tracker (it decides per keypoint); "
+                f"trackers {names} take {' or '.join(EXTERNAL_STRATEGIES)}"
+            )
     for variant in found:
         for tracker in trackers:
             if tracker.kind is not TrackerKind.BUILTIN and variant.strategy not in ("none", "mask"):
@@ -235,6 +279,22 @@ def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[Tracker
                 slam_config(variant.strategy, dict(variant.settings), tracker.kind)
             except InputError as exc:
                 raise SpecError(f"{source}: thresholds.{variant.strategy}: {exc}") from None
+
+
+def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) -> None:
+    """A search space's names and both ends of each interval against the strategy's settings,
+    named as ``search.space.NAME``, before any output or study is made."""
+    if spec.search is None:
+        return
+    kinds = {t.kind for t in trackers}
+    for name, interval in sorted(spec.search.space.items()):
+        for value in (interval.low, interval.high):
+            for kind in kinds:
+                try:
+                    slam_config(spec.search.strategy, {name: setting_text(value)}, kind)
+                except InputError as exc:
+                    reason = str(exc).removeprefix("--set: ")
+                    raise SpecError(f"{source}: search.space.{name}: {reason}") from None
 
 
 def load_sweep(path: Path) -> SweepSpec:

@@ -289,3 +289,131 @@ def test_ray_and_local_generate_a_suite_byte_for_byte(tmp_path: Path):
             if p.is_file() and "lock" not in p.name
         }
     assert len(trees["local"]) > 20 and trees["ray"] == trees["local"]
+
+
+def _search_spec(tmp_path: Path, space: str, trials: int = 2, objective: str = "mean_ate") -> Path:
+    if not (tmp_path / "a").exists():
+        write_sequence(tmp_path / "a", n=6, with_flow=False)
+    return _spec(
+        tmp_path,
+        f"sweep: s\nsequences: [{tmp_path / 'a'}]\nstrategies: [none]\n"
+        f"search:\n  strategy: prior_flow\n  trials: {trials}\n  objective: {objective}\n  space:\n{space}",
+    )
+
+
+def _summary_search(out: Path) -> dict:
+    return json.loads((out / "summary.json").read_text())["search"]
+
+
+def test_a_search_whose_space_or_objective_changed_starts_a_study_of_its_own(tmp_path: Path, capsys):
+    """Probe D3: the study resumed by the sweep's name; after k in [1, 4] became [5, 6] the
+    report's best was k = 2.6, outside the space asked for."""
+    pytest.importorskip("optuna")
+    out = tmp_path / "out"
+    assert main(["sweep", str(_search_spec(tmp_path, "    k: {low: 1.0, high: 4.0}\n")), "-o", str(out)]) == 0
+    spec = _search_spec(tmp_path, "    k: {low: 5.0, high: 6.0}\n", trials=3)
+    assert main(["sweep", str(spec), "-o", str(out)]) == 0
+    search = _summary_search(out)
+    assert search["trials"] == 3 and 5.0 <= float(search["settings"]["k"]) <= 6.0
+    spec = _search_spec(tmp_path, "    k: {low: 5.0, high: 6.0}\n", trials=3, objective="ate_time")
+    assert main(["sweep", str(spec), "-o", str(out)]) == 0
+    assert _summary_search(out)["trials"] == 3 and _summary_search(out)["objective"] == "ate_time"
+
+
+@pytest.mark.parametrize("damage", ["truncated", "not sqlite"])
+def test_a_damaged_study_is_one_line_naming_it(tmp_path: Path, capsys, damage: str):
+    """Probe C9: an 84-line SQLAlchemy traceback for a truncated optuna.sqlite."""
+    pytest.importorskip("optuna")
+    spec, out = _search_spec(tmp_path, "    k: {low: 1.0, high: 4.0}\n"), tmp_path / "out"
+    assert main(["sweep", str(spec), "-o", str(out)]) == 0
+    study = out / "optuna.sqlite"
+    if damage == "truncated":
+        study.write_bytes(study.read_bytes()[:3000])
+    else:
+        study.write_text("my notes\n")
+    before = study.read_bytes()
+    capsys.readouterr()
+    assert main(["sweep", str(spec), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and "optuna.sqlite: not a" in err, err
+    if damage == "not sqlite":
+        assert study.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("space", "needle"),
+    [
+        ("    k: {low: -5.0, high: -1.0}\n", "search.space.k: k = -5.0 is out of range"),
+        ("    kk: {low: 1.0, high: 2.0}\n", "search.space.kk: unknown setting 'kk'"),
+    ],
+)
+def test_a_bad_search_space_is_refused_by_its_field_before_any_output(
+    tmp_path: Path, capsys, space: str, needle: str
+):
+    """Probe M4: the folder, both databases and the baseline run were made first, and the
+    error named `thresholds.prior_flow: --set: …`."""
+    assert main(["sweep", str(_search_spec(tmp_path, space)), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_grid_too_large_to_list_is_refused_before_it_is_built(tmp_path: Path, capsys, monkeypatch):
+    """Probe C12: three axes within their limits made 10^9 variants, built in memory until
+    a MemoryError after 43 s."""
+
+    def listed(spec):
+        raise AssertionError("the grid was listed before it was counted")
+
+    monkeypatch.setattr("eval.sweep.variants", listed)
+    write_sequence(tmp_path / "a", n=3, with_flow=False)
+    axis = "{range: [0.01, 10.0, 0.01]}"
+    spec = _spec(
+        tmp_path,
+        f"sweep: h\nsequences: [{tmp_path / 'a'}]\nstrategies: [none, box_epipolar_flow]\n"
+        f"thresholds:\n  box_epipolar_flow:\n    epsilon_px: {axis}\n    l_thr1_px: {axis}\n"
+        f"    l_thr2_px: {axis}\n",
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "1000000001 jobs per sequence exceed the limit of 100000" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    ("body", "needle"),
+    [
+        ("strategies: [none]\nthresholds: {none: {k: {grid: [2]}}}\n", "the baseline takes no thresholds"),
+        ("trackers: [orbslam3]\nstrategies: [box_rule]\n", "strategies: box_rule needs the built-in tracker"),
+    ],
+)
+def test_a_spec_part_that_would_be_skipped_silently_is_refused(
+    tmp_path: Path, capsys, body: str, needle: str
+):
+    write_sequence(tmp_path / "a", n=3, with_flow=False)
+    spec = _spec(tmp_path, f"sweep: s\nsequences: [{tmp_path / 'a'}]\n{body}")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_model_and_class_files_in_a_spec_are_found_beside_the_spec(tmp_path: Path, capsys):
+    """Probe M5: `onnx:../models/m.onnx` was looked up from the working directory, after the
+    output folder had been made, and the error named no field."""
+    from detectors.config import SHIPPED_MODEL
+
+    write_sequence(tmp_path / "seq", n=2, with_flow=False)
+    (tmp_path / "models").mkdir()
+    (tmp_path / "specs").mkdir()
+    spec = tmp_path / "specs" / "o.yaml"
+    spec.write_text(
+        'sweep: o\nsequences: [../seq]\nstrategies: [none]\ndetectors: ["onnx:../models/m.onnx"]\n'
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 2
+    err = capsys.readouterr().err
+    assert "o.yaml: detectors.0:" in err and str(tmp_path / "specs" / ".." / "models" / "m.onnx") in err, err
+    assert not (tmp_path / "sw").exists()
+    import shutil
+
+    shutil.copyfile(SHIPPED_MODEL, tmp_path / "models" / "m.onnx")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
