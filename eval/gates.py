@@ -7,6 +7,7 @@ run:                                  # a sweep spec (eval/sweep_spec.py): what 
   strategies: [none, box_epipolar_flow]
   thresholds: {box_epipolar_flow: {epsilon_px: {grid: [1.0]}}}
 reference: none                       # time_ratio: time per frame over this strategy's run
+reference_settings: {}                # which of its runs, where the reference strategy is swept
 checks:
   - name: crowd-keeps-tracking
     families: ["demo*"]               # globs over scenario families (default: all)
@@ -30,6 +31,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -101,6 +103,9 @@ class GateFile(Strict):
     description: str = ""
     run: SweepSpec
     reference: str = "none"
+    reference_settings: dict[str, float] = Field(default_factory=dict)
+    """The reference run's threshold values, where ``run`` sweeps the reference strategy:
+    a time ratio is taken against one named run, never against whichever came last."""
     checks: list[Check] = Field(min_length=1)
 
     @model_validator(mode="before")
@@ -118,7 +123,19 @@ class GateFile(Strict):
             raise ValueError("check names must be unique")
         if self.reference != "none" and self.reference not in self.run.strategies:
             raise ValueError(f"reference {self.reference!r} is not among run.strategies")
+        swept = sorted(self.run.thresholds.get(self.reference, {}))
+        if sorted(self.reference_settings) != swept:
+            if not swept:
+                raise ValueError(f"reference_settings: {self.reference} is not swept; leave them out")
+            raise ValueError(
+                f"reference_settings: {self.reference} is swept over {', '.join(swept)}; give the "
+                "value of each, to say which of its runs the time ratio is taken against"
+            )
         return self
+
+    def reference_label(self) -> str:
+        shown = settings_text(dict(sorted(self.reference_settings.items())))
+        return f"{self.reference} {shown}".strip()
 
 
 def load_gates(path: Path) -> GateFile:
@@ -136,11 +153,17 @@ class Verdict:
     value: float | None
     bound: Bound
     passed: bool
+    note: str = ""
+    """What the value was measured against, where that is a choice (the time ratio's run)."""
 
     @property
     def message(self) -> str:
         shown = "missing" if self.value is None else f"{self.value:.4g}"
-        return f"{self.metric} ({METRICS[self.metric]}) = {shown}, budget {' and '.join(self.bound.limits())}"
+        note = f" {self.note}" if self.note else ""
+        return (
+            f"{self.metric} ({METRICS[self.metric]}) = {shown}{note}, "
+            f"budget {' and '.join(self.bound.limits())}"
+        )
 
 
 @dataclass(frozen=True)
@@ -211,13 +234,24 @@ def _selects(check: Check, row: dict[str, Any], tags: dict[str, set[str]]) -> bo
     )
 
 
-def derived_rows(rows: list[dict[str, Any]], reference: str) -> list[dict[str, Any]]:
-    """Rows with rho, the fraction of frames not tracked and the time ratio."""
-    times = {
-        (r["sequence"], r["tracker"], r["detector"]): r["track_ms_mean"]
-        for r in rows
-        if r["strategy"] == reference and (reference != "none" or r["settings"] == "{}")
-    }
+def _same_settings(row: dict[str, Any], wanted: dict[str, float]) -> bool:
+    settings = json.loads(row["settings"])
+    return set(settings) == set(wanted) and all(
+        math.isclose(float(settings[k]), v, rel_tol=1e-9, abs_tol=1e-12) for k, v in wanted.items()
+    )
+
+
+def derived_rows(
+    rows: list[dict[str, Any]], reference: str, reference_settings: dict[str, float] | None = None
+) -> list[dict[str, Any]]:
+    """Rows with rho, the fraction of frames not tracked and the time ratio: a row's time over
+    the one run of the ``reference`` strategy with exactly ``reference_settings`` on the same
+    sequence, tracker and detector."""
+    wanted = reference_settings or {}
+    times: dict[tuple[str, str, str], float | None] = {}
+    for r in rows:
+        if r["strategy"] == reference and _same_settings(r, wanted):
+            times[(r["sequence"], r["tracker"], r["detector"])] = r["track_ms_mean"]
     out = []
     for r in with_rho(rows):
         base = times.get((r["sequence"], r["tracker"], r["detector"]))
@@ -234,7 +268,8 @@ def _within(value: float | None, bound: Bound) -> bool:
 
 def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
     """Check every row each check selects against each of its budgets."""
-    rows = derived_rows(rows, gates.reference)
+    rows = derived_rows(rows, gates.reference, gates.reference_settings)
+    reference = gates.reference_label()
     tags: dict[str, set[str]] = {}
     results, empty = [], []
     for check in gates.checks:
@@ -244,7 +279,15 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
         for row in sorted(selected, key=_row_name):
             name = _row_name(row)
             verdicts = tuple(
-                Verdict(check.name, name, metric, row.get(metric), bound, _within(row.get(metric), bound))
+                Verdict(
+                    check.name,
+                    name,
+                    metric,
+                    row.get(metric),
+                    bound,
+                    _within(row.get(metric), bound),
+                    f"against {reference}" if metric == "time_ratio" else "",
+                )
                 for metric, bound in check.budgets.items()
             )
             results.append(CheckResult(check.name, name, verdicts, float(row["wall_time_s"] or 0.0)))
@@ -257,7 +300,7 @@ def format_report(report: GateReport) -> str:
     for result in report.results:
         budgets = "  ".join(
             f"{'' if v.passed else '!!'}{v.metric} {'missing' if v.value is None else f'{v.value:.4g}'} "
-            f"({','.join(v.bound.limits(space=''))})"
+            f"({','.join(v.bound.limits(space=''))}{', ' + v.note if v.note else ''})"
             for v in result.verdicts
         )
         lines.append(f"{result.check[:24]:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")
@@ -280,7 +323,7 @@ def junit_xml(report: GateReport) -> str:
     failures = sum(not r.passed for r in report.results) + len(report.empty_checks)
     suite = ET.Element(
         "testsuite",
-        name=f"depotbench.{report.gates}",
+        name=_xml(f"depotbench.{report.gates}"),
         tests=str(cases),
         failures=str(failures),
         errors="0",
@@ -290,18 +333,30 @@ def junit_xml(report: GateReport) -> str:
         case = ET.SubElement(
             suite,
             "testcase",
-            classname=f"depotbench.{report.gates}.{result.check}",
-            name=result.row,
+            classname=_xml(f"depotbench.{report.gates}.{result.check}"),
+            name=_xml(result.row),
             time=f"{result.seconds:.3f}",
         )
         failed = [v for v in result.verdicts if not v.passed]
         if failed:
-            failure = ET.SubElement(case, "failure", message="; ".join(v.message for v in failed))
-            failure.text = "\n".join(v.message for v in failed)
+            failure = ET.SubElement(case, "failure", message=_xml("; ".join(v.message for v in failed)))
+            failure.text = _xml("\n".join(v.message for v in failed))
     for check in report.empty_checks:
-        case = ET.SubElement(suite, "testcase", classname=f"depotbench.{report.gates}.{check}", name="(none)")
+        case = ET.SubElement(
+            suite, "testcase", classname=_xml(f"depotbench.{report.gates}.{check}"), name="(none)"
+        )
         ET.SubElement(case, "failure", message="no run matches this check")
     root = ET.Element("testsuites", tests=str(cases), failures=str(failures))
     root.append(suite)
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+_NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+
+
+def _xml(text: str) -> str:
+    """``text`` with the characters XML 1.0 forbids (control characters, from a folder's
+    name say) written as ``\\xNN``: ElementTree writes them as they are, and the file then
+    fails to parse in every CI system."""
+    return _NOT_XML.sub(lambda m: f"\\x{ord(m.group()):02x}", text)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 from typing import Any
 
 RECORD_VERSION = 2
@@ -23,8 +24,10 @@ class RunRecord:
     family: str
     """The scenario family (the generated scenario's name, or the folder name)."""
     sequence: str
+    """The sequence folder's absolute path: a row is read from other working directories
+    (``report``, a resumed ``check``), where a relative one pointed elsewhere or nowhere."""
     sequence_fingerprint: str
-    """The sequence's content (file list, sizes and times, generator key) when it ran."""
+    """``detections.sequence_fingerprint`` when it ran: its folder and the bytes of its files."""
     tracker: str
     detector: str
     strategy: str
@@ -75,7 +78,7 @@ class RunRecord:
         return cls(
             key=key,
             family=family,
-            sequence=metrics["sequence"],
+            sequence=str(Path(metrics["sequence"]).resolve()),
             sequence_fingerprint=fingerprint,
             tracker=metrics["tracker"],
             detector=metrics["detector"],

@@ -352,6 +352,7 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
         flow=scenario.flow,
         sensor=sim_spec.SensorSpec(**scenario.sensor.model_dump()),
         layout_seed=lay.seed,
+        tags=tuple(scenario.tags),
     )
 
 

@@ -111,6 +111,9 @@ class ScenarioSpec:
     sensor: SensorSpec = field(default_factory=SensorSpec)
     layout_seed: int | None = None
     """Draw the layout from this seed instead of the scenario seed (suites vary actors only)."""
+    tags: tuple[str, ...] = ()
+    """The scenario's tags (``smoke``, ``crowd``): they shape no pixel, but meta.json keeps
+    them, so that a gate's ``tags:`` can select the runs of a sequence by them."""
 
     def __post_init__(self) -> None:
         if self.frames < 1:

@@ -237,3 +237,79 @@ def test_the_pytest_plugin_runs_gates_and_budgets_as_fixtures(walking: Path, tmp
     result.assert_outcomes(passed=2, failed=2)
     result.stdout.fnmatch_lines(["*impossible [[]walking_static walking builtin groundtruth*ate_rmse_m*"])
     result.stdout.fnmatch_lines(["*rejection_recall (rejection recall) = *budget >= 1.01*"])
+
+
+def test_the_time_ratio_is_taken_against_the_named_reference_run():
+    """Probe D10: with the reference strategy swept, the run whose key sorted last was taken
+    (1.051 against epsilon 1, where 0.5 gave 0.873), and nothing said so."""
+    import yaml
+
+    rows = [
+        _row("a", "box_epipolar_flow", 0.02, ms, settings=f'{{"epsilon_px": "{eps}"}}', key=f"k{eps}")
+        for eps, ms in (("0.5", 40.0), ("1", 20.0), ("2", 10.0))
+    ] + [_row("a", "prior_flow", 0.03, 30.0, settings='{"k": "2"}')]
+    text = (
+        "gates: r\nrun:\n  sequences: [x]\n  strategies: [none, box_epipolar_flow, prior_flow]\n"
+        "  thresholds: {{box_epipolar_flow: {{epsilon_px: {{grid: [0.5, 1, 2]}}}}}}\n"
+        "reference: box_epipolar_flow\n{ref}checks:\n  - name: t\n    strategies: [prior_flow]\n"
+        "    budgets: {{time_ratio: {{max: 1.0}}}}\n"
+    )
+    with pytest.raises(ValueError, match="box_epipolar_flow is swept over epsilon_px; give the value"):
+        GateFile.model_validate(yaml.safe_load(text.format(ref="")))
+    gates = GateFile.model_validate(yaml.safe_load(text.format(ref="reference_settings: {epsilon_px: 1}\n")))
+    report = evaluate(gates, rows)
+    (verdict,) = report.results[0].verdicts
+    assert math.isclose(verdict.value, 1.5) and not verdict.passed
+    assert "against box_epipolar_flow epsilon_px=1" in report.failures[0]
+
+
+def test_junit_xml_parses_whatever_characters_a_folder_name_holds():
+    """Probe D9: a control character in a sequence folder's name made the file invalid XML."""
+    rows = [_row("esc\x1bx\x00", "none", 0.1, 20.0)]
+    gates = _gates("- name: c\n  budgets: {ate_rmse_m: {max: 0.01}}\n")
+    root = ET.fromstring(junit_xml(evaluate(gates, rows)).encode())
+    case = root.find("testsuite/testcase")
+    assert "esc\\x1bx\\x00" in case.get("name")
+    assert "ate_rmse_m" in case.find("failure").get("message")
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("tagged") / "seqs" / "s1"
+    assert main(["generate", "smoke", "-o", str(root), "--frames", "3"]) == 0
+    return root
+
+
+def test_a_check_selects_runs_by_their_scenarios_tags(smoke: Path, tmp_path: Path, capsys):
+    """Probe D5: meta.json kept no tags, so every check with `tags:` failed with "no run
+    matches this check"."""
+    gate = tmp_path / "t.yaml"
+    gate.write_text(
+        f"gates: t\nrun:\n  sequences: [{smoke}]\n  strategies: [none]\nchecks:\n"
+        "  - name: tagged\n    tags: [smoke]\n    budgets: {lost_fraction: {max: 1}}\n"
+        "  - name: other\n    tags: [crowd]\n    budgets: {lost_fraction: {max: 1}}\n"
+    )
+    assert main(["check", str(gate), "-o", str(tmp_path / "chk")]) == 1
+    out = capsys.readouterr().out
+    assert "tagged                   pass" in out and "other                    FAIL   (no run matches" in out
+
+
+def test_a_check_resumed_from_another_folder_finds_its_sequences(
+    smoke: Path, tmp_path: Path, capsys, monkeypatch
+):
+    """Probe M10 and D6: rows kept `gates/../seqs/s1`, relative to the first run's working
+    directory, and a resumed check from elsewhere failed on it."""
+    import shutil
+
+    shutil.copytree(smoke.parent, tmp_path / "seqs")
+    (tmp_path / "gates").mkdir()
+    (tmp_path / "gates" / "g.yaml").write_text(
+        "gates: g\nrun:\n  sequences: [../seqs/s1]\n  strategies: [none]\nchecks:\n"
+        "  - name: tagged\n    tags: [smoke]\n    budgets: {lost_fraction: {max: 1}}\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    assert main(["check", "gates/g.yaml", "-o", "chk"]) == 0
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert main(["check", "../gates/g.yaml", "-o", "../chk"]) == 0
+    assert "all budgets held" in capsys.readouterr().out
