@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
 
 
@@ -22,29 +23,51 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_cmd_report)
 
 
-def _cmd_report(args: argparse.Namespace) -> int:
-    from eval.html_report import load_run, render_report
+def _check_rerun(args: argparse.Namespace) -> None:
     from sim.errors import InputError
-    from sim.output import OutputContainer, OutputKind, write_text_atomic
+
+    if not (args.source / "metrics.json").is_file():
+        raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
+    if args.rerun.exists():
+        raise InputError(f"--rerun: {args.rerun} already exists; remove it or give another name")
+    if not args.rerun.parent.is_dir():
+        raise InputError(f"--rerun: {args.rerun.parent} is not a folder")
+    output = args.output.resolve()
+    if output in args.rerun.resolve().parents:
+        # The report folder is replaced as a whole by the next report: the recording would go.
+        raise InputError(
+            f"--rerun: {args.rerun} lies inside the report folder {args.output}; give a path outside it"
+        )
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    """Render, then write: bad input writes nothing. The report folder is staged and swapped
+    into place whole, and the recording is renamed into place after it, so a failure at any
+    point (a full disk, probe C6) leaves neither half-written."""
+    from eval.html_report import render_report, warn
+    from sim.errors import InputError
+    from sim.output import OutputKind, StagedOutput, write_text_atomic
 
     if not args.source.is_dir():
         raise InputError(f"{args.source}: no such folder")
     if args.rerun is not None:
-        if not (args.source / "metrics.json").is_file():
-            raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
-        if args.rerun.exists():
-            raise InputError(f"--rerun: {args.rerun} already exists; remove it or give another name")
-        if not args.rerun.parent.is_dir():
-            raise InputError(f"--rerun: {args.rerun.parent} is not a folder")
-    text = render_report(args.source)  # before anything is written: bad input writes nothing
-    # A folder of depotbench reports (or a new or empty one): never someone else's files.
-    with OutputContainer(args.output, OutputKind.REPORT) as container:
-        path = container.path / "index.html"
-        write_text_atomic(path, text)
+        _check_rerun(args)
+    rendered = render_report(args.source)
+    if args.rerun is not None and rendered.run is None:
+        raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
+    recording = contextlib.nullcontext()
     if args.rerun is not None:
-        from eval.rerun import write_recording
+        from eval.rerun import staged_recording
 
-        write_recording(load_run(args.source), args.rerun)
+        recording = staged_recording(rendered.run, args.rerun)
+    # A folder of depotbench reports (or a new or empty one): never someone else's files.
+    # The recording is written first (the longer write), renamed once the folder is in place.
+    with StagedOutput(args.output, OutputKind.REPORT, overwrite=True) as staged, recording:
+        write_text_atomic(staged.path / "index.html", rendered.text)
+        staged.commit()
+    if args.rerun is not None:
         print(f"wrote {args.rerun} (open it with: rerun {args.rerun})")
+    path = args.output / "index.html"
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in any browser)")
+    warn(rendered.notes)
     return 0

@@ -15,19 +15,35 @@ from __future__ import annotations
 
 import base64
 import html
+import io
 import json
 import math
-from dataclasses import dataclass
+import os
+import sys
+import zipfile
+import zlib
+from array import array
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+    field_validator,
+)
 
 from eval.alignment import Alignment, align
 from eval.sweep_report import pareto_figure, pyplot, settings_text, threshold_figures, with_rho
 from eval.trajectory import Trajectory, associate, read_tum
-from sim.errors import InputError
+from sim.errors import FileError, InputError
+from sim.files import MIB, open_regular, read_text
 from sim.sequence import Sequence
 from slam.types import Rejection, TrackingState
 
@@ -62,48 +78,295 @@ class RunView:
     estimate: Trajectory | None
     sequence: Sequence | None
     diagnostics: dict[str, np.ndarray] | None
+    sequence_problem: str | None = None
+    """Why ``sequence`` is None (not found, damaged): shown where its frames would be."""
 
 
-def load_run(folder: Path) -> RunView:
-    """A run folder written by ``depotbench run``; a missing or damaged file is named."""
-    metrics_path = folder / "metrics.json"
+@dataclass
+class Notes:
+    """What the page leaves out, and why. An omission is an outcome, never silent: each one
+    is listed at the top of the page and in the one warning line on stderr."""
+
+    items: list[str] = field(default_factory=list)
+
+    def add(self, text: str) -> None:
+        if text not in self.items:
+            self.items.append(text)
+
+    def section(self) -> str:
+        if not self.items:
+            return ""
+        listed = "".join(f"<li>{html.escape(t)}</li>" for t in self.items)
+        return f"<section class='notes'><h2>Left out</h2><ul>{listed}</ul></section>"
+
+    def warning(self) -> str | None:
+        """One line (a path may hold a newline: it is shown escaped)."""
+        if not self.items:
+            return None
+        return "left out of the page: " + "; ".join(t.replace("\n", "\\n") for t in self.items)
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """A page, what it leaves out, and the run it shows (for ``--rerun``; None for a sweep)."""
+
+    text: str
+    notes: Notes
+    run: RunView | None = None
+
+
+# -- the sequence a run or row names ------------------------------------------------------
+
+
+def resolve_sequence(recorded: str, base: Path) -> Path | None:
+    """The folder a stored sequence path names, or None when there is none.
+
+    Absolute: as is. Relative: against ``base`` (the sweep or run folder, where a writer
+    keeps a path that travels with it) first, then the working directory (0.3.15 stored
+    paths relative to where the sweep ran, ``specs/../seq``; probe D6). Resolved, so that
+    the sequence's fingerprint, which holds its folder, is the one the sweep computed.
+    """
+    path = Path(recorded)
+    candidates = [path] if path.is_absolute() else [base / path, path]
+    return next((c.resolve() for c in candidates if c.is_dir()), None)
+
+
+def open_sequence(recorded: Any, base: Path) -> tuple[Sequence | None, str | None]:
+    """The sequence a run or row names, or None and why: not found, or damaged (a lost frame
+    file: probe M8). The reason is for the page and the warning line, never dropped."""
+    if not isinstance(recorded, str) or not recorded:
+        return None, "the run names no sequence (metrics.json has no sequence path)"
+    root = resolve_sequence(recorded, base)
+    if root is None:
+        where = "no such folder" if Path(recorded).is_absolute() else f"looked in {base} and in {Path.cwd()}"
+        return None, f"sequence {recorded}: not found ({where})"
     try:
-        metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
-        title = f"{metrics['tracker']} · {metrics['strategy']} · {metrics['detector']}"
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{metrics_path}: cannot read the run's metrics ({exc!r})") from None
-    frames_path = folder / "frames.csv"
+        return Sequence.open(root), None
+    except FileError as exc:  # SequenceFormatError among them: a file of the sequence is bad
+        return None, f"sequence {recorded}: damaged ({exc})"
+
+
+def _inside(path: Path, root: Path) -> bool:
+    path, root = path.resolve(), root.resolve()
+    return path == root or root in path.parents
+
+
+# -- reading a run folder, within bounds -------------------------------------------------
+# The bounded readers of sim/files.py (regular files only, size-checked before reading):
+# frames.csv -> /dev/zero or a 2 GB metrics.json were read until memory ran out (probe C4).
+
+MAX_METRICS_BYTES = 1 * MIB
+"""metrics.json holds statistics, not per-frame values: about 3 KB whatever the run's length."""
+MAX_FRAMES_CSV_BYTES = 8 * MIB
+"""frames.csv: at most ~45 bytes a frame (``1234.123456,not_initialized,12.345``), so a
+100,000-frame run (scenes.schema.MAX_FRAMES) writes about 4.5 MB."""
+MAX_DIAGNOSTICS_BYTES = 2048 * MIB
+"""The decoded arrays of diagnostics.npz: 13.1 KB a frame at the tracker's default 1,000
+keypoints (walking_static), so 1.3 GB for a 100,000-frame run. Checked from the members'
+headers before any array is allocated: a 14 MB zip can declare a 3 GiB array."""
+MAX_NPZ_MEMBERS = 64
+"""diagnostics.npz holds 13 arrays."""
+NPZ_KINDS = "biufU"
+"""The array kinds diagnostics_arrays writes (booleans, integers, floats, text); never
+objects, which would be pickles."""
+FRAME_STATES = {s.value: s.value for s in TrackingState}
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError)
+"""What a damaged archive raises while read: a bad header or CRC, corrupt deflate data, a
+truncated member (numpy's ``EOF: reading array data``)."""
+
+
+def _limit(limit: int) -> str:
+    return f"{limit // MIB} MiB"
+
+
+def _read_run_file(path: Path, limit: int, what: str) -> str:
     try:
-        frames = np.atleast_1d(
-            np.genfromtxt(frames_path, delimiter=",", names=True, dtype=None, encoding="utf-8")
+        return read_text(path, limit, what)
+    except FileNotFoundError:
+        raise FileError(path, None, f"is missing (every run folder has its {path.name})") from None
+
+
+def read_metrics(path: Path) -> dict[str, Any]:
+    """metrics.json: an object whose parts the page reads are of the kind it reads."""
+    text = _read_run_file(path, MAX_METRICS_BYTES, "run's metrics.json")
+    try:
+        metrics = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
+    if not isinstance(metrics, dict):
+        raise FileError(path, None, f"must hold a JSON object, not {type(metrics).__name__}")
+    for name in ("tracker", "strategy", "detector"):
+        if not isinstance(metrics.get(name), str):
+            raise FileError(path, None, f"{name}: missing or not text")
+    for name in ("ate_m", "rpe_translation_m", "rejection", "stage_time"):
+        if not isinstance(metrics.get(name) or {}, dict):
+            raise FileError(path, None, f"{name}: must be an object")
+    if not isinstance((metrics.get("stage_time") or {}).get("tracking_total") or {}, dict):
+        raise FileError(path, None, "stage_time.tracking_total: must be an object")
+    if not isinstance(metrics.get("sequence") or "", str):
+        raise FileError(path, None, "sequence: must be a path (text)")
+    return metrics
+
+
+def read_frames(path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
+    """frames.csv: per frame its timestamp and tracking state, each line checked."""
+    text = _read_run_file(path, MAX_FRAMES_CSV_BYTES, "run's frames.csv")
+    lines = io.StringIO(text)
+    header = lines.readline().rstrip("\r\n").split(",")
+    if "timestamp_s" not in header or "state" not in header:
+        raise FileError(path, 1, "the header must name the columns timestamp_s and state")
+    at, st = header.index("timestamp_s"), header.index("state")
+    stamps: array[float] = array("d")
+    states: list[str] = []
+    for number, line in enumerate(lines, start=2):
+        fields = line.rstrip("\r\n").split(",")
+        if fields == [""]:
+            continue
+        if len(fields) != len(header):
+            raise FileError(path, number, f"{len(fields)} fields, the header names {len(header)}")
+        try:
+            stamp = float(fields[at])
+        except ValueError:
+            stamp = math.nan
+        if not math.isfinite(stamp):
+            raise FileError(path, number, f"timestamp_s {fields[at][:40]!r} is not a finite number")
+        state = FRAME_STATES.get(fields[st])
+        if state is None:
+            known = ", ".join(FRAME_STATES)
+            raise FileError(path, number, f"state {fields[st][:40]!r} is not a tracking state ({known})")
+        stamps.append(stamp)
+        states.append(state)
+    return np.frombuffer(stamps, dtype=float).copy(), tuple(states)
+
+
+def _npy_header(stream, path: Path, member: str) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype of one .npy member, read from its header alone."""
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:
+        raise FileError(path, None, f"member {member}: .npy format {version} is not one numpy.savez writes")
+    if dtype.kind not in NPZ_KINDS or dtype.hasobject or any(n < 0 for n in shape):
+        raise FileError(path, None, f"member {member}: an array of {dtype} {shape}, not a diagnostics array")
+    return shape, dtype
+
+
+def _npz_members(archive: zipfile.ZipFile, path: Path, limit: int, what: str) -> list[zipfile.ZipInfo]:
+    """The members, refused unless each is a plain .npy and together they declare at most
+    ``limit`` bytes of arrays."""
+    members = archive.infolist()
+    if len(members) > MAX_NPZ_MEMBERS:
+        raise FileError(
+            path, None, f"holds {len(members)} members, more than the {MAX_NPZ_MEMBERS} of a {what}"
         )
-        timestamps = np.asarray(frames["timestamp_s"], float)
-        states = tuple(str(s) for s in frames["state"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{frames_path}: cannot read the run's frames ({exc!r})") from None
+    total = 0
+    for info in members:
+        name = info.filename
+        if not name.endswith(".npy") or info.flag_bits & 0x1:
+            raise FileError(path, None, f"member {name[:60]!r} is not a plain .npy array")
+        if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+            raise FileError(path, None, f"member {name}: compression {info.compress_type} is not numpy's")
+        with archive.open(info) as stream:
+            shape, dtype = _npy_header(stream, path, name)
+        total += math.prod(shape) * dtype.itemsize
+        if total > limit or info.file_size > limit:
+            raise FileError(
+                path,
+                None,
+                f"declares more than the {_limit(limit)} limit for a {what} "
+                f"(member {name}: {dtype} {shape}, {total / MIB:.0f} MiB so far)",
+            )
+    return members
+
+
+def read_npz(path: Path, limit: int, what: str) -> dict[str, np.ndarray]:
+    """The arrays of an .npz within bounds: a regular file of at most ``limit`` bytes whose
+    members' headers together declare at most ``limit`` bytes, all checked before any array
+    is allocated (numpy allocates what a header declares, then reads). Belongs in
+    sim/files.py beside read_bytes."""
+    fd = open_regular(path, limit, what)
+    with os.fdopen(fd, "rb") as handle:
+        try:
+            with zipfile.ZipFile(handle) as archive:
+                members = _npz_members(archive, path, limit, what)
+                arrays = {}
+                for info in members:
+                    with archive.open(info) as stream:
+                        arrays[info.filename[:-4]] = np.lib.format.read_array(stream, allow_pickle=False)
+                return arrays
+        except _ZIP_ERRORS as exc:
+            raise FileError(path, None, f"cannot be read as a {what} ({exc})") from None
+
+
+def check_diagnostics(d: dict[str, np.ndarray], path: Path) -> None:
+    """Per-keypoint arrays that agree with the per-frame counts, and decision codes that name
+    a decision: the frame strip and the recording index with them."""
+    for name in ("keypoint_counts", "keypoints_px", "rejection", "rejection_names"):
+        if name not in d:
+            raise FileError(path, None, f"has no {name} array")
+    counts, points, codes = d["keypoint_counts"], d["keypoints_px"], d["rejection"]
+    if counts.ndim != 1 or counts.dtype.kind not in "iu" or (len(counts) and counts.min() < 0):
+        raise FileError(path, None, "keypoint_counts must be one count (an integer >= 0) per frame")
+    if points.ndim != 2 or points.shape[1] != 2 or points.dtype.kind not in "iuf":
+        raise FileError(
+            path, None, f"keypoints_px must be N x 2 pixel positions, not {points.dtype} {points.shape}"
+        )
+    if len(counts) and counts.max() > len(points):
+        raise FileError(
+            path, None, f"keypoint_counts names {counts.max()} keypoints in a frame, more than all"
+        )
+    total = int(counts.sum())
+    for name in ("keypoints_px", "rejection", "moving"):
+        if name in d and (d[name].ndim < 1 or len(d[name]) != total):
+            raise FileError(
+                path, None, f"{name} holds {len(d[name])} keypoints, keypoint_counts add up to {total}"
+            )
+    names = d["rejection_names"]
+    if codes.ndim != 1 or codes.dtype.kind not in "iu" or names.ndim != 1 or names.dtype.kind != "U":
+        raise FileError(path, None, "rejection must be integer codes into rejection_names (text)")
+    if len(codes) and (codes.min() < 0 or codes.max() >= len(names)):
+        raise FileError(path, None, f"rejection holds codes outside 0..{len(names) - 1} (rejection_names)")
+
+
+def load_run(folder: Path, notes: Notes | None = None) -> RunView:
+    """A run folder written by ``depotbench run``; a missing, oversized or damaged file is
+    named. A sequence that cannot be found or opened is noted (``notes``), not fatal."""
+    notes = notes if notes is not None else Notes()
+    metrics = read_metrics(folder / "metrics.json")
+    frames_path = folder / "frames.csv"
+    timestamps, states = read_frames(frames_path)
     trajectory = folder / "trajectory.txt"
     estimate = read_tum(trajectory) if trajectory.is_file() else None
     diagnostics = None
     diagnostics_path = folder / "diagnostics.npz"
-    if diagnostics_path.is_file():
-        try:
-            with np.load(diagnostics_path) as data:
-                diagnostics = {k: data[k] for k in data.files}
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{diagnostics_path}: cannot read the run's diagnostics ({exc!r})") from None
+    if os.path.lexists(diagnostics_path):  # a device or a dangling link is refused by name
+        diagnostics = read_npz(diagnostics_path, MAX_DIAGNOSTICS_BYTES, "run's diagnostics.npz")
+        check_diagnostics(diagnostics, diagnostics_path)
+        if len(diagnostics["keypoint_counts"]) != len(states):
+            raise FileError(
+                frames_path,
+                None,
+                f"lists {len(states)} frames, {diagnostics_path.name} {len(diagnostics['keypoint_counts'])}",
+            )
+    sequence, problem = open_sequence(metrics.get("sequence"), folder)
+    if problem is not None:
+        notes.add(f"{problem}; left out: the frames, the ground truth and the scenario's difficulty")
     return RunView(
-        title=title,
+        title=f"{metrics['tracker']} · {metrics['strategy']} · {metrics['detector']}",
         metrics=metrics,
         timestamps_s=timestamps,
         states=states,
         estimate=estimate,
-        sequence=_open_sequence(metrics.get("sequence")),
+        sequence=sequence,
         diagnostics=diagnostics,
+        sequence_problem=problem,
     )
 
 
-def view_of(title: str, tracked) -> RunView:
-    """A run tracked in this process (``eval.harness.Tracked``)."""
+def view_of(title: str, tracked, sequence: Sequence) -> RunView:
+    """A run tracked in this process (``eval.harness.Tracked``) on ``sequence``."""
     from eval.harness import diagnostics_arrays
 
     run = tracked.run
@@ -113,15 +376,9 @@ def view_of(title: str, tracked) -> RunView:
         timestamps_s=np.asarray(run.timestamps_s, float),
         states=tuple(s.value for s in run.states),
         estimate=run.trajectory(),
-        sequence=_open_sequence(tracked.metrics.get("sequence")),
+        sequence=sequence,
         diagnostics=diagnostics_arrays(run.results, run.labels or []) if run.results is not None else None,
     )
-
-
-def _open_sequence(path: str | None) -> Sequence | None:
-    if not path or not Path(path).is_dir():
-        return None
-    return Sequence.open(Path(path))
 
 
 # -- figures -----------------------------------------------------------------
@@ -226,10 +483,22 @@ def _strip_frames(view: RunView) -> list[int]:
     return list(np.linspace(0, n - 1, STRIP_FRAMES).round().astype(int))
 
 
+def strip_problem(view: RunView) -> str | None:
+    """Why the frame strip cannot be drawn, or None when it can."""
+    d, sequence = view.diagnostics, view.sequence
+    if d is None:
+        return "the tracker kept no per-keypoint diagnostics"
+    if sequence is None:
+        return view.sequence_problem or "no sequence"
+    if len(d["keypoint_counts"]) != len(sequence):
+        return f"the run has {len(d['keypoint_counts'])} frames, its sequence {sequence.root} {len(sequence)}"
+    return None
+
+
 def frame_strip(view: RunView) -> bytes | None:
     """Frames with keypoints coloured by decision (top row) and by true label (bottom row), as JPEG."""
     d, sequence = view.diagnostics, view.sequence
-    if d is None or sequence is None or len(d["keypoint_counts"]) != len(sequence):
+    if strip_problem(view) is not None or d is None or sequence is None:
         return None
     starts = np.r_[0, np.cumsum(d["keypoint_counts"])]
     names = [str(n) for n in d["rejection_names"]]
@@ -275,6 +544,7 @@ th{background:#f1f5f9}td:first-child,th:first-child{text-align:left}
 img{max-width:100%;height:auto;border:1px solid #e2e8f0}.plots{display:flex;flex-wrap:wrap;gap:12px}
 .legend span{display:inline-block;margin-right:14px}.swatch{display:inline-block;width:11px;height:11px;
 border-radius:50%;margin-right:4px;vertical-align:-1px}.fail{color:#b91c1c;font-weight:600}.pass{color:#15803d}
+.notes{background:#fffbeb;border-color:#f59e0b}
 """
 
 
@@ -319,14 +589,38 @@ def _legend() -> str:
     )
 
 
-def difficulty_table(sequence: Sequence | None) -> str:
-    difficulty = (sequence.meta or {}).get("difficulty") if sequence is not None else None
+def difficulty_table(view: RunView) -> str:
+    sequence = view.sequence
+    if sequence is None:
+        return f"<p>Left out: {html.escape(view.sequence_problem or 'no sequence')}.</p>"
+    difficulty = (sequence.meta or {}).get("difficulty")
     if not isinstance(difficulty, dict) or not difficulty:
         return "<p>No difficulty recorded (not a generated sequence).</p>"
     return table(["measure", "value"], [[k.replace("_", " "), v] for k, v in sorted(difficulty.items())])
 
 
-def run_section(view: RunView, heading: str) -> str:
+def _strip_html(view: RunView, notes: Notes) -> str:
+    """The frame strip and its legend, or why there is none (noted when something is wrong:
+    a run without diagnostics, an external tracker's, is not)."""
+    problem = strip_problem(view)
+    strip = None
+    if problem is None:
+        try:
+            strip = frame_strip(view)
+        except FileError as exc:  # a frame file of the sequence that cannot be decoded
+            if view.sequence is None or not _inside(exc.path, view.sequence.root):
+                raise
+            problem = f"sequence {view.sequence.root}: damaged ({exc})"
+        if strip is None and problem is None:
+            problem = "the frames could not be encoded as JPEG"
+    if strip is not None:
+        return _legend() + _img(strip, "frames with keypoints")
+    if view.diagnostics is not None and view.sequence is not None:
+        notes.add(f"{view.title}: frame strip: {problem}")
+    return f"<p>No frames to show: {html.escape(str(problem))}.</p>"
+
+
+def run_section(view: RunView, heading: str, notes: Notes) -> str:
     m = view.metrics
     ate, rpe = m.get("ate_m") or {}, m.get("rpe_translation_m") or {}
     rejection = m.get("rejection") or {}
@@ -361,33 +655,29 @@ def run_section(view: RunView, heading: str) -> str:
         _img(figure_png(trajectory_figure(view)), "trajectory from above"),
         _img(figure_png(error_figure(view)), "error over time"),
     ]
-    strip = frame_strip(view)
-    strip_html = (
-        (_legend() + _img(strip, "frames with keypoints"))
-        if strip is not None
-        else "<p>No frames to show.</p>"
-    )
-    where = html.escape(str(view.sequence.root)) if view.sequence is not None else "?"
+    strip_html = _strip_html(view, notes)
+    where = view.sequence.root if view.sequence is not None else view.metrics.get("sequence") or "?"
     return (
-        f"<section><h2>{html.escape(heading)}</h2><p>{html.escape(view.title)} on <code>{where}</code></p>"
+        f"<section><h2>{html.escape(heading)}</h2><p>{html.escape(view.title)} on "
+        f"<code>{html.escape(str(where))}</code></p>"
         f"{summary}<div class='plots'>{''.join(plots)}</div><h3>Frames</h3>{strip_html}"
-        f"<h3>Scenario difficulty</h3>{difficulty_table(view.sequence)}</section>"
+        f"<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
     )
 
 
-def page(title: str, subtitle: str, sections: list[str]) -> str:
+def page(title: str, subtitle: str, sections: list[str], notes: Notes) -> str:
+    """The page; what it leaves out is listed first, where nobody can miss it."""
     return (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         f"<title>{html.escape(title)}</title><style>{STYLE}</style></head><body>"
         f"<header><h1>{html.escape(title)}</h1><p>{html.escape(subtitle)}</p></header>"
-        f"<main>{''.join(sections)}</main></body></html>\n"
+        f"<main>{notes.section()}{''.join(sections)}</main></body></html>\n"
     )
 
 
-def run_page(view: RunView) -> str:
-    return page(
-        f"depotbench run: {view.title}", str(view.metrics.get("sequence", "")), [run_section(view, "Run")]
-    )
+def run_page(view: RunView, notes: Notes) -> str:
+    section = run_section(view, "Run", notes)
+    return page(f"depotbench run: {view.title}", str(view.metrics.get("sequence") or ""), [section], notes)
 
 
 # -- sweeps --------------------------------------------------------------------
@@ -406,80 +696,240 @@ CONFIG_HEADER = [
 ]
 
 
-def _featured_runs(folder: Path, rows: list[dict[str, Any]], best: dict[str, dict]) -> list[RunView]:
-    """Each family's best configuration, and its none run, tracked again from the cache."""
-    from eval.cache import StageCache
-    from eval.harness import track
-    from eval.store import ResultStore
-    from eval.sweep import jobs_for
-    from eval.sweep_spec import SweepSpec, detector_configs, tracker_configs, variants
+MAX_SUMMARY_BYTES = 64 * MIB
+"""summary.json: about 420 bytes a configuration, so 45 MB for the largest sweep (100,000
+jobs, each its own configuration)."""
+Number = StrictFloat | StrictInt | None
 
-    with ResultStore(folder / "results.sqlite") as store:
+
+class _Configuration(BaseModel):
+    """A configuration as ``eval.sweep_report.configurations`` writes it into summary.json."""
+
+    model_config = ConfigDict(extra="allow")
+    family: StrictStr
+    tracker: StrictStr
+    detector: StrictStr
+    strategy: StrictStr
+    settings: dict[StrictStr, StrictStr | StrictFloat | StrictInt]
+    """Threshold values as the sweep wrote them (text, ``"0.5"``); the plots read them as numbers."""
+    sequences: StrictInt
+    ate_rmse_m: Number
+    rho_percent: Number
+    rejection_precision: Number
+    rejection_recall: Number
+    tracked_fraction: Number
+    track_ms_median: Number
+
+    @field_validator("settings")
+    @classmethod
+    def _numbers(cls, settings: dict[str, Any]) -> dict[str, Any]:
+        for name, value in settings.items():
+            try:
+                number = float(value)
+            except ValueError:
+                number = math.nan
+            if not math.isfinite(number):
+                raise ValueError(f"{name}: {str(value)[:40]!r} is not a finite number")
+        return settings
+
+
+class _Summary(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    configurations: list[_Configuration]
+    best: dict[StrictStr, _Configuration]
+    pareto: list[_Configuration]
+
+
+def _first_problem(source: str, exc: ValidationError) -> str:
+    """One line: the first problem pydantic found, and how many more there are."""
+    from scenes.schema import format_validation_error
+
+    lines = format_validation_error(source, exc).splitlines()
+    return lines[0] + (f" (and {len(lines) - 1} more)" if len(lines) > 1 else "")
+
+
+def read_summary(path: Path) -> dict[str, Any]:
+    """summary.json, each part of the kind the page reads (probe C10: ``{}`` was a KeyError)."""
+    try:
+        text = read_text(path, MAX_SUMMARY_BYTES, "sweep's summary.json")
+    except FileNotFoundError:
+        raise FileError(path, None, "is missing (every sweep folder has one)") from None
+    try:
+        summary = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileError(path, exc.lineno, f"not valid JSON ({exc.msg})") from None
+    if not isinstance(summary, dict):
+        kind = type(summary).__name__
+        raise FileError(path, None, f"must hold a JSON object (configurations, best, pareto), not a {kind}")
+    try:
+        _Summary.model_validate(summary)
+    except ValidationError as exc:
+        raise InputError(_first_problem(str(path), exc)) from None
+    return summary  # as written: settings keep their JSON form, which rows are matched by
+
+
+def stored_spec(path: Path):
+    """The sweep spec kept in results.sqlite (meta ``spec``), or None for a sweep without one."""
+    from eval.store import ResultStore
+    from eval.sweep_spec import SweepSpec
+
+    with ResultStore(path, readonly=True) as store:
         stored = store.meta("spec")
     if stored is None:
-        return []
-    spec = SweepSpec.model_validate_json(stored)
-    source = str(folder / "results.sqlite")
-    trackers, detectors, found = tracker_configs(spec, source), detector_configs(spec, source), variants(spec)
+        return None
+    try:
+        return SweepSpec.model_validate_json(stored)
+    except ValidationError as exc:
+        raise InputError(_first_problem(f"{path}: meta 'spec'", exc)) from None
+
+
+class SweepSequences:
+    """The sweep's sequences by the path its rows store, each found (``resolve_sequence``)
+    and opened once. One that is gone or damaged is noted, and the sections that need its
+    frames are left out: the tables come from results.sqlite alone (probes M8, D6)."""
+
+    def __init__(self, folder: Path, notes: Notes) -> None:
+        self.folder = folder
+        self.notes = notes
+        self._opened: dict[str, Sequence | None] = {}
+
+    def get(self, recorded: str) -> Sequence | None:
+        if recorded not in self._opened:
+            sequence, problem = open_sequence(recorded, self.folder)
+            self._opened[recorded] = sequence
+            if problem is not None:
+                self._note(problem)
+        return self._opened[recorded]
+
+    def damaged(self, recorded: str, exc: FileError) -> None:
+        """A frame file found bad while tracked again: the sequence is left out from here on."""
+        self._opened[recorded] = None
+        self._note(f"sequence {recorded}: damaged ({exc})")
+
+    def _note(self, problem: str) -> None:
+        self.notes.add(
+            f"{problem}; left out: its scenario difficulty and run details (the tables are "
+            "from results.sqlite)"
+        )
+
+
+def _row_of(rows: list[dict[str, Any]], family: str, config: dict[str, Any]) -> dict[str, Any] | None:
+    """A stored row of ``config`` in ``family`` (settings compared as sorted JSON)."""
+    settings = json.dumps(config["settings"], sort_keys=True)
+    return next(
+        (
+            r
+            for r in rows
+            if r["family"] == family
+            and r["strategy"] == config["strategy"]
+            and r["detector"] == config["detector"]
+            and r["tracker"] == config["tracker"]
+            and json.dumps(json.loads(r["settings"]), sort_keys=True) == settings
+        ),
+        None,
+    )
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """What re-tracking a stored row needs from the sweep's spec."""
+
+    trackers: list
+    detectors: list
+    variants: list
+
+
+def _missing_job(row: dict[str, Any], fingerprint: str | None) -> str:
+    """Why a stored row has no job in the spec's grid on the sequence as it is now."""
+    if fingerprint is not None and row.get("sequence_fingerprint") not in (None, fingerprint):
+        return (
+            f"sequence {row['sequence']} is not the one the sweep ran on (its files or its folder "
+            "changed, so its fingerprint differs)"
+        )
+    return "its settings are not in the spec's grid (a search trial)"
+
+
+def _track_family(
+    family: str, config: dict, chosen: dict, rows: list[dict], sequence: Sequence, grid: _Grid, notes: Notes
+) -> list[RunView]:
+    """The best run of a family and its none run, tracked again on ``sequence``."""
+    from eval.cache import StageCache
+    from eval.harness import track
+    from eval.sweep import jobs_for
+
+    found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)])
+    jobs = {j.key: j for j in found}
+    fingerprint = found[0].fingerprint if found else None
+    baseline = next(
+        (
+            r
+            for r in rows
+            if r["sequence"] == chosen["sequence"]
+            and r["strategy"] == "none"
+            and r["detector"] == chosen["detector"]
+            and r["tracker"] == chosen["tracker"]
+        ),
+        None,
+    )
+    wanted = [chosen] + ([baseline] if baseline is not None and baseline["key"] != chosen["key"] else [])
     views = []
-    for family, config in sorted(best.items()):
-        settings = json.dumps(config["settings"], sort_keys=True)
-        chosen = next(
-            (
-                r
-                for r in rows
-                if r["family"] == family
-                and r["strategy"] == config["strategy"]
-                and r["detector"] == config["detector"]
-                and r["tracker"] == config["tracker"]
-                and json.dumps(json.loads(r["settings"]), sort_keys=True) == settings
-            ),
-            None,
-        )
-        if chosen is None or not Path(chosen["sequence"]).is_dir():
+    for row in wanted:
+        label = "best" if row is chosen else "baseline (none)"
+        job = jobs.get(row["key"])
+        if job is None:
+            notes.add(f"{family}: the {label} run is not tracked again: {_missing_job(row, fingerprint)}")
             continue
-        jobs = {j.key: j for j in jobs_for(found, trackers, detectors, [(Path(chosen["sequence"]), family)])}
-        wanted = [chosen["key"]]
-        baseline = next(
-            (
-                r["key"]
-                for r in rows
-                if r["sequence"] == chosen["sequence"]
-                and r["strategy"] == "none"
-                and r["detector"] == chosen["detector"]
-                and r["tracker"] == chosen["tracker"]
-            ),
-            None,
+        tracked = track(job.job, StageCache.from_env())
+        shown = settings_text(config["settings"]) if label == "best" else ""
+        title = (
+            f"{family}: {label} — {job.job.tracker.kind.value} · {job.job.strategy} {shown} · "
+            f"{job.job.detector.label}"
         )
-        if baseline is not None and baseline != chosen["key"]:
-            wanted.append(baseline)
-        for key in wanted:
-            job = jobs.get(key)
-            if job is None:
-                continue  # e.g. a search trial's settings: not in the spec's grid
-            tracked = track(job.job, StageCache.from_env())
-            label = "best" if key == chosen["key"] else "baseline (none)"
-            shown = settings_text(config["settings"]) if label == "best" else ""
-            views.append(
-                view_of(
-                    f"{family}: {label} — {job.job.tracker.kind.value} · {job.job.strategy} {shown} · "
-                    f"{job.job.detector.label}",
-                    tracked,
-                )
-            )
+        views.append(view_of(title, tracked, sequence))
     return views
 
 
-def sweep_page(folder: Path, featured: int = 3) -> str:
+def _featured_runs(
+    folder: Path, rows: list[dict[str, Any]], best: dict[str, dict], sequences: SweepSequences, notes: Notes
+) -> list[RunView]:
+    """Each family's best configuration, and its none run, tracked again from the cache."""
+    from eval.sweep_spec import detector_configs, tracker_configs, variants
+
+    spec = stored_spec(folder / "results.sqlite")
+    if spec is None:
+        notes.add(
+            "run details: results.sqlite keeps no sweep spec (meta 'spec') to track the best runs again"
+        )
+        return []
+    source = str(folder / "results.sqlite")
+    grid = _Grid(tracker_configs(spec, source), detector_configs(spec, source), variants(spec))
+    views = []
+    for family, config in sorted(best.items()):
+        chosen = _row_of(rows, family, config)
+        if chosen is None:
+            notes.add(
+                f"{family}: run details: no row of results.sqlite has summary.json's best configuration"
+            )
+            continue
+        sequence = sequences.get(chosen["sequence"])
+        if sequence is None:
+            continue  # noted by ``sequences``
+        try:
+            views += _track_family(family, config, chosen, rows, sequence, grid, notes)
+        except FileError as exc:  # a frame file that cannot be read: the sequence is damaged
+            if not _inside(exc.path, sequence.root):
+                raise
+            sequences.damaged(chosen["sequence"], exc)
+    return views
+
+
+def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     from eval.store import ResultStore
 
-    summary_path = folder / "summary.json"
-    try:
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{summary_path}: cannot read the sweep's summary ({exc})") from None
-    with ResultStore(folder / "results.sqlite") as store:
+    summary = read_summary(folder / "summary.json")
+    with ResultStore(folder / "results.sqlite", readonly=True) as store:
         rows = with_rho(store.rows())
+    sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]
     sections = []
@@ -530,11 +980,11 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
             f"<section><h2>Accuracy against time</h2>{_img(figure_png(front), 'Pareto plot')}"
             f"<h3>Pareto set</h3>{table(PARETO_HEADER, pareto_rows)}</section>"
         )
-    difficulty = _difficulty_rows(rows)
+    difficulty = _difficulty_rows(rows, sequences)
     if difficulty:
         sections.append(f"<section><h2>Scenario difficulty</h2>{difficulty}</section>")
-    for view in _featured_runs(folder, rows, dict(sorted(best.items())[:featured])):
-        sections.append(run_section(view, view.title))
+    for view in _featured_runs(folder, rows, dict(sorted(best.items())[:featured]), sequences, notes):
+        sections.append(run_section(view, view.title, notes))
     all_rows = [
         [
             c["family"],
@@ -557,36 +1007,49 @@ def sweep_page(folder: Path, featured: int = 3) -> str:
     subtitle = (
         f"{len(rows)} runs, {len(configs)} configurations over {len({r['sequence'] for r in rows})} sequences"
     )
-    return page(f"depotbench sweep: {folder.name}", subtitle, sections)
+    return page(f"depotbench sweep: {folder.name}", subtitle, sections, notes)
 
 
-def _difficulty_rows(rows: list[dict[str, Any]]) -> str:
+def _difficulty_rows(rows: list[dict[str, Any]], sequences: SweepSequences) -> str:
     table_rows, columns = [], []
-    for sequence in sorted({r["sequence"] for r in rows}):
-        opened = _open_sequence(sequence)
+    for recorded in sorted({r["sequence"] for r in rows}):
+        opened = sequences.get(recorded)
         difficulty = (opened.meta or {}).get("difficulty") if opened is not None else None
         if not isinstance(difficulty, dict):
-            continue
+            continue  # gone or damaged (noted), or not a generated sequence (none recorded)
         columns = columns or sorted(difficulty)
-        table_rows.append([Path(sequence).name, *[difficulty.get(c) for c in columns]])
+        table_rows.append([Path(recorded).name, *[difficulty.get(c) for c in columns]])
     return table(["sequence", *[c.replace("_", " ") for c in columns]], table_rows) if table_rows else ""
 
 
-def render_report(source: Path) -> str:
-    """The page for a run folder or a sweep folder."""
-    if (source / "results.sqlite").is_file() and (source / "summary.json").is_file():
-        return sweep_page(source)
-    if (source / "metrics.json").is_file():
-        return run_page(load_run(source))
+def render_report(source: Path) -> Rendered:
+    """The page for a run folder or a sweep folder, and what it leaves out."""
+    notes = Notes()
+    # lexists: a summary.json or metrics.json that is a device or a dangling link is refused
+    # by name when read, not mistaken for no file at all.
+    if (source / "results.sqlite").is_file() and os.path.lexists(source / "summary.json"):
+        return Rendered(sweep_page(source, notes), notes)
+    if os.path.lexists(source / "metrics.json"):
+        view = load_run(source, notes)
+        return Rendered(run_page(view, notes), notes, view)
     raise InputError(f"{source}: neither a run folder (metrics.json) nor a sweep folder (results.sqlite)")
 
 
+def warn(notes: Notes, verb: str = "report") -> None:
+    """The one warning line of a page that leaves something out."""
+    line = notes.warning()
+    if line is not None:
+        print(f"depotbench {verb}: warning: {line}", file=sys.stderr)
+
+
 def write_report(source: Path, out: Path) -> Path:
-    """The page written atomically as OUT/index.html (OUT: a folder the caller owns)."""
+    """The page written atomically as OUT/index.html (OUT: a folder the caller owns); what it
+    leaves out is warned about on stderr."""
     from sim.output import write_text_atomic
 
-    text = render_report(source)
+    rendered = render_report(source)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "index.html"
-    write_text_atomic(path, text)
+    write_text_atomic(path, rendered.text)
+    warn(rendered.notes)
     return path
