@@ -902,7 +902,13 @@ def _featured_runs(
         )
         return []
     source = str(folder / "results.sqlite")
-    grid = _Grid(tracker_configs(spec, source), detector_configs(spec, source), variants(spec))
+    try:
+        grid = _Grid(tracker_configs(spec, source), detector_configs(spec, source), variants(spec))
+    except InputError as exc:
+        # A spec names its files relative to the spec file, which the sweep folder does not
+        # keep (``onnx:models/x.onnx``): every result is still in the database.
+        notes.add(f"run details: the sweep's spec cannot build its trackers and detectors again ({exc})")
+        return []
     views = []
     for family, config in sorted(best.items()):
         chosen = _row_of(rows, family, config)

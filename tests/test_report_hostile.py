@@ -341,3 +341,17 @@ def test_a_run_report_finds_its_sequence_or_names_it(copy: Path, capfd, monkeypa
     assert len(lines) == 1 and "warning" in lines[0] and "seq" in lines[0], lines
     page = (copy / "out2" / "index.html").read_text()
     assert "Left out" in page and "not found" in page
+
+
+def test_a_spec_whose_detector_cannot_be_rebuilt_leaves_out_only_the_run_details(copy: Path, capfd):
+    """The stored spec names files relative to a spec file the sweep folder does not keep
+    (``onnx:models/x.onnx``): every result is still in the database."""
+    with sqlite3.connect(copy / "sw" / "results.sqlite") as db:
+        (stored,) = db.execute("SELECT value FROM meta WHERE name = 'spec'").fetchone()
+        spec = {**json.loads(stored), "detectors": ["onnx:models/gone.onnx"]}
+        db.execute("UPDATE meta SET value = ? WHERE name = 'spec'", (json.dumps(spec),))
+    assert main(["report", str(copy / "sw"), "-o", str(copy / "out")]) == 0
+    lines = capfd.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "warning" in lines[0] and "gone.onnx" in lines[0], lines
+    page = (copy / "out" / "index.html").read_text()
+    assert "Best configuration per family" in page and "Left out" in page and "gone.onnx" in page
