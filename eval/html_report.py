@@ -9,6 +9,12 @@ configuration per family, ATE and rejection precision/recall against each swept
 threshold, the accuracy/time Pareto plot, and the run detail of each family's
 best configuration (tracked again from the cache; runs are deterministic, so it
 is the stored run).
+
+Inputs are read within bounds (regular files, size limits, an .npz's declared sizes
+before any array is allocated) and checked, so a hostile or damaged file is one line
+naming it. A sequence that is gone, damaged or changed since the sweep leaves out only
+what needs its frames; the page lists what it left out, and ``depotbench report``
+warns about it in one line.
 """
 
 from __future__ import annotations
