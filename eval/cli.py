@@ -12,12 +12,12 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
-from eval.alignment import Alignment
 from eval.cli_detectors import (
     add_detect_eval,
     add_detector_options,
@@ -28,13 +28,16 @@ from eval.cli_detectors import (
 from eval.cli_gates import add_check
 from eval.cli_report import add_report
 from eval.cli_sweep import add_sweep
-from eval.comparison import Comparison, ComparisonOptions, compare
-from eval.metrics import DeltaUnit, Statistics
-from eval.trajectory import DEFAULT_MAX_DIFF_S, read_tum
 from sim.errors import InputError
-from sim.files import DEFAULT_PNG_COMPRESSION, dumps_json
+
+if TYPE_CHECKING:
+    from eval.comparison import Comparison
+    from eval.metrics import Statistics
 
 EXIT_INPUT_ERROR = 2
+DEFAULT_PNG_COMPRESSION_LEVEL = 1
+"""``sim.files.DEFAULT_PNG_COMPRESSION``, named here so that ``--help`` imports no numpy
+(a test holds the two equal)."""
 MAX_PREVIEW_FRAMES = 16
 """Rows of one preview picture (each 3 frames wide)."""
 EXIT_INTERRUPTED = 128 + signal.SIGINT
@@ -64,6 +67,10 @@ def _workers(text: str) -> int:
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
+    from eval.alignment import Alignment
+    from eval.metrics import DeltaUnit
+    from eval.trajectory import DEFAULT_MAX_DIFF_S
+
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
     p.add_argument("estimate", type=Path, help="estimated trajectory (TUM format)")
@@ -95,6 +102,12 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from eval.alignment import Alignment
+    from eval.comparison import ComparisonOptions, compare
+    from eval.metrics import DeltaUnit
+    from eval.trajectory import read_tum
+    from sim.files import dumps_json
+
     options = ComparisonOptions(
         alignment=Alignment(args.align),
         max_diff_s=args.max_diff,
@@ -112,6 +125,8 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def format_comparison(result: Comparison) -> str:
+    from eval.alignment import Alignment
+
     o = result.options
     header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
     header += f"{'count':>8}"
@@ -214,7 +229,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--png-compression",
         type=_png_level,
-        default=DEFAULT_PNG_COMPRESSION,
+        default=DEFAULT_PNG_COMPRESSION_LEVEL,
         metavar="0-9",
         help="deflate level of the PNGs: 0 stores (files about 3.6x larger), 1-3 use ISA-L (fast), "
         "4-9 zlib (several times slower, a few percent smaller); the same pixels at every level "
@@ -552,10 +567,6 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM (a CI job cancelled, ``timeout``), handled as Ctrl-C: stop, clean up, say so."""
 
 
-def _raise_terminated(signum: int, frame: object) -> None:
-    raise Terminated
-
-
 class _Warnings(logging.Handler):
     """The library's warnings as ``depotbench VERB: warning: ...`` lines on stderr (looked
     up when a line is written: tests and callers replace it)."""
@@ -579,14 +590,28 @@ def _show_warnings(verb: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    _show_warnings(args.verb)
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    from sim.processes import OutsideImports
+
+    # Ctrl-C and SIGTERM raise, but never inside an import (sim.processes.OutsideImports):
+    # building the parser alone imports numpy, SciPy and OpenCV, and commands import MuJoCo.
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = {}
+    if in_main:
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, OutsideImports(Terminated))
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not ignored (nohup, &)
+            previous[signal.SIGINT] = signal.signal(signal.SIGINT, OutsideImports(KeyboardInterrupt))
     try:
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+        except KeyboardInterrupt:
+            print("depotbench: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        _show_warnings(args.verb)
         return _run(args)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -623,5 +648,19 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
+def entry() -> None:
+    """The ``depotbench`` program. A Ctrl-C that lands inside an extension module's import
+    (numpy's, or MuJoCo's as a command starts) leaves CPython marked as interrupted: it then
+    ends itself by SIGINT whatever code we return, and the shell sees a signal, not 130.
+    An interrupted command has cleaned up by the time ``main`` returns, so that exit is
+    taken directly."""
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -6,7 +6,6 @@ import argparse
 from pathlib import Path
 
 from sim.errors import InputError
-from sim.files import dumps_json
 
 
 def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth") -> None:
@@ -92,6 +91,7 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
     from detectors.config import DetectorKind
     from eval.cache import StageCache
     from eval.detection_eval import evaluate_detector, format_evaluation
+    from sim.files import dumps_json
     from sim.output import check_output_file, write_text_atomic
     from sim.sequence import Sequence
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.conventions import frame_along
+from sim.draws import pick
 from sim.products import product
 from sim.shapes import (
     Field,
@@ -93,11 +94,9 @@ class Look:
             belly=float(rng.uniform(0.95, 1.25)),
             head=float(rng.uniform(0.95, 1.05)),
             bust=bool(rng.uniform() < 0.35),
-            top=str(
-                rng.choice(["tshirt", "shirt", "jacket", "vest", "overalls"], p=[0.3, 0.2, 0.2, 0.2, 0.1])
-            ),
+            top=pick(rng, ("tshirt", "shirt", "jacket", "vest", "overalls"), p=(0.3, 0.2, 0.2, 0.2, 0.1)),
             boots=bool(rng.uniform() < 0.5),
-            hair=str(rng.choice(["short", "long", "bald", "cap", "hardhat"], p=[0.4, 0.25, 0.1, 0.1, 0.15])),
+            hair=pick(rng, ("short", "long", "bald", "cap", "hardhat"), p=(0.4, 0.25, 0.1, 0.1, 0.15)),
         )
 
 
@@ -485,7 +484,7 @@ class AnimalLook:
 
     @staticmethod
     def draw(rng: np.random.Generator, kind: str) -> AnimalLook:
-        ears = {"cat": "erect", "pig": "floppy"}.get(kind) or str(rng.choice(["floppy", "erect"]))
+        ears = {"cat": "erect", "pig": "floppy"}.get(kind) or pick(rng, ("floppy", "erect"))
         return AnimalLook(ears, float(rng.uniform(0.85, 1.2)), float(rng.uniform(0.9, 1.12)))
 
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.draws import pick
 from sim.spec import LayoutSpec
 
 Vec3 = tuple[float, float, float]
@@ -90,7 +91,7 @@ def _goods(
             break
         h = float(rng.uniform(0.2, max_h))
         d = float(rng.uniform(0.35, depth))
-        kind = rng.choice(["cardboard", "crate", "sack"], p=[0.5, 0.3, 0.2])
+        kind = pick(rng, ("cardboard", "crate", "sack"), p=(0.5, 0.3, 0.2))
         material = f"{kind}{int(rng.integers(0, 4))}"
         if rng.uniform() < 0.85:
             u = pos + w / 2
@@ -292,7 +293,7 @@ def plan_layout(spec: LayoutSpec, rng: np.random.Generator, keep_out: tuple[Rect
         z = 0.14
         for _ in range(int(rng.integers(1, 4))):
             hz = float(rng.uniform(0.15, 0.35))
-            kind = rng.choice(["crate", "sack", "cardboard"])
+            kind = pick(rng, ("crate", "sack", "cardboard"))
             world.append(
                 Piece(
                     (*centre, z + hz),

@@ -80,3 +80,49 @@ def release_sigint() -> None:
     already pending), then unblock it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+IMPORT_POLL_S = 0.02
+"""How often a signal deferred during an import checks whether the import has ended."""
+
+
+def _importing(frame: object) -> bool:
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):  # type: ignore[attr-defined]
+            return True
+        frame = frame.f_back  # type: ignore[attr-defined]
+    return False
+
+
+class OutsideImports:
+    """A signal handler that raises ``exception`` at once, except inside an import.
+
+    An exception raised while an extension module initialises is turned into "ImportError:
+    initialization failed" (MuJoCo's, SciPy's pybind11 modules), or swallowed by a library's
+    optional import, so a Ctrl-C then gave a traceback or was lost and the command ran on.
+    Inside an import the signal is held and delivered again (``_thread.interrupt_main``) as
+    soon as the main thread is out of every import.
+    """
+
+    def __init__(self, exception: type[BaseException]) -> None:
+        self.exception = exception
+        self._held = False
+
+    def __call__(self, signum: int, frame: object) -> None:
+        if frame is not None and _importing(frame):
+            if not self._held:
+                self._held = True
+                threading.Thread(target=self._redeliver, args=(signum,), daemon=True).start()
+            return
+        self._held = False
+        raise self.exception
+
+    def _redeliver(self, signum: int) -> None:
+        import _thread
+        import sys
+
+        main = threading.main_thread().ident
+        while _importing(sys._current_frames().get(main)):
+            time.sleep(IMPORT_POLL_S)
+        self._held = False
+        _thread.interrupt_main(signum)

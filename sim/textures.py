@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from sim.draws import picks
 from sim.ipp import without_ipp
 
 Colour = tuple[int, int, int]
@@ -54,7 +55,7 @@ def _text(rng: np.random.Generator, image: np.ndarray, n: int, colour: Colour, s
         return
     mask = np.zeros((h, w), np.uint8)
     for _ in range(n):
-        word = "".join(rng.choice(list(_LETTERS), int(rng.integers(2, 7))))
+        word = "".join(picks(rng, _LETTERS, int(rng.integers(2, 7))))
         org = (int(rng.integers(0, max(1, w - 20))), int(rng.integers(min(12, h - 1), h)))
         cv2.putText(
             mask,

@@ -17,6 +17,7 @@ from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
 from sim.camera import Intrinsics
 from sim.camera_rig import CameraRig
 from sim.conventions import gl_from_cv_rotation, quat_wxyz
+from sim.draws import pick
 from sim.figures import AnimalLook, Look, Surface
 from sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
 from sim.mujoco_env import mujoco
@@ -351,7 +352,7 @@ def build_world(scenario: ScenarioSpec) -> World:
         for k, a in enumerate(scenario.actors)
     ]
     clothing = [
-        (a.clothing or str(actor_rng.choice(["plain", "stripes", "plaid"])), a.kind) for a in scenario.actors
+        (a.clothing or pick(actor_rng, ("plain", "stripes", "plaid")), a.kind) for a in scenario.actors
     ]
 
     spec = mujoco.MjSpec()

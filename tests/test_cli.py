@@ -139,3 +139,43 @@ def test_png_compression_changes_file_sizes_not_pixels(tmp_path: Path, capsys):
     assert exit_info.value.code == 2
     assert "--png-compression: must be a zlib level 0-9, got '10'" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def _default_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)  # as from a terminal (a background run ignores it)
+
+
+@pytest.mark.parametrize("delay_s", [0.1, 0.2, 0.3, 0.45])
+def test_ctrl_c_while_the_command_line_starts_is_one_line(tmp_path: Path, delay_s: float):
+    """Probe C15: a Ctrl-C in the first seconds, while the parser imported the library,
+    gave a 19-24 line KeyboardInterrupt traceback; inside MuJoCo's or SciPy's extension
+    modules it became "ImportError: initialization failed". Here the imports take the
+    first 0.5 s (Python itself 0.05 s: a Ctrl-C before depotbench's code runs is Python's)."""
+    import signal
+    import time
+
+    from tests.conftest import REPO
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "eval.cli", "generate", "smoke", "-o", str(tmp_path / "g"), "--frames", "300"],
+        cwd=REPO,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+        preexec_fn=_default_sigint,
+    )
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "g").exists()
+
+
+def test_the_command_line_names_the_png_level_it_defaults_to():
+    from eval.cli import DEFAULT_PNG_COMPRESSION_LEVEL
+    from sim.files import DEFAULT_PNG_COMPRESSION
+
+    assert DEFAULT_PNG_COMPRESSION_LEVEL == DEFAULT_PNG_COMPRESSION
