@@ -27,6 +27,7 @@ _KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_
 """Each column's Python type, from ``RunRecord``'s annotations (one source of truth)."""
 _NULLABLE = {f.name for f in dataclass_fields(RunRecord) if str(f.type).endswith("| None")}
 _SQL = {str: "TEXT", int: "INTEGER", float: "REAL"}
+_KIND_NAMES = {str: "text", int: "an integer", float: "a number"}
 
 
 def _column(name: str) -> str:
@@ -200,11 +201,12 @@ class ResultStore:
             good = isinstance(value, kind) and not isinstance(value, bool)
             if kind is float and isinstance(value, int):
                 row[name], good = float(value), True
+            elif kind is int and isinstance(value, float) and value.is_integer():
+                row[name], good = int(value), True  # 0.3.15 kept some counts in REAL columns
             if not good:
                 raise StoreError(
                     f"{self.path}: row {str(row.get('key'))[:16]}: {name} is {value!r}, not "
-                    f"{'a number' if kind in (int, float) else 'text'}; the file was changed outside "
-                    "depotbench: give a new output folder"
+                    f"{_KIND_NAMES[kind]}; the file was changed outside depotbench: give a new output folder"
                 )
         return row
 

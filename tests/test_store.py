@@ -130,3 +130,17 @@ def test_column_types_come_from_the_record(tmp_path: Path):
     record = _record("k")
     store.add(RunRecord(**{**record.to_row(), "sequence_fingerprint": "1234567890"}))
     assert store.rows()[0]["sequence_fingerprint"] == "1234567890"
+
+
+def test_counts_a_0_3_15_database_kept_as_reals_are_read_as_integers(tmp_path: Path):
+    """0.3.15 made relocalized_frames a REAL column: its whole-number values still read."""
+    store = ResultStore(tmp_path / "r.sqlite")
+    store.add(_record("k"))
+    store._db.execute("UPDATE runs SET relocalized_frames = 0.0, frames = 4.0")
+    store._db.commit()
+    row = store.rows()[0]
+    assert row["relocalized_frames"] == 0 and type(row["frames"]) is int
+    store._db.execute("UPDATE runs SET frames = 4.5")
+    store._db.commit()
+    with pytest.raises(StoreError, match="frames is 4.5, not an integer"):
+        store.rows()
