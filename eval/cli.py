@@ -46,7 +46,10 @@ EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
 def _finite_float(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
@@ -60,7 +63,12 @@ def _positive_float(text: str) -> float:
 
 
 def _workers(text: str) -> int:
-    value = int(text)
+    """A worker count; argparse would name this function in its message ("invalid _workers
+    value"), so a word is refused here."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number of workers, got {text!r}") from None
     if not 1 <= value <= 256:
         raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
     return value

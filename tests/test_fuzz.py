@@ -629,6 +629,10 @@ def _command_cases() -> dict[str, Case]:
         "eval-delta-fraction": Case(gt, (*evaluate, "--rpe-delta", "1.5"), "whole number"),
         "eval-delta-huge": Case(gt, (*evaluate, "--rpe-delta", "1e9"), "no pose pairs"),
         "eval-align": Case(gt, ("__argparse__", *evaluate, "--align", "sim4"), "--align"),
+        "eval-delta-word": Case(gt, ("__argparse__", *evaluate, "--rpe-delta", "one"), "must be a number, got 'one'"),
+        "workers-word": Case(  # probe M9: "invalid _workers value: 'two'" named a private function
+            nothing, ("__argparse__", "generate", "smoke", "-o", "{tmp}/out", "--workers", "two"), "whole number of workers"
+        ),
         "eval-missing-arg": Case(gt, ("__argparse__", "eval", "{tmp}/gt.txt"), "estimate"),
         "generate-seed": Case(nothing, ("generate", "smoke", "-o", "{tmp}/out", "--seed", "-1"), "--seed -1"),
         "generate-seed-huge": Case(
