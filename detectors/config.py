@@ -21,11 +21,13 @@ from detectors.detection import Prior
 from detectors.faults import Faults, check_range
 from detectors.priors import DEFAULT_PRIORS, PriorTable
 from sim.errors import FileError, InputError
-from sim.files import MIB, open_regular
+from sim.files import MIB, file_digest, open_regular
 
 SHIPPED_MODEL = (
     Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "yolox_nano.onnx"
 )
+MAX_NAMES_BYTES = 64 * 1024
+"""A class table (names file or metadata): COCO's 80 names take 624 bytes, LVIS's 1203 about 20 KiB."""
 MAX_MODEL_BYTES = 1024 * MIB
 """An ONNX model file: the shipped YOLOX-nano is 3.6 MB and YOLOv8x about 260 MB. A larger
 file is refused before it is hashed: a 5 GB sparse "model" took 37 s to hash in full before
@@ -99,6 +101,8 @@ class DetectorConfig:
             out["model"] = str(self.model_path)
             out["model_sha256"] = file_sha256(self.model_path)
             out["onnx"] = {f.name: getattr(self.onnx, f.name) for f in fields(self.onnx)}
+            if self.onnx.names:  # the class table's bytes name the boxes as much as the model's do
+                out["names_sha256"] = _names_sha256(Path(self.onnx.names))
         if self.kind is DetectorKind.GROUNDTRUTH:
             out["min_visible_pixels"] = self.min_visible_pixels
         if self.kind is not DetectorKind.NONE:
@@ -163,6 +167,15 @@ def parse_detector(
     except ValueError as exc:
         raise DetectorConfigError(str(exc)) from None
     return config
+
+
+def _names_sha256(path: Path) -> str | None:
+    """The names file's content hash; None when it cannot be read (the detector, built
+    next, then refuses it by name)."""
+    try:
+        return file_digest(path, "class names file", MAX_NAMES_BYTES).hex()
+    except (OSError, FileError):
+        return None
 
 
 def check_model_file(path: Path) -> None:

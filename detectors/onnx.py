@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from detectors.base import DetectorFrame
-from detectors.config import OnnxSettings, check_model_file
+from detectors.config import MAX_NAMES_BYTES, OnnxSettings, check_model_file
 from detectors.detection import Detection
 from detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
 from sim.errors import FileError, InputError
@@ -39,8 +39,6 @@ MAX_INPUT_SIDE = 4096
 """The largest declared input side, px. YOLO exports use 320 to 1280 (1280: the P6 models);
 4096 keeps the letterboxed input tensor within 4096 x 4096 x 3 float32 = 192 MiB, where a
 212-byte model declaring 65536 x 65536 asked for about 22 GB."""
-MAX_NAMES_BYTES = 64 * KIB
-"""A class table (names file or metadata): COCO's 80 names take 624 bytes, LVIS's 1203 about 20 KiB."""
 LAYOUT_SHAPES = {
     "yolox": "1 x N x (5+C), N the grid cells",
     "yolov5": "1 x 3N x (5+C)",

@@ -238,3 +238,15 @@ def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_byt
     vocabulary.write_text("10 6 0 1\n")
     assert len({first, second, tracker_identity(tracker)}) == 3
     assert tracker_identity(TrackerConfig()) == (("kind", "builtin"),)
+
+
+def test_a_detector_is_keyed_by_the_bytes_of_its_class_names_file(tmp_path: Path):
+    """`names=FILE` renames classes: an edited file under the same path is another detector,
+    whose cached boxes and sweep rows are not the old ones."""
+    from detectors.config import parse_detector
+
+    names = tmp_path / "names.txt"
+    names.write_text("person\ndog\n")
+    first = parse_detector("onnx", {"names": str(names)}).key()
+    names.write_text("dog\nperson\n")
+    assert parse_detector("onnx", {"names": str(names)}).key() != first
