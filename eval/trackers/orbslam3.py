@@ -10,7 +10,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ import numpy as np
 from eval.frames import FrameSource
 from eval.trackers.base import TrackerError, TrackerRun
 from eval.trackers.external import run_child, write_settings
+from eval.trackers.reaper import Scratch
 from slam.types import TrackingState
 
 STATES = {
@@ -55,8 +55,14 @@ class Orbslam3Tracker:
         if not self.vocabulary.is_file():
             raise TrackerError(f"{self.vocabulary}: no such vocabulary (build one with `depotbench vocab`)")
         sequence = frames.sequence
-        with tempfile.TemporaryDirectory(prefix="depotbench-orbslam3-") as scratch_dir:
-            scratch = Path(scratch_dir)
+        try:  # a folder and process group that end with depotbench, SIGKILL included
+            guard = Scratch("depotbench-orbslam3-")
+        except OSError as exc:
+            raise TrackerError(
+                f"orbslam3: cannot make a scratch folder in {exc.filename}: {exc.strerror}"
+            ) from None
+        with guard:
+            scratch = guard.path
             request = {
                 "vocabulary": str(self.vocabulary.resolve()),
                 "settings": str(write_settings(sequence, scratch / "settings.yaml")),
@@ -71,6 +77,7 @@ class Orbslam3Tracker:
                 timeout_s=self.timeout_s,
                 frames=len(sequence),
                 progress=progress,
+                group=guard.group,
             )
             records = [json.loads(line) for line in (scratch / "frames.jsonl").read_text().splitlines()]
             keyframes = _data_lines(scratch / "keyframes.txt")
