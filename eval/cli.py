@@ -377,7 +377,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         "--command",
         metavar="TEMPLATE",
         help="--slam cmd: the program and its arguments, with {sequence} {associations} {settings} "
-        "{vocabulary} {trajectory}, run without a shell",
+        "{vocabulary} {trajectory} as whole words, run without a shell (a shell script takes them as "
+        "arguments, \"$1\", or from $DEPOTBENCH_SEQUENCE and the like)",
     )
     p.add_argument(
         "--vocabulary",

@@ -186,7 +186,7 @@ def _generate(sequence: _Sequence) -> None:
             generate(sequence.scenario, sequence.path, progress=False, overwrite=True)
 
 
-def _check_configuration(spec: SweepSpec, strategy: str, job: str) -> None:
+def _check_configuration(spec: SweepSpec, job: str) -> None:
     """Refuse what cannot run as asked, before any generation or vocabulary build: the
     sweep's own checks of trackers and detectors, and every job it will run checked
     against the tracker (the sweep skips those an external tracker cannot run, and then
@@ -196,13 +196,6 @@ def _check_configuration(spec: SweepSpec, strategy: str, job: str) -> None:
 
     trackers = tracker_configs(spec, job)
     detector_configs(spec, job)
-    if strategy == "none" and spec.thresholds.get("none"):
-        # none is the baseline every rho is measured against: the sweep runs it once, bare.
-        name = sorted(spec.thresholds["none"])[0]
-        raise InputError(
-            f"{job}: setting {name!r} does not apply to strategy 'none' (the baseline takes no "
-            "settings; give them to a rejection strategy)"
-        )
     for variant in variants(spec):
         for tracker in trackers:
             try:
@@ -261,7 +254,7 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
             "thresholds": {strategy: {k: {"grid": [v]} for k, v in settings.items()}} if settings else {},
         }
         spec = validate_model(SweepSpec, data, job)
-        _check_configuration(spec, strategy, job)
+        _check_configuration(spec, job)
         wanted = {**marked, **(budgets or {})}
         gates = None
         if wanted:

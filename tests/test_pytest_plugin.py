@@ -185,7 +185,7 @@ def test_a_strategy_the_tracker_cannot_run_is_refused_before_any_work(pytester, 
         # none is the baseline every rho is measured against: the sweep runs it once, bare.
         (
             'depotbench_run("smoke", strategy="none", frames=3, settings={"k": 2})',
-            "*REFUSED: *setting 'k' does not apply to strategy 'none'*",
+            "*REFUSED: *thresholds for 'none': the baseline takes no thresholds*",
         ),
         (
             'depotbench_run("smoke", strategy="box_rule", frames=3, settings={"kk": 2})',
