@@ -22,6 +22,7 @@ import pytest
 
 from eval.trackers.command import parse_template
 from sim.errors import InputError
+from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.conftest import REPO
 from tests.sequences import write_sequence
 from tests.test_output import cli, one_error_line, wait_until_gone
@@ -138,48 +139,15 @@ def test_a_format_spec_is_one_line_from_the_command_line(seq: Path, tmp_path: Pa
 
 # -- C13: stderr is read in bounded pieces ------------------------------------------------------
 
-MEASURE = """
-import resource, subprocess, sys
-cap = int(sys.argv[1])
-def limit():
-    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-proc = subprocess.run(sys.argv[2:], preexec_fn=limit, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-sys.stderr.buffer.write(proc.stderr[-100000:])
-print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
-sys.exit(proc.returncode if proc.returncode >= 0 else 128 - proc.returncode)
-"""
-"""As in tests/test_fuzz.py: a small fresh process forks the capped command and measures
-its peak RSS (KiB), so that pytest's own size is not counted."""
-MEMORY_CAP_BYTES = 2 << 30
-MAX_RSS_MB = 300
-"""The project's bound for any input (tests/test_fuzz.py)."""
-
 
 def test_a_flood_of_stderr_without_newlines_stays_bounded_and_ends_at_once(seq: Path, tmp_path: Path):
     flood = "import os, sys\nchunk = b'x' * (1 << 20)\nfor _ in range(200): os.write(2, chunk)\nsys.exit(3)"
     command = f"{shlex.quote(sys.executable)} -c {shlex.quote(flood)}"
     args = ["run", str(seq), "-o", str(tmp_path / "r"), "--slam", "cmd", "--timeout", "120", "--command"]
     started = time.perf_counter()
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            MEASURE,
-            str(MEMORY_CAP_BYTES),
-            sys.executable,
-            "-m",
-            "eval.cli",
-            *args,
-            command,
-        ],
-        cwd=REPO,
-        capture_output=True,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
-    )
+    code, err, peak_mb = peak_rss_mb([*args, command])
     elapsed_s = time.perf_counter() - started
-    err = proc.stderr.decode("utf-8", "replace")
-    peak_mb = int(proc.stdout.decode().split()[-1]) / 1024
-    assert proc.returncode == 2, err[-2000:]
+    assert code == 2, err[-2000:]
     line = one_error_line(err, "exited with code 3 (xxxx")
     assert len(line) < 1000  # the program's last line, cut short
     assert peak_mb < MAX_RSS_MB, f"{peak_mb:.0f} MB"

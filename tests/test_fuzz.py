@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +24,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from eval.cli import main
-from tests.conftest import REPO
+from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.sequences import write_sequence
 from tests.test_output import snapshot
 
@@ -629,9 +627,13 @@ def _command_cases() -> dict[str, Case]:
         "eval-delta-fraction": Case(gt, (*evaluate, "--rpe-delta", "1.5"), "whole number"),
         "eval-delta-huge": Case(gt, (*evaluate, "--rpe-delta", "1e9"), "no pose pairs"),
         "eval-align": Case(gt, ("__argparse__", *evaluate, "--align", "sim4"), "--align"),
-        "eval-delta-word": Case(gt, ("__argparse__", *evaluate, "--rpe-delta", "one"), "must be a number, got 'one'"),
+        "eval-delta-word": Case(
+            gt, ("__argparse__", *evaluate, "--rpe-delta", "one"), "must be a number, got 'one'"
+        ),
         "workers-word": Case(  # probe M9: "invalid _workers value: 'two'" named a private function
-            nothing, ("__argparse__", "generate", "smoke", "-o", "{tmp}/out", "--workers", "two"), "whole number of workers"
+            nothing,
+            ("__argparse__", "generate", "smoke", "-o", "{tmp}/out", "--workers", "two"),
+            "whole number of workers",
         ),
         "eval-missing-arg": Case(gt, ("__argparse__", "eval", "{tmp}/gt.txt"), "estimate"),
         "generate-seed": Case(nothing, ("generate", "smoke", "-o", "{tmp}/out", "--seed", "-1"), "--seed -1"),
@@ -1064,38 +1066,6 @@ def test_any_corrupted_sequence_file_is_read_or_refused_by_name(
 
 # -- memory: oversized and endless inputs, in a child with a cap -------------------------------------
 
-MEMORY_CAP_BYTES = 2 << 30
-"""Address-space cap of the child: a guard that stops a runaway before it eats the machine."""
-MAX_RSS_MB = 300
-
-
-_MEASURE = """
-import resource, signal, subprocess, sys
-cap = int(sys.argv[1])
-def limit():
-    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-proc = subprocess.run(sys.argv[2:], preexec_fn=limit, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-sys.stderr.buffer.write(proc.stderr)
-print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
-sys.exit(proc.returncode if proc.returncode >= 0 else 128 - proc.returncode)
-"""
-"""Runs a command in a capped child and prints its peak RSS (KiB). A child's ru_maxrss starts
-at its parent's resident size when it forks and execs, so measuring straight from pytest
-reported pytest's own size (375 MB once earlier tests had grown it); this small fresh
-process forks the command instead."""
-
-
-def peak_rss_mb(args: list[str]) -> tuple[int, str, float]:
-    """Exit code, stderr and peak resident memory of ``depotbench ARGS`` in a capped child."""
-    proc = subprocess.run(
-        [sys.executable, "-c", _MEASURE, str(MEMORY_CAP_BYTES), sys.executable, "-m", "eval.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
-    )
-    err = proc.stderr.decode("utf-8", "replace")
-    return proc.returncode, err, int(proc.stdout.decode().strip().splitlines()[-1]) / 1024
-
 
 def _sparse(path: Path, size: int) -> None:
     with path.open("wb") as handle:
@@ -1139,9 +1109,21 @@ def _oversized_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
             "30000x30000",
         ),
         "run-long-line": (["run", str(tmp / "long" / "seq"), "-o", str(tmp / "o2")], "objects.jsonl:1"),
-        "sweep-10^9-grid": (["sweep", str(tmp / "sweep-grid.yaml"), "-o", str(tmp / "o3")], "limit of 100000"),
+        "sweep-10^9-grid": (
+            ["sweep", str(tmp / "sweep-grid.yaml"), "-o", str(tmp / "o3")],
+            "limit of 100000",
+        ),
         "cmd-format-width": (  # probe C5: a 1 GB argument was built before exec refused it
-            ["run", str(tmp / "seq"), "-o", str(tmp / "o4"), "--slam", "cmd", "--command", "true {sequence:>1000000000}"],
+            [
+                "run",
+                str(tmp / "seq"),
+                "-o",
+                str(tmp / "o4"),
+                "--slam",
+                "cmd",
+                "--command",
+                "true {sequence:>1000000000}",
+            ],
             "sequence",
         ),
     }

@@ -23,8 +23,8 @@ from detectors.config import SHIPPED_MODEL, OnnxSettings
 from detectors.onnx import OnnxDetector, OnnxModelError
 from eval.cli import main
 from sim.errors import InputError
+from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.sequences import write_sequence
-from tests.test_fuzz import MAX_RSS_MB, peak_rss_mb
 
 onnx = pytest.importorskip("onnx")
 

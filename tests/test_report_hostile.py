@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from eval.cli import main
+from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.render
@@ -137,36 +138,6 @@ def test_inconsistent_diagnostics_are_refused_by_name(copy: Path, capfd):
 
 # -- C4: unbounded reads, in a capped child ----------------------------------------------------
 
-MEMORY_CAP_BYTES = 2 << 30
-"""Address-space cap of the child: stops a runaway read before it eats the machine."""
-MAX_RSS_MB = 300
-
-_CAPPED = """
-import resource, subprocess, sys
-cap = int(sys.argv[1])
-def limit():
-    resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
-proc = subprocess.run(sys.argv[2:], preexec_fn=limit, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-sys.stderr.buffer.write(proc.stderr)
-print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
-sys.exit(proc.returncode if proc.returncode >= 0 else 128 - proc.returncode)
-"""
-"""Runs a command under an address-space cap and prints its peak RSS in KiB (a fresh small
-parent, so that ru_maxrss is the command's, not pytest's; as tests/test_fuzz.py does)."""
-
-
-def capped(args: list[str]) -> tuple[int, str, float]:
-    """Exit code, stderr and peak resident memory (MB) of ``depotbench ARGS`` under the cap."""
-    proc = subprocess.run(
-        [sys.executable, "-c", _CAPPED, str(MEMORY_CAP_BYTES), sys.executable, "-m", "eval.cli", *args],
-        cwd=REPO,
-        capture_output=True,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},
-        timeout=120,
-    )
-    err = proc.stderr.decode("utf-8", "replace")
-    return proc.returncode, err, int(proc.stdout.decode().split()[-1]) / 1024
-
 
 def _npy_header(shape: tuple[int, ...], dtype: str) -> bytes:
     """A version 1.0 .npy header declaring ``shape`` of ``dtype``."""
@@ -216,7 +187,7 @@ def test_unbounded_run_files_are_refused_under_300_mb(copy: Path):
     peaks = {}
     for name, (run, needle) in _hostile_runs(copy).items():
         out = copy / f"out-{name}"
-        code, err, peaks[name] = capped(["report", str(run), "-o", str(out)])
+        code, err, peaks[name] = peak_rss_mb(["report", str(run), "-o", str(out)])
         lines = err.strip().splitlines()
         assert code == 2, f"{name}: exit {code}\n{err}"
         assert len(lines) == 1 and "Traceback" not in err, f"{name}:\n{err}"
