@@ -381,6 +381,22 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         "arguments, \"$1\", or from $DEPOTBENCH_SEQUENCE and the like)",
     )
     p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="--slam cmd: a parameter of the program, as {NAME} in the template, in {parameters} and "
+        "in the settings template; --slam orbslam3: one of its settings, e.g. ThDepth=50 or "
+        "ORBextractor.nFeatures=1500 (repeatable)",
+    )
+    p.add_argument(
+        "--settings-template",
+        type=Path,
+        metavar="FILE",
+        help="--slam cmd: a Jinja2 template rendered to {settings} with camera, params and "
+        "orbslam_camera (docs/external-trackers.md)",
+    )
+    p.add_argument(
         "--vocabulary",
         type=Path,
         help="--slam orbslam3|cmd: a DBoW2 text vocabulary (default: the bench's, built once)",
@@ -404,7 +420,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from eval.cache import StageCache
-    from eval.harness import TrackerConfig, run_sequence
+    from eval.harness import TrackerConfig, check_tracker, run_sequence
     from eval.trackers.base import TrackerKind
 
     settings = pairs(args.set, "--set")
@@ -414,7 +430,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise InputError("--command applies to --slam cmd only")
     if args.vocabulary is not None and kind is TrackerKind.BUILTIN:
         raise InputError("--vocabulary applies to --slam orbslam3 and cmd only")
-    tracker = TrackerConfig(kind, args.command, args.vocabulary, args.timeout)
+    if args.param and kind is TrackerKind.BUILTIN:
+        raise InputError("--param applies to --slam orbslam3 and cmd (the built-in tracker takes --set)")
+    if args.settings_template is not None and kind is not TrackerKind.COMMAND:
+        raise InputError("--settings-template applies to --slam cmd only")
+    parameters = pairs(args.param, "--param")
+    if kind is TrackerKind.ORBSLAM3:
+        from eval.trackers.orbslam3 import default_parameters
+
+        parameters = default_parameters() | parameters
+    tracker = TrackerConfig(
+        kind,
+        args.command,
+        args.vocabulary,
+        args.timeout,
+        parameters=tuple(sorted(parameters.items())),
+        settings_template=args.settings_template,
+    )
+    check_tracker(tracker)
     metrics = run_sequence(
         args.sequence,
         args.output,

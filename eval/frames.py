@@ -72,6 +72,10 @@ class FrameSource:
     def detections(self, index: int) -> tuple[Detection, ...]:
         return self._detections[index] if self._detections is not None else ()
 
+    def all_detections(self) -> tuple[tuple[Detection, ...], ...] | None:
+        """Every frame's boxes (None without a detector): what an external tracker is handed."""
+        return None if self._detections is None else tuple(self._detections)
+
     def _blank(self, index: int) -> np.ndarray | None:
         if self.mask is None:
             return None

@@ -88,6 +88,8 @@ class Check(Strict):
     detectors: list[str] = Field(default_factory=list)
     strategies: list[str] = Field(default_factory=list)
     settings: dict[str, float] = Field(default_factory=dict)
+    parameters: dict[str, float | str] = Field(default_factory=dict)
+    """Only rows whose external tracker ran with these parameter values."""
     budgets: dict[str, Bound] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -200,10 +202,11 @@ class GateReport:
 def _row_name(row: dict[str, Any]) -> str:
     settings = json.loads(row["settings"])
     shown = settings_text(dict(sorted(settings.items())))
+    parameters = settings_text(dict(sorted(json.loads(row.get("parameters") or "{}").items())))
     name = Path(row["sequence"]).name
     return " ".join(
         part
-        for part in (row["family"], name, row["tracker"], row["detector"], row["strategy"], shown)
+        for part in (row["family"], name, row["tracker"], parameters, row["detector"], row["strategy"], shown)
         if part
     )
 
@@ -228,10 +231,20 @@ def _selects(check: Check, row: dict[str, Any], tags: dict[str, set[str]]) -> bo
         if allowed and row[field] not in allowed:
             return False
     settings = json.loads(row["settings"])
+    parameters = json.loads(row.get("parameters") or "{}")
     return all(
         k in settings and math.isclose(float(settings[k]), v, rel_tol=1e-9, abs_tol=1e-12)
         for k, v in check.settings.items()
-    )
+    ) and all(k in parameters and _same_value(parameters[k], v) for k, v in check.parameters.items())
+
+
+def _same_value(stored: str, wanted: float | str) -> bool:
+    if isinstance(wanted, str):
+        return stored == wanted
+    try:
+        return math.isclose(float(stored), wanted, rel_tol=1e-9, abs_tol=1e-12)
+    except ValueError:
+        return False
 
 
 def _same_settings(row: dict[str, Any], wanted: dict[str, float]) -> bool:
@@ -286,12 +299,18 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
                     row.get(metric),
                     bound,
                     _within(row.get(metric), bound),
-                    f"against {reference}" if metric == "time_ratio" else "",
+                    _note(row, metric, reference),
                 )
                 for metric, bound in check.budgets.items()
             )
             results.append(CheckResult(check.name, name, verdicts, float(row["wall_time_s"] or 0.0)))
     return GateReport(gates.gates, tuple(results), tuple(empty))
+
+
+def _note(row: dict[str, Any], metric: str, reference: str) -> str:
+    if row.get("failure"):
+        return f"(the run failed: {row['failure']})"
+    return f"against {reference}" if metric == "time_ratio" else ""
 
 
 def format_report(report: GateReport) -> str:

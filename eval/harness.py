@@ -59,6 +59,19 @@ class TrackerConfig:
     vocabulary: Path | None = None
     """``orbslam3`` and ``cmd``: a DBoW2 text vocabulary; the bench's default one if None."""
     timeout_s: float = 3600.0
+    name: str = ""
+    """What rows, tables and gates call it: a sweep's name for it, else the kind."""
+    parameters: tuple[tuple[str, str], ...] = ()
+    """An external tracker's parameter values for this run, by name, sorted (the program's
+    own, or ORB-SLAM3's settings)."""
+    settings_template: Path | None = None
+    """``cmd``: a Jinja2 template rendered to ``{settings}`` (else ORB-SLAM settings)."""
+    env: tuple[tuple[str, str], ...] = ()
+    """``cmd``: variables added to the program's environment."""
+
+    @property
+    def label(self) -> str:
+        return self.name or self.kind.value
 
 
 def make_tracker(
@@ -76,12 +89,46 @@ def make_tracker(
 
         if not available():  # before a vocabulary is built for nothing
             raise InputError(f"--slam orbslam3: ORB-SLAM3 is not installed: {INSTALL_HINT}")
-        return Orbslam3Tracker(vocabulary(), tracker.timeout_s)
-    from eval.trackers.command import CommandTracker
+        return Orbslam3Tracker(vocabulary(), tracker.timeout_s, tracker.parameters)
+    return command_tracker(tracker, vocabulary)
+
+
+def command_tracker(tracker: TrackerConfig, vocabulary=None):
+    """The ``cmd`` tracker of a configuration: its template, parameter names and settings
+    template are checked here, so building one (``check_tracker``) refuses a bad one
+    before any run."""
+    from eval.trackers.command import CommandTracker, SettingsTemplate
 
     if not tracker.command:
         raise InputError("--slam cmd needs --command TEMPLATE")
-    return CommandTracker(tracker.command, vocabulary, tracker.timeout_s)
+    settings = SettingsTemplate.load(tracker.settings_template) if tracker.settings_template else None
+    return CommandTracker(
+        tracker.command,
+        vocabulary,
+        tracker.timeout_s,
+        label=tracker.label,
+        parameters=tracker.parameters,
+        settings=settings,
+        env=tracker.env,
+    )
+
+
+def check_tracker(tracker: TrackerConfig, camera_sequence: Sequence | None = None) -> None:
+    """Refuse, before any run, an external tracker that cannot run: an unknown placeholder
+    or parameter, a missing or non-executable program, a settings template that does not
+    parse or names what it is not given (rendered on ``camera_sequence``), an ORB-SLAM3
+    setting out of range."""
+    if tracker.kind is TrackerKind.ORBSLAM3:
+        from eval.trackers.orbslam3 import orbslam_settings
+
+        orbslam_settings(30.0, tracker.parameters)
+    elif tracker.kind is TrackerKind.COMMAND:
+        from eval.trackers.command import check_program
+
+        program = command_tracker(tracker)
+        check_program(program.words, Path.cwd())
+        if program.settings is not None and camera_sequence is not None:
+            program.settings.render(camera_sequence, dict(tracker.parameters))
 
 
 def slam_config(strategy: str, settings: dict[str, str], tracker: TrackerKind) -> SlamConfig:
@@ -238,7 +285,16 @@ def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
     identity: dict[str, Any] = {"kind": tracker.kind.value}
     if tracker.kind is TrackerKind.BUILTIN:
         return tuple(identity.items())
-    identity["timeout_s"] = tracker.timeout_s
+    identity |= {
+        "name": tracker.label,
+        "timeout_s": tracker.timeout_s,
+        "parameters": tracker.parameters,
+        "env": tracker.env,
+    }
+    if tracker.settings_template is not None:
+        identity["settings_template_sha256"] = file_digest(
+            tracker.settings_template, "settings template"
+        ).hex()
     if tracker.command:
         identity["command"] = tracker.command
         program = _program_path(tracker.command)
@@ -329,7 +385,9 @@ def run_sequence(
         estimate = run.trajectory()
         if estimate is not None:
             write_tum(output.path / "trajectory.txt", estimate, header=tracked.header)
-        _write_frames(output.path / "frames.csv", run)
+        _write_frames(output.path / "frames.csv", run, frame_decisions(sequence, run))
+        if run.log:
+            (output.path / "program.log").write_text(run.log, encoding="utf-8")
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
@@ -364,7 +422,9 @@ def _metrics(
         settings["command"] = tracker.command
     metrics: dict[str, Any] = {
         "sequence": str(sequence.root),
-        "tracker": tracker.kind.value,
+        "tracker": tracker.label,
+        "tracker_kind": tracker.kind.value,
+        "parameters": dict(tracker.parameters),
         "strategy": strategy,
         "detector": detector.label,
         "detector_config": detector.to_dict(),
@@ -376,6 +436,7 @@ def _metrics(
         "keyframes": run.keyframes,
         "stage_time": stage,
         "wall_time_s": run.total_s,
+        "peak_memory_mb": run.peak_memory_mb,
     }
     if detections is not None:
         metrics["detector_time"] = _time_stats(detections.latency_ms) | {"cached": detections.from_cache}
@@ -386,33 +447,72 @@ def _metrics(
         comparison = compare(reference, estimate, ComparisonOptions()).to_dict()
         for key in ("ate_m", "rpe_translation_m", "rpe_rotation_deg"):
             metrics[key] = comparison[key]
-    if run.results is not None and run.labels:
-        metrics["rejection"] = _rejection(run.results, run.labels)
+    decisions = frame_decisions(sequence, run)
+    if decisions is not None:
+        metrics["rejection"] = _rejection(*decisions, run.results)
     return metrics
 
 
-def _rejection(results: list[FrameResult], labels: list[np.ndarray]) -> dict[str, Any]:
-    """Rejection as a classification of keypoints against their true moving labels."""
-    kept = REJECTION_CODES[Rejection.KEPT]
-    rejected = np.concatenate([r.diagnostics.rejection != kept for r in results])
-    moving = np.concatenate(labels)
+def frame_decisions(sequence: Sequence, run: TrackerRun) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
+    """Per frame, which keypoints the tracker rejected and which lie on a moving instance
+    (the exact label): the built-in tracker's own, or an external program's keypoint file
+    labelled here. None where there are no decisions or no ground truth to label them."""
+    if run.results is not None and run.labels:
+        kept = REJECTION_CODES[Rejection.KEPT]
+        return [r.diagnostics.rejection != kept for r in run.results], list(run.labels)
+    if run.decisions is None or not sequence.is_generated:
+        return None
+    from eval.trackers.builtin import true_moving_labels
+
+    objects = sequence.objects()
+    moving = [
+        true_moving_labels(sequence, i, points, {o.instance_id for o in objects[i] if o.moving})
+        if len(points)
+        else np.zeros(0, bool)
+        for i, points in enumerate(run.decisions.keypoints_px)
+    ]
+    return [~kept for kept in run.decisions.kept], moving
+
+
+def _rejection(
+    rejected_per_frame: list[np.ndarray], labels: list[np.ndarray], results: list[FrameResult] | None
+) -> dict[str, Any]:
+    """Rejection as a classification of keypoints against their true moving labels; moving
+    inliers where the tracker says which keypoints its pose used (the built-in one)."""
+    rejected = np.concatenate(rejected_per_frame) if rejected_per_frame else np.zeros(0, bool)
+    moving = np.concatenate(labels) if labels else np.zeros(0, bool)
     true_positive = int((rejected & moving).sum())
+    inliers = None
+    if results is not None:
+        inliers = int(sum((r.diagnostics.inlier & lab).sum() for r, lab in zip(results, labels, strict=True)))
     return {
         "keypoints": int(len(moving)),
         "moving_keypoints": int(moving.sum()),
         "rejected_keypoints": int(rejected.sum()),
         "precision": true_positive / int(rejected.sum()) if rejected.any() else None,
         "recall": true_positive / int(moving.sum()) if moving.any() else None,
-        "moving_inliers": int(
-            sum((r.diagnostics.inlier & lab).sum() for r, lab in zip(results, labels, strict=True))
-        ),
+        "moving_inliers": inliers,
     }
 
 
-def _write_frames(path: Path, run: TrackerRun) -> None:
-    rows = ["timestamp_s,state,track_ms"]
-    for t, state, ms in zip(run.timestamps_s, run.states, run.track_ms, strict=True):
-        rows.append(f"{t:.6f},{state.value},{'' if not np.isfinite(ms) else f'{ms:.3f}'}")
+def _write_frames(
+    path: Path, run: TrackerRun, decisions: tuple[list[np.ndarray], list[np.ndarray]] | None
+) -> None:
+    """Per frame: state and time, and where the run's keypoint decisions are known, how
+    many keypoints, on moving things, rejected, and rejected on moving things (per-frame
+    precision is the last over the third, recall the last over the second)."""
+    header = "timestamp_s,state,track_ms"
+    if decisions is not None:
+        header += ",keypoints,moving_keypoints,rejected_keypoints,rejected_moving"
+    rows = [header]
+    for i, (t, state, ms) in enumerate(zip(run.timestamps_s, run.states, run.track_ms, strict=True)):
+        row = f"{t:.6f},{state.value},{'' if not np.isfinite(ms) else f'{ms:.3f}'}"
+        if decisions is not None:
+            rejected, moving = decisions[0][i], decisions[1][i]
+            row += (
+                f",{len(moving)},{int(moving.sum())},{int(rejected.sum())},{int((rejected & moving).sum())}"
+            )
+        rows.append(row)
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 

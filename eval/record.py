@@ -13,8 +13,9 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
-RECORD_VERSION = 2
-"""2: adds the sequence fingerprint and relocalised frames."""
+RECORD_VERSION = 3
+"""2: adds the sequence fingerprint and relocalised frames; 3: an external tracker's
+parameters, a failed run's reason, peak memory."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,11 @@ class RunRecord:
     strategy: str
     settings: str
     """The job's threshold overrides, as sorted JSON."""
+    parameters: str
+    """An external tracker's parameter values, as sorted JSON (``{}`` for the built-in one)."""
+    failure: str | None
+    """Why the run failed (the program's exit, its time limit, an unreadable trajectory),
+    or None: a failed run is a row, counted, with no figures."""
     frames: int
     tracked_fraction: float
     lost_frames: int
@@ -50,6 +56,8 @@ class RunRecord:
     track_ms_median: float | None
     detector_ms_mean: float | None
     wall_time_s: float
+    peak_memory_mb: float | None
+    """An external program's peak resident memory (with what it waited for)."""
     bench_version: str
     signature: str | None = None
     """Which keypoints the run kept in every frame (a hash); None where not computed."""
@@ -84,6 +92,8 @@ class RunRecord:
             detector=metrics["detector"],
             strategy=metrics["strategy"],
             settings=json.dumps(settings, sort_keys=True),
+            parameters=json.dumps(metrics.get("parameters") or {}, sort_keys=True),
+            failure=None,
             frames=metrics["frames"],
             tracked_fraction=metrics["tracked_frames"] / max(1, metrics["frames"]),
             lost_frames=metrics["lost_frames"],
@@ -101,8 +111,56 @@ class RunRecord:
             track_ms_median=total.get("median_ms"),
             detector_ms_mean=detector_time.get("mean_ms"),
             wall_time_s=metrics["wall_time_s"],
+            peak_memory_mb=metrics.get("peak_memory_mb"),
             bench_version=bench_version,
             signature=signature,
+            computed_by=key,
+        )
+
+    @classmethod
+    def failed(
+        cls,
+        key: str,
+        family: str,
+        identity: dict[str, Any],
+        reason: str,
+        frames: int,
+        wall_time_s: float,
+        bench_version: str,
+        fingerprint: str,
+    ) -> RunRecord:
+        """The row of a run that failed: what it was (``identity``: sequence, tracker,
+        detector, strategy, settings, parameters) and why, with no figures."""
+        return cls(
+            key=key,
+            family=family,
+            sequence=str(Path(identity["sequence"]).resolve()),
+            sequence_fingerprint=fingerprint,
+            tracker=identity["tracker"],
+            detector=identity["detector"],
+            strategy=identity["strategy"],
+            settings=json.dumps(identity["settings"], sort_keys=True),
+            parameters=json.dumps(identity["parameters"], sort_keys=True),
+            failure=reason,
+            frames=frames,
+            tracked_fraction=0.0,
+            lost_frames=0,
+            relocalized_frames=0,
+            keyframes=None,
+            ate_rmse_m=None,
+            ate_mean_m=None,
+            ate_max_m=None,
+            rpe_translation_rmse_m=None,
+            rpe_rotation_rmse_deg=None,
+            rejection_precision=None,
+            rejection_recall=None,
+            moving_inliers=None,
+            track_ms_mean=None,
+            track_ms_median=None,
+            detector_ms_mean=None,
+            wall_time_s=wall_time_s,
+            peak_memory_mb=None,
+            bench_version=bench_version,
             computed_by=key,
         )
 
@@ -111,5 +169,5 @@ class RunRecord:
 
 
 FIELDS = tuple(f.name for f in fields(RunRecord))
-TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s")
+TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")
 DETERMINISTIC_FIELDS = tuple(f for f in FIELDS if f not in TIMING_FIELDS)

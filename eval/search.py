@@ -13,6 +13,7 @@ run, the search path only from a fresh start with ``mean_ate``.
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ import numpy as np
 from detectors.config import DetectorConfig
 from eval.cache import content_hash
 from eval.detections import sequence_fingerprint
-from eval.harness import TrackerConfig, tracker_identity
+from eval.harness import TrackerConfig, check_tracker, tracker_identity
 from eval.store import SQLITE_HEADER, ResultStore
 from eval.sweep import jobs_for, run_jobs
 from eval.sweep_spec import (
@@ -107,6 +108,35 @@ def _open_study(optuna, path: Path, name: str, seed: int):
     return study
 
 
+def _trial_jobs(
+    spec: SweepSpec,
+    values: dict[str, float],
+    trackers: list[TrackerConfig],
+    detectors: list[DetectorConfig],
+    sequences: list[tuple[Path, str]],
+    source: str | None = None,
+) -> list:
+    """A trial's jobs: the strategy's thresholds at ``values`` with every tracker, or the
+    searched tracker's parameters at ``values`` with the strategy it runs. ``source``:
+    check the values first (a new trial; an earlier one was checked when it ran)."""
+    search = spec.search
+    assert search is not None
+    settings = tuple((n, setting_text(v)) for n, v in sorted(values.items()))
+    if search.tracker is None:
+        variant = Variant(search.strategy, settings)
+        if source is not None:
+            check_variants(spec, [variant], trackers, source)
+        return jobs_for([variant], trackers, detectors, sequences)
+    base = next(t for t in trackers if t.label == search.tracker)
+    tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | dict(settings)).items())))
+    if source is not None:
+        try:
+            check_tracker(tracker)
+        except InputError as exc:
+            raise InputError(f"{source}: search.space: {exc}") from None
+    return jobs_for([Variant(search.strategy, ())], [tracker], detectors, sequences)
+
+
 def run_search(
     spec: SweepSpec,
     spec_path: Path,
@@ -129,19 +159,14 @@ def run_search(
     complete = optuna.trial.TrialState.COMPLETE
     families: dict[str, str] = {}
     for trial in study.get_trials(deepcopy=False, states=(complete,)):  # earlier trials' rows
-        variant = Variant(
-            search.strategy, tuple((n, setting_text(v)) for n, v in sorted(trial.params.items()))
-        )
-        families |= {j.key: j.family for j in jobs_for([variant], trackers, detectors, sequences)}
+        families |= {j.key: j.family for j in _trial_jobs(spec, trial.params, trackers, detectors, sequences)}
     while len(study.get_trials(deepcopy=False, states=(complete,))) < search.trials:
         trial = study.ask()
         values = {
             name: trial.suggest_float(name, interval.low, interval.high, log=interval.log)
             for name, interval in sorted(search.space.items())
         }
-        variant = Variant(search.strategy, tuple((n, setting_text(v)) for n, v in sorted(values.items())))
-        check_variants(spec, [variant], trackers, source)
-        jobs = jobs_for([variant], trackers, detectors, sequences)
+        jobs = _trial_jobs(spec, values, trackers, detectors, sequences, source)
         families |= {j.key: j.family for j in jobs}
         run_jobs(jobs, store, workers, progress=False, backend=backend, address=address)
         keys = {j.key for j in jobs}
@@ -149,10 +174,12 @@ def run_search(
         value = objective(rows, search)
         study.tell(trial, value)
         if progress:
-            print(f"trial {trial.number}: {dict(variant.settings)} -> {search.objective} {value:.5f}")
+            shown = {n: setting_text(v) for n, v in sorted(values.items())}
+            print(f"trial {trial.number}: {shown} -> {search.objective} {value:.5f}")
     best = study.best_trial
     return {
         "strategy": search.strategy,
+        "tracker": search.tracker,
         "objective": search.objective,
         "value": best.value,
         "settings": {n: setting_text(v) for n, v in sorted(best.params.items())},

@@ -9,6 +9,7 @@ and running it again does exactly the jobs that are missing.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from eval.harness import (
     RunJob,
     TrackerConfig,
     branch_root,
+    check_tracker,
     family_of,
     job_key,
     prepare,
@@ -43,10 +45,12 @@ from eval.sweep_spec import (
     detector_configs,
     resolve,
     tracker_configs,
+    tracker_count,
+    tracker_variants,
     variant_count,
     variants,
 )
-from eval.trackers.base import TrackerKind
+from eval.trackers.base import TrackerError, TrackerKind
 from scenes.schema import SpecError
 from sim.errors import InputError
 from sim.executors import make_pool
@@ -71,12 +75,12 @@ def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) 
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
     detectors = detector_configs(spec, source)
-    total = len(sequences) * len(trackers) * len(detectors) * variant_count(spec)
+    total = len(sequences) * tracker_count(spec) * len(detectors) * variant_count(spec)
     if total > MAX_JOBS:  # counted before a job is built: the grid may be far larger than memory
         raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
     found = variants(spec)
     check_variants(spec, found, trackers, source)
-    return jobs_for(found, trackers, detectors, sequences)
+    return jobs_for(found, tracker_variants(spec, trackers, source), detectors, sequences)
 
 
 def jobs_for(
@@ -107,16 +111,24 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
     detectors = detector_configs(spec, source)
-    count = len(trackers) * len(detectors) * variant_count(spec)
+    count = tracker_count(spec) * len(detectors) * variant_count(spec)
     if count > MAX_JOBS:  # per sequence; ``expand`` counts the sequences too
         raise SpecError(f"{source}: thresholds: {count} jobs per sequence exceed the limit of {MAX_JOBS}")
     check_variants(spec, variants(spec), trackers, source)
+    tracker_variants(spec, trackers, source)
     check_search(spec, trackers, source)
+    opened = []
     for i, name in enumerate(spec.sequences):
         root = resolve(spec, spec_path, name)
         if not root.is_dir():
             raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
-        Sequence.open(root)
+        opened.append(Sequence.open(root))
+    for i, tracker in enumerate(trackers):  # a settings template, rendered on a real camera
+        if tracker.settings_template is not None and opened:
+            try:
+                check_tracker(tracker, opened[0])
+            except InputError as exc:
+                raise SpecError(f"{source}: trackers.{i} ({tracker.label}): {exc}") from None
     if spec.suite is not None:
         from scenes.suite import load_suite
 
@@ -243,9 +255,33 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
 
 
 def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
-    """Worker entry point of phase 2 for a job tracked alone."""
-    tracked = track(job.job, StageCache.from_env())
+    """Worker entry point of phase 2 for a job tracked alone. An external program that
+    fails (its exit, its time limit, output that cannot be read) gives a failed row, and
+    the sweep goes on; the built-in tracker failing is a bug of ours, and raises."""
+    started = time.perf_counter()
+    try:
+        tracked = track(job.job, StageCache.from_env())
+    except TrackerError as exc:
+        if job.job.tracker.kind is TrackerKind.BUILTIN:
+            raise
+        return [_failed(job, str(exc), time.perf_counter() - started, bench_version)]
     return [_record(job, tracked.metrics, bench_version, None)]
+
+
+def _failed(job: SweepJob, reason: str, wall_s: float, bench_version: str) -> RunRecord:
+    run = job.job
+    identity = {
+        "sequence": str(run.sequence),
+        "tracker": run.tracker.label,
+        "detector": run.detector.label,
+        "strategy": run.strategy,
+        "settings": dict(run.settings),
+        "parameters": dict(run.tracker.parameters),
+    }
+    frames = len(Sequence.open(run.sequence))
+    return RunRecord.failed(
+        job.key, job.family, identity, reason, frames, wall_s, bench_version, job.fingerprint
+    )
 
 
 def run_branches(

@@ -2,9 +2,11 @@
 accuracy/time Pareto set, and curves of ATE and rejection precision/recall
 against each swept threshold.
 
-A configuration is (tracker, detector, strategy, settings); its score in a
-family is the mean over the family's sequences. rho compares each run with the
-``none`` run of the same sequence, tracker and detector.
+A configuration is (tracker with its parameters, detector, strategy, settings); its
+score in a family is the mean over the family's sequences. rho compares each run with
+the ``none`` run of the same sequence, tracker (and parameters) and detector. A failed
+run (an external program's exit, time limit or unreadable output) is counted, never
+averaged: a configuration with one is not the best of its family.
 """
 
 from __future__ import annotations
@@ -20,15 +22,19 @@ import numpy as np
 from eval.metrics import improvement_rate
 
 
+def _parameters(row: dict[str, Any]) -> str:
+    return row.get("parameters") or "{}"
+
+
 def with_rho(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     baseline = {
-        (r["sequence"], r["tracker"], r["detector"]): r["ate_rmse_m"]
+        (r["sequence"], r["tracker"], _parameters(r), r["detector"]): r["ate_rmse_m"]
         for r in rows
         if r["strategy"] == "none" and r["settings"] == "{}"
     }
     out = []
     for r in rows:
-        base = baseline.get((r["sequence"], r["tracker"], r["detector"]))
+        base = baseline.get((r["sequence"], r["tracker"], _parameters(r), r["detector"]))
         rho = None
         if base is not None and r["ate_rmse_m"] is not None and base > 0:
             rho = improvement_rate(base, r["ate_rmse_m"])
@@ -45,17 +51,21 @@ def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per family and configuration: means over its sequences."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in with_rho(rows):
-        groups[(r["family"], r["tracker"], r["detector"], r["strategy"], r["settings"])].append(r)
+        groups[
+            (r["family"], r["tracker"], _parameters(r), r["detector"], r["strategy"], r["settings"])
+        ].append(r)
     out = []
-    for (family, tracker, detector, strategy, settings), members in sorted(groups.items()):
+    for (family, tracker, parameters, detector, strategy, settings), members in sorted(groups.items()):
         out.append(
             {
                 "family": family,
                 "tracker": tracker,
+                "parameters": json.loads(parameters),
                 "detector": detector,
                 "strategy": strategy,
                 "settings": json.loads(settings),
                 "sequences": len(members),
+                "failed": sum(1 for m in members if m.get("failure")),
                 "ate_rmse_m": _mean([m["ate_rmse_m"] for m in members]),
                 "rho_percent": _mean([m["rho_percent"] for m in members]),
                 "rejection_precision": _mean([m["rejection_precision"] for m in members]),
@@ -70,7 +80,7 @@ def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def best_per_family(configs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     best: dict[str, dict[str, Any]] = {}
     for c in configs:
-        if c["ate_rmse_m"] is None:
+        if c["ate_rmse_m"] is None or c.get("failed"):
             continue
         current = best.get(c["family"])
         if current is None or c["ate_rmse_m"] < current["ate_rmse_m"]:
@@ -112,19 +122,25 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
     """Per (strategy, swept threshold): mean ATE and rejection precision/recall against
     the value, a curve per family and detector. Returns (name, figure) pairs."""
     plt = pyplot()
-    swept: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    swept: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
     for c in configs:
         for name in c["settings"]:
-            swept[(c["strategy"], name)].append(c)
+            swept[(c["strategy"], "settings", name)].append(c)
+        for name in c.get("parameters") or {}:  # an external tracker's own parameters
+            swept[(c["tracker"], "parameters", name)].append(c)
     figures = []
-    for (strategy, name), members in sorted(swept.items()):
+    for (strategy, field, name), members in sorted(swept.items()):
+        if all(_number(m[field][name]) is None for m in members):
+            continue  # a parameter that is a word (a mode, a file) has no axis
         fig, (ax_ate, ax_rej) = plt.subplots(1, 2, figsize=(10, 3.8))
         for family in sorted({m["family"] for m in members}):
             for detector in sorted({m["detector"] for m in members}):
                 pts = sorted(
-                    (float(m["settings"][name]), i, m)
+                    (_number(m[field][name]), i, m)
                     for i, m in enumerate(members)
-                    if m["family"] == family and m["detector"] == detector
+                    if m["family"] == family
+                    and m["detector"] == detector
+                    and _number(m[field][name]) is not None
                 )
                 if not pts:
                     continue
@@ -140,6 +156,14 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         fig.tight_layout()
         figures.append((f"{strategy}-{name}", fig))
     return figures
+
+
+def _number(value: Any) -> float | None:
+    """A swept value as a plot's abscissa; None for text (a parameter may be a word)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
 
 
 def pareto_figure(configs: list[dict[str, Any]]):
@@ -194,7 +218,11 @@ def format_best(best: dict[str, dict[str, Any]]) -> str:
     lines = [f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"]
     for family, c in sorted(best.items()):
         settings = ",".join(f"{k}={v}" for k, v in c["settings"].items())
-        name = f"{c['strategy']} {settings} ({c['detector']})"
+        tracker = "" if c["tracker"] == "builtin" else f"{c['tracker']} "
+        parameters = ",".join(f"{k}={v}" for k, v in (c.get("parameters") or {}).items())
+        name = (
+            f"{tracker}{parameters + ' ' if parameters else ''}{c['strategy']} {settings} ({c['detector']})"
+        )
         rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
         prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
         rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"

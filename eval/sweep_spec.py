@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+import shlex
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,7 @@ from detectors.config import (
     check_model_file,
     parse_detector,
 )
-from eval.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, TrackerConfig, slam_config
+from eval.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, TrackerConfig, check_tracker, slam_config
 from eval.trackers.base import TrackerKind
 from scenes.schema import SpecError, Strict, load_model
 from sim.errors import InputError
@@ -113,9 +114,12 @@ class Interval(Strict):
 
 
 class Search(Strict):
-    """An Optuna search over one strategy's thresholds (extra [search])."""
+    """An Optuna search over one strategy's thresholds, or over one external tracker's
+    parameters (``tracker:``; then ``strategy`` is what it runs with, none or mask)
+    (extra [search])."""
 
-    strategy: str
+    strategy: str = "none"
+    tracker: str | None = None
     space: dict[str, Interval] = Field(min_length=1)
     trials: int = Field(default=30, ge=1, le=10_000)
     seed: int = Field(default=0, ge=0)
@@ -126,8 +130,44 @@ class Search(Strict):
 
     @model_validator(mode="after")
     def _strategy(self) -> Search:
-        if self.strategy not in STRATEGY_CHOICES or self.strategy in ("none", "mask"):
+        if self.tracker is not None:
+            if self.strategy not in EXTERNAL_STRATEGIES:
+                raise ValueError(
+                    f"search.strategy: a tracker's search runs with {' or '.join(EXTERNAL_STRATEGIES)}"
+                )
+        elif self.strategy not in STRATEGY_CHOICES or self.strategy in ("none", "mask"):
             raise ValueError(f"search.strategy {self.strategy!r} has no thresholds to search")
+        return self
+
+
+class TrackerEntry(Strict):
+    """An external tracker of a sweep: a program (``kind: cmd``) or ORB-SLAM3, by name,
+    with its own parameters (docs/external-trackers.md)."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
+    kind: str = Field(default="cmd", pattern="^(cmd|orbslam3)$")
+    command: str | None = None
+    """``cmd``: the command template, run without a shell; a program with a slash is
+    relative to the spec file."""
+    parameters: dict[str, float | int | str] = Field(default_factory=dict)
+    """The parameters' default values; ``parameters:`` of the spec sweeps them."""
+    settings: str | None = None
+    """``cmd``: a Jinja2 settings template (relative to the spec file)."""
+    timeout_s: float = Field(default=3600.0, gt=0.0, le=7 * 86400.0)
+    env: dict[str, str] = Field(default_factory=dict)
+    vocabulary: str | None = None
+
+    @model_validator(mode="after")
+    def _fits(self) -> TrackerEntry:
+        if self.name in ("builtin", "cmd", "orbslam3"):
+            raise ValueError(f"name {self.name!r} is a tracker kind; give your tracker a name of its own")
+        if self.kind == "cmd" and not self.command:
+            raise ValueError("command: a cmd tracker needs its command template")
+        if self.kind == "orbslam3" and (self.command or self.settings):
+            raise ValueError("orbslam3 takes no command or settings template (its settings are parameters)")
+        for name in self.env:
+            if not name or "=" in name or "\0" in name:
+                raise ValueError(f"env: {name!r} is not an environment variable name")
         return self
 
 
@@ -143,10 +183,12 @@ class SweepSpec(Strict):
     description: str = ""
     suite: str | None = None
     sequences: list[str] = Field(default_factory=list, max_length=10_000)
-    trackers: list[str] = Field(default_factory=lambda: ["builtin"], min_length=1)
+    trackers: list[str | TrackerEntry] = Field(default_factory=lambda: ["builtin"], min_length=1)
     detectors: list[str | DetectorEntry] = Field(default_factory=lambda: ["groundtruth"], min_length=1)
     strategies: list[str] = Field(default_factory=lambda: ["none"], min_length=1)
     thresholds: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
+    parameters: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
+    """By tracker name: values of that external tracker's parameters to sweep."""
     search: Search | None = None
 
     @model_validator(mode="after")
@@ -161,6 +203,22 @@ class SweepSpec(Strict):
             raise ValueError(f"thresholds for {stray[0]!r}, which is not among the strategies")
         if "none" in self.thresholds:
             raise ValueError("thresholds for 'none': the baseline takes no thresholds (it rejects nothing)")
+        names = [t if isinstance(t, str) else t.name for t in self.trackers]
+        if len(set(names)) != len(names):
+            raise ValueError("trackers: two trackers of one name")
+        entries = {t.name: t for t in self.trackers if isinstance(t, TrackerEntry)}
+        for tracker, axes in self.parameters.items():
+            if tracker not in entries:
+                raise ValueError(f"parameters for {tracker!r}, which is not a named tracker of this sweep")
+            if entries[tracker].kind == "cmd":
+                undeclared = sorted(set(axes) - set(entries[tracker].parameters))
+                if undeclared:
+                    raise ValueError(
+                        f"parameters.{tracker}.{undeclared[0]}: not a parameter of {tracker} "
+                        "(declare it, with its default, under the tracker's parameters)"
+                    )
+        if self.search is not None and self.search.tracker is not None and self.search.tracker not in entries:
+            raise ValueError(f"search.tracker {self.search.tracker!r} is not a named tracker of this sweep")
         return self
 
 
@@ -202,6 +260,19 @@ def variant_count(spec: SweepSpec) -> int:
         if strategy != "none":
             count += math.prod(_count(axis) for axis in spec.thresholds.get(strategy, {}).values())
     return count
+
+
+def tracker_count(spec: SweepSpec) -> int:
+    """How many tracker configurations ``tracker_variants`` would list (each named tracker
+    once per combination of its swept parameters), counted without listing them."""
+    return sum(
+        math.prod(_count(axis) for axis in spec.parameters.get(_name(entry), {}).values())
+        for entry in spec.trackers
+    )
+
+
+def _name(entry: str | TrackerEntry) -> str:
+    return entry if isinstance(entry, str) else entry.name
 
 
 def _count(axis: Grid | Range | Random) -> int:
@@ -249,15 +320,92 @@ def _beside(folder: Path, name: str) -> Path:
 
 
 def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
+    """The trackers with their parameters' default values, each checked (an external
+    program's template, program and parameter names; ORB-SLAM3's settings), before any run.
+    Paths (a program with a slash, a settings template, a vocabulary) are relative to the
+    spec file, as every path of a spec is."""
+    folder = Path(source).parent
     out = []
-    for i, name in enumerate(spec.trackers):
+    for i, entry in enumerate(spec.trackers):
+        if isinstance(entry, str):
+            try:
+                kind = TrackerKind(entry)
+            except ValueError:
+                raise SpecError(
+                    f"{source}: trackers.{i}: {entry!r} is not builtin or orbslam3 (an external program "
+                    "is given as a mapping: name, command, parameters)"
+                ) from None
+            if kind is TrackerKind.COMMAND:
+                raise SpecError(
+                    f"{source}: trackers.{i}: a cmd tracker needs a name and a command (a mapping)"
+                )
+            out.append(TrackerConfig(kind))
+            continue
         try:
-            kind = TrackerKind(name)
-        except ValueError:
-            raise SpecError(f"{source}: trackers.{i}: {name!r} is not builtin or orbslam3") from None
-        if kind is TrackerKind.COMMAND:
-            raise SpecError(f"{source}: trackers.{i}: cmd trackers are not supported in sweeps yet")
-        out.append(TrackerConfig(kind))
+            parameters = _parameter_defaults(entry)
+        except InputError as exc:
+            raise SpecError(f"{source}: trackers.{i} ({entry.name}): {exc}") from None
+        config = TrackerConfig(
+            TrackerKind(entry.kind),
+            command=_program_beside(folder, entry.command) if entry.command else None,
+            vocabulary=_beside(folder, entry.vocabulary) if entry.vocabulary else None,
+            timeout_s=entry.timeout_s,
+            name=entry.name,
+            parameters=parameters,
+            settings_template=_beside(folder, entry.settings) if entry.settings else None,
+            env=tuple(sorted(entry.env.items())),
+        )
+        try:
+            check_tracker(config)
+        except InputError as exc:
+            raise SpecError(f"{source}: trackers.{i} ({entry.name}): {exc}") from None
+        out.append(config)
+    return out
+
+
+def _parameter_defaults(entry: TrackerEntry) -> tuple[tuple[str, str], ...]:
+    defaults = {
+        name: value if isinstance(value, str) else setting_text(value)
+        for name, value in entry.parameters.items()
+    }
+    if entry.kind == "orbslam3":
+        from eval.trackers.orbslam3 import PARAMETERS, default_parameters
+
+        unknown = sorted(set(defaults) - set(PARAMETERS))
+        if unknown:
+            raise InputError(f"unknown ORB-SLAM3 parameter {unknown[0]!r}; known: {', '.join(PARAMETERS)}")
+        defaults = {name: setting_text(float(text)) for name, text in default_parameters().items()} | defaults
+    return tuple(sorted(defaults.items()))
+
+
+def _program_beside(folder: Path, command: str) -> str:
+    """The command with a program given by a relative path with a slash made absolute from
+    the spec's folder (a placeholder or a bare name is left to the run)."""
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        return command  # the template's own check names the problem
+    if not words or "/" not in words[0] or words[0].startswith("{") or Path(words[0]).is_absolute():
+        return command
+    return shlex.join([str(folder.resolve() / words[0]), *words[1:]])
+
+
+def tracker_variants(spec: SweepSpec, trackers: list[TrackerConfig], source: str) -> list[TrackerConfig]:
+    """Each tracker once per combination of its swept parameters (``parameters:``), in a
+    stable order; every value checked as the tracker takes it."""
+    out = []
+    for config in trackers:
+        axes = spec.parameters.get(config.label, {})
+        names = sorted(axes)
+        for combo in itertools.product(*(_values(axes[n]) for n in names)) if names else [()]:
+            values = dict(config.parameters) | {n: setting_text(v) for n, v in zip(names, combo, strict=True)}
+            variant = replace(config, parameters=tuple(sorted(values.items())))
+            if names:
+                try:
+                    check_tracker(variant)
+                except InputError as exc:
+                    raise SpecError(f"{source}: parameters.{config.label}: {exc}") from None
+            out.append(variant)
     return out
 
 
@@ -285,6 +433,18 @@ def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) ->
     """A search space's names and both ends of each interval against the strategy's settings,
     named as ``search.space.NAME``, before any output or study is made."""
     if spec.search is None:
+        return
+    if spec.search.tracker is not None:
+        base = next(t for t in trackers if t.label == spec.search.tracker)
+        for name, interval in sorted(spec.search.space.items()):
+            if base.kind is TrackerKind.COMMAND and name not in dict(base.parameters):
+                raise SpecError(f"{source}: search.space.{name}: not a parameter of {base.label}")
+            for value in (interval.low, interval.high):
+                values = dict(base.parameters) | {name: setting_text(value)}
+                try:
+                    check_tracker(replace(base, parameters=tuple(sorted(values.items()))))
+                except InputError as exc:
+                    raise SpecError(f"{source}: search.space.{name}: {exc}") from None
         return
     kinds = {t.kind for t in trackers}
     for name, interval in sorted(spec.search.space.items()):

@@ -802,7 +802,7 @@ def _command_cases() -> dict[str, Case]:
             seq, (*run, "--slam", "orbslam3", "--strategy", "box_rule"), "needs the built-in tracker"
         ),
         "run-external-set": Case(
-            seq, (*run, "--slam", "cmd", "--command", "x", "--set", "k=2"), "--set k: --slam cmd takes only"
+            seq, (*run, "--slam", "cmd", "--command", "true", "--set", "k=2"), "--set k: --slam cmd takes only"
         ),
         "run-command-without-cmd": Case(
             seq, (*run, "--command", "slam {sequence}"), "--command applies to --slam cmd only"
@@ -855,7 +855,7 @@ def _command_cases() -> dict[str, Case]:
                 write("s.yaml", f"sweep: s\nsequences: [{tmp}/seq]\ntrackers: [cmd]\n")(tmp),
             ),
             ("sweep", "{tmp}/s.yaml", "-o", "{tmp}/out"),
-            "cmd trackers are not supported in sweeps",
+            "trackers.0: a cmd tracker needs a name and a command (a mapping)",
         ),
         "sweep-bad-threshold": Case(
             lambda tmp: (

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import shutil
 import sqlite3
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -41,10 +42,18 @@ def _one_line(capsys, *needles: str) -> str:
 
 
 def _record(key: str) -> RunRecord:
-    return RunRecord(
-        key, "f", "seq", "fp", "builtin", "groundtruth", "none", "{}", 4, 1.0, 0, 0, 1,
-        0.01, 0.01, 0.02, 0.01, 0.1, None, None, None, 1.0, 1.0, None, 0.5, "0", None, key,
-    )  # fmt: skip
+    failed = RunRecord.failed(key, "f", _IDENTITY, "", 4, 0.5, "0", "fp")
+    return replace(failed, failure=None, tracked_fraction=1.0, keyframes=1, ate_rmse_m=0.01, ate_mean_m=0.01)
+
+
+_IDENTITY = {
+    "sequence": "seq",
+    "tracker": "builtin",
+    "detector": "groundtruth",
+    "strategy": "none",
+    "settings": {},
+    "parameters": {},
+}
 
 
 def _sweep(root: Path, out: Path) -> int:

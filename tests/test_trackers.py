@@ -184,7 +184,7 @@ def test_command_failures_are_one_line(tmp_path: Path, fake_slam: Path, capsys):
         (f"{template} fail", (), "exited with code 3 (fake slam: cannot open the vocabulary)"),
         (f"{template} hang", ("--timeout", "1.5"), "stopped after the time limit of 1.5 s"),
         (f"{template} {{camera}}", (), "unknown placeholder {camera}"),
-        ("/no/such/program {sequence}", (), "cannot start '/no/such/program'"),
+        ("/no/such/program {sequence}", (), "the program '/no/such/program' does not exist"),
         (f"{template} 'unbalanced", (), "No closing quotation"),
     ):
         code, _, err = cli(capsys, *base, "--command", command, *extra)

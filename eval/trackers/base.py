@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -16,6 +16,9 @@ from eval.frames import FrameSource
 from eval.trajectory import Trajectory
 from sim.errors import InputError
 from slam.types import FrameResult, TrackingState
+
+if TYPE_CHECKING:
+    from eval.trackers.protocol import KeypointDecisions
 
 
 class TrackerKind(StrEnum):
@@ -25,7 +28,16 @@ class TrackerKind(StrEnum):
 
 
 class TrackerError(InputError):
-    """An external tracker that is missing, failed, or gave output we cannot read."""
+    """An external tracker that is missing, failed, or gave output we cannot read.
+
+    ``log`` keeps the end of what the program printed, for the run folder or the row."""
+
+    def __init__(self, message: str, log: str = "") -> None:
+        super().__init__(message)
+        self.log = log
+
+    def __reduce__(self):  # it crosses from worker processes with its log
+        return (type(self), (str(self), self.log))
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,6 +57,12 @@ class TrackerRun:
     """True moving label of each keypoint of ``results`` (generated sequences)."""
     stage_ms: dict[str, np.ndarray] = field(default_factory=dict)
     """Per-frame time of each stage, where the tracker reports stages."""
+    decisions: KeypointDecisions | None = None
+    """An external program's keypoint decisions (``{keypoints}``), scored like ``results``."""
+    peak_memory_mb: float | None = None
+    """The peak resident memory of an external program and what it waited for."""
+    log: str = ""
+    """The end of an external program's standard output and error (for the run folder)."""
 
     def __post_init__(self) -> None:
         n = len(self.timestamps_s)

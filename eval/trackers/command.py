@@ -10,9 +10,15 @@ shell. Placeholders stand for whole words (arguments):
 ``{trajectory}``    where the program must write its TUM trajectory; without this
                     placeholder it is read from ``CameraTrajectory.txt`` in the
                     program's working folder (ORB-SLAM2's ``rgbd_tum`` writes there)
+``{detections}``    the run's boxes, faults applied (``eval.trackers.protocol``)
+``{keypoints}``     where the program may write its keypoint decisions, scored against
+                    the exact ground truth like the built-in tracker's
+``{parameters}``    a JSON file of the run's parameter values
+``{NAME}``          the value of parameter NAME
 
 e.g. ``rgbd_tum {vocabulary} {settings} {sequence} {associations}``. Frames with
 a pose in the trajectory count as tracked; the program reports no per-frame time.
+docs/external-trackers.md is the whole contract, for the program's authors.
 
 A placeholder must be a whole word, with no format spec or conversion (``{sequence:d}``
 once raised a traceback, ``{sequence:>1000000000}`` built a 1 GB argument). Each value
@@ -23,10 +29,11 @@ and which programs do that (shells, ``python -c``, ``ssh``) cannot be told from 
 so the rule has no exceptions. A shell script takes the values as its arguments,
 ``sh -c 'cd "$1" && slam "$2"' sh {sequence} {settings}``, or from the environment:
 every value is also in ``DEPOTBENCH_SEQUENCE``, ``DEPOTBENCH_ASSOCIATIONS``,
-``DEPOTBENCH_SETTINGS``, ``DEPOTBENCH_TRAJECTORY`` and, when the template names
-``{vocabulary}`` or ``DEPOTBENCH_VOCABULARY`` (building one takes minutes),
-``DEPOTBENCH_VOCABULARY``. For the same reason a placeholder may not be the script of a
-shell (``sh -c {sequence}``).
+``DEPOTBENCH_SETTINGS``, ``DEPOTBENCH_TRAJECTORY``, ``DEPOTBENCH_DETECTIONS``,
+``DEPOTBENCH_KEYPOINTS``, ``DEPOTBENCH_PARAMETERS``, ``DEPOTBENCH_PARAM_NAME`` for each
+parameter and, when the template names ``{vocabulary}`` or ``DEPOTBENCH_VOCABULARY``
+(building one takes minutes), ``DEPOTBENCH_VOCABULARY``. For the same reason a
+placeholder may not be the script of a shell (``sh -c {sequence}``).
 
 The program runs in a scratch folder (its working directory) in ``$TMPDIR``; a
 program word with a slash (``./my_slam.sh``) is found from the folder depotbench was
@@ -38,9 +45,12 @@ its process group, and the scratch folder end with depotbench, SIGKILL included
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 import re
 import shlex
+import shutil
 import string
 from collections.abc import Callable
 from pathlib import Path
@@ -50,13 +60,27 @@ import numpy as np
 from eval.frames import FrameSource
 from eval.trackers.base import TrackerError, TrackerRun
 from eval.trackers.external import poses_by_frame, run_child, write_settings
+from eval.trackers.protocol import read_keypoints, write_detections
 from eval.trackers.reaper import Scratch
 from eval.trajectory import read_tum
+from sim.camera import OrbSlamSettings, orbslam_yaml
 from sim.errors import InputError
-from sim.sequence import timestamp_name
+from sim.files import MAX_SPEC_BYTES, read_text
+from sim.sequence import Sequence, timestamp_name
 from slam.types import TrackingState
 
-PLACEHOLDERS = ("sequence", "associations", "settings", "vocabulary", "trajectory")
+PLACEHOLDERS = (
+    "sequence",
+    "associations",
+    "settings",
+    "vocabulary",
+    "trajectory",
+    "detections",
+    "keypoints",
+    "parameters",
+)
+PARAMETER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.]{0,63}")
+"""A parameter's name: also a placeholder, and ``DEPOTBENCH_PARAM_`` + its upper case."""
 DEFAULT_TRAJECTORY = "CameraTrajectory.txt"
 ENVIRONMENT_PREFIX = "DEPOTBENCH_"
 SHELLS = frozenset({"sh", "bash", "dash", "zsh", "ksh", "mksh", "ash", "yash", "fish", "busybox"})
@@ -64,9 +88,10 @@ SCRIPT_OPTION = re.compile(r"-[A-Za-z]*c[A-Za-z]*")
 """``-c`` and clusters holding it (``-ec``, ``-lc``): the next word is a shell's script."""
 
 
-def parse_template(template: str) -> list[str]:
+def parse_template(template: str, parameters: tuple[str, ...] = ()) -> list[str]:
     """The template's words, refused when empty, unbalanced, naming unknown placeholders,
     or using one in any way but as a whole word (see the module's docstring)."""
+    known = (*PLACEHOLDERS, *parameters)
     try:
         words = shlex.split(template)
     except ValueError as exc:
@@ -74,22 +99,31 @@ def parse_template(template: str) -> list[str]:
     if not words:
         raise InputError("--command: the template is empty")
     for word in words:
-        _check_word(word)
-    _refuse_shell_scripts(words)
+        _check_word(word, known)
+    _refuse_shell_scripts(words, known)
     return words
 
 
-def _check_word(word: str) -> None:
+def check_parameter_names(names: tuple[str, ...]) -> None:
+    for name in names:
+        if not PARAMETER_NAME.fullmatch(name) or name in PLACEHOLDERS:
+            taken = f"; {name} is a placeholder of the bench's" if name in PLACEHOLDERS else ""
+            raise InputError(
+                f"parameter {name!r}: give a name of letters, digits, _ and . (64 at most){taken}"
+            )
+
+
+def _check_word(word: str, known: tuple[str, ...]) -> None:
     try:
         fields = [(name, spec, conversion) for _, name, spec, conversion in string.Formatter().parse(word)]
     except ValueError as exc:
         raise InputError(f"--command: {word!r}: {exc}") from None
     names = [name for name, _, _ in fields if name is not None]
-    unknown = sorted(set(names) - set(PLACEHOLDERS))
+    unknown = sorted(set(names) - set(known))
     if unknown:
         raise InputError(
             f"--command: unknown placeholder {{{unknown[0]}}}; "
-            f"known: {', '.join('{' + p + '}' for p in PLACEHOLDERS)}"
+            f"known: {', '.join('{' + p + '}' for p in known)}"
         )
     for name, spec, conversion in fields:
         if name is not None and (spec or conversion):
@@ -104,22 +138,22 @@ def _check_word(word: str) -> None:
         )
 
 
-def _refuse_shell_scripts(words: list[str]) -> None:
+def _refuse_shell_scripts(words: list[str], known: tuple[str, ...]) -> None:
     """``sh -c {sequence}`` would run a folder's name as shell commands."""
     shell = None
     for option, word in zip(words, words[1:], strict=False):
         if Path(option).name in SHELLS:
             shell = Path(option).name
-        elif shell and SCRIPT_OPTION.fullmatch(option) and _placeholder(word):
+        elif shell and SCRIPT_OPTION.fullmatch(option) and _placeholder(word, known):
             raise InputError(
                 f"--command: {word} is the script of {shell} {option}: a shell would run "
                 f"its value as commands; pass it as an argument (sh -c 'cd \"$1\" && ...' sh {word})"
             )
 
 
-def _placeholder(word: str) -> str | None:
+def _placeholder(word: str, known: tuple[str, ...] = PLACEHOLDERS) -> str | None:
     """The placeholder a checked word stands for, None for a literal word."""
-    return word[1:-1] if word[1:-1] in PLACEHOLDERS and word == "{" + word[1:-1] + "}" else None
+    return word[1:-1] if word[1:-1] in known and word == "{" + word[1:-1] + "}" else None
 
 
 def uses(words: list[str], placeholder: str) -> bool:
@@ -137,47 +171,102 @@ def resolve_program(word: str, cwd: Path) -> tuple[str, str]:
     return str(path), f"{word!r} (looked for {path})" if word != str(path) else repr(word)
 
 
+def check_program(words: list[str], cwd: Path) -> None:
+    """Refuse, before any run, a program that is missing or cannot be executed (a
+    placeholder as the program is the run's to resolve)."""
+    if _placeholder(words[0]) is not None:
+        return
+    program, shown = resolve_program(words[0], cwd)
+    found = shutil.which(program)
+    if found is None:
+        path = Path(program)
+        why = "is not executable" if path.is_file() else "does not exist"
+        raise InputError(f"--command: the program {shown} {why}")
+
+
+def parameter_value(text: str) -> int | float | str:
+    """A parameter's text as the JSON value programs get: an integer, a number, or text."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            continue
+    return text
+
+
+def _environment_name(name: str) -> str:
+    return "PARAM_" + name.upper().replace(".", "_")
+
+
 class CommandTracker:
     name = "cmd"
 
     def __init__(
-        self, template: str, vocabulary: Callable[[], Path] | None = None, timeout_s: float = 3600.0
+        self,
+        template: str,
+        vocabulary: Callable[[], Path] | None = None,
+        timeout_s: float = 3600.0,
+        *,
+        label: str = "cmd",
+        parameters: tuple[tuple[str, str], ...] = (),
+        settings: SettingsTemplate | None = None,
+        env: tuple[tuple[str, str], ...] = (),
     ) -> None:
-        self.words = parse_template(template)
+        names = tuple(name for name, _ in parameters)
+        check_parameter_names(names)
+        self.words = parse_template(template, names)
+        self.known = (*PLACEHOLDERS, *names)
         # Now, while the working directory is still the user's: the program runs elsewhere.
         self.program, self.shown = resolve_program(self.words[0], Path.cwd())
         self.vocabulary = vocabulary
         self.timeout_s = timeout_s
+        self.label = label
+        self.parameters = dict(parameters)
+        self.settings = settings
+        self.env = dict(env)
 
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         sequence = frames.sequence
+        what = f"{self.label} {Path(self.words[0]).name}" if self.label == "cmd" else self.label
         try:
             scratch = Scratch("depotbench-cmd-")
         except OSError as exc:
             raise TrackerError(
-                f"cmd: cannot make a scratch folder in {exc.filename}: {exc.strerror}"
+                f"{self.label}: cannot make a scratch folder in {exc.filename}: {exc.strerror}"
             ) from None
         with scratch:
             values = self._values(frames, scratch.path)
-            argv = [self.program, *(word.format(**values) for word in self.words[1:])]
-            if _placeholder(self.words[0]) is not None:
-                argv[0] = values[_placeholder(self.words[0])]
-            total_s = run_child(
+            argv = [self.program, *(self._word(word, values) for word in self.words[1:])]
+            if _placeholder(self.words[0], self.known) is not None:
+                argv[0] = values[_placeholder(self.words[0], self.known)]
+            child = run_child(
                 argv,
-                what=f"cmd {Path(argv[0]).name}",
+                what=what,
                 cwd=scratch.path,
                 timeout_s=self.timeout_s,
                 frames=len(sequence),
                 progress=progress,
-                env=_environment(values),
+                env=self._environment(values),
                 group=scratch.group,
                 program=self.shown,
             )
             trajectory = Path(values["trajectory"])
             if not trajectory.is_file():
-                raise TrackerError(f"cmd {argv[0]}: wrote no trajectory ({trajectory.name})")
-            estimate = read_tum(trajectory)
-        return _tracker_run(frames, estimate.timestamps_s, estimate.poses, total_s)
+                raise TrackerError(f"{what}: wrote no trajectory ({trajectory.name})", child.log)
+            try:
+                estimate = read_tum(trajectory)
+                keypoints = Path(values["keypoints"])
+                decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
+            except InputError as exc:  # what the program wrote cannot be read: its failure, named
+                raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
+        run = _tracker_run(frames, estimate.timestamps_s, estimate.poses, child.wall_s)
+        return dataclasses.replace(
+            run, decisions=decisions, peak_memory_mb=child.peak_memory_mb, log=child.log
+        )
+
+    def _word(self, word: str, values: dict[str, str]) -> str:
+        name = _placeholder(word, self.known)
+        return values[name] if name is not None else word.format()  # a literal: {{ is {
 
     def _values(self, frames: FrameSource, scratch: Path) -> dict[str, str]:
         """The placeholders' values; what they name is written into ``scratch``."""
@@ -186,22 +275,113 @@ class CommandTracker:
             associations = folder / "associations.txt"
             if not associations.is_file():
                 associations = _write_associations(frames, scratch / "associations.txt")
-            settings = write_settings(frames.sequence, scratch / "settings.yaml")
+            settings = scratch / "settings.yaml"
+            if self.settings is None:
+                write_settings(frames.sequence, settings)
+            else:
+                settings.write_text(self.settings.render(frames.sequence, self.parameters), encoding="utf-8")
+            detections = write_detections(
+                scratch / "detections.txt", frames.sequence, frames.all_detections()
+            )
+            parameters = scratch / "parameters.json"
+            typed = {name: parameter_value(text) for name, text in sorted(self.parameters.items())}
+            parameters.write_text(json.dumps(typed, indent=2) + "\n", encoding="utf-8")
         except OSError as exc:
-            raise TrackerError(f"cmd: cannot write to the scratch folder {scratch}: {exc.strerror}") from None
+            raise TrackerError(
+                f"{self.label}: cannot write to the scratch folder {scratch}: {exc.strerror}"
+            ) from None
         trajectory = scratch / ("trajectory.txt" if uses(self.words, "trajectory") else DEFAULT_TRAJECTORY)
         values = {
             "sequence": str(folder),
             "associations": str(associations),
             "settings": str(settings),
             "trajectory": str(trajectory),
+            "detections": str(detections),
+            "keypoints": str(scratch / "keypoints.txt"),
+            "parameters": str(parameters),
             "vocabulary": "",
         }
         if uses(self.words, "vocabulary"):
             if self.vocabulary is None:
                 raise TrackerError("--command uses {vocabulary}, but no vocabulary was given")
             values["vocabulary"] = str(self.vocabulary().resolve())
-        return values
+        return values | self.parameters
+
+    def _environment(self, values: dict[str, str]) -> dict[str, str]:
+        """depotbench's environment, the tracker's own variables, and the values as
+        ``DEPOTBENCH_SEQUENCE`` and so on (one left unset when it has none, so that a
+        stale one from outside does not pass)."""
+        env = dict(os.environ) | self.env
+        for name, value in values.items():
+            variable = ENVIRONMENT_PREFIX + (
+                name.upper() if name in PLACEHOLDERS else _environment_name(name)
+            )
+            if value:
+                env[variable] = value
+            else:
+                env.pop(variable, None)
+        return env
+
+
+def _relative(exc: InputError, scratch: Path) -> str:
+    """An error about a file the program wrote, naming the file, not the scratch folder
+    (it is gone by the time anyone reads the line)."""
+    return str(exc).replace(f"{scratch}/", "")
+
+
+class SettingsTemplate:
+    """A Jinja2 template of a program's settings file, rendered per run with the camera
+    (``camera``), the run's parameters (``params``) and ORB-SLAM's camera block and whole
+    default file (``orbslam_camera``, ``orbslam_settings``). Names it is not given are
+    errors (``StrictUndefined``): a misspelt one would otherwise render as nothing."""
+
+    def __init__(self, path: Path, text: str) -> None:
+        import jinja2
+
+        self.path = path
+        self.text = text
+        environment = jinja2.Environment(
+            undefined=jinja2.StrictUndefined, keep_trailing_newline=True, autoescape=False
+        )
+        try:
+            self._template = environment.from_string(text)
+        except jinja2.TemplateSyntaxError as exc:
+            raise InputError(
+                f"{path}:{exc.lineno}: the settings template does not parse: {exc.message}"
+            ) from None
+
+    @classmethod
+    def load(cls, path: Path) -> SettingsTemplate:
+        try:
+            return cls(path, read_text(path, MAX_SPEC_BYTES, "settings template"))
+        except FileNotFoundError:
+            raise InputError(f"{path}: the settings template does not exist") from None
+
+    def render(self, sequence: Sequence, parameters: dict[str, str]) -> str:
+        import jinja2
+
+        k = sequence.intrinsics
+        whole = orbslam_yaml(k, OrbSlamSettings(fps=sequence.fps)).splitlines()
+        camera_block = [line for line in whole if line.startswith(("Camera.", "DepthMapFactor"))]
+        variables = {
+            "camera": {
+                "fx": k.fx,
+                "fy": k.fy,
+                "cx": k.cx,
+                "cy": k.cy,
+                "width": k.width,
+                "height": k.height,
+                "fps": sequence.fps,
+                "depth_scale": k.depth_scale,
+            },
+            "params": {name: parameter_value(text) for name, text in parameters.items()},
+            "orbslam_camera": "\n".join(camera_block),
+            "orbslam_settings": "\n".join(line for line in whole if not line.startswith("%YAML")),
+        }
+        try:
+            return self._template.render(**variables)
+        except jinja2.TemplateError as exc:
+            raise InputError(f"{self.path}: the settings template cannot be rendered: {exc}") from None
 
 
 def _write_associations(frames: FrameSource, path: Path) -> Path:
@@ -215,19 +395,6 @@ def _write_associations(frames: FrameSource, path: Path) -> Path:
         encoding="utf-8",
     )
     return path
-
-
-def _environment(values: dict[str, str]) -> dict[str, str]:
-    """depotbench's environment with the values as ``DEPOTBENCH_SEQUENCE`` and so on
-    (one left unset when it has none, so that a stale one from outside does not pass)."""
-    env = dict(os.environ)
-    for name, value in values.items():
-        variable = ENVIRONMENT_PREFIX + name.upper()
-        if value:
-            env[variable] = value
-        else:
-            env.pop(variable, None)
-    return env
 
 
 def _tracker_run(

@@ -8,6 +8,7 @@ import os
 import subprocess
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,15 @@ def write_settings(sequence: Sequence, path: Path) -> Path:
     return path
 
 
+@dataclass(frozen=True)
+class ChildResult:
+    """How a program ran: its wall time, peak memory and the end of what it printed."""
+
+    wall_s: float
+    peak_memory_mb: float | None
+    log: str
+
+
 def run_child(
     argv: list[str],
     *,
@@ -45,14 +55,16 @@ def run_child(
     env: dict[str, str] | None = None,
     group: int | None = None,
     program: str | None = None,
-) -> float:
-    """Run a program without a shell; return its wall time.
+) -> ChildResult:
+    """Run a program without a shell.
 
     Lines of plain integers on its stderr advance a progress bar (frames done); the
-    last other lines are kept for the error message. It runs in process group ``group``
+    last other lines are kept for the error message, and the last ``LOG_BYTES`` of its
+    stdout and of its stderr for the run folder. It runs in process group ``group``
     (``eval.trackers.reaper``), or in a new one: past ``timeout_s``, on any exception
     and once it has exited, that group is killed, with whatever the program left in it.
-    ``program`` names it in a "cannot start" error (default: ``argv[0]``).
+    ``program`` names it in a "cannot start" error (default: ``argv[0]``). A failure
+    raises ``TrackerError`` carrying the log.
     """
     started = time.perf_counter()
     try:
@@ -61,7 +73,7 @@ def run_child(
             cwd=cwd,
             env=env,
             stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             **({"start_new_session": True} if group is None else {"process_group": group}),
         )
@@ -69,22 +81,43 @@ def run_child(
         shown = program or repr(argv[0])
         raise TrackerError(f"{what}: cannot start {shown}: {exc.strerror or exc}") from None
     group = child.pid if group is None else group
-    assert child.stderr is not None
-    tail = StderrTail()
-    reader = threading.Thread(target=tail.pump, args=(child.stderr.fileno(),), daemon=True)
-    reader.start()
+    assert child.stderr is not None and child.stdout is not None
+    tail, out = StderrTail(), ByteTail()
+    readers = [
+        threading.Thread(target=tail.pump, args=(child.stderr.fileno(),), daemon=True),
+        threading.Thread(target=out.pump, args=(child.stdout.fileno(),), daemon=True),
+    ]
+    for reader in readers:
+        reader.start()
+
+    def log() -> str:
+        return _log(out.text(), tail.raw.text())
+
     try:
         _watch(child, tail, what=what, started=started, timeout_s=timeout_s, frames=frames, progress=progress)
+    except TrackerError as exc:
+        _kill(child, group)
+        raise TrackerError(str(exc), log()) from None
     except BaseException:
         _kill(child, group)
         raise
-    _kill(child, group)  # it has exited: this ends what it left running, which may hold stderr open
-    reader.join(timeout=READER_JOIN_S)
-    if not reader.is_alive():
-        child.stderr.close()
+    peak_mb = _kill(child, group)  # it has exited: this ends what it left running, which may hold a pipe open
+    for reader, stream in zip(readers, (child.stderr, child.stdout), strict=True):
+        reader.join(timeout=READER_JOIN_S)
+        if not reader.is_alive():
+            stream.close()
     if child.returncode != 0:
-        raise TrackerError(f"{what}: exited with code {child.returncode} ({tail.last() or 'no message'})")
-    return time.perf_counter() - started
+        how = (
+            f"was killed by signal {-child.returncode}"
+            if child.returncode < 0
+            else f"exited with code {child.returncode}"
+        )
+        raise TrackerError(f"{what}: {how} ({tail.last() or 'no message'})", log())
+    return ChildResult(time.perf_counter() - started, peak_mb, log())
+
+
+def _log(stdout: str, stderr: str) -> str:
+    return f"== standard output (its end) ==\n{stdout}\n== standard error (its end) ==\n{stderr}\n"
 
 
 def _watch(
@@ -125,9 +158,53 @@ def _exited(child: subprocess.Popen, seconds: float) -> bool:
         time.sleep(0.02)
 
 
-def _kill(child: subprocess.Popen, group: int) -> None:
+def _kill(child: subprocess.Popen, group: int) -> float | None:
+    """End the group and reap the program; its peak resident memory in MB (with what it
+    waited for), from ``wait4``, where the system has it."""
     kill_group(group)
-    child.wait()
+    if not hasattr(os, "wait4"):
+        child.wait()
+        return None
+    try:
+        _, status, usage = os.wait4(child.pid, 0)
+    except ChildProcessError:  # reaped already
+        child.wait()
+        return None
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return usage.ru_maxrss / 1024.0  # KiB on Linux
+
+
+LOG_BYTES = 1 << 20
+"""The end of a program's standard output, and of its standard error, kept for the run
+folder: 1 MiB each, whatever it prints (a program once printed 1 GB)."""
+
+
+class ByteTail:
+    """The last ``limit`` bytes of a stream, in bounded memory."""
+
+    def __init__(self, limit: int = LOG_BYTES) -> None:
+        self.limit = limit
+        self._buffer = bytearray()
+        self.cut = False
+
+    def feed(self, chunk: bytes) -> None:
+        self._buffer += chunk
+        if len(self._buffer) > 2 * self.limit:
+            del self._buffer[: len(self._buffer) - self.limit]
+            self.cut = True
+
+    def pump(self, fd: int) -> None:
+        """Read ``fd`` to its end (in a thread: the program never blocks on a full pipe)."""
+        try:
+            while chunk := os.read(fd, READ_BYTES):
+                self.feed(chunk)
+        except OSError:
+            pass  # the pipe broke: what was read is kept, the exit code tells the rest
+
+    def text(self) -> str:
+        data = bytes(self._buffer[-self.limit :])
+        cut = self.cut or len(self._buffer) > self.limit
+        return ("[\u2026]" if cut else "") + data.decode("utf-8", "replace")
 
 
 class StderrTail:
@@ -143,6 +220,7 @@ class StderrTail:
     SCAN_LINES = 1000
 
     def __init__(self, lines: int = STDERR_TAIL_LINES, line_chars: int = STDERR_LINE_CHARS) -> None:
+        self.raw = ByteTail()
         self.lines: collections.deque[str] = collections.deque(maxlen=lines)
         self.line_chars = line_chars
         self.done_frames = 0
@@ -162,6 +240,7 @@ class StderrTail:
         self.end()
 
     def feed(self, chunk: bytes) -> None:
+        self.raw.feed(chunk)
         data = (self._partial + chunk).replace(b"\r", b"\n")  # \r ends a line too: progress bars
         cut = data.rfind(b"\n")
         if cut >= 0:

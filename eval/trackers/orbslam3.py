@@ -16,8 +16,10 @@ import numpy as np
 
 from eval.frames import FrameSource
 from eval.trackers.base import TrackerError, TrackerRun
-from eval.trackers.external import run_child, write_settings
+from eval.trackers.external import run_child
 from eval.trackers.reaper import Scratch
+from sim.camera import OrbSlamSettings, orbslam_yaml
+from sim.errors import InputError
 from slam.types import TrackingState
 
 STATES = {
@@ -42,12 +44,57 @@ def _data_lines(path: Path) -> int | None:
     return sum(1 for line in path.read_text().splitlines() if line.strip() and not line.startswith("#"))
 
 
+PARAMETERS: dict[str, tuple[str, type, float, float]] = {
+    "ORBextractor.nFeatures": ("n_features", int, 50, 20000),
+    "ORBextractor.scaleFactor": ("scale_factor", float, 1.01, 2.0),
+    "ORBextractor.nLevels": ("n_levels", int, 1, 16),
+    "ORBextractor.iniThFAST": ("ini_th_fast", int, 1, 255),
+    "ORBextractor.minThFAST": ("min_th_fast", int, 1, 255),
+    "ThDepth": ("close_depth_threshold", float, 1.0, 1000.0),
+}
+"""ORB-SLAM3's settings a sweep may set, by their names in its settings file: the field
+of ``OrbSlamSettings`` each fills, its type and its range (ThDepth is in units of the
+baseline: 40 x 0.08 m in TUM's files)."""
+
+
+def default_parameters() -> dict[str, str]:
+    """The parameters' values in the settings the bench writes (``OrbSlamSettings``)."""
+    defaults = OrbSlamSettings()
+    return {name: repr(getattr(defaults, field)) for name, (field, _, _, _) in PARAMETERS.items()}
+
+
+def orbslam_settings(sequence_fps: float, parameters: tuple[tuple[str, str], ...]) -> OrbSlamSettings:
+    """The settings file's non-camera fields with the run's parameters, each checked."""
+    values: dict[str, int | float] = {}
+    for name, text in parameters:
+        if name not in PARAMETERS:
+            raise InputError(f"orbslam3: unknown parameter {name!r}; known: {', '.join(PARAMETERS)}")
+        field, kind, low, high = PARAMETERS[name]
+        try:
+            value = kind(text)
+        except ValueError:
+            raise InputError(
+                f"orbslam3: {name} = {text!r} is not {'an integer' if kind is int else 'a number'}"
+            ) from None
+        if not low <= value <= high:
+            raise InputError(f"orbslam3: {name} = {text} is out of range [{low:g}, {high:g}]")
+        values[field] = value
+    settings = OrbSlamSettings(fps=sequence_fps, **values)
+    if settings.min_th_fast > settings.ini_th_fast:
+        raise InputError("orbslam3: ORBextractor.minThFAST must not exceed ORBextractor.iniThFAST")
+    return settings
+
+
 class Orbslam3Tracker:
     name = "orbslam3"
 
-    def __init__(self, vocabulary: Path, timeout_s: float = 3600.0) -> None:
+    def __init__(
+        self, vocabulary: Path, timeout_s: float = 3600.0, parameters: tuple[tuple[str, str], ...] = ()
+    ) -> None:
+        orbslam_settings(30.0, parameters)  # refused here, before any run
         self.vocabulary = vocabulary
         self.timeout_s = timeout_s
+        self.parameters = parameters
 
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         if not available():
@@ -63,14 +110,19 @@ class Orbslam3Tracker:
             ) from None
         with guard:
             scratch = guard.path
+            settings = scratch / "settings.yaml"
+            settings.write_text(
+                orbslam_yaml(sequence.intrinsics, orbslam_settings(sequence.fps, self.parameters)),
+                encoding="utf-8",
+            )
             request = {
                 "vocabulary": str(self.vocabulary.resolve()),
-                "settings": str(write_settings(sequence, scratch / "settings.yaml")),
+                "settings": str(settings),
                 "sequence": str(frames.folder(scratch).resolve()),
                 "out": str(scratch),
             }
             (scratch / "request.json").write_text(json.dumps(request), encoding="utf-8")
-            total_s = run_child(
+            child = run_child(
                 [sys.executable, "-m", "eval.trackers.orbslam3_worker", str(scratch / "request.json")],
                 what="orbslam3",
                 cwd=scratch,
@@ -89,5 +141,7 @@ class Orbslam3Tracker:
             poses=tuple(None if r["pose"] is None else np.array(r["pose"]) for r in records),
             track_ms=np.array([r["track_ms"] for r in records]),
             keyframes=keyframes,
-            total_s=total_s,
+            total_s=child.wall_s,
+            peak_memory_mb=child.peak_memory_mb,
+            log=child.log,
         )
