@@ -302,7 +302,9 @@ def test_a_relative_program_is_found_in_the_starting_folder(seq: Path, tmp_path:
     assert "tracked 4/4" in out
     code, _, err = run_cmd(capsys, seq, tmp_path / "r2", "./no_slam.sh {sequence}")
     assert code == 2
-    one_error_line(err, "the program './no_slam.sh'", f"looked for {tmp_path / 'no_slam.sh'}", "does not exist")
+    one_error_line(
+        err, "the program './no_slam.sh'", f"looked for {tmp_path / 'no_slam.sh'}", "does not exist"
+    )
 
 
 # -- C6: a full scratch disk under --strategy mask -------------------------------------------
