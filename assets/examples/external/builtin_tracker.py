@@ -9,12 +9,15 @@ parameters, poses and per-keypoint decisions all cross it exactly.
 
     trackers:
       - name: builtin_external
-        command: python builtin_tracker.py --sequence {sequence} --detections {detections}
+        command: ./builtin_tracker.py --sequence {sequence} --detections {detections}
           --parameters {parameters} --trajectory {trajectory} --keypoints {keypoints}
         parameters: {strategy: box_epipolar_flow, epsilon_px: 1.0}
 
-The parameters are ``strategy`` (one of ``slam.rejection.STRATEGIES``) and any threshold
-by the name ``depotbench run --set NAME=VALUE`` takes.
+(in a spec beside this file: a program's path is relative to the spec; it runs on the
+``python3`` first in ``PATH``, depotbench's own with its virtual environment active).
+The parameters are ``strategy`` (one of ``slam.rejection.STRATEGIES``; the bench's
+``mask`` is its own strategy for any program) and any threshold by the name
+``depotbench run --set NAME=VALUE`` takes.
 """
 
 from __future__ import annotations

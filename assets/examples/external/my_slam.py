@@ -17,9 +17,12 @@ In a sweep spec:
 
     trackers:
       - name: my_slam
-        command: python my_slam.py {sequence} {associations} {settings} {detections}
+        command: ./my_slam.py {sequence} {associations} {settings} {detections}
           {trajectory} {keypoints} --box-margin {box_margin}
         parameters: {box_margin: 0}
+
+(in a spec beside this file: a program's path is relative to the spec; it runs on the
+``python3`` first in ``PATH``, which needs numpy and opencv-python-headless).
 """
 
 from __future__ import annotations
