@@ -95,6 +95,19 @@ def _claim(target: Path) -> OutputLock:
     return OutputLock(target.with_name(f"{target.name}.claim"), wait=True)
 
 
+def _beside_test(request: pytest.FixtureRequest, path: Path) -> Path:
+    """A path a test names, relative to the test's file (as every path of a spec is to its
+    file); one given relative to pytest's rootdir, as 0.3 resolved them, is still found."""
+    path = path.expanduser()
+    if path.is_absolute():
+        return path
+    beside = request.path.parent / path
+    if beside.exists():
+        return beside
+    from_root = Path(request.config.rootpath) / path
+    return from_root if from_root.exists() else beside
+
+
 def _fail_on(report) -> None:
     if not report.passed:
         pytest.fail("depotbench budgets failed:\n" + "\n".join(report.failures), pytrace=False)
@@ -111,9 +124,7 @@ def depotbench_gates(request: pytest.FixtureRequest, depotbench_dir: Path) -> Ca
     workers = request.config.getoption("--depotbench-workers")
 
     def run(path: str | Path, check: bool = True):
-        path = Path(path)
-        if not path.is_absolute():
-            path = Path(request.config.rootpath) / path
+        path = _beside_test(request, Path(path))
         gates = load_gates(path)
         validate(gates.run, path)
         out = depotbench_dir / f"gates-{gates.gates}"
@@ -186,15 +197,19 @@ def _generate(sequence: _Sequence) -> None:
             generate(sequence.scenario, sequence.path, progress=False, overwrite=True)
 
 
-def _check_configuration(spec: SweepSpec, job: str) -> None:
+def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:
     """Refuse what cannot run as asked, before any generation or vocabulary build: the
     sweep's own checks of trackers and detectors, and every job it will run checked
     against the tracker (the sweep skips those an external tracker cannot run, and then
     no row comes back)."""
     from eval.harness import slam_config
-    from eval.sweep_spec import detector_configs, tracker_configs, variants
+    from eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
 
-    trackers = tracker_configs(spec, job)
+    try:
+        trackers = tracker_configs(spec, str(spec_path))
+        tracker_variants(spec, trackers, str(spec_path))
+    except InputError as exc:
+        raise InputError(f"{job}: {str(exc).removeprefix(str(spec_path) + ': ')}") from None
     detector_configs(spec, job)
     for variant in variants(spec):
         for tracker in trackers:
@@ -238,12 +253,21 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
         frames: int | None = None,
         seed: int = 0,
         detector: str = "groundtruth",
-        tracker: str = "builtin",
+        tracker: str | dict[str, Any] = "builtin",
         settings: dict[str, float] | None = None,
+        parameters: dict[str, float | str] | None = None,
         budgets: dict[str, dict[str, float]] | None = None,
     ) -> dict[str, Any]:
-        job = f"depotbench_run({scenario!r}, strategy={strategy!r}, tracker={tracker!r})"
-        settings = settings or {}
+        """``tracker``: builtin, orbslam3, or an external tracker as a sweep spec gives one
+        (a mapping: name, command, parameters, settings, timeout_s, env; paths relative to
+        the test's file); ``parameters``: its parameter values for this run."""
+        name = tracker if isinstance(tracker, str) else str(tracker.get("name"))
+        job = f"depotbench_run({scenario!r}, strategy={strategy!r}, tracker={name!r})"
+        settings, parameters = settings or {}, parameters or {}
+        if parameters and isinstance(tracker, str):
+            raise InputError(f"{job}: parameters are an external tracker's; give the tracker as a mapping")
+        if Path(scenario).suffix in (".yaml", ".yml"):
+            scenario = str(_beside_test(request, Path(scenario)))
         sequence = _plan_sequence(scenario, frames, seed, depotbench_dir, job)
         data = {
             "sweep": "pytest",
@@ -252,19 +276,27 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
             "detectors": [detector],
             "strategies": sorted({"none", strategy}),
             "thresholds": {strategy: {k: {"grid": [v]} for k, v in settings.items()}} if settings else {},
+            "parameters": {name: {k: {"grid": [v]} for k, v in parameters.items()}} if parameters else {},
         }
         spec = validate_model(SweepSpec, data, job)
-        _check_configuration(spec, job)
+        spec_path = request.path.parent / "depotbench_run.yaml"  # where a tracker's relative paths start
+        _check_configuration(spec, spec_path, job)
         wanted = {**marked, **(budgets or {})}
         gates = None
         if wanted:
-            name = f"{Path(scenario).stem}-{strategy}"
-            check = {"name": name, "strategies": [strategy], "settings": settings, "budgets": wanted}
+            check = {
+                "name": f"{Path(scenario).stem}-{strategy}",
+                "strategies": [strategy],
+                "settings": settings,
+                "parameters": parameters,
+                "budgets": wanted,
+            }
             gates = GateFile(gates="pytest", run=spec, checks=[validate_model(Check, check, job)])
         _generate(sequence)
-        out = depotbench_dir / "runs" / hashlib.sha256(spec.model_dump_json().encode()).hexdigest()[:12]
+        key = hashlib.sha256((spec.model_dump_json() + str(spec_path)).encode()).hexdigest()[:12]
+        out = depotbench_dir / "runs" / key
         with _claim(out):  # two processes with one spec share its results database
-            outcome = execute_sweep(spec, out / "spec.yaml", out, workers, progress=False, announce=False)
+            outcome = execute_sweep(spec, spec_path, out, workers, progress=False, announce=False)
         if gates is not None:
             _fail_on(evaluate(gates, outcome.rows))
         return the_row(derived_rows(outcome.rows, "none"), strategy, job)

@@ -221,3 +221,67 @@ def test_a_run_without_its_row_is_an_error_naming_the_job():
     assert the_row([row], "none", "depotbench_run('smoke')") is row
     with pytest.raises(InputError, match=r"depotbench_run\('smoke'\): .*no row for strategy 'box_rule'"):
         the_row([row], "box_rule", "depotbench_run('smoke')")
+
+
+@pytest.mark.render
+def test_an_external_tracker_is_run_and_gated_from_pytest_twice_with_one_output_folder(pytester):
+    """Issue 35: the user's own program in depotbench_run, with its parameters and budgets;
+    a second session with the same --depotbench-dir resumes and passes again. A failing
+    budget names the tracker and its parameter values."""
+    from tests.conftest import REPO
+
+    oracle = REPO / "tests" / "programs" / "oracle_slam.py"
+    tracker = {
+        "name": "oracle",
+        "command": f"{sys.executable} {oracle} {{sequence}} {{detections}} {{parameters}} "
+        "{trajectory} {keypoints}",
+        "parameters": {"noise_m": 0.0, "margin_px": 4, "mode": "ok"},
+    }
+    pytester.makepyfile(
+        f"""
+        import pytest
+
+        TRACKER = {tracker!r}
+
+        def test_accurate(depotbench_run):
+            row = depotbench_run("smoke", strategy="none", frames=3, tracker=TRACKER,
+                                 parameters={{"noise_m": 0.0}}, budgets={{"ate_rmse_m": {{"max": 0.001}}}})
+            assert row["tracker"] == "oracle" and row["failure"] is None
+
+        def test_noisy_fails_naming_it(depotbench_run):
+            with pytest.raises(pytest.fail.Exception, match="oracle.*noise_m=0.2"):
+                depotbench_run("smoke", strategy="none", frames=3, tracker=TRACKER,
+                               parameters={{"noise_m": 0.2}}, budgets={{"ate_rmse_m": {{"max": 0.001}}}})
+        """
+    )
+    for _ in range(2):
+        result = pytester.runpytest_subprocess(
+            "--depotbench-dir=bench", "--depotbench-workers=1", "-p", "no:cacheprovider"
+        )
+        result.assert_outcomes(passed=2)
+
+
+@pytest.mark.render
+def test_a_gate_file_is_found_beside_the_test_that_names_it(pytester):
+    """Issue 35 point 6: gate paths resolved against pytest's rootdir, not the test's file."""
+    sub = pytester.mkdir("checks")
+    (sub / "g.yaml").write_text(
+        "gates: g\nrun:\n  sequences: [seq]\n  strategies: [none]\n"
+        "checks:\n  - name: c\n    budgets: {lost_fraction: {max: 1}}\n"
+    )
+    from eval.cli import main
+
+    assert main(["generate", "smoke", "-o", str(sub / "seq"), "--frames", "3"]) == 0
+    (sub / "test_gate.py").write_text(
+        "import pytest\n\n@pytest.mark.depotbench_gates('g.yaml')\n"
+        "def test_gate(depotbench_gates):\n    assert depotbench_gates.report.passed\n"
+    )
+    for _ in range(2):
+        result = pytester.runpytest_subprocess(
+            "checks/test_gate.py",
+            "--depotbench-dir=bench",
+            "--depotbench-workers=1",
+            "-p",
+            "no:cacheprovider",
+        )
+        result.assert_outcomes(passed=1)
