@@ -35,7 +35,7 @@ COMMAND = (
 @pytest.fixture(scope="module")
 def sequences(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("external")
-    for name, seed in (("s1", 1), ("s2", 2)):
+    for name, seed in (("s1", 1), ("s2", 2), ("s3", 3)):
         assert main(["generate", "smoke", "-o", str(root / name), "--frames", "4", "--seed", str(seed)]) == 0
     return root
 
@@ -230,3 +230,111 @@ def test_processes_of_a_hung_program_do_not_outlive_the_sweep(sequences: Path, t
     spec = _spec(sequences, _oracle("{mode: fork}", "    timeout_s: 3\n"), strategies="[none]")
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
     assert processes_with(token) == []
+
+
+WRAPPER = REPO / "assets" / "examples" / "external" / "builtin_tracker.py"
+
+
+def test_the_built_in_tracker_through_the_protocol_gives_the_built_in_rows(sequences: Path, tmp_path: Path):
+    """Issue 35 point 5, through the engine: the wrapped built-in tracker, handed the
+    bench's boxes (faulted too) and parameters, scores the same ATE and rejection
+    precision/recall as the built-in run, on 3 sequences with 2 strategies."""
+    command = (
+        f"{shlex.quote(sys.executable)} {WRAPPER} --sequence {{sequence}} --detections {{detections}} "
+        "--parameters {parameters} --trajectory {trajectory} --keypoints {keypoints}"
+    )
+    faulted = "{detector: groundtruth, faults: {miss: 0.3, jitter: 0.1, false_positives: 0.5}}"
+    listed = ", ".join(str(sequences / name) for name in ("s1", "s2", "s3"))
+    for strategy in ("box_rule", "box_epipolar_flow"):
+        spec = tmp_path / f"{strategy}.yaml"
+        spec.write_text(
+            f"sweep: wrapped\nsequences: [{listed}]\nstrategies: [none, {strategy}]\n"
+            f"detectors: [groundtruth, {faulted}]\ntrackers:\n  - builtin\n  - name: wrapped\n"
+            f"    command: {json.dumps(command)}\n    parameters: {{strategy: {strategy}}}\n"
+        )
+        out = tmp_path / f"sw-{strategy}"
+        assert main(["sweep", str(spec), "-o", str(out), "--workers", "2"]) == 0
+        rows = _rows(out)
+        builtin = {
+            (r["sequence"], r["detector"]): r
+            for r in rows
+            if r["tracker"] == "builtin" and r["strategy"] == strategy
+        }
+        wrapped = {
+            (r["sequence"], r["detector"]): r
+            for r in rows
+            if r["tracker"] == "wrapped" and r["strategy"] == "none"
+        }
+        assert len(builtin) == len(wrapped) == 6
+        for key, row in builtin.items():
+            other = wrapped[key]
+            assert not other["failure"], other["failure"]
+            for column in ("ate_rmse_m", "tracked_fraction", "rejection_precision", "rejection_recall"):
+                assert other[column] == row[column], (key, column, other[column], row[column])
+
+
+def same(rows: list[dict]) -> list[str]:
+    """Rows as comparable text, without what names the folder a sequence was generated in."""
+    skip = ("key", "family", "sequence_fingerprint", "computed_by")
+    return sorted(str({k: v for k, v in r.items() if k not in skip}) for r in rows)
+
+
+@pytest.mark.slow
+def test_an_external_sweep_is_the_same_with_ray_and_after_five_sigkills(tmp_path: Path):
+    """Issue 35's done-when: a 4-sequence walking suite, the program x 3 values of a
+    parameter x 2 detectors (faulted true boxes, and the ONNX model), with 2 workers and
+    with Ray: identical rows; killed 5 times at random moments and resumed: row for row."""
+    import signal
+    import subprocess
+    import time
+
+    import numpy as np
+
+    from eval.record import DETERMINISTIC_FIELDS
+    from eval.store import ResultStore
+
+    pytest.importorskip("ray")
+    (tmp_path / "walk.yaml").write_text(
+        "suite: walk\nbase: smoke\noverrides: {frames: 6}\nseeds: [11, 12, 13, 14]\n"
+    )
+    (tmp_path / "spec.yaml").write_text(
+        "sweep: ext\nsuite: walk.yaml\nstrategies: [none, mask]\ntrackers:\n"
+        + _oracle("{noise_m: 0.0, margin_px: 4, mode: ok}")
+        + "parameters: {oracle: {margin_px: {grid: [0, 4, 12]}}}\n"
+        "detectors: [{detector: groundtruth, faults: {miss: 0.4, latency: 2}}, onnx]\n"
+    )
+
+    def table(out: Path) -> list[dict]:
+        with ResultStore(out / "results.sqlite", readonly=True) as store:
+            return [{k: r[k] for k in DETERMINISTIC_FIELDS if k != "sequence"} for r in store.rows()]
+
+    def sweep(out: str, *extra: str) -> list[str]:
+        return [sys.executable, "-m", "eval.cli", "sweep", str(tmp_path / "spec.yaml"), "-o", out, *extra]
+
+    env = {**os.environ, "DEPOTBENCH_CACHE": "off"}
+    for out, extra in (("local", ()), ("ray", ("--backend", "ray"))):
+        done = subprocess.run(
+            sweep(str(tmp_path / out), "--workers", "2", *extra), env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+    reference = table(tmp_path / "local")
+    assert len(reference) == 4 * 3 * 2 * 2 and all(r["failure"] is None for r in reference)
+    ray = table(tmp_path / "ray")
+    assert same(ray) == same(reference)
+    rng = np.random.default_rng(35)
+    for moment in rng.uniform(2.0, 8.0, 5):
+        proc = subprocess.Popen(
+            sweep(str(tmp_path / "killed"), "--workers", "2"),
+            env=env,
+            start_new_session=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        time.sleep(moment)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    resumed = subprocess.run(
+        sweep(str(tmp_path / "killed"), "--workers", "2"), env=env, capture_output=True, text=True
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert same(table(tmp_path / "killed")) == same(reference)

@@ -254,12 +254,12 @@ class CommandTracker:
             if not trajectory.is_file():
                 raise TrackerError(f"{what}: wrote no trajectory ({trajectory.name})", child.log)
             try:
-                estimate = read_tum(trajectory)
+                stamps, poses = _estimate(trajectory)
                 keypoints = Path(values["keypoints"])
                 decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
             except InputError as exc:  # what the program wrote cannot be read: its failure, named
                 raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
-        run = _tracker_run(frames, estimate.timestamps_s, estimate.poses, child.wall_s)
+        run = _tracker_run(frames, stamps, poses, child.wall_s)
         return dataclasses.replace(
             run, decisions=decisions, peak_memory_mb=child.peak_memory_mb, log=child.log
         )
@@ -321,6 +321,21 @@ class CommandTracker:
             else:
                 env.pop(variable, None)
         return env
+
+
+def _estimate(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The trajectory's timestamps and poses; a file with no pose line is a run that tracked
+    no frame (a row with no ATE), not an unreadable one."""
+    if not any(line.strip() and not line.lstrip().startswith("#") for line in _head_lines(path)):
+        return np.zeros(0), np.zeros((0, 4, 4))
+    estimate = read_tum(path)
+    return estimate.timestamps_s, estimate.poses
+
+
+def _head_lines(path: Path, limit: int = 1 << 16) -> list[str]:
+    """The first lines of a file (enough to see whether it holds a pose line)."""
+    with path.open("rb") as handle:
+        return handle.read(limit).decode("utf-8", "replace").splitlines()
 
 
 def _relative(exc: InputError, scratch: Path) -> str:

@@ -20,7 +20,7 @@ from sim.files import MIB, read_text
 from sim.sequence import Sequence, timestamp_name
 
 DETECTIONS_HEADER = "# depotbench detections 1\n# timestamp x0 y0 x1 y1 prior confidence class\n"
-KEYPOINTS_HEADER = "# timestamp x y kept [reason]\n"
+KEYPOINTS_HEADER = "# depotbench keypoints 1\n# timestamp x y kept [reason]\n"
 MAX_KEYPOINTS_BYTES = 1024 * MIB
 """A keypoint file: 300 frames of 1000 keypoints take about 9 MB, so 1 GiB is 30,000
 frames of them; a larger file is refused before it is read."""
@@ -90,11 +90,16 @@ def write_keypoints(
     kept: list[np.ndarray],
     reasons: list[list[str]] | None = None,
 ) -> Path:
+    """Keypoint decisions as the protocol's file (what a Python tracker writes; C++ ones
+    print the same lines): per frame, each keypoint's position, 1 if kept, and a reason
+    word (none, or one without spaces)."""
     lines = [KEYPOINTS_HEADER]
     for k, (stamp, points, flags) in enumerate(zip(timestamps_s, keypoints_px, kept, strict=True)):
         name = timestamp_name(stamp)
         why = reasons[k] if reasons is not None else [""] * len(points)
         for (x, y), flag, reason in zip(points, flags, why, strict=True):
+            if reason and len(reason.split()) != 1:
+                raise ValueError(f"a keypoint's reason is one word, not {reason!r}")
             lines.append(
                 f"{name} {float(x)!r} {float(y)!r} {int(bool(flag))}{' ' + reason if reason else ''}\n"
             )
