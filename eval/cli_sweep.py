@@ -66,7 +66,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     search = outcome.search
     if search is not None:
         print(
-            f"search ({search['trials']} trials, {search['objective']}): best {search['strategy']} "
+            f"search ({search['trials']} trials, {search['objective']}): best "
+            f"{search.get('tracker') or search['strategy']} "
             f"{search['settings']} -> {search['value']:.5f}; study in {args.output / 'optuna.sqlite'}"
         )
     print(

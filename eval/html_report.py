@@ -29,7 +29,7 @@ import sys
 import zipfile
 import zlib
 from array import array
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -789,6 +789,15 @@ def stored_spec(path: Path):
         raise InputError(_first_problem(f"{path}: meta 'spec'", exc)) from None
 
 
+def stored_spec_path(path: Path) -> str | None:
+    """Where the sweep's spec file was (meta ``spec_path``): its relative paths (a program,
+    a model, a settings template) start there."""
+    from eval.store import ResultStore
+
+    with ResultStore(path, readonly=True) as store:
+        return store.meta("spec_path")
+
+
 class SweepSequences:
     """The sweep's sequences by the path its rows store, each found (``resolve_sequence``)
     and opened once. One that is gone or damaged is noted, and the sections that need its
@@ -845,6 +854,30 @@ class _Grid:
     variants: list
 
 
+def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprint: str | None):
+    """The job of a stored row outside the spec's grid (a search trial: its tracker's
+    parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
+    if its key is the row's."""
+    from eval.harness import RunJob, job_key, tracker_identity
+    from eval.sweep import SweepJob
+
+    if fingerprint is None:
+        return None
+    trackers = [t for t in grid.trackers if t.label == row["tracker"]]
+    detectors = [d for d in grid.detectors if d.label == row["detector"]]
+    if not trackers or not detectors:
+        return None
+    parameters = tuple(sorted(json.loads(row.get("parameters") or "{}").items()))
+    tracker = replace(trackers[0], parameters=parameters) if parameters else trackers[0]
+    settings = tuple(sorted((k, str(v)) for k, v in json.loads(row["settings"]).items()))
+    for detector in detectors:
+        key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings)
+        if key == row["key"]:
+            run = RunJob(sequence.root, row["strategy"], detector, settings, tracker)
+            return SweepJob(key, row["family"], run, fingerprint)
+    return None
+
+
 def _missing_job(row: dict[str, Any], fingerprint: str | None) -> str:
     """Why a stored row has no job in the spec's grid on the sequence as it is now."""
     if fingerprint is not None and row.get("sequence_fingerprint") not in (None, fingerprint):
@@ -864,6 +897,7 @@ def _track_family(
     from eval.sweep import jobs_for
 
     found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)])
+    # A row keeps its sequence's absolute path; jobs here are keyed on the path it was found at.
     jobs = {j.key: j for j in found}
     fingerprint = found[0].fingerprint if found else None
     baseline = next(
@@ -874,6 +908,7 @@ def _track_family(
             and r["strategy"] == "none"
             and r["detector"] == chosen["detector"]
             and r["tracker"] == chosen["tracker"]
+            and (r.get("parameters") or "{}") == (chosen.get("parameters") or "{}")
         ),
         None,
     )
@@ -881,14 +916,16 @@ def _track_family(
     views = []
     for row in wanted:
         label = "best" if row is chosen else "baseline (none)"
-        job = jobs.get(row["key"])
+        job = jobs.get(row["key"]) or _job_of_row(row, grid, sequence, fingerprint)
         if job is None:
             notes.add(f"{family}: the {label} run is not tracked again: {_missing_job(row, fingerprint)}")
             continue
         tracked = track(job.job, StageCache.from_env())
         shown = settings_text(config["settings"]) if label == "best" else ""
+        tracker = job.job.tracker
+        parameters = settings_text(dict(tracker.parameters)) if tracker.parameters else ""
         title = (
-            f"{family}: {label} — {job.job.tracker.kind.value} · {job.job.strategy} {shown} · "
+            f"{family}: {label} — {tracker.label} {parameters} · {job.job.strategy} {shown} · "
             f"{job.job.detector.label}"
         )
         views.append(view_of(title, tracked, sequence))
@@ -899,7 +936,7 @@ def _featured_runs(
     folder: Path, rows: list[dict[str, Any]], best: dict[str, dict], sequences: SweepSequences, notes: Notes
 ) -> list[RunView]:
     """Each family's best configuration, and its none run, tracked again from the cache."""
-    from eval.sweep_spec import detector_configs, tracker_configs, variants
+    from eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
 
     spec = stored_spec(folder / "results.sqlite")
     if spec is None:
@@ -907,9 +944,10 @@ def _featured_runs(
             "run details: results.sqlite keeps no sweep spec (meta 'spec') to track the best runs again"
         )
         return []
-    source = str(folder / "results.sqlite")
+    source = stored_spec_path(folder / "results.sqlite") or str(folder / "results.sqlite")
     try:
-        grid = _Grid(tracker_configs(spec, source), detector_configs(spec, source), variants(spec))
+        trackers = tracker_configs(spec, source)
+        grid = _Grid(tracker_variants(spec, trackers, source), detector_configs(spec, source), variants(spec))
     except InputError as exc:
         # A spec names its files relative to the spec file, which the sweep folder does not
         # keep (``onnx:models/x.onnx``): every result is still in the database.
@@ -935,6 +973,15 @@ def _featured_runs(
     return views
 
 
+def _configuration(c: dict[str, Any]) -> str:
+    """A configuration as the tables name it: an external tracker and its parameters first."""
+    tracker = "" if c.get("tracker", "builtin") == "builtin" else f"{c['tracker']} "
+    parameters = settings_text(c.get("parameters") or {})
+    return f"{tracker}{parameters + ' · ' if parameters else ''}{c['strategy']} " + settings_text(
+        c["settings"]
+    )
+
+
 def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     from eval.store import ResultStore
 
@@ -948,7 +995,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     best_rows = [
         [
             family,
-            f"{c['strategy']} " + settings_text(c["settings"]),
+            _configuration(c),
             c["detector"],
             c["sequences"],
             c["ate_rmse_m"],

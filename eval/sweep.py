@@ -435,10 +435,12 @@ def run_jobs(
     return tracked, len(pending)
 
 
-def open_store(out: Path, spec: SweepSpec) -> ResultStore:
+def open_store(out: Path, spec: SweepSpec, spec_path: Path | None = None) -> ResultStore:
     out.mkdir(parents=True, exist_ok=True)
     store = ResultStore(out / DATABASE)
     # Rows are keyed by content: after a change of spec the old ones stay valid and new ones add.
     store.set_meta("spec", spec.model_dump_json())
+    if spec_path is not None:  # where the spec's relative paths start, for a report's re-runs
+        store.set_meta("spec_path", str(spec_path.resolve()))
     store.set_meta("bench_version", generator_version())
     return store

@@ -50,7 +50,7 @@ def execute_sweep(
     where = {"backend": backend, "address": address}
     sequences = sequences_of(spec, spec_path, out, workers, progress=progress, **where)
     jobs = expand(spec, spec_path, sequences)
-    with open_store(out, spec) as store:
+    with open_store(out, spec, spec_path) as store:
         done = len(store.keys() & {j.key for j in jobs})
         if announce:
             print(

@@ -338,3 +338,27 @@ def test_an_external_sweep_is_the_same_with_ray_and_after_five_sigkills(tmp_path
     )
     assert resumed.returncode == 0, resumed.stderr
     assert same(table(tmp_path / "killed")) == same(reference)
+
+
+def test_a_search_over_a_programs_parameter_and_the_report_of_the_sweep(
+    sequences: Path, tmp_path: Path, capsys
+):
+    """An Optuna search over the program's own parameter; the HTML report tracks the best
+    external run again (its program found from the spec's folder) and says nothing is left out."""
+    pytest.importorskip("optuna")
+    spec = _spec(
+        sequences,
+        _oracle("{noise_m: 0.05, margin_px: 4, mode: ok}"),
+        "search: {tracker: oracle, trials: 3, space: {noise_m: {low: 0.0, high: 0.1}}}\n",
+        strategies="[none]",
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    out = capsys.readouterr().out
+    summary = json.loads((tmp_path / "sw" / "summary.json").read_text())
+    assert summary["search"]["tracker"] == "oracle" and summary["search"]["trials"] == 3
+    assert "best oracle {'noise_m'" in out
+    assert main(["report", str(tmp_path / "sw"), "-o", str(tmp_path / "rep")]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err, captured.err
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "oracle" in page and "noise_m" in page
