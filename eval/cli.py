@@ -29,6 +29,7 @@ from eval.cli_gates import add_check
 from eval.cli_report import add_report
 from eval.cli_sweep import add_sweep
 from sim.errors import InputError
+from sim.processes import OutsideImports  # light: the handler is set before any heavy import
 
 if TYPE_CHECKING:
     from eval.comparison import Comparison
@@ -378,7 +379,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         metavar="TEMPLATE",
         help="--slam cmd: the program and its arguments, with {sequence} {associations} {settings} "
         "{vocabulary} {trajectory} as whole words, run without a shell (a shell script takes them as "
-        "arguments, \"$1\", or from $DEPOTBENCH_SEQUENCE and the like)",
+        'arguments, "$1", or from $DEPOTBENCH_SEQUENCE and the like)',
     )
     p.add_argument(
         "--param",
@@ -632,8 +633,6 @@ def _show_warnings(verb: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from sim.processes import OutsideImports
-
     # Ctrl-C and SIGTERM raise, but never inside an import (sim.processes.OutsideImports):
     # building the parser alone imports numpy, SciPy and OpenCV, and commands import MuJoCo.
     in_main = threading.current_thread() is threading.main_thread()

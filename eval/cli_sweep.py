@@ -58,10 +58,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         )
     written, elapsed = outcome.written, outcome.seconds
     rate = f", {written / elapsed * 60:.1f} rows/min" if written and elapsed > 0 else ""
-    print(
-        f"wrote {written} rows in {elapsed:.1f} s{rate}; tracked {outcome.tracked} of them "
-        "(the others keep the same keypoints in every frame as a tracked one)"
+    shared = (
+        f"; tracked {outcome.tracked} of them (the others keep the same keypoints in every frame "
+        "as a tracked one)"
+        if outcome.tracked < written
+        else ""
     )
+    print(f"wrote {written} rows in {elapsed:.1f} s{rate}{shared}")
     print(format_best(outcome.summary["best"]))
     search = outcome.search
     if search is not None:

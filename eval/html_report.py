@@ -46,7 +46,15 @@ from pydantic import (
 )
 
 from eval.alignment import Alignment, align
-from eval.sweep_report import pareto_figure, pyplot, settings_text, threshold_figures, with_rho
+from eval.sweep_report import (
+    configuration_label,
+    pareto_figure,
+    pyplot,
+    settings_text,
+    threshold_figures,
+    with_rho,
+)
+from eval.trackers.base import TrackerKind
 from eval.trajectory import Trajectory, associate, read_tum
 from sim.errors import FileError, InputError
 from sim.files import MIB, open_regular, read_text
@@ -691,8 +699,7 @@ def run_page(view: RunView, notes: Notes) -> str:
 PARETO_HEADER = ["family", "configuration", "detector", "ATE (m)", "ms"]
 CONFIG_HEADER = [
     "family",
-    "strategy",
-    "settings",
+    "configuration",
     "detector",
     "ATE (m)",
     "ρ (%)",
@@ -840,6 +847,7 @@ def _row_of(rows: list[dict[str, Any]], family: str, config: dict[str, Any]) -> 
             and r["detector"] == config["detector"]
             and r["tracker"] == config["tracker"]
             and json.dumps(json.loads(r["settings"]), sort_keys=True) == settings
+            and json.loads(r.get("parameters") or "{}") == (config.get("parameters") or {})
         ),
         None,
     )
@@ -928,6 +936,8 @@ def _track_family(
             f"{family}: {label} — {tracker.label} {parameters} · {job.job.strategy} {shown} · "
             f"{job.job.detector.label}"
         )
+        if tracker.kind is not TrackerKind.BUILTIN:  # the built-in tracker repeats itself bit for bit
+            title += " (run again for this page: an external program may not repeat its stored figures)"
         views.append(view_of(title, tracked, sequence))
     return views
 
@@ -974,12 +984,9 @@ def _featured_runs(
 
 
 def _configuration(c: dict[str, Any]) -> str:
-    """A configuration as the tables name it: an external tracker and its parameters first."""
-    tracker = "" if c.get("tracker", "builtin") == "builtin" else f"{c['tracker']} "
-    parameters = settings_text(c.get("parameters") or {})
-    return f"{tracker}{parameters + ' · ' if parameters else ''}{c['strategy']} " + settings_text(
-        c["settings"]
-    )
+    """A configuration as the tables name it: an external tracker and the parameters its
+    sweep varies first (``sweep_report.configuration_label``)."""
+    return c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
 
 
 def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
@@ -1028,7 +1035,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
         pareto_rows = [
             [
                 c["family"],
-                f"{c['strategy']} " + settings_text(c["settings"]),
+                _configuration(c),
                 c["detector"],
                 c["ate_rmse_m"],
                 c["track_ms_median"],
@@ -1047,8 +1054,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     all_rows = [
         [
             c["family"],
-            c["strategy"],
-            settings_text(c["settings"]),
+            _configuration(c),
             c["detector"],
             c["ate_rmse_m"],
             percent(c["rho_percent"]),

@@ -54,13 +54,16 @@ def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups[
             (r["family"], r["tracker"], _parameters(r), r["detector"], r["strategy"], r["settings"])
         ].append(r)
+    varied = _varied_parameters(rows)
     out = []
     for (family, tracker, parameters, detector, strategy, settings), members in sorted(groups.items()):
+        shown = {k: v for k, v in json.loads(parameters).items() if k in varied.get(tracker, set())}
         out.append(
             {
                 "family": family,
                 "tracker": tracker,
                 "parameters": json.loads(parameters),
+                "label": configuration_label(tracker, shown, strategy, json.loads(settings)),
                 "detector": detector,
                 "strategy": strategy,
                 "settings": json.loads(settings),
@@ -75,6 +78,25 @@ def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+def _varied_parameters(rows: list[dict[str, Any]]) -> dict[str, set[str]]:
+    """Per tracker, the parameters that take more than one value in these rows: the ones a
+    label needs (ORB-SLAM3 has six, and a sweep varies two)."""
+    values: dict[str, dict[str, set]] = defaultdict(lambda: defaultdict(set))
+    for r in rows:
+        for name, value in json.loads(_parameters(r)).items():
+            values[r["tracker"]][name].add(value)
+    return {tracker: {n for n, seen in names.items() if len(seen) > 1} for tracker, names in values.items()}
+
+
+def configuration_label(
+    tracker: str, parameters: dict[str, Any], strategy: str, settings: dict[str, Any]
+) -> str:
+    """How tables name a configuration: an external tracker and the parameters its sweep
+    varies, then the strategy and its settings (``orb3 ThDepth=80 · mask``)."""
+    head = "" if tracker == "builtin" else f"{tracker} {settings_text(parameters)}".rstrip() + " · "
+    return f"{head}{strategy} {settings_text(settings)}".rstrip()
 
 
 def best_per_family(configs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -119,43 +141,59 @@ def pyplot():
 
 
 def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
-    """Per (strategy, swept threshold): mean ATE and rejection precision/recall against
-    the value, a curve per family and detector. Returns (name, figure) pairs."""
+    """Per (tracker, strategy, swept threshold or tracker parameter): mean ATE and rejection
+    precision/recall against the value. A curve per family, detector and value of every
+    other swept quantity, so that a curve varies one thing; a quantity that takes one value
+    (a default) gets no figure, nor does a panel with nothing to draw."""
     plt = pyplot()
-    swept: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
+    swept: dict[tuple[str, str, str, str], list[dict]] = defaultdict(list)
     for c in configs:
-        for name in c["settings"]:
-            swept[(c["strategy"], "settings", name)].append(c)
-        for name in c.get("parameters") or {}:  # an external tracker's own parameters
-            swept[(c["tracker"], "parameters", name)].append(c)
+        for field in ("settings", "parameters"):
+            for name in c.get(field) or {}:
+                swept[(c["tracker"], c["strategy"], field, name)].append(c)
     figures = []
-    for (strategy, field, name), members in sorted(swept.items()):
-        if all(_number(m[field][name]) is None for m in members):
-            continue  # a parameter that is a word (a mode, a file) has no axis
-        fig, (ax_ate, ax_rej) = plt.subplots(1, 2, figsize=(10, 3.8))
-        for family in sorted({m["family"] for m in members}):
-            for detector in sorted({m["detector"] for m in members}):
-                pts = sorted(
-                    (_number(m[field][name]), i, m)
-                    for i, m in enumerate(members)
-                    if m["family"] == family
-                    and m["detector"] == detector
-                    and _number(m[field][name]) is not None
+    for (tracker, strategy, field, name), members in sorted(swept.items()):
+        if len({_number(m[field][name]) for m in members} - {None}) < 2:
+            continue  # one value (a default) or words: nothing is swept here
+        lines: dict[tuple, list] = defaultdict(list)
+        for m in members:
+            others = sorted(
+                (f, k, str(v)) for f in ("settings", "parameters") for k, v in (m.get(f) or {}).items()
+            )
+            fixed = tuple(item for item in others if item[:2] != (field, name))
+            if _number(m[field][name]) is not None:
+                lines[(m["family"], m["detector"], fixed)].append((_number(m[field][name]), m))
+        rejection = any(m["rejection_precision"] is not None for m in members)
+        panels = 2 if rejection else 1
+        fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 3.8), squeeze=False)
+        ax_ate = axes[0][0]
+        for (family, detector, fixed), pts in sorted(lines.items(), key=lambda item: str(item[0])):
+            pts.sort(key=lambda p: p[0])
+            varying = " ".join(f"{k}={v}" for _, k, v in fixed if _varies(members, k))
+            label = " / ".join(part for part in (family, detector, varying) if part)
+            xs = [x for x, _ in pts]
+            ax_ate.plot(xs, [m["ate_rmse_m"] for _, m in pts], "o-", label=label)
+            if rejection:
+                axes[0][1].plot(
+                    xs, [m["rejection_precision"] for _, m in pts], "o-", label=f"{label} precision"
                 )
-                if not pts:
-                    continue
-                xs = [x for x, _, _ in pts]
-                label = f"{family} / {detector}"
-                ax_ate.plot(xs, [m["ate_rmse_m"] for *_, m in pts], "o-", label=label)
-                ax_rej.plot(xs, [m["rejection_precision"] for *_, m in pts], "o-", label=f"{label} precision")
-                ax_rej.plot(xs, [m["rejection_recall"] for *_, m in pts], "s--", label=f"{label} recall")
-        ax_ate.set(xlabel=name, ylabel="mean ATE RMSE (m)", title=f"{strategy}: ATE against {name}")
-        ax_rej.set(xlabel=name, ylabel="rejection", ylim=(0, 1.05), title="precision / recall")
-        ax_ate.legend(fontsize=7)
-        ax_rej.legend(fontsize=6)
+                axes[0][1].plot(xs, [m["rejection_recall"] for _, m in pts], "s--", label=f"{label} recall")
+        who = strategy if tracker == "builtin" else f"{tracker} · {strategy}"
+        ax_ate.set(xlabel=name, ylabel="mean ATE RMSE (m)", title=f"{who}: ATE against {name}")
+        ax_ate.legend(fontsize=6)
+        if rejection:
+            axes[0][1].set(xlabel=name, ylabel="rejection", ylim=(0, 1.05), title="precision / recall")
+            axes[0][1].legend(fontsize=5)
         fig.tight_layout()
-        figures.append((f"{strategy}-{name}", fig))
+        prefix = strategy if tracker == "builtin" else f"{tracker}-{strategy}"
+        figures.append((f"{prefix}-{name}", fig))
     return figures
+
+
+def _varies(members: list[dict], name: str) -> bool:
+    """Whether quantity ``name`` (a setting or a parameter) takes more than one value."""
+    seen = {str((m.get("settings") or {}).get(name, (m.get("parameters") or {}).get(name))) for m in members}
+    return len(seen) > 1
 
 
 def _number(value: Any) -> float | None:
@@ -217,12 +255,8 @@ def settings_text(settings: dict[str, Any]) -> str:
 def format_best(best: dict[str, dict[str, Any]]) -> str:
     lines = [f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"]
     for family, c in sorted(best.items()):
-        settings = ",".join(f"{k}={v}" for k, v in c["settings"].items())
-        tracker = "" if c["tracker"] == "builtin" else f"{c['tracker']} "
-        parameters = ",".join(f"{k}={v}" for k, v in (c.get("parameters") or {}).items())
-        name = (
-            f"{tracker}{parameters + ' ' if parameters else ''}{c['strategy']} {settings} ({c['detector']})"
-        )
+        label = c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
+        name = f"{label} ({c['detector']})"
         rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
         prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
         rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"

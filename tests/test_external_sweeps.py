@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from eval.cli import main
+from eval.sweep_report import settings_text
 from eval.trackers.builtin import true_moving_labels
 from sim.sequence import Sequence
 from tests.conftest import REPO
@@ -362,3 +363,39 @@ def test_a_search_over_a_programs_parameter_and_the_report_of_the_sweep(
     assert "warning" not in captured.err, captured.err
     page = (tmp_path / "rep" / "index.html").read_text()
     assert "oracle" in page and "noise_m" in page
+
+
+def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_drills_into_the_best(
+    sequences: Path, tmp_path: Path, capsys
+):
+    """What a 2-parameter sweep of ORB-SLAM3 showed (six parameters, two swept): labels
+    cut to defaults, plots for unswept parameters with zigzag lines, and the page's best
+    run drawn from another parameter setting."""
+    from eval.sweep_report import configurations, threshold_figures
+
+    spec = _spec(
+        sequences,
+        _oracle("{noise_m: 0.0, margin_px: 4, mode: ok}"),
+        "parameters: {oracle: {noise_m: {grid: [0.0, 0.05]}, margin_px: {grid: [0, 8]}}}\n",
+        strategies="[none]",
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    rows = _rows(tmp_path / "sw")
+    configs = configurations([r | {"failure": r["failure"] or None} | _numbers(r) for r in rows])
+    labels = {c["label"] for c in configs if c["tracker"] == "oracle"}
+    assert labels == {f"oracle margin_px={m} noise_m={n} · none" for m in (0, 8) for n in (0, 0.05)}
+    names = [name for name, _ in threshold_figures(configs)]
+    assert names == ["oracle-none-margin_px", "oracle-none-noise_m"]  # not mode: it takes one value
+    best = json.loads((tmp_path / "sw" / "summary.json").read_text())["best"]["smoke"]
+    assert best["parameters"]["noise_m"] == "0"
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "sw"), "-o", str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    wanted = settings_text({k: best["parameters"][k] for k in sorted(best["parameters"])})
+    assert f"smoke: best — oracle {wanted}" in page
+
+
+def _numbers(row: dict[str, str]) -> dict:
+    """A CSV row's figures as numbers (empty as None), as the store gives them."""
+    columns = ("ate_rmse_m", "rejection_precision", "rejection_recall", "tracked_fraction", "track_ms_median")
+    return {c: float(row[c]) if row[c] else None for c in columns}
