@@ -97,7 +97,9 @@ def main() -> None:
                 settings = tuple(zip(GRID, (repr(float(v)) for v in combo), strict=True))
                 tracker = tracker_identity(base.job.tracker)
                 key = job_key(fingerprint, tracker, base.job.detector, "box_epipolar_flow", settings)
-                work.append(SweepJob(key, base.family, replace(base.job, settings=settings), fingerprint))
+                job = replace(base.job, settings=settings)
+                run = replace(base.run, key=key, settings=settings)
+                work.append(SweepJob(key, base.family, job, fingerprint, run))
         print(
             f"{len(sequences)} walking_static sequences x {args.frames} frames; {len(work)} runs "
             f"(none + {len(combos)} box_epipolar_flow configurations each), {args.workers} workers, "

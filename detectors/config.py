@@ -89,11 +89,12 @@ class DetectorConfig:
 
     @property
     def label(self) -> str:
-        """Short, for tables: 'groundtruth', 'onnx:yolox_nano', with '+faults' when faulted."""
+        """For tables and gates: 'groundtruth', 'onnx:yolox_nano', with the fault settings that
+        differ from none, 'groundtruth+latency=3,miss=0.5' (one label per fault model)."""
         name = self.kind.value
         if self.kind is DetectorKind.ONNX:
             name += f":{self.model_path.stem}"
-        return name + ("+faults" if self.faults.active else "")
+        return name + (f"+{self.faults.summary()}" if self.faults.active else "")
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind.value}

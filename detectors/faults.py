@@ -107,6 +107,24 @@ class Faults:
         merged = {f: getattr(self, f) for f in kinds} | values
         return Faults(**merged)
 
+    def summary(self) -> str:
+        """The settings that differ from no faults, as ``latency=3,miss=0.5`` (a label's part:
+        two fault models must never share a name in a table or a gate)."""
+        default = Faults(seed=self.seed) if self.active else self
+        parts = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "seed" or value == getattr(default, f.name):
+                continue
+            if f.name == "confusion":
+                value = ";".join(f"{a}->{b}:{p:g}" for a, b, p in value)
+            elif isinstance(value, float):
+                value = f"{value:g}"
+            parts.append(f"{f.name}={value}")
+        if self.active and self.seed != 0:
+            parts.append(f"seed={self.seed}")
+        return ",".join(parts)
+
     def to_dict(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         out["confusion"] = [list(row) for row in self.confusion]

@@ -14,6 +14,7 @@ import json
 import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -41,22 +42,33 @@ class SequenceDetections:
     from_cache: bool
 
 
-def sequence_fingerprint(sequence: Sequence) -> str:
+def sequence_fingerprint(sequence: Sequence, anchor: Path | None = None) -> str:
     """What every result on a sequence depends on: where the folder is and the bytes of
     every file of the sequence format it holds (``Sequence.files``).
 
     It keys cached stages and sweep rows, so it hashes content, not stat: a depth PNG
     rewritten in place, a corrected groundtruth.txt or a copy of the folder elsewhere
     each get a key of their own. Hashing a 300-frame 640x480 sequence reads about
-    150 MB once, at about 1.5 GB/s with SHA-256's CPU instructions.
+    150 MB once, at about 1.5 GB/s with SHA-256's CPU instructions. Where is the folder's
+    path, or its path relative to ``anchor`` (a sweep folder) when it lies inside it: a
+    sweep copied or moved whole keeps its keys, and with them its rows.
     """
     digest = hashlib.sha256(FINGERPRINT_FORMAT.encode())
-    root = sequence.root.resolve()
-    digest.update(os.fsencode(root) + b"\0")
+    digest.update(os.fsencode(stored_path(sequence.root, anchor)) + b"\0")
     for path in sequence.files():
         digest.update(os.fsencode(path.relative_to(sequence.root)) + b"\0")
         digest.update(file_digest(path, "sequence file"))
     return digest.hexdigest()[:32]
+
+
+def stored_path(root: Path, anchor: Path | None) -> str:
+    """A sequence folder as rows name it: relative to ``anchor`` when inside it, else absolute."""
+    absolute = root.resolve()
+    if anchor is not None:
+        base = anchor.resolve()
+        if base in absolute.parents:
+            return absolute.relative_to(base).as_posix()
+    return str(absolute)
 
 
 def build_detector(config: DetectorConfig, sequence: Sequence):

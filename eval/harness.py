@@ -27,7 +27,7 @@ from eval.cache import StageCache, content_hash
 from eval.comparison import ComparisonOptions, compare
 from eval.detections import SequenceDetections, detect_sequence, sequence_fingerprint
 from eval.frames import FrameSource, MaskSettings
-from eval.record import RECORD_VERSION, RunRecord
+from eval.record import RECORD_VERSION, RunIdentity, RunRecord
 from eval.stages import FrameStages, features_key, sequence_stages
 from eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from eval.trackers.builtin import BuiltinTracker, camera_of
@@ -344,13 +344,45 @@ def family_of(sequence: Sequence) -> str:
     return re.sub(r"-\d{4}$", "", str(name)) if name else sequence.root.name
 
 
+def seed_of(sequence: Sequence) -> int | None:
+    """A generated sequence's scenario seed (None for a real TUM folder)."""
+    seed = (sequence.meta or {}).get("seed")
+    return seed if isinstance(seed, int) and not isinstance(seed, bool) else None
+
+
+def identity_of(
+    job: RunJob,
+    key: str,
+    family: str,
+    stored: str,
+    fingerprint: str,
+    seed: int | None,
+    knobs: dict[str, Any] | None = None,
+) -> RunIdentity:
+    """What a row records of a job besides its results."""
+    return RunIdentity(
+        key=key,
+        family=family,
+        sequence=stored,
+        fingerprint=fingerprint,
+        tracker=job.tracker.label,
+        detector=job.detector.label,
+        strategy=job.strategy,
+        settings=job.settings,
+        parameters=job.tracker.parameters,
+        detector_config=job.detector.to_dict(),
+        seed=seed,
+        knobs=knobs or {},
+    )
+
+
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
     fingerprint = sequence_fingerprint(sequence)
     key = job_key(fingerprint, tracker_identity(job.tracker), job.detector, job.strategy, job.settings)
-    return RunRecord.from_metrics(
-        key, family_of(sequence), dict(job.settings), metrics, generator_version(), fingerprint
-    )
+    stored = str(sequence.root.resolve())
+    run = identity_of(job, key, family_of(sequence), stored, fingerprint, seed_of(sequence))
+    return RunRecord.of_run(run, metrics, generator_version())
 
 
 def run_sequence(

@@ -860,13 +860,15 @@ class _Grid:
     trackers: list
     detectors: list
     variants: list
+    anchor: Path
+    """The sweep folder: rows name the sequences inside it relative to it."""
 
 
 def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprint: str | None):
     """The job of a stored row outside the spec's grid (a search trial: its tracker's
     parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
     if its key is the row's."""
-    from eval.harness import RunJob, job_key, tracker_identity
+    from eval.harness import RunJob, identity_of, job_key, tracker_identity
     from eval.sweep import SweepJob
 
     if fingerprint is None:
@@ -875,14 +877,15 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
     detectors = [d for d in grid.detectors if d.label == row["detector"]]
     if not trackers or not detectors:
         return None
-    parameters = tuple(sorted(json.loads(row.get("parameters") or "{}").items()))
+    parameters = tuple(sorted((k, str(v)) for k, v in json.loads(row.get("parameters") or "{}").items()))
     tracker = replace(trackers[0], parameters=parameters) if parameters else trackers[0]
     settings = tuple(sorted((k, str(v)) for k, v in json.loads(row["settings"]).items()))
     for detector in detectors:
         key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings)
         if key == row["key"]:
             run = RunJob(sequence.root, row["strategy"], detector, settings, tracker)
-            return SweepJob(key, row["family"], run, fingerprint)
+            identity = identity_of(run, key, row["family"], row["sequence"], fingerprint, row.get("seed"))
+            return SweepJob(key, row["family"], run, fingerprint, identity)
     return None
 
 
@@ -904,8 +907,7 @@ def _track_family(
     from eval.harness import track
     from eval.sweep import jobs_for
 
-    found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)])
-    # A row keeps its sequence's absolute path; jobs here are keyed on the path it was found at.
+    found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)], grid.anchor)
     jobs = {j.key: j for j in found}
     fingerprint = found[0].fingerprint if found else None
     baseline = next(
@@ -957,7 +959,9 @@ def _featured_runs(
     source = stored_spec_path(folder / "results.sqlite") or str(folder / "results.sqlite")
     try:
         trackers = tracker_configs(spec, source)
-        grid = _Grid(tracker_variants(spec, trackers, source), detector_configs(spec, source), variants(spec))
+        grid = _Grid(
+            tracker_variants(spec, trackers, source), detector_configs(spec, source), variants(spec), folder
+        )
     except InputError as exc:
         # A spec names its files relative to the spec file, which the sweep folder does not
         # keep (``onnx:models/x.onnx``): every result is still in the database.

@@ -1,21 +1,59 @@
 """One run's result as a typed, versioned row: what sweeps store and compare.
 
-``RunRecord.from_metrics`` is the one place that reads the harness's metrics
-dictionary for results; stores, exports and plots use these fields by name.
-Timing fields vary from run to run; ``DETERMINISTIC_FIELDS`` are the ones that
-must be equal when a job runs twice (the built-in tracker is deterministic).
+A row is what ran (``RunIdentity``: the sequence, its seed and suite knobs, the tracker
+with its parameters, the detector with its faults, the strategy with its settings) and
+what came of it. ``RunRecord.of_run`` is the one place that reads the harness's metrics
+dictionary; stores, exports and plots use these fields by name. Timing fields vary from
+run to run; ``DETERMINISTIC_FIELDS`` are the ones that must be equal when a job runs
+twice (the built-in tracker is deterministic).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-RECORD_VERSION = 3
-"""2: adds the sequence fingerprint and relocalised frames; 3: an external tracker's
-parameters, a failed run's reason, peak memory."""
+RECORD_VERSION = 4
+"""2: the sequence fingerprint and relocalised frames; 3: an external tracker's parameters,
+a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
+configuration, settings and parameters as typed JSON, sequences relative to the sweep."""
+
+
+def typed(text: str) -> int | float | str:
+    """A setting's or parameter's text as the value it stands for: an integer, a number,
+    or text (``2`` and ``2.5`` are numbers in SQLite's JSON and in CSV, ``fast`` stays text)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            continue
+    return text
+
+
+def typed_json(pairs) -> str:
+    """Name-value pairs (texts) as sorted JSON of typed values."""
+    return json.dumps({name: typed(str(value)) for name, value in dict(pairs).items()}, sort_keys=True)
+
+
+@dataclass(frozen=True)
+class RunIdentity:
+    """What a run was: everything a row needs besides its results."""
+
+    key: str
+    family: str
+    sequence: str
+    """The folder, relative to the sweep folder when it lies inside it (a copied or moved
+    sweep keeps every figure), else absolute."""
+    fingerprint: str
+    tracker: str
+    detector: str
+    strategy: str
+    settings: tuple[tuple[str, str], ...] = ()
+    parameters: tuple[tuple[str, str], ...] = ()
+    detector_config: dict[str, Any] = field(default_factory=dict)
+    seed: int | None = None
+    knobs: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -23,19 +61,26 @@ class RunRecord:
     key: str
     """Content hash of the job (sequence files, tracker, detector, strategy, settings, versions)."""
     family: str
-    """The scenario family (the generated scenario's name, or the folder name)."""
+    """The scenario family (the generated scenario's name with its knobs, or the folder name)."""
     sequence: str
-    """The sequence folder's absolute path: a row is read from other working directories
-    (``report``, a resumed ``check``), where a relative one pointed elsewhere or nowhere."""
+    """The sequence folder: relative to the sweep folder when inside it, else absolute (a
+    row is read from other working directories: ``report``, a resumed ``check``)."""
     sequence_fingerprint: str
     """``detections.sequence_fingerprint`` when it ran: its folder and the bytes of its files."""
+    seed: int | None
+    """The scenario's seed (generated sequences)."""
+    knobs: str
+    """The suite variation's knobs, as sorted JSON (``{"actors.0.count": 6, "seed": 3}``)."""
     tracker: str
+    parameters: str
+    """An external tracker's parameter values, as sorted typed JSON (``{}`` for the built-in one)."""
     detector: str
+    """The detector's label, fault settings included (``groundtruth+latency=3,miss=0.5``)."""
+    detector_config: str
+    """The whole detector configuration (model hash, onnx settings, faults, priors), as JSON."""
     strategy: str
     settings: str
-    """The job's threshold overrides, as sorted JSON."""
-    parameters: str
-    """An external tracker's parameter values, as sorted JSON (``{}`` for the built-in one)."""
+    """The job's threshold overrides, as sorted typed JSON."""
     failure: str | None
     """Why the run failed (the program's exit, its time limit, an unreadable trajectory),
     or None: a failed run is a row, counted, with no figures."""
@@ -66,16 +111,28 @@ class RunRecord:
     sweep with the same signature (the same run, so it was tracked once)."""
     record_version: int = RECORD_VERSION
 
+    @staticmethod
+    def identity_columns(run: RunIdentity) -> dict[str, Any]:
+        """The columns a row takes from what ran (``computed_by``: the run itself)."""
+        return {
+            "key": run.key,
+            "family": run.family,
+            "sequence": run.sequence,
+            "sequence_fingerprint": run.fingerprint,
+            "seed": run.seed,
+            "knobs": json.dumps(run.knobs, sort_keys=True),
+            "tracker": run.tracker,
+            "parameters": typed_json(run.parameters),
+            "detector": run.detector,
+            "detector_config": json.dumps(run.detector_config, sort_keys=True, default=str),
+            "strategy": run.strategy,
+            "settings": typed_json(run.settings),
+            "computed_by": run.key,
+        }
+
     @classmethod
-    def from_metrics(
-        cls,
-        key: str,
-        family: str,
-        settings: dict[str, Any],
-        metrics: dict[str, Any],
-        bench_version: str,
-        fingerprint: str,
-        signature: str | None = None,
+    def of_run(
+        cls, run: RunIdentity, metrics: dict[str, Any], bench_version: str, signature: str | None = None
     ) -> RunRecord:
         ate = metrics.get("ate_m") or {}
         rpe_t = metrics.get("rpe_translation_m") or {}
@@ -84,15 +141,7 @@ class RunRecord:
         total = metrics["stage_time"]["tracking_total"]
         detector_time = metrics.get("detector_time") or {}
         return cls(
-            key=key,
-            family=family,
-            sequence=str(Path(metrics["sequence"]).resolve()),
-            sequence_fingerprint=fingerprint,
-            tracker=metrics["tracker"],
-            detector=metrics["detector"],
-            strategy=metrics["strategy"],
-            settings=json.dumps(settings, sort_keys=True),
-            parameters=json.dumps(metrics.get("parameters") or {}, sort_keys=True),
+            **cls.identity_columns(run),
             failure=None,
             frames=metrics["frames"],
             tracked_fraction=metrics["tracked_frames"] / max(1, metrics["frames"]),
@@ -114,33 +163,15 @@ class RunRecord:
             peak_memory_mb=metrics.get("peak_memory_mb"),
             bench_version=bench_version,
             signature=signature,
-            computed_by=key,
         )
 
     @classmethod
     def failed(
-        cls,
-        key: str,
-        family: str,
-        identity: dict[str, Any],
-        reason: str,
-        frames: int,
-        wall_time_s: float,
-        bench_version: str,
-        fingerprint: str,
+        cls, run: RunIdentity, reason: str, frames: int, wall_time_s: float, bench_version: str
     ) -> RunRecord:
-        """The row of a run that failed: what it was (``identity``: sequence, tracker,
-        detector, strategy, settings, parameters) and why, with no figures."""
+        """The row of a run that failed: what it was and why, with no figures."""
         return cls(
-            key=key,
-            family=family,
-            sequence=str(Path(identity["sequence"]).resolve()),
-            sequence_fingerprint=fingerprint,
-            tracker=identity["tracker"],
-            detector=identity["detector"],
-            strategy=identity["strategy"],
-            settings=json.dumps(identity["settings"], sort_keys=True),
-            parameters=json.dumps(identity["parameters"], sort_keys=True),
+            **cls.identity_columns(run),
             failure=reason,
             frames=frames,
             tracked_fraction=0.0,
@@ -161,7 +192,6 @@ class RunRecord:
             wall_time_s=wall_time_s,
             peak_memory_mb=None,
             bench_version=bench_version,
-            computed_by=key,
         )
 
     def to_row(self) -> dict[str, Any]:

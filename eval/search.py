@@ -24,7 +24,7 @@ from eval.cache import content_hash
 from eval.detections import sequence_fingerprint
 from eval.harness import TrackerConfig, check_tracker, tracker_identity
 from eval.store import SQLITE_HEADER, ResultStore
-from eval.sweep import jobs_for, run_jobs
+from eval.sweep import jobs_for, run_jobs, sequence_entries
 from eval.sweep_spec import (
     Search,
     SweepSpec,
@@ -63,9 +63,10 @@ def objective(rows: list[dict[str, Any]], search: Search) -> float:
 
 def study_name(
     spec: SweepSpec,
-    sequences: list[tuple[Path, str]],
+    sequences: list,
     trackers: list[TrackerConfig],
     detectors: list[DetectorConfig],
+    anchor: Path | None = None,
 ) -> str:
     """The study's name: the sweep's, and a hash of everything a trial's value depends on
     (the space, objective, weight and seed; the sequences' content, trackers and detectors).
@@ -74,7 +75,7 @@ def study_name(
     assert spec.search is not None
     key = content_hash(
         spec.search.model_dump(mode="json"),
-        [sequence_fingerprint(Sequence.open(root)) for root, _ in sequences],
+        [sequence_fingerprint(Sequence.open(entry.root), anchor) for entry in sequence_entries(sequences)],
         [tracker_identity(t) for t in trackers],
         [(d.key(), d.faults.to_dict()) for d in detectors],
     )
@@ -113,8 +114,9 @@ def _trial_jobs(
     values: dict[str, float],
     trackers: list[TrackerConfig],
     detectors: list[DetectorConfig],
-    sequences: list[tuple[Path, str]],
+    sequences: list,
     source: str | None = None,
+    anchor: Path | None = None,
 ) -> list:
     """A trial's jobs: the strategy's thresholds at ``values`` with every tracker, or the
     searched tracker's parameters at ``values`` with the strategy it runs. ``source``:
@@ -126,7 +128,7 @@ def _trial_jobs(
         variant = Variant(search.strategy, settings)
         if source is not None:
             check_variants(spec, [variant], trackers, source)
-        return jobs_for([variant], trackers, detectors, sequences)
+        return jobs_for([variant], trackers, detectors, sequences, anchor)
     base = next(t for t in trackers if t.label == search.tracker)
     tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | dict(settings)).items())))
     if source is not None:
@@ -134,7 +136,7 @@ def _trial_jobs(
             check_tracker(tracker)
         except InputError as exc:
             raise InputError(f"{source}: search.space: {exc}") from None
-    return jobs_for([Variant(search.strategy, ())], [tracker], detectors, sequences)
+    return jobs_for([Variant(search.strategy, ())], [tracker], detectors, sequences, anchor)
 
 
 def run_search(
@@ -155,18 +157,21 @@ def run_search(
     optuna = _optuna()
     source = str(spec_path)
     trackers, detectors = tracker_configs(spec, source), detector_configs(spec, source)
-    study = _open_study(optuna, out / STUDY, study_name(spec, sequences, trackers, detectors), search.seed)
+    study = _open_study(
+        optuna, out / STUDY, study_name(spec, sequences, trackers, detectors, out), search.seed
+    )
     complete = optuna.trial.TrialState.COMPLETE
     families: dict[str, str] = {}
     for trial in study.get_trials(deepcopy=False, states=(complete,)):  # earlier trials' rows
-        families |= {j.key: j.family for j in _trial_jobs(spec, trial.params, trackers, detectors, sequences)}
+        earlier = _trial_jobs(spec, trial.params, trackers, detectors, sequences, anchor=out)
+        families |= {j.key: j.family for j in earlier}
     while len(study.get_trials(deepcopy=False, states=(complete,))) < search.trials:
         trial = study.ask()
         values = {
             name: trial.suggest_float(name, interval.low, interval.high, log=interval.log)
             for name, interval in sorted(search.space.items())
         }
-        jobs = _trial_jobs(spec, values, trackers, detectors, sequences, source)
+        jobs = _trial_jobs(spec, values, trackers, detectors, sequences, source, anchor=out)
         families |= {j.key: j.family for j in jobs}
         run_jobs(jobs, store, workers, progress=False, backend=backend, address=address)
         keys = {j.key for j in jobs}

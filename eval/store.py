@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
 import os
 import sqlite3
 from dataclasses import fields as dataclass_fields
@@ -211,10 +212,39 @@ class ResultStore:
         return row
 
     def export_csv(self, path: Path, rows: list[dict[str, Any]] | None = None) -> None:
+        """The rows as CSV, each suite knob, threshold setting and tracker parameter also in
+        a column of its own (``knob.actors.0.count``, ``setting.k``, ``param.window``), so a
+        spreadsheet or pandas filters and plots by them without parsing JSON."""
         rows = self.rows() if rows is None else rows
-        buffer = io.StringIO()
+        expanded = [row | _spread(row) for row in rows]
         columns = list(rows[0]) if rows else list(FIELDS)
-        writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+        extra = sorted({name for row in expanded for name in row} - set(columns), key=_column_order)
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=columns + extra, lineterminator="\n")
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows(expanded)
         write_text_atomic(path, buffer.getvalue())
+
+
+SPREAD = {"knobs": "knob", "settings": "setting", "parameters": "param"}
+"""The JSON columns whose entries the CSV also gives columns of their own, and their prefixes."""
+
+
+def _spread(row: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for column, prefix in SPREAD.items():
+        text = row.get(column)
+        if not text:
+            continue
+        try:
+            values = json.loads(text)
+        except ValueError:
+            continue  # not ours to judge here: the column itself is exported as it is
+        if isinstance(values, dict):
+            out |= {f"{prefix}.{name}": value for name, value in values.items()}
+    return out
+
+
+def _column_order(name: str) -> tuple[int, str]:
+    prefix = name.split(".", 1)[0]
+    return (list(SPREAD.values()).index(prefix) if prefix in SPREAD.values() else 9, name)

@@ -8,24 +8,26 @@ and running it again does exactly the jobs that are missing.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from tqdm import tqdm
 
 from detectors.config import DetectorConfig
 from eval.cache import StageCache
-from eval.detections import detect_sequence, sequence_fingerprint
+from eval.detections import detect_sequence, sequence_fingerprint, stored_path
 from eval.harness import (
     RunJob,
     TrackerConfig,
     branch_root,
     check_tracker,
     family_of,
+    identity_of,
     job_key,
     prepare,
+    seed_of,
     slam_config,
     stages_for,
     track,
@@ -33,7 +35,7 @@ from eval.harness import (
     tracker_identity,
     uses_stages,
 )
-from eval.record import RunRecord
+from eval.record import RunIdentity, RunRecord
 from eval.stages import decision_path, decision_signature, features_key, sequence_stages
 from eval.store import ResultStore
 from eval.sweep_spec import (
@@ -62,16 +64,34 @@ DATABASE = "results.sqlite"
 
 
 @dataclass(frozen=True)
+class SequenceEntry:
+    """A sequence a sweep runs on: its folder, its family (what its seeds are averaged as)
+    and, for a suite's sequence, the knobs of its variation."""
+
+    root: Path
+    family: str
+    knobs: tuple[tuple[str, Any], ...] = ()
+
+
+def sequence_entries(sequences: list) -> list[SequenceEntry]:
+    """Entries from ``(root, family)`` pairs too (tests and benchmarks pass those)."""
+    return [s if isinstance(s, SequenceEntry) else SequenceEntry(Path(s[0]), s[1]) for s in sequences]
+
+
+@dataclass(frozen=True)
 class SweepJob:
     key: str
     family: str
     job: RunJob
     fingerprint: str
     """``detections.sequence_fingerprint`` of the job's sequence when it was expanded."""
+    run: RunIdentity
+    """What its row records of it (sequence as stored, seed, knobs, configuration)."""
 
 
-def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) -> list[SweepJob]:
-    """Every job of the sweep, in a stable order."""
+def expand(spec: SweepSpec, spec_path: Path, sequences: list, anchor: Path | None = None) -> list[SweepJob]:
+    """Every job of the sweep, in a stable order; ``anchor``: the sweep folder, which the
+    rows name their sequences relative to."""
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
     detectors = detector_configs(spec, source)
@@ -80,20 +100,24 @@ def expand(spec: SweepSpec, spec_path: Path, sequences: list[tuple[Path, str]]) 
         raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
     found = variants(spec)
     check_variants(spec, found, trackers, source)
-    return jobs_for(found, tracker_variants(spec, trackers, source), detectors, sequences)
+    return jobs_for(found, tracker_variants(spec, trackers, source), detectors, sequences, anchor)
 
 
 def jobs_for(
     found: list[Variant],
     trackers: list[TrackerConfig],
     detectors: list[DetectorConfig],
-    sequences: list[tuple[Path, str]],
+    sequences: list,
+    anchor: Path | None = None,
 ) -> list[SweepJob]:
     """Sequences x trackers x detectors x variants, in this order (external trackers: none/mask)."""
     jobs = []
     identities = {tracker: tracker_identity(tracker) for tracker in trackers}
-    for root, family in sequences:
-        fingerprint = sequence_fingerprint(Sequence.open(root))
+    for entry in sequence_entries(sequences):
+        root, family = entry.root, entry.family
+        opened = Sequence.open(root)
+        fingerprint = sequence_fingerprint(opened, anchor)
+        stored, seed = stored_path(root, anchor), seed_of(opened)
         for tracker in trackers:
             for detector in detectors:
                 for v in found:
@@ -101,7 +125,8 @@ def jobs_for(
                         continue
                     key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings)
                     run = RunJob(root, v.strategy, detector, v.settings, tracker)
-                    jobs.append(SweepJob(key, family, run, fingerprint))
+                    identity = identity_of(run, key, family, stored, fingerprint, seed, dict(entry.knobs))
+                    jobs.append(SweepJob(key, family, run, fingerprint, identity))
     return jobs
 
 
@@ -155,7 +180,7 @@ def sequences_of(
     progress: bool,
     backend: str = "local",
     address: str | None = None,
-) -> list[tuple[Path, str]]:
+) -> list[SequenceEntry]:
     """The spec's sequence folders and their families, its suite generated (and resumed)
     under OUT/sequences. A suite's family is its name with the knobs other than the seed,
     so seeds of one setting are averaged together."""
@@ -164,7 +189,7 @@ def sequences_of(
         root = resolve(spec, spec_path, name)
         if not root.is_dir():
             raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
-        roots.append((root, family_of(Sequence.open(root))))
+        roots.append(SequenceEntry(root, family_of(Sequence.open(root))))
     if spec.suite is not None:
         from scenes.generation import run_suite
         from scenes.suite import load_suite
@@ -183,7 +208,12 @@ def sequences_of(
         )
         for entry in index["sequences"]:
             knobs = " ".join(f"{k}={v}" for k, v in sorted(entry["knobs"].items()) if k != "seed")
-            roots.append((out / "sequences" / entry["name"], f"{index['suite']} {knobs}".strip()))
+            family = f"{index['suite']} {knobs}".strip()
+            roots.append(
+                SequenceEntry(
+                    out / "sequences" / entry["name"], family, tuple(sorted(entry["knobs"].items()))
+                )
+            )
     return roots
 
 
@@ -269,19 +299,8 @@ def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
 
 
 def _failed(job: SweepJob, reason: str, wall_s: float, bench_version: str) -> RunRecord:
-    run = job.job
-    identity = {
-        "sequence": str(run.sequence),
-        "tracker": run.tracker.label,
-        "detector": run.detector.label,
-        "strategy": run.strategy,
-        "settings": dict(run.settings),
-        "parameters": dict(run.tracker.parameters),
-    }
-    frames = len(Sequence.open(run.sequence))
-    return RunRecord.failed(
-        job.key, job.family, identity, reason, frames, wall_s, bench_version, job.fingerprint
-    )
+    frames = len(Sequence.open(job.job.sequence))
+    return RunRecord.failed(job.run, reason, frames, wall_s, bench_version)
 
 
 def run_branches(
@@ -300,22 +319,14 @@ def _dispatch(fn, args: tuple):
 
 
 def _record(job: SweepJob, metrics: dict, bench_version: str, signature: str | None) -> RunRecord:
-    settings = dict(job.job.settings)
-    return RunRecord.from_metrics(
-        job.key, job.family, settings, metrics, bench_version, job.fingerprint, signature
-    )
+    return RunRecord.of_run(job.run, metrics, bench_version, signature)
 
 
 def _same_run(record: RunRecord, job: SweepJob) -> RunRecord:
     """The row of a job whose run is ``record``'s run (same kept keypoints in every frame)."""
-    return replace(
-        record,
-        key=job.key,
-        family=job.family,
-        detector=job.job.detector.label,
-        settings=json.dumps(dict(job.job.settings), sort_keys=True),
-        computed_by=record.computed_by,
-    )
+    own = RunRecord.identity_columns(job.run)
+    names = ("key", "family", "sequence", "seed", "knobs", "detector", "detector_config", "settings")
+    return replace(record, **{name: own[name] for name in names})
 
 
 def _chunks(items: list, count: int) -> list[list]:

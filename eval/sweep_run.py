@@ -49,7 +49,7 @@ def execute_sweep(
 
     where = {"backend": backend, "address": address}
     sequences = sequences_of(spec, spec_path, out, workers, progress=progress, **where)
-    jobs = expand(spec, spec_path, sequences)
+    jobs = expand(spec, spec_path, sequences, anchor=out)
     with open_store(out, spec, spec_path) as store:
         done = len(store.keys() & {j.key for j in jobs})
         if announce:
@@ -68,6 +68,14 @@ def execute_sweep(
             family |= search.pop("families")
         rows = [r | {"family": family[r["key"]]} for r in store.rows() if r["key"] in family]
         store.export_csv(out / "results.csv", with_rho(rows))
+        # Rows name a sequence inside the sweep folder relative to it (a moved sweep keeps its
+        # figures); those handed on (gates, the plugin) name it absolutely.
+        rows = [
+            r | {"sequence": str(out.resolve() / r["sequence"])}
+            if not Path(r["sequence"]).is_absolute()
+            else r
+            for r in rows
+        ]
     configs = configurations(rows)
     summary = {
         "best": best_per_family(configs),

@@ -151,7 +151,7 @@ def test_no_fault_is_the_identity():
 def test_detector_words_parse_into_a_typed_configuration():
     config = parse_detector("groundtruth", faults={"miss": "0.3", "latency": "2"})
     assert config.kind is DetectorKind.GROUNDTRUTH and config.faults == Faults(miss=0.3, latency=2)
-    assert config.label == "groundtruth+faults" and config.base().faults == Faults()
+    assert config.label == "groundtruth+miss=0.3,latency=2" and config.base().faults == Faults()
     onnx = parse_detector("onnx", settings={"confidence": "0.5", "threads": "2"})
     assert onnx.onnx == OnnxSettings(confidence=0.5, threads=2) and onnx.label == "onnx:yolox_nano"
     assert parse_detector("onnx:/x/m.onnx").model == Path("/x/m.onnx")

@@ -75,8 +75,8 @@ def test_a_sweep_runs_an_external_program_over_its_parameters_and_detectors(
     ate = {}
     for r in rows:
         ate.setdefault(json.loads(r["parameters"])["noise_m"], []).append(float(r["ate_rmse_m"]))
-    assert max(ate["0"]) < 1e-6 < min(ate["0.1"])  # the true trajectory, then perturbed
-    assert sum(ate["0.02"]) < sum(ate["0.1"])
+    assert max(ate[0]) < 1e-6 < min(ate[0.1])  # the true trajectory, then perturbed
+    assert sum(ate[0.02]) < sum(ate[0.1])  # parameters are stored as numbers
     clean = [r for r in rows if r["detector"] == "groundtruth" and r["strategy"] == "none"]
     assert all(r["rejection_recall"] not in ("", None) for r in clean)  # its decisions were scored
     faulted = [r for r in rows if r["detector"] != "groundtruth" and r["strategy"] == "none"]
@@ -387,7 +387,7 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
     names = [name for name, _ in threshold_figures(configs)]
     assert names == ["oracle-none-margin_px", "oracle-none-noise_m"]  # not mode: it takes one value
     best = json.loads((tmp_path / "sw" / "summary.json").read_text())["best"]["smoke"]
-    assert best["parameters"]["noise_m"] == "0"
+    assert best["parameters"]["noise_m"] == 0
     capsys.readouterr()
     assert main(["report", str(tmp_path / "sw"), "-o", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "index.html").read_text()

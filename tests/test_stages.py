@@ -182,4 +182,4 @@ def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: P
         row = next(r for r in store.rows() if r["strategy"] == "box_rule")
     fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
     assert {k: record[k] for k in fields} == {k: row[k] for k in fields}
-    assert record["key"] == row["key"] and record["record_version"] == 3
+    assert record["key"] == row["key"] and record["record_version"] == 4

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from eval.cli import main
-from eval.record import RunRecord
+from eval.record import RunIdentity, RunRecord
 from eval.store import ResultStore, StoreError
 from tests.sequences import write_sequence
 
@@ -42,18 +42,9 @@ def _one_line(capsys, *needles: str) -> str:
 
 
 def _record(key: str) -> RunRecord:
-    failed = RunRecord.failed(key, "f", _IDENTITY, "", 4, 0.5, "0", "fp")
+    run = RunIdentity(key, "f", "seq", "fp", "builtin", "groundtruth", "none")
+    failed = RunRecord.failed(run, "", 4, 0.5, "0")
     return replace(failed, failure=None, tracked_fraction=1.0, keyframes=1, ate_rmse_m=0.01, ate_mean_m=0.01)
-
-
-_IDENTITY = {
-    "sequence": "seq",
-    "tracker": "builtin",
-    "detector": "groundtruth",
-    "strategy": "none",
-    "settings": {},
-    "parameters": {},
-}
 
 
 def _sweep(root: Path, out: Path) -> int:

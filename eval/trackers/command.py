@@ -58,6 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.frames import FrameSource
+from eval.record import typed
 from eval.trackers.base import TrackerError, TrackerRun
 from eval.trackers.external import poses_by_frame, run_child, write_settings
 from eval.trackers.protocol import read_keypoints, write_detections
@@ -184,16 +185,6 @@ def check_program(words: list[str], cwd: Path) -> None:
         raise InputError(f"--command: the program {shown} {why}")
 
 
-def parameter_value(text: str) -> int | float | str:
-    """A parameter's text as the JSON value programs get: an integer, a number, or text."""
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            continue
-    return text
-
-
 def _environment_name(name: str) -> str:
     return "PARAM_" + name.upper().replace(".", "_")
 
@@ -284,8 +275,8 @@ class CommandTracker:
                 scratch / "detections.txt", frames.sequence, frames.all_detections()
             )
             parameters = scratch / "parameters.json"
-            typed = {name: parameter_value(text) for name, text in sorted(self.parameters.items())}
-            parameters.write_text(json.dumps(typed, indent=2) + "\n", encoding="utf-8")
+            values = {name: typed(text) for name, text in sorted(self.parameters.items())}
+            parameters.write_text(json.dumps(values, indent=2) + "\n", encoding="utf-8")
         except OSError as exc:
             raise TrackerError(
                 f"{self.label}: cannot write to the scratch folder {scratch}: {exc.strerror}"
@@ -389,7 +380,7 @@ class SettingsTemplate:
                 "fps": sequence.fps,
                 "depth_scale": k.depth_scale,
             },
-            "params": {name: parameter_value(text) for name, text in parameters.items()},
+            "params": {name: typed(text) for name, text in parameters.items()},
             "orbslam_camera": "\n".join(camera_block),
             "orbslam_settings": "\n".join(line for line in whole if not line.startswith("%YAML")),
         }
