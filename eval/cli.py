@@ -188,7 +188,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(f"1/4 the demo suite and its sweep ({DEMO_GATES.name}): generating, then tracking")
         outcome = execute_sweep(gates.run, DEMO_GATES, out, args.workers)
         print(f"2/4 best configuration per family (of {outcome.jobs} runs; rho: ATE improvement over none)")
-        print(format_best(outcome.summary["best"]))
+        print(format_best(outcome.summary["best"], outcome.summary["unqualified"]))
         report = evaluate(gates, outcome.rows)
         print("3/4 gates")
         print(format_report(report))

@@ -65,7 +65,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         else ""
     )
     print(f"wrote {written} rows in {elapsed:.1f} s{rate}{shared}")
-    print(format_best(outcome.summary["best"]))
+    print(format_best(outcome.summary["best"], outcome.summary["unqualified"]))
     search = outcome.search
     if search is not None:
         print(

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from eval.aggregate import SuccessRule, summarize
 from eval.metrics import improvement_rate
 
 
@@ -47,10 +48,14 @@ def _mean(values: list[float | None]) -> float | None:
     return float(np.mean(finite)) if finite else None
 
 
-def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per family and configuration: means over its sequences."""
+def configurations(rows: list[dict[str, Any]], rule: SuccessRule | None = None) -> list[dict[str, Any]]:
+    """Per family and configuration: its runs (the family's sequences, its seeds), how many
+    succeeded (``rule``), every figure's statistics over them (``stats``: n, mean, median,
+    std, worst, p90, 95 % interval), and the means at the top level, as plots read them."""
+    rule = rule or SuccessRule()
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in with_rho(rows):
+        r = r | {"lost_fraction": 1.0 - r["tracked_fraction"]} if r.get("tracked_fraction") is not None else r
         groups[
             (r["family"], r["tracker"], _parameters(r), r["detector"], r["strategy"], r["settings"])
         ].append(r)
@@ -68,7 +73,7 @@ def configurations(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "strategy": strategy,
                 "settings": json.loads(settings),
                 "sequences": len(members),
-                "failed": sum(1 for m in members if m.get("failure")),
+                **summarize(members, rule),
                 "ate_rmse_m": _mean([m["ate_rmse_m"] for m in members]),
                 "rho_percent": _mean([m["rho_percent"] for m in members]),
                 "rejection_precision": _mean([m["rejection_precision"] for m in members]),
@@ -99,15 +104,33 @@ def configuration_label(
     return f"{head}{strategy} {settings_text(settings)}".rstrip()
 
 
-def best_per_family(configs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+def best_per_family(
+    configs: list[dict[str, Any]], min_success_rate: float = 1.0
+) -> dict[str, dict[str, Any]]:
+    """Per family, the lowest mean ATE among the configurations that succeeded on at least
+    ``min_success_rate`` of their runs (all, by default): a configuration that lost track on
+    one seed of four is not the best over one that held on all four, however low its ATE
+    where it held."""
     best: dict[str, dict[str, Any]] = {}
     for c in configs:
-        if c["ate_rmse_m"] is None or c.get("failed"):
+        if (
+            c["ate_rmse_m"] is None
+            or (c.get("success_rate") if "success_rate" in c else 1.0) < min_success_rate
+        ):
             continue
         current = best.get(c["family"])
         if current is None or c["ate_rmse_m"] < current["ate_rmse_m"]:
             best[c["family"]] = c
     return best
+
+
+def unqualified(configs: list[dict[str, Any]], best: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Families with no configuration that held often enough, and the best success rate seen."""
+    out: dict[str, float] = {}
+    for c in configs:
+        if c["family"] not in best:
+            out[c["family"]] = max(out.get(c["family"], 0.0), c.get("success_rate") or 0.0)
+    return out
 
 
 def pareto(configs: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -252,13 +275,22 @@ def settings_text(settings: dict[str, Any]) -> str:
     return " ".join(f"{k}={v}" for k, v in settings.items())
 
 
-def format_best(best: dict[str, dict[str, Any]]) -> str:
-    lines = [f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"]
+def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | None = None) -> str:
+    """The best configuration per family; ``held``: its runs that succeeded, of all."""
+    lines = [
+        f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
+        f"{'held':>7s}"
+    ]
     for family, c in sorted(best.items()):
         label = c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
         name = f"{label} ({c['detector']})"
         rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
         prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
         rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"
-        lines.append(f"{family:24s}{name[:51]:52s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}")
+        held = f"{c['successes']}/{c['runs']}" if "runs" in c else "-"
+        lines.append(
+            f"{family:24s}{name[:51]:52s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}{held:>7s}"
+        )
+    for family, rate in sorted((missing or {}).items()):
+        lines.append(f"{family:24s}(no configuration held on enough seeds: the best held on {rate:.0%})")
     return "\n".join(lines)

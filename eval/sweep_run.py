@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from eval.aggregate import SuccessRule
 from eval.sweep import expand, open_store, run_jobs, sequences_of
-from eval.sweep_report import best_per_family, configurations, pareto, plot, with_rho
+from eval.sweep_report import best_per_family, configurations, pareto, plot, unqualified, with_rho
 from eval.sweep_spec import SweepSpec
 from sim.files import dumps_json
 from sim.output import write_text_atomic
@@ -76,9 +77,16 @@ def execute_sweep(
             else r
             for r in rows
         ]
-    configs = configurations(rows)
+    rule = SuccessRule(spec.statistics.min_tracked_fraction)
+    configs = configurations(rows, rule)
+    best = best_per_family(configs, spec.statistics.best_min_success_rate)
     summary = {
-        "best": best_per_family(configs),
+        "best": best,
+        "unqualified": unqualified(configs, best),
+        "success_rule": {
+            "min_tracked_fraction": rule.min_tracked_fraction,
+            "best_min_success_rate": spec.statistics.best_min_success_rate,
+        },
         "pareto": pareto(configs),
         "configurations": configs,
         "search": search,

@@ -171,6 +171,15 @@ class TrackerEntry(Strict):
         return self
 
 
+class Statistics(Strict):
+    """How runs over seeds are judged: a run succeeds when it did not fail and tracked at
+    least ``min_tracked_fraction`` of its frames; the best configuration of a family is
+    chosen among those that succeeded on at least ``best_min_success_rate`` of its runs."""
+
+    min_tracked_fraction: float = Field(default=0.9, ge=0.0, le=1.0)
+    best_min_success_rate: float = Field(default=1.0, ge=0.0, le=1.0)
+
+
 class DetectorEntry(Strict):
     detector: str = "groundtruth"
     settings: dict[str, str | float | int] = Field(default_factory=dict)
@@ -190,6 +199,7 @@ class SweepSpec(Strict):
     parameters: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
     """By tracker name: values of that external tracker's parameters to sweep."""
     search: Search | None = None
+    statistics: Statistics = Field(default_factory=Statistics)
 
     @model_validator(mode="after")
     def _something_to_run(self) -> SweepSpec:
