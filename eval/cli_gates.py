@@ -24,6 +24,13 @@ def add_check(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--junit", type=Path, help="also write JUnit XML here (a new file, or see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --junit file")
     p.add_argument(
+        "--baseline",
+        type=Path,
+        metavar="DIR",
+        help="an earlier check's or sweep's folder (its results.sqlite): METRIC.vs_baseline budgets "
+        "compare each configuration's runs with its runs there, paired by sequence",
+    )
+    p.add_argument(
         "-o",
         "--output",
         type=Path,
@@ -44,13 +51,20 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     gates = load_gates(args.gates)
+    if args.baseline is None and any(b.endswith(".vs_baseline") for c in gates.checks for b in c.budgets):
+        raise InputError(
+            f"{args.gates}: its vs_baseline budgets need --baseline DIR (an earlier run's folder)"
+        )
     validate(gates.run, args.gates)  # before any folder is made
     inputs = spec_inputs(gates.run, args.gates)
+    baseline = load_baseline(args.baseline) if args.baseline is not None else None
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
         check_output_file(args.junit, overwrite=args.overwrite, inputs=inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates}"
     with OutputContainer(out, OutputKind.SWEEP, inputs=inputs) as container:
-        report = run_gates(gates, args.gates, container.path, args.workers, args.backend, args.address)
+        report = run_gates(
+            gates, args.gates, container.path, args.workers, args.backend, args.address, baseline
+        )
     print(format_report(report))
     if args.junit is not None:
         write_text_atomic(args.junit, junit_xml(report))
@@ -67,10 +81,26 @@ def run_gates(
     workers: int,
     backend: str = "local",
     address: str | None = None,
+    baseline: list[dict] | None = None,
 ) -> GateReport:
-    """The gate file's matrix through the sweep engine (cache and stored rows reused), checked."""
+    """The gate file's matrix through the sweep engine (cache and stored rows reused), checked
+    (``baseline``: an earlier run's rows, for ``vs_baseline`` budgets)."""
     from eval.gates import evaluate
     from eval.sweep_run import execute_sweep
 
     outcome = execute_sweep(gates.run, gates_path, out, workers, backend=backend, address=address)
-    return evaluate(gates, outcome.rows)
+    return evaluate(gates, outcome.rows, baseline)
+
+
+def load_baseline(folder: Path) -> list[dict]:
+    """An earlier check's or sweep's rows (read only), as the gates compare against them."""
+    from eval.store import ResultStore
+    from sim.errors import InputError
+
+    database = folder / "results.sqlite"
+    if not database.is_file():
+        raise InputError(
+            f"--baseline {folder}: no results.sqlite there (give an earlier check's or sweep's -o folder)"
+        )
+    with ResultStore(database, readonly=True) as store:
+        return store.rows()

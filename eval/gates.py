@@ -38,6 +38,7 @@ from typing import Any
 
 from pydantic import Field, model_validator
 
+from eval.aggregate import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
 from eval.sweep_report import settings_text, with_rho
 from eval.sweep_spec import SweepSpec
 from scenes.schema import Strict, load_model
@@ -56,6 +57,34 @@ METRICS: dict[str, str] = {
     "track_ms_mean": "tracking time per frame (ms)",
 }
 """What a budget may bound, with what the failure message calls it."""
+AGGREGATES: dict[str, str] = {
+    "mean": "mean over runs",
+    "median": "median over runs",
+    "worst": "worst run's",
+    "p90": "90th-percentile run's",
+    "vs_baseline": "change from the baseline, paired by sequence, of",
+}
+"""``METRIC.AGGREGATE`` budgets bound a configuration's runs together (its seeds); the
+others bound each run. ``vs_baseline`` is the relative change of a ratio figure (ATE, RPE,
+time: +0.05 is 5 % larger) or the difference of a rate (recall, rho), and fails only when
+the paired test says the change is real (p < ``BASELINE_ALPHA``)."""
+SUCCESS_RATE = "success_rate"
+BASELINE_ALPHA = 0.05
+
+
+def budget_parts(name: str) -> tuple[str, str | None]:
+    """A budget's figure and its aggregate (None for a per-run budget)."""
+    if name == SUCCESS_RATE:
+        return name, "success"
+    metric, _, aggregate = name.partition(".")
+    return metric, aggregate or None
+
+
+def describe(name: str) -> str:
+    metric, aggregate = budget_parts(name)
+    if aggregate == "success":
+        return "share of runs that held (did not fail, tracked enough frames)"
+    return METRICS[metric] if aggregate is None else f"{AGGREGATES[aggregate]} {METRICS[metric]}"
 
 
 class Bound(Strict):
@@ -94,10 +123,22 @@ class Check(Strict):
 
     @model_validator(mode="after")
     def _known(self) -> Check:
-        unknown = sorted(set(self.budgets) - set(METRICS))
-        if unknown:
-            raise ValueError(f"unknown budget {unknown[0]!r}; choose from {', '.join(METRICS)}")
+        for name in sorted(self.budgets):
+            metric, aggregate = budget_parts(name)
+            if aggregate != "success" and (
+                metric not in METRICS or (aggregate and aggregate not in AGGREGATES)
+            ):
+                raise ValueError(
+                    f"unknown budget {name!r}; choose from {', '.join(METRICS)}, each also as "
+                    f"METRIC.{{{','.join(AGGREGATES)}}}, and {SUCCESS_RATE}"
+                )
         return self
+
+    def run_budgets(self) -> dict[str, Bound]:
+        return {k: b for k, b in self.budgets.items() if budget_parts(k)[1] is None}
+
+    def group_budgets(self) -> dict[str, Bound]:
+        return {k: b for k, b in self.budgets.items() if budget_parts(k)[1] is not None}
 
 
 class GateFile(Strict):
@@ -163,7 +204,7 @@ class Verdict:
         shown = "missing" if self.value is None else f"{self.value:.4g}"
         note = f" {self.note}" if self.note else ""
         return (
-            f"{self.metric} ({METRICS[self.metric]}) = {shown}{note}, "
+            f"{self.metric} ({describe(self.metric)}) = {shown}{note}, "
             f"budget {' and '.join(self.bound.limits())}"
         )
 
@@ -279,9 +320,16 @@ def _within(value: float | None, bound: Bound) -> bool:
     return (bound.min is None or value >= bound.min) and (bound.max is None or value <= bound.max)
 
 
-def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
-    """Check every row each check selects against each of its budgets."""
+def evaluate(
+    gates: GateFile, rows: list[dict[str, Any]], baseline: list[dict[str, Any]] | None = None
+) -> GateReport:
+    """Check every row each check selects against its per-run budgets, and each of its
+    configurations (the runs of one family with one tracker, detector, strategy and
+    settings: the seeds) against its aggregate budgets; ``vs_baseline`` budgets pair the
+    configuration's runs with ``baseline``'s on the same sequences."""
     rows = derived_rows(rows, gates.reference, gates.reference_settings)
+    base = derived_rows(baseline, gates.reference, gates.reference_settings) if baseline is not None else None
+    rule = SuccessRule(gates.run.statistics.min_tracked_fraction)
     reference = gates.reference_label()
     tags: dict[str, set[str]] = {}
     results, empty = [], []
@@ -289,7 +337,8 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
         selected = [r for r in rows if _selects(check, r, tags)]
         if not selected:
             empty.append(check.name)
-        for row in sorted(selected, key=_row_name):
+        per_run = check.run_budgets()
+        for row in sorted(selected, key=_row_name) if per_run else []:
             name = _row_name(row)
             verdicts = tuple(
                 Verdict(
@@ -301,10 +350,102 @@ def evaluate(gates: GateFile, rows: list[dict[str, Any]]) -> GateReport:
                     _within(row.get(metric), bound),
                     _note(row, metric, reference),
                 )
-                for metric, bound in check.budgets.items()
+                for metric, bound in per_run.items()
             )
             results.append(CheckResult(check.name, name, verdicts, float(row["wall_time_s"] or 0.0)))
+        grouped = check.group_budgets()
+        if grouped:
+            for members in _configurations(selected):
+                results.append(_group_result(check.name, members, grouped, rule, base))
     return GateReport(gates.gates, tuple(results), tuple(empty))
+
+
+def _configuration_key(row: dict[str, Any]) -> tuple:
+    return (
+        row["family"],
+        row["tracker"],
+        row.get("parameters") or "{}",
+        row["detector"],
+        row["strategy"],
+        row["settings"],
+    )
+
+
+def _configurations(rows: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault(_configuration_key(row), []).append(row)
+    return [groups[key] for key in sorted(groups)]
+
+
+def _group_name(members: list[dict[str, Any]]) -> str:
+    first = members[0]
+    parameters = settings_text(dict(sorted(json.loads(first.get("parameters") or "{}").items())))
+    settings = settings_text(dict(sorted(json.loads(first["settings"]).items())))
+    parts = (first["family"], first["tracker"], parameters, first["detector"], first["strategy"], settings)
+    return " ".join(p for p in parts if p) + f" over {len(members)} runs"
+
+
+def _pairing(row: dict[str, Any]) -> str:
+    """What pairs a run with the baseline's: its sequence folder's name (a suite's numbered
+    variations keep their names wherever the suite is generated)."""
+    return Path(row["sequence"]).name
+
+
+def _group_result(
+    check_name: str,
+    members: list[dict[str, Any]],
+    budgets: dict[str, Bound],
+    rule: SuccessRule,
+    baseline: list[dict[str, Any]] | None,
+) -> CheckResult:
+    name = _group_name(members)
+    summary = summarize(members, rule)
+    verdicts = []
+    for budget, bound in budgets.items():
+        metric, aggregate = budget_parts(budget)
+        note = ""
+        if aggregate == "success":
+            value = summary["success_rate"]
+            note = f"({summary['successes']} of {summary['runs']} held)"
+            passed = _within(value, bound)
+        elif aggregate == "vs_baseline":
+            value, passed, note = _versus_baseline(metric, bound, members, baseline)
+        else:
+            figures = (
+                summary["stats"].get(metric)
+                or stats([r.get(metric) for r in members], metric in HIGHER_IS_BETTER).to_dict()
+            )
+            value = figures.get(aggregate)
+            note = f"(n={figures['n']})"
+            passed = _within(value, bound)
+        verdicts.append(Verdict(check_name, name, budget, value, bound, passed, note))
+    seconds = sum(float(r["wall_time_s"] or 0.0) for r in members)
+    return CheckResult(check_name, name, tuple(verdicts), seconds)
+
+
+def _versus_baseline(
+    metric: str, bound: Bound, members: list[dict[str, Any]], baseline: list[dict[str, Any]] | None
+) -> tuple[float | None, bool, str]:
+    """The paired change of ``metric`` from the baseline's runs of this configuration, and
+    whether it holds: a change past the bound fails only when it is real (the paired test's
+    p below ``BASELINE_ALPHA``), so that a gate does not flake on run-to-run noise."""
+    if baseline is None:
+        return None, False, "(no baseline given: check --baseline DIR)"
+    key = _configuration_key(members[0])
+    theirs = {_pairing(r): r for r in baseline if _configuration_key(r) == key}
+    pairs = [(theirs[_pairing(r)].get(metric), r.get(metric)) for r in members if _pairing(r) in theirs]
+    if not pairs:
+        return None, False, "(the baseline has no run of this configuration on these sequences)"
+    change = paired_change(metric, [b for b, _ in pairs], [c for _, c in pairs])
+    if change.change is None:
+        return None, False, f"(no pair of the {len(pairs)} has the figure on both sides)"
+    outside = not _within(change.change, bound)
+    if change.p_worse is None:  # one pair: no test can be made, the bound alone decides
+        return change.change, not outside, "(1 pair: no paired test, the bound alone decides)"
+    real = change.p_worse < BASELINE_ALPHA
+    note = f"({change.pairs} pairs, p={change.p_worse:.3g}{': within noise' if outside and not real else ''})"
+    return change.change, not (outside and real), note
 
 
 def _note(row: dict[str, Any], metric: str, reference: str) -> str:

@@ -313,3 +313,94 @@ def test_a_check_resumed_from_another_folder_finds_its_sequences(
     monkeypatch.chdir(tmp_path / "elsewhere")
     assert main(["check", "../gates/g.yaml", "-o", "../chk"]) == 0
     assert "all budgets held" in capsys.readouterr().out
+
+
+def _seeds(ates: list[float], strategy: str = "box_rule", tracked: list[float] | None = None) -> list[dict]:
+    return [
+        _row(
+            f"walk-{seed:04d}",
+            strategy,
+            ate,
+            20.0,
+            tracked_fraction=(tracked or [1.0] * 4)[seed],
+            key=f"{strategy}-{seed}",
+        )
+        for seed, ate in enumerate(ates)
+    ]
+
+
+BASELINE = [0.010, 0.020, 0.040, 0.015]
+
+
+def test_budgets_over_seeds_bound_a_configurations_runs_together():
+    """Issue 36 point 3: mean, worst and success rate over the seeds of one configuration."""
+    rows = _seeds(BASELINE) + _seeds([0.012, 0.013, 0.011, 0.5], "prior_flow", tracked=[1.0, 1.0, 1.0, 0.4])
+    gates = _gates(
+        """\
+        - name: seeds
+          budgets:
+            ate_rmse_m.mean: {max: 0.03}
+            ate_rmse_m.worst: {max: 0.045}
+            success_rate: {min: 1.0}
+        """
+    )
+    report = evaluate(gates, rows + [_row(f"walk-{s:04d}", "none", 0.05, 20.0) for s in range(4)])
+    by_group = {r.row.split()[3]: {v.metric: v for v in r.verdicts} for r in report.results}
+    assert by_group["box_rule"]["ate_rmse_m.mean"].value == pytest.approx(sum(BASELINE) / 4)
+    assert all(v.passed for v in by_group["box_rule"].values())
+    assert (
+        by_group["prior_flow"]["success_rate"].value == 0.75
+        and not by_group["prior_flow"]["success_rate"].passed
+    )
+    assert not by_group["prior_flow"]["ate_rmse_m.mean"].passed  # the lost run's 0.5 counts in the mean
+    assert "over 4 runs" in report.results[0].row
+
+
+def test_a_regression_gate_fails_on_a_real_regression_and_holds_on_noise():
+    """A configuration worsened by 30 % on 4 seeds fails a 5 % budget; one that moves by run-
+    to-run noise (a few percent either way) passes; ten evaluations give the same verdict."""
+    gates = _gates("- name: no-regression\n  budgets: {ate_rmse_m.vs_baseline: {max: 0.05}}\n")
+    baseline = _seeds(BASELINE)
+    worse = _seeds([v * 1.3 * f for v, f in zip(BASELINE, [1.02, 0.99, 1.01, 0.98], strict=True)])
+    noisy = _seeds([v * f for v, f in zip(BASELINE, [1.08, 0.93, 1.05, 0.97], strict=True)])
+    verdicts = []
+    for _ in range(10):
+        failed = evaluate(gates, worse, baseline)
+        held = evaluate(gates, noisy, baseline)
+        verdicts.append((failed.passed, held.passed))
+    assert set(verdicts) == {(False, True)}
+    (verdict,) = failed.results[0].verdicts
+    assert verdict.value == pytest.approx(0.3, abs=0.02) and "4 pairs" in verdict.note
+    assert "within noise" in held.results[0].verdicts[0].note or held.results[0].verdicts[0].value <= 0.05
+
+
+def test_a_baseline_budget_without_a_baseline_is_refused_before_the_run(tmp_path, capsys):
+    gate = tmp_path / "g.yaml"
+    gate.write_text(
+        "gates: g\nrun:\n  sequences: [x]\nchecks:\n"
+        "  - name: c\n    budgets: {ate_rmse_m.vs_baseline: {max: 0.05}}\n"
+    )
+    assert main(["check", str(gate), "-o", str(tmp_path / "chk")]) == 2
+    assert "need --baseline DIR" in capsys.readouterr().err and not (tmp_path / "chk").exists()
+
+
+def test_a_check_against_its_own_earlier_run_holds(smoke: Path, tmp_path: Path, capsys):
+    gate = tmp_path / "g.yaml"
+    gate.write_text(
+        f"gates: g\nrun:\n  sequences: [{smoke}]\n  strategies: [none, box_rule]\nchecks:\n"
+        "  - name: steady\n    strategies: [box_rule]\n    budgets: {ate_rmse_m.vs_baseline: {max: 0.05}}\n"
+    )
+    assert (
+        main(["check", str(gate), "-o", str(tmp_path / "first"), "--baseline", str(tmp_path / "nowhere")])
+        == 2
+    )
+    assert "no results.sqlite there" in capsys.readouterr().err
+    baseline_gate = tmp_path / "b.yaml"
+    baseline_gate.write_text(
+        gate.read_text().replace("ate_rmse_m.vs_baseline: {max: 0.05}", "lost_fraction: {max: 1}")
+    )
+    assert main(["check", str(baseline_gate), "-o", str(tmp_path / "first")]) == 0
+    assert (
+        main(["check", str(gate), "-o", str(tmp_path / "second"), "--baseline", str(tmp_path / "first")]) == 0
+    )
+    assert "ate_rmse_m.vs_baseline 0 " in capsys.readouterr().out
