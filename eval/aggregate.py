@@ -193,11 +193,12 @@ def paired_change(metric: str, baseline: list[float], candidate: list[float]) ->
 
 def _p_worse(worse: np.ndarray) -> float | None:
     """One-sided p-value that the mean of ``worse`` (positive: the candidate is worse) is
-    above 0. Equal differences leave no variance: certain when all are worse, else none."""
+    above 0. Equal differences leave no variance: certain either way, or no evidence when
+    they are all 0."""
     if len(worse) < 2:
         return None
     if np.all(worse == worse[0]):
-        return 0.0 if worse[0] > 0 else 1.0
+        return 0.0 if worse[0] > 0 else 1.0 if worse[0] < 0 else 0.5
     from scipy.stats import ttest_1samp
 
     return float(ttest_1samp(worse, 0.0, alternative="greater").pvalue)

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
+from eval.cli_compare import add_compare
 from eval.cli_detectors import (
     add_detect_eval,
     add_detector_options,
@@ -603,6 +604,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep(sub)
     add_check(sub)
     add_report(sub)
+    add_compare(sub)
     return parser
 
 
