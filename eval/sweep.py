@@ -132,7 +132,8 @@ def jobs_for(
 
 def validate(spec: SweepSpec, spec_path: Path) -> None:
     """Everything that can be checked before an output folder is made: trackers,
-    detectors, threshold values, the sequence folders and the suite file."""
+    detectors, threshold values, the sequence folders (suite folders and globs
+    expanded, each sequence opened) and the suite file."""
     source = str(spec_path)
     trackers = tracker_configs(spec, source)
     detectors = detector_configs(spec, source)
@@ -142,12 +143,7 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
     check_variants(spec, variants(spec), trackers, source)
     tracker_variants(spec, trackers, source)
     check_search(spec, trackers, source)
-    opened = []
-    for i, name in enumerate(spec.sequences):
-        root = resolve(spec, spec_path, name)
-        if not root.is_dir():
-            raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
-        opened.append(Sequence.open(root))
+    opened = [Sequence.open(entry.root) for entry in named_sequences(spec, spec_path)]
     for i, tracker in enumerate(trackers):  # a settings template, rendered on a real camera
         if tracker.settings_template is not None and opened:
             try:
@@ -181,15 +177,11 @@ def sequences_of(
     backend: str = "local",
     address: str | None = None,
 ) -> list[SequenceEntry]:
-    """The spec's sequence folders and their families, its suite generated (and resumed)
-    under OUT/sequences. A suite's family is its name with the knobs other than the seed,
-    so seeds of one setting are averaged together."""
-    roots = []
-    for i, name in enumerate(spec.sequences):
-        root = resolve(spec, spec_path, name)
-        if not root.is_dir():
-            raise InputError(f"{spec_path}: sequences.{i}: {root} is not a folder")
-        roots.append(SequenceEntry(root, family_of(Sequence.open(root))))
+    """The spec's sequence folders and their families (``named_sequences``: suite folders
+    and globs expanded), its suite generated (and resumed) under OUT/sequences. A suite's
+    family is its name with the knobs other than the seed, so seeds of one setting are
+    averaged together."""
+    roots = named_sequences(spec, spec_path)
     if spec.suite is not None:
         from scenes.generation import run_suite
         from scenes.suite import load_suite
@@ -206,15 +198,84 @@ def sequences_of(
             backend=backend,
             address=address,
         )
-        for entry in index["sequences"]:
-            knobs = " ".join(f"{k}={v}" for k, v in sorted(entry["knobs"].items()) if k != "seed")
-            family = f"{index['suite']} {knobs}".strip()
-            roots.append(
-                SequenceEntry(
-                    out / "sequences" / entry["name"], family, tuple(sorted(entry["knobs"].items()))
-                )
-            )
+        roots.extend(suite_entry(index["suite"], entry, out / "sequences") for entry in index["sequences"])
     return roots
+
+
+def suite_entry(suite: str, entry: dict[str, Any], folder: Path) -> SequenceEntry:
+    """A suite's sequence (an entry of its ``index.json``, the suite written into
+    ``folder``) with its family: the suite's name and the knobs other than the seed."""
+    knobs = " ".join(f"{k}={v}" for k, v in sorted(entry["knobs"].items()) if k != "seed")
+    family = f"{suite} {knobs}".strip()
+    return SequenceEntry(folder / entry["name"], family, tuple(sorted(entry["knobs"].items())))
+
+
+def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
+    """The folders ``sequences:`` names, in order, with their families. An entry is a
+    sequence folder, a suite folder (``depotbench generate SUITE.yaml -o DIR``: its
+    sequences, in its ``index.json``'s order, with the family and knobs a ``suite:``
+    entry gives them) or a glob (``seqs/*``, relative to the spec file; a folder whose
+    name holds ``*``, ``?`` or ``[`` is that folder) of such folders, sorted; a glob
+    matching no folder is refused naming the entry."""
+    import glob
+
+    entries = []
+    for i, name in enumerate(spec.sequences):
+        where = f"{spec_path}: sequences.{i}"
+        if glob.has_magic(name) and not resolve(spec, spec_path, name).is_dir():
+            pattern = str(Path(name).expanduser())
+            if Path(pattern).is_absolute():
+                found = glob.glob(pattern)
+            else:  # the spec's folder is no part of the pattern: it may hold * or [ itself
+                found = [str(spec_path.parent / p) for p in glob.glob(pattern, root_dir=spec_path.parent)]
+            folders = sorted(Path(p) for p in found if Path(p).is_dir())
+            if not folders:
+                raise InputError(f"{where}: {name!r} matches no folder (relative to {spec_path.parent})")
+        else:
+            folders = [resolve(spec, spec_path, name)]
+            if not folders[0].is_dir():
+                raise InputError(f"{where}: {folders[0]} is not a folder")
+        for folder in folders:
+            entries.extend(_folder_entries(folder, where))
+    return entries
+
+
+def _folder_entries(folder: Path, where: str) -> list[SequenceEntry]:
+    """A sequence folder's entry, or a suite folder's sequences, each checked complete."""
+    import json
+
+    from scenes.generation import INDEX_NAME, is_complete
+    from sim.output import OutputKind, read_marker
+
+    marker = read_marker(folder)
+    if marker is None or marker.kind is not OutputKind.SUITE:
+        return [SequenceEntry(folder, family_of(Sequence.open(folder)))]
+    again = f"run `depotbench generate SUITE.yaml -o {folder}` again"
+    try:
+        index = json.loads((folder / INDEX_NAME).read_text(encoding="utf-8"))
+        suite, listed = str(index["suite"]), list(index["sequences"])
+        for entry in listed:
+            name = entry["name"]
+            if not isinstance(name, str) or name in ("", ".", "..") or Path(name).name != name:
+                raise ValueError(f"bad sequence name {name!r}")
+            if not isinstance(entry["knobs"], dict) or not isinstance(entry["content_key"], str):
+                raise ValueError("knobs or content_key missing")
+    except FileNotFoundError:
+        raise InputError(
+            f"{where}: {folder} is a suite folder without {INDEX_NAME} "
+            f"(its generation did not finish: {again})"
+        ) from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{where}: {folder / INDEX_NAME} cannot be read ({exc}); {again}") from None
+    entries = []
+    for entry in listed:
+        if not is_complete(folder / entry["name"], entry["content_key"]):
+            raise InputError(
+                f"{where}: {folder / entry['name']} is not the complete sequence its suite's "
+                f"{INDEX_NAME} names; {again}"
+            )
+        entries.append(suite_entry(suite, entry, folder))
+    return entries
 
 
 @dataclass(frozen=True)
