@@ -185,16 +185,25 @@ def _plan_sequence(scenario: str, frames: int | None, seed: int, root: Path, job
 
 def _generate(sequence: _Sequence) -> None:
     """Generate the sequence unless it is complete and current (its marker holds this
-    content key, as ``scenes.generation`` decides); one process at a time."""
+    content key, as ``scenes.generation`` decides); one process at a time. A sequence the
+    shared store (``scenes.store``) holds is copied from it, and one rendered is added to
+    it: a second session, even with a fresh ``--depotbench-dir``, renders nothing."""
     from scenes.generation import is_complete
+    from scenes.store import SequenceStore
     from sim.generate import generate
 
     if is_complete(sequence.path, sequence.key):
         return
     with _claim(sequence.path):
         # Another process may have written it while this one waited for the claim.
-        if not is_complete(sequence.path, sequence.key):
-            generate(sequence.scenario, sequence.path, progress=False, overwrite=True)
+        if is_complete(sequence.path, sequence.key):
+            return
+        store = SequenceStore.from_env()
+        if store is not None and store.fetch(sequence.key, sequence.path):
+            return
+        generate(sequence.scenario, sequence.path, progress=False, overwrite=True)
+        if store is not None:
+            store.put(sequence.path, sequence.key)
 
 
 def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:

@@ -5,19 +5,23 @@ path) so they run in spawned workers now and on Ray later. A sequence counts as
 complete only when its marker holds the content key of what is asked for now
 (spec, seed, format and generator version); anything else is regenerated. The
 suite folder is locked while a run owns it, each sequence while a worker writes
-it, and workers die with their parent.
+it, and workers die with their parent. A sequence the shared store holds
+(``scenes.store``) is copied from it instead of rendered, and every sequence rendered
+is added to it.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
 from scenes.schema import Scenario, to_scenario
+from scenes.store import SequenceStore
 from scenes.suite import Suite, variations
 from sim.executors import make_pool
 from sim.files import DEFAULT_PNG_COMPRESSION, dumps_json
@@ -64,15 +68,21 @@ def _generate_all(
     backend: str = "local",
     address: str | None = None,
     png_compression: int = DEFAULT_PNG_COMPRESSION,
+    done: Callable[[str], None] | None = None,
 ) -> None:
+    """Render ``pending`` into ``out_dir``; ``done(name)`` is called in this process as
+    each sequence is complete."""
     # Always in worker processes (even one): rendering stays out of the caller's process.
     pool = make_pool(backend, workers, address, in_process=False)
     failed = True
     try:
         items = [(sc.model_dump(mode="json"), str(out_dir / name), png_compression) for name, sc in pending]
-        frames = {str(out_dir / name): sc.n_frames for name, sc in pending}
+        frames = {str(out_dir / name): (name, sc.n_frames) for name, sc in pending}
         for (_, out, _), _ in pool.map_unordered(generate_job, items):  # a failure raises its own error
-            bar.update(frames[out])
+            name, count = frames[out]
+            if done is not None:
+                done(name)
+            bar.update(count)
         failed = False
     finally:
         pool.close(failed)
@@ -91,6 +101,7 @@ def run_suite(
     backend: str = "local",
     address: str | None = None,
     png_compression: int = DEFAULT_PNG_COMPRESSION,
+    store: SequenceStore | None | bool = True,
 ) -> dict:
     """Generate every variation whose sequence is missing or stale; write ``index.json``.
 
@@ -98,7 +109,20 @@ def run_suite(
 
     ``overwrite`` regenerates every sequence, even those that are up to date.
     ``png_compression`` is the zlib level of the PNGs (0: fastest, largest).
+    ``store``: the shared sequence store (``scenes.store``) to copy held sequences from
+    instead of rendering them, and to add rendered ones to; True (the default) takes the
+    one the environment names, None or False none. ``overwrite`` renders every sequence.
     """
+    if store is True:
+        store = SequenceStore.from_env()
+    store = store or None
+
+    def has(key: str) -> bool:
+        return store is not None and store.has(key, png_compression)
+
+    def fetch(key: str, target: Path) -> bool:
+        return store is not None and store.fetch(key, target, png_compression)
+
     jobs = variations(suite, suite_path)
     with OutputContainer(out_dir, OutputKind.SUITE, inputs=(suite_path,)) as container:
         root = container.path
@@ -106,10 +130,21 @@ def run_suite(
         for name, _, _ in jobs:  # never replace a folder depotbench did not write
             clean_if_unowned(root / name)
             check_replaceable(root / name, out_dir / name, OutputKind.SEQUENCE, overwrite=True)
-        pending = [
+        missing = [
             (name, sc) for name, _, sc in jobs if overwrite or not is_complete(root / name, keys[name])
         ]
-        stale = sum((root / name).exists() for name, _ in pending)
+        stale = sum((root / name).exists() for name, _ in missing)
+        held = [] if overwrite else [(n, sc) for n, sc in missing if has(keys[n])]
+        print(  # before the copies: a suite of many held sequences takes seconds to copy
+            f"{len(jobs)} sequences: {len(jobs) - len(missing)} complete, {len(held)} from the store and "
+            f"{len(missing) - len(held)} to generate ({stale} of those stale or replaced) "
+            f"with {workers} worker(s)",
+            flush=True,
+        )
+        started = time.perf_counter()
+        copied = [name for name, _ in held if fetch(keys[name], root / name)]
+        copy_s = time.perf_counter() - started
+        pending = [(name, sc) for name, sc in missing if name not in copied]
         total_frames = sum(sc.n_frames for _, sc in pending)
         bar = tqdm(
             total=total_frames,
@@ -118,14 +153,17 @@ def run_suite(
             disable=None if progress else True,  # None: only on a terminal
             smoothing=0.1,
         )
-        bar.write(
-            f"{len(jobs)} sequences: {len(jobs) - len(pending)} complete, {len(pending)} to generate "
-            f"({stale} of them stale or replaced) with {workers} worker(s)"
-        )
+        if len(copied) < len(held):  # evicted between the count and the copy
+            bar.write(f"{len(held) - len(copied)} left the store meanwhile (evicted): generating them")
+
+        def stored(name: str) -> None:
+            if store is not None:
+                store.put(root / name, keys[name], png_compression)
+
         start = time.perf_counter()
         try:
             if pending:
-                _generate_all(pending, root, workers, bar, backend, address, png_compression)
+                _generate_all(pending, root, workers, bar, backend, address, png_compression, stored)
         finally:
             bar.close()
         index = {
@@ -144,10 +182,15 @@ def run_suite(
             ],
         }
         write_text_atomic(root / INDEX_NAME, dumps_json(index) + "\n")
-    if progress and pending:
+    if progress and (pending or copied):
         elapsed = time.perf_counter() - start
-        print(
-            f"generated {len(pending)} sequences ({total_frames} frames) in {elapsed:.1f} s "
-            f"({total_frames / elapsed:.1f} frames/s); index: {out_dir / INDEX_NAME}"
-        )
+        parts = []
+        if pending:
+            parts.append(
+                f"generated {len(pending)} sequences ({total_frames} frames) in {elapsed:.1f} s "
+                f"({total_frames / elapsed:.1f} frames/s)"
+            )
+        if copied:
+            parts.append(f"copied {len(copied)} from the store in {copy_s:.1f} s")
+        print(f"{'; '.join(parts)}; index: {out_dir / INDEX_NAME}")
     return index

@@ -1,0 +1,318 @@
+"""Reuse (issue 36 point 5): a sweep over an existing suite folder or a glob of sequence
+folders, and the shared sequence store that copies a sequence rendered once wherever it
+is asked for again (``run_suite``, a sweep's suite, the pytest plugin)."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+# Imported here, before any pytester fixture: pytester drops the modules a test imported when
+# it ends, and numpy's C core cannot be loaded twice in one process.
+import eval.sweep_run
+import scenes.generation
+import sim.generate  # noqa: F401
+from eval.cli import main
+from eval.sweep import named_sequences, validate
+from eval.sweep_spec import load_sweep
+from scenes.store import DEFAULT_MAX_BYTES, SequenceStore
+from scenes.suite import load_suite
+from sim.errors import InputError
+from sim.output import MARKER_NAME, OutputKind, OutputLock, StagedOutput, read_marker
+from tests.sequences import tree_differences, write_sequence
+
+SUITE = "suite: tiny\nbase: smoke\noverrides: {frames: 3}\ngrid: {actors.0.speed_mps: [0.6, 1.2]}\n"
+"""Two sequences of three 160x120 frames, one knob besides the seed."""
+
+
+@pytest.fixture(autouse=True)
+def store(tmp_path: Path, monkeypatch) -> Path:
+    """Each test's own sequence store: never the user's."""
+    path = tmp_path / "store"
+    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", str(path))
+    monkeypatch.delenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", raising=False)
+    return path
+
+
+class Renders:
+    """Counts the frames ``run_suite`` hands its render workers (it renders nowhere else)."""
+
+    def __init__(self, monkeypatch) -> None:
+        self.frames = 0
+        real = scenes.generation._generate_all
+
+        def counted(pending, *args, **kwargs):
+            self.frames += sum(sc.n_frames for _, sc in pending)
+            return real(pending, *args, **kwargs)
+
+        monkeypatch.setattr(scenes.generation, "_generate_all", counted)
+
+
+def _suite(tmp_path: Path) -> Path:
+    path = tmp_path / "tiny.yaml"
+    path.write_text(SUITE)
+    return path
+
+
+def _summary(text: str) -> str:
+    return next(line for line in text.splitlines() if " sequences: " in line)
+
+
+@pytest.mark.render
+def test_run_suite_twice_into_two_folders_renders_once_and_copies_byte_for_byte(
+    tmp_path: Path, monkeypatch, capsys, store: Path
+):
+    renders = Renders(monkeypatch)
+    path = _suite(tmp_path)
+    scenes.generation.run_suite(load_suite(path), path, tmp_path / "a", workers=2, progress=False)
+    assert renders.frames == 6
+    assert "0 from the store and 2 to generate" in _summary(capsys.readouterr().out)
+    assert len([p for p in store.iterdir() if p.is_dir()]) == 2
+    scenes.generation.run_suite(load_suite(path), path, tmp_path / "b", workers=2, progress=False)
+    assert renders.frames == 6  # none more
+    assert "2 from the store and 0 to generate" in _summary(capsys.readouterr().out)
+    assert tree_differences(tmp_path / "a", tmp_path / "b") == []
+    # A copy, not a link: editing one leaves the other (and the store) as it was.
+    frame = next((tmp_path / "b" / "tiny-0000" / "rgb").iterdir())
+    assert frame.stat().st_nlink == 1
+    frame.write_bytes(b"edited")
+    scenes.generation.run_suite(load_suite(path), path, tmp_path / "c", workers=2, progress=False)
+    assert tree_differences(tmp_path / "a", tmp_path / "c") == []
+
+
+@pytest.mark.render
+def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_suites_families(
+    tmp_path: Path, monkeypatch, capsys
+):
+    """Before: a sweep could only generate its suite again (86 s of a 151 s sweep); a
+    suite folder in ``sequences:`` was not a sequence folder."""
+    renders = Renders(monkeypatch)
+    path = _suite(tmp_path)
+    assert main(["generate", str(path), "-o", str(tmp_path / "suite"), "--workers", "2"]) == 0
+    assert renders.frames == 6
+    by_suite = tmp_path / "by-suite.yaml"
+    by_suite.write_text("sweep: a\nsuite: tiny.yaml\nstrategies: [none]\n")
+    by_folder = tmp_path / "by-folder.yaml"
+    by_folder.write_text("sweep: b\nsequences: [suite]\nstrategies: [none]\n")
+    rows = {}
+    for spec_path in (by_suite, by_folder):
+        spec = load_sweep(spec_path)
+        validate(spec, spec_path)
+        outcome = eval.sweep_run.execute_sweep(
+            spec, spec_path, tmp_path / spec_path.stem, 1, progress=False, announce=False
+        )
+        rows[spec_path.stem] = sorted((r["family"], r["knobs"], r["seed"]) for r in outcome.rows)
+    assert renders.frames == 6  # the suite: sweep copied from the store, the other used the folder
+    assert "2 from the store and 0 to generate" in capsys.readouterr().out
+    assert rows["by-folder"] == rows["by-suite"]
+    assert rows["by-folder"] == [
+        ("tiny actors.0.speed_mps=0.6", json.dumps({"actors.0.speed_mps": 0.6, "seed": 0}), 0),
+        ("tiny actors.0.speed_mps=1.2", json.dumps({"actors.0.speed_mps": 1.2, "seed": 0}), 0),
+    ]
+    # Nothing was generated for the folder's sweep: its rows name the suite's own folders.
+    assert not (tmp_path / "by-folder" / "sequences").exists()
+
+
+def test_a_suite_folder_with_a_missing_or_stale_sequence_is_refused_before_any_output(tmp_path: Path):
+    suite = tmp_path / "suite"
+    write_sequence(suite / "s-0000", n=3, with_flow=False)
+    (suite / MARKER_NAME).write_text(json.dumps({"kind": "suite", "tool": "depotbench"}))
+    spec_path = tmp_path / "sweep.yaml"
+    spec_path.write_text("sweep: s\nsequences: [suite]\nstrategies: [none]\n")
+    with pytest.raises(InputError, match=r"sequences\.0: .*suite is a suite folder without index\.json"):
+        validate(load_sweep(spec_path), spec_path)
+    index = {"suite": "s", "sequences": [{"name": "s-0000", "knobs": {"seed": 0}, "content_key": "sha256:0"}]}
+    (suite / "index.json").write_text(json.dumps(index))
+    with pytest.raises(InputError, match=r"sequences\.0: .*s-0000 is not the complete sequence") as info:
+        validate(load_sweep(spec_path), spec_path)
+    assert "\n" not in str(info.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_glob_in_sequences_takes_the_matching_folders_sorted_and_one_matching_nothing_is_refused(
+    tmp_path: Path,
+):
+    for name in ("walk-b", "walk-a", "still"):
+        write_sequence(tmp_path / "seqs" / name, n=3, with_flow=False)
+    (tmp_path / "seqs" / "notes.txt").write_text("not a folder")
+    spec_path = tmp_path / "sweep.yaml"
+    spec_path.write_text("sweep: s\nsequences: ['seqs/walk-*', seqs/still]\nstrategies: [none]\n")
+    spec = load_sweep(spec_path)
+    validate(spec, spec_path)
+    found = named_sequences(spec, spec_path)
+    assert [e.root.name for e in found] == ["walk-a", "walk-b", "still"]
+    everything = tmp_path / "all.yaml"
+    everything.write_text("sweep: s\nsequences: ['seqs/*']\nstrategies: [none]\n")
+    assert [e.root.name for e in named_sequences(load_sweep(everything), everything)] == [
+        "still",
+        "walk-a",
+        "walk-b",
+    ]
+    missing = tmp_path / "missing.yaml"
+    missing.write_text("sweep: s\nsequences: [seqs/still, 'nothing/*']\nstrategies: [none]\n")
+    with pytest.raises(InputError, match=r"sequences\.1: 'nothing/\*' matches no folder") as info:
+        validate(load_sweep(missing), missing)
+    assert "\n" not in str(info.value)
+    # Through the command line: one line, before the output folder is made.
+    assert main(["sweep", str(missing), "-o", str(tmp_path / "out")]) != 0
+    assert not (tmp_path / "out").exists()
+
+
+PLUGIN_CONFTEST = """
+from pathlib import Path
+
+import sim.generate  # noqa: F401
+
+_generate = sim.generate.generate
+
+
+def _counted(scenario, out, **kwargs):
+    with open({count!r}, "a") as handle:
+        handle.write(f"{{scenario.frames}}\\n")
+    return _generate(scenario, out, **kwargs)
+
+
+sim.generate.generate = _counted
+"""
+
+
+@pytest.mark.render
+def test_the_plugins_second_session_with_a_fresh_dir_renders_nothing(pytester, tmp_path: Path):
+    """Before: every session without the first one's --depotbench-dir rendered every
+    sequence again (74 s)."""
+    count = tmp_path / "frames-rendered"
+    pytester.makeconftest(PLUGIN_CONFTEST.format(count=str(count)))
+    pytester.makepyfile(
+        """
+        def test_run(depotbench_run):
+            assert depotbench_run("smoke", strategy="box_rule", frames=3)["strategy"] == "box_rule"
+        """
+    )
+    first = pytester.runpytest_subprocess(
+        f"--depotbench-dir={tmp_path / 'first'}", "--depotbench-workers=1", "-p", "no:cacheprovider"
+    )
+    first.assert_outcomes(passed=1)
+    assert count.read_text().split() == ["3"]
+    second = pytester.runpytest_subprocess(  # no --depotbench-dir: a fresh temporary one
+        "--depotbench-workers=1", "-p", "no:cacheprovider"
+    )
+    second.assert_outcomes(passed=1)
+    assert count.read_text().split() == ["3"]  # nothing more rendered
+
+
+@pytest.mark.render
+def test_an_unwritable_store_costs_one_warning_line_and_the_run_goes_on(tmp_path: Path, monkeypatch, capsys):
+    """A file where the store's folder should be (as root, a read-only folder is writable)."""
+    (tmp_path / "file").write_text("not a folder")
+    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", str(tmp_path / "file"))
+    path = _suite(tmp_path)
+    assert main(["generate", str(path), "-o", str(tmp_path / "out"), "--workers", "2"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    warnings = [line for line in err if "warning" in line]
+    assert len(warnings) == 1, err
+    assert "sequence store" in warnings[0] and "Not a directory" in warnings[0]
+    index = json.loads((tmp_path / "out" / "index.json").read_text())
+    assert [read_marker(tmp_path / "out" / s["name"]).content_key for s in index["sequences"]] == [
+        s["content_key"] for s in index["sequences"]
+    ]
+
+
+def _fake_sequence(root: Path, key: str, size: int) -> Path:
+    """A folder marked as a complete sequence of ``key``: the store copies any files."""
+    with StagedOutput(root, OutputKind.SEQUENCE, content_key=key) as out:
+        (out.path / "rgb").mkdir()
+        (out.path / "rgb" / "frame.png").write_bytes(os.urandom(size))
+        (out.path / "meta.json").write_text("{}\n")
+        out.commit()
+    return root
+
+
+def _key(i: int) -> str:
+    return f"sha256:{i:064x}"
+
+
+def test_the_store_evicts_the_least_recently_used_to_stay_under_its_bound(tmp_path: Path, store: Path):
+    cache = SequenceStore(store, max_bytes=250_000)
+    sources = [_fake_sequence(tmp_path / f"s{i}", _key(i), 100_000) for i in range(4)]
+    assert cache.put(sources[0], _key(0)) and cache.put(sources[1], _key(1))
+    os.utime(cache.entry(_key(0)), (1000, 1000))  # 0 older than 1 ...
+    os.utime(cache.entry(_key(1)), (2000, 2000))
+    assert cache.fetch(_key(0), tmp_path / "copy0")  # ... until it is used
+    assert cache.put(sources[2], _key(2))
+    assert [cache.has(_key(i)) for i in range(3)] == [True, False, True]
+    assert cache.size_bytes() <= 250_000
+    for i in range(4):  # at most two entries fit, whatever is put
+        cache.put(sources[i], _key(i))
+        assert cache.size_bytes() <= 250_000
+        assert cache.has(_key(i))
+    assert not [p for p in store.iterdir() if p.name.startswith(".")]  # nothing staged or set aside
+    # What no bound can hold is not stored (it would evict everything, itself too).
+    assert not SequenceStore(store, max_bytes=50_000).put(sources[0], _key(99))
+
+
+def test_the_store_is_found_as_the_stage_cache_is_and_turned_off_as_it_is(tmp_path: Path, monkeypatch):
+    monkeypatch.delenv("DEPOTBENCH_SEQUENCE_STORE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    found = SequenceStore.from_env()
+    assert found is not None and found.root == tmp_path / "xdg" / "depotbench" / "sequences"
+    assert found.max_bytes == DEFAULT_MAX_BYTES
+    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", "500M")
+    assert SequenceStore.from_env().max_bytes == 500 << 20
+    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", "lots")
+    with pytest.raises(InputError, match="DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES"):
+        SequenceStore.from_env()
+    for off in ("off", "OFF", "0", "no", "false"):
+        monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", off)
+        assert SequenceStore.from_env() is None
+
+
+def test_a_copy_is_never_taken_from_an_entry_evicted_while_it_is_copied(
+    tmp_path: Path, store: Path, monkeypatch
+):
+    cache = SequenceStore(store)
+    cache.put(_fake_sequence(tmp_path / "s", _key(1), 1000), _key(1))
+    real = shutil.copyfile
+
+    def evicting(src, dst, **kwargs):
+        SequenceStore(store, max_bytes=0).evict()  # another process evicts it midway
+        return real(src, dst, **kwargs)
+
+    monkeypatch.setattr(shutil, "copyfile", evicting)
+    assert not cache.fetch(_key(1), tmp_path / "copy")
+    assert not (tmp_path / "copy").exists() and not list(tmp_path.glob(".copy*"))
+
+
+def test_a_writer_of_a_key_being_stored_leaves_it_to_the_other_without_a_warning(
+    tmp_path: Path, store: Path, caplog
+):
+    cache = SequenceStore(store)
+    source = _fake_sequence(tmp_path / "s", _key(1), 1000)
+    store.mkdir()
+    with OutputLock(cache.entry(_key(1))):  # another process is storing it
+        assert not cache.put(source, _key(1))
+    assert cache.writable and not caplog.records
+    assert cache.put(source, _key(1)) and cache.has(_key(1))
+    # PNGs written at another zlib level are other bytes (the same pixels): not this entry.
+    assert not cache.has(_key(1), png_compression=0)
+    assert not cache.fetch(_key(1), tmp_path / "copy", png_compression=0)
+
+
+def _put(store: str, source: str, key: str) -> bool:
+    return SequenceStore(Path(store)).put(Path(source), key)
+
+
+def test_concurrent_writers_of_one_key_leave_one_whole_entry(tmp_path: Path, store: Path):
+    source = _fake_sequence(tmp_path / "s", _key(7), 4 << 20)
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(4) as pool:
+        stored = pool.starmap(_put, [(str(store), str(source), _key(7))] * 8)
+    assert any(stored)
+    entry = SequenceStore(store).entry(_key(7))
+    assert sorted(p.name for p in store.iterdir()) == [entry.name, f"{entry.name}.json"]
+    assert SequenceStore(store).fetch(_key(7), tmp_path / "copy")
+    assert tree_differences(source, tmp_path / "copy") == []
