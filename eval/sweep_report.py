@@ -163,12 +163,93 @@ def pyplot():
     return plt
 
 
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
+"""Within a family's colour, one marker per detector and value of the other swept quantities."""
+BAND_ALPHA = 0.18
+FAILED_COLOUR = "#b91c1c"
+LEGEND_FONT = 7
+
+
+def family_colours(families) -> dict[str, Any]:
+    """One colour per family, from the sorted names: a family keeps its colour in every panel
+    and figure of a sweep (tab10 up to 10 families, tab20 up to 20, then repeating)."""
+    import matplotlib
+
+    names = sorted(set(families))
+    palette = matplotlib.colormaps["tab10" if len(names) <= 10 else "tab20"].colors
+    return {name: palette[i % len(palette)] for i, name in enumerate(names)}
+
+
+def _interval(c: dict[str, Any], metric: str) -> tuple[float, float]:
+    """The 95 % interval of a configuration's mean ``metric`` (``stats``), NaN where there is
+    none (one seed, or a summary written before statistics over seeds)."""
+    stats = c.get("stats")
+    entry = stats.get(metric) if isinstance(stats, dict) else None
+    if not isinstance(entry, dict):
+        return math.nan, math.nan
+    ends = [_number(entry.get(end)) for end in ("ci_low", "ci_high")]
+    return tuple(math.nan if v is None or not math.isfinite(v) else v for v in ends)  # type: ignore[return-value]
+
+
+def _band(ax, xs: list[float], configs: list[dict], metric: str, colour, alpha: float = BAND_ALPHA) -> None:
+    """The shaded 95 % interval of the mean along a curve, where the curve's points have one."""
+    ends = np.array([_interval(c, metric) for c in configs], float).reshape(-1, 2)
+    if np.isfinite(ends).all(axis=1).any():
+        ax.fill_between(xs, ends[:, 0], ends[:, 1], color=colour, alpha=alpha, lw=0)
+
+
+def _parameters_key(c: dict[str, Any]) -> str:
+    return json.dumps(c.get("parameters") or {}, sort_keys=True)
+
+
+def _none_baselines(configs: list[dict[str, Any]]) -> dict[tuple, dict[str, Any]]:
+    """The ``none`` configuration of each (family, tracker with its parameters, detector):
+    what a strategy's curve is compared with."""
+    return {
+        (c["family"], c["tracker"], _parameters_key(c), c["detector"]): c
+        for c in configs
+        if c["strategy"] == "none" and not c.get("settings")
+    }
+
+
+def _legend_columns(labels: list[str], width_in: float) -> int:
+    """As many legend columns as the longest label lets fit across the figure."""
+    longest = max((len(label) for label in labels), default=10)
+    return max(1, min(len(labels), int(width_in * 100 // (longest * 5.6 + 50))))
+
+
+def _legend_below(fig, handles: list, width_in: float) -> None:
+    """The figure's legend under its panels, outside the data (constrained layout makes room)."""
+    labels = [h.get_label() for h in handles]
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncols=_legend_columns(labels, width_in),
+        fontsize=LEGEND_FONT,
+        frameon=False,
+    )
+
+
+def _legend_height(entries: int, columns: int) -> float:
+    """Inches a legend of ``entries`` in ``columns`` takes under the panels."""
+    return 0.2 + 0.17 * math.ceil(entries / max(columns, 1))
+
+
 def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
     """Per (tracker, strategy, swept threshold or tracker parameter): mean ATE and rejection
-    precision/recall against the value. A curve per family, detector and value of every
-    other swept quantity, so that a curve varies one thing; a quantity that takes one value
-    (a default) gets no figure, nor does a panel with nothing to draw."""
+    precision/recall against the value, each with its 95 % interval as a band, and each
+    family's ``none`` run (same tracker, parameters and detector) as a dashed line. A curve per
+    family, detector and value of every other swept quantity, so that a curve varies one
+    thing; a family has one colour in every panel and figure, a detector or other value a
+    marker. A quantity that takes one value (a default) gets no figure, nor does a panel
+    with nothing to draw."""
     plt = pyplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    colours = family_colours(c["family"] for c in configs)
+    baselines = _none_baselines(configs)
     swept: dict[tuple[str, str, str, str], list[dict]] = defaultdict(list)
     for c in configs:
         for field in ("settings", "parameters"):
@@ -188,29 +269,94 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
                 lines[(m["family"], m["detector"], fixed)].append((_number(m[field][name]), m))
         rejection = any(m["rejection_precision"] is not None for m in members)
         panels = 2 if rejection else 1
-        fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 3.8), squeeze=False)
-        ax_ate = axes[0][0]
+        width = 5.4 * panels
+        handles: list = []
+        styles: dict[tuple, str] = {}
+        drawn_baselines: set = set()
+        plotted: list[tuple] = []
         for (family, detector, fixed), pts in sorted(lines.items(), key=lambda item: str(item[0])):
             pts.sort(key=lambda p: p[0])
             varying = " ".join(f"{k}={v}" for _, k, v in fixed if _varies(members, k))
             label = " / ".join(part for part in (family, detector, varying) if part)
+            marker = styles.setdefault((detector, fixed), MARKERS[len(styles) % len(MARKERS)])
+            plotted.append((family, detector, pts, label, marker))
+        extra = 2 + (2 if rejection else 0)
+        columns = _legend_columns([p[3] for p in plotted] + ["none (dashed): each family's run"], width)
+        height = 3.6 + _legend_height(len(plotted) + extra, columns)
+        fig, axes = plt.subplots(1, panels, figsize=(width, height), squeeze=False, layout="constrained")
+        ax_ate = axes[0][0]
+        for family, detector, pts, label, marker in plotted:
+            colour = colours[family]
             xs = [x for x, _ in pts]
-            ax_ate.plot(xs, [m["ate_rmse_m"] for _, m in pts], "o-", label=label)
+            members_of_line = [m for _, m in pts]
+            (line,) = ax_ate.plot(
+                xs,
+                [m["ate_rmse_m"] for m in members_of_line],
+                "-",
+                marker=marker,
+                ms=4,
+                c=colour,
+                label=label,
+            )
+            handles.append(line)
+            _band(ax_ate, xs, members_of_line, "ate_rmse_m", colour)
+            if strategy != "none":
+                base = [
+                    baselines.get((family, m["tracker"], _parameters_key(m), detector))
+                    for m in members_of_line
+                ]
+                values = [None if b is None else b["ate_rmse_m"] for b in base]
+                key = (family, detector, tuple(id(b) for b in base))
+                if key not in drawn_baselines and any(v is not None for v in values):
+                    drawn_baselines.add(key)
+                    if len({id(b) for b in base}) == 1:
+                        ax_ate.axhline(values[0], ls="--", lw=1.1, c=colour)
+                    else:  # a tracker parameter is swept: its none run changes with it
+                        ax_ate.plot(
+                            xs, [math.nan if v is None else v for v in values], "--", lw=1.1, c=colour
+                        )
             if rejection:
-                axes[0][1].plot(
-                    xs, [m["rejection_precision"] for _, m in pts], "o-", label=f"{label} precision"
+                ax = axes[0][1]
+                ax.plot(
+                    xs,
+                    [m["rejection_precision"] for m in members_of_line],
+                    "-",
+                    marker=marker,
+                    ms=4,
+                    c=colour,
                 )
-                axes[0][1].plot(xs, [m["rejection_recall"] for _, m in pts], "s--", label=f"{label} recall")
+                ax.plot(
+                    xs, [m["rejection_recall"] for m in members_of_line], ":", marker=marker, ms=4, c=colour
+                )
+                _band(ax, xs, members_of_line, "rejection_precision", colour, BAND_ALPHA * 0.7)
+                _band(ax, xs, members_of_line, "rejection_recall", colour, BAND_ALPHA * 0.7)
+        if drawn_baselines:
+            handles.append(Line2D([], [], ls="--", c="0.3", label="none (dashed): each family's run"))
+        handles.append(
+            Patch(color="0.3", alpha=BAND_ALPHA * 2, lw=0, label="band: 95 % interval of the mean")
+        )
         who = strategy if tracker == "builtin" else f"{tracker} · {strategy}"
-        ax_ate.set(xlabel=name, ylabel="mean ATE RMSE (m)", title=f"{who}: ATE against {name}")
-        ax_ate.legend(fontsize=6)
+        ax_ate.set(xlabel=name, ylabel="ATE RMSE (m), mean over runs", title=f"{who}: ATE against {name}")
+        _value_ticks(ax_ate, [x for *_, pts, _l, _m in plotted for x, _ in pts])
         if rejection:
-            axes[0][1].set(xlabel=name, ylabel="rejection", ylim=(0, 1.05), title="precision / recall")
-            axes[0][1].legend(fontsize=5)
-        fig.tight_layout()
+            ax = axes[0][1]
+            ax.set(
+                xlabel=name, ylabel="rejection, mean over runs", ylim=(0, 1.05), title="precision / recall"
+            )
+            _value_ticks(ax, [x for *_, pts, _l, _m in plotted for x, _ in pts])
+            handles.append(Line2D([], [], ls="-", c="0.3", label="precision (solid)"))
+            handles.append(Line2D([], [], ls=":", c="0.3", label="recall (dotted)"))
+        _legend_below(fig, handles, width)
         prefix = strategy if tracker == "builtin" else f"{tracker}-{strategy}"
         figures.append((f"{prefix}-{name}", fig))
     return figures
+
+
+def _value_ticks(ax, xs: list[float]) -> None:
+    """Ticks at the swept values when there are few of them (a grid of 3 to 8 values)."""
+    values = sorted(set(xs))
+    if 1 < len(values) <= 8:
+        ax.set_xticks(values, [f"{v:g}" for v in values])
 
 
 def _varies(members: list[dict], name: str) -> bool:
@@ -221,43 +367,332 @@ def _varies(members: list[dict], name: str) -> bool:
 
 def _number(value: Any) -> float | None:
     """A swept value as a plot's abscissa; None for text (a parameter may be a word)."""
+    if isinstance(value, bool):
+        return None
     try:
         return float(value)
     except (TypeError, ValueError):
         return None
 
 
+def short_label(c: dict[str, Any], limit: int = 40) -> str:
+    """A configuration's label in at most ``limit`` characters (a plot's annotation): a long
+    one loses its middle, keeping the strategy's settings at its end."""
+    label = str(c.get("label") or configuration_label("builtin", {}, c["strategy"], c.get("settings") or {}))
+    if len(label) <= limit:
+        return label
+    head = limit // 3
+    return label[:head] + "…" + label[len(label) - (limit - head - 1) :]
+
+
 def pareto_figure(configs: list[dict[str, Any]]):
-    """Mean ATE against median tracking time, the Pareto set marked; None if nothing to plot."""
+    """Mean ATE against median tracking time per configuration, a colour per family; each
+    family's Pareto set ringed and labelled; None if nothing to plot."""
     usable = [c for c in configs if c["ate_rmse_m"] is not None and c["track_ms_median"] is not None]
     if not usable:
         return None
     plt = pyplot()
+    from matplotlib.lines import Line2D
+
+    colours = family_colours(c["family"] for c in configs)
     front = pareto(configs)
-    fig, ax = plt.subplots(figsize=(6, 4.5))
+    detectors = len({c["detector"] for c in usable}) > 1
+    families = sorted({c["family"] for c in usable})
+    fig, ax = plt.subplots(figsize=(8.6, 4.8), layout="constrained")
+    for family in families:
+        mine = [c for c in usable if c["family"] == family]
+        ax.scatter(
+            [c["track_ms_median"] for c in mine],
+            [c["ate_rmse_m"] for c in mine],
+            s=14,
+            color=colours[family],
+            alpha=0.55,
+            lw=0,
+        )
     ax.scatter(
-        [c["track_ms_median"] for c in usable], [c["ate_rmse_m"] for c in usable], s=12, c="0.6", label="all"
-    )
-    ax.scatter(
-        [c["track_ms_median"] for c in front], [c["ate_rmse_m"] for c in front], s=30, c="C3", label="Pareto"
+        [c["track_ms_median"] for c in front],
+        [c["ate_rmse_m"] for c in front],
+        s=44,
+        c=[colours[c["family"]] for c in front],
+        edgecolors="black",
+        linewidths=0.9,
+        zorder=3,
     )
     positive = all(c["ate_rmse_m"] > 0 for c in usable)
     ax.set(
         xlabel="median tracking ms per frame",
-        ylabel="mean ATE RMSE (m)",
+        ylabel="ATE RMSE (m), mean over runs",
         yscale="log" if positive else "linear",
     )
-    ax.set_title("accuracy against time, per configuration and family")
-    ax.legend()
-    fig.tight_layout()
+    ax.set_title("accuracy against time, per configuration (ringed: a family's Pareto set)")
+    placed: list[tuple[float, float]] = []
+    fig.canvas.draw()  # the scales are set: labels are spread in pixels
+    box = ax.get_window_extent()
+    for c in sorted(front, key=lambda c: (c["ate_rmse_m"], c["track_ms_median"])):
+        text = short_label(c) + (f" ({c['detector']})" if detectors else "")
+        x, y = ax.transData.transform((c["track_ms_median"], c["ate_rmse_m"]))
+        left = x > box.x0 + 0.6 * box.width  # near the right edge: the label goes left of its point
+        dy = 4.0
+        while any(abs(px - x) < 160 and abs(py - (y + dy)) < 10 for px, py in placed):
+            dy += 10.0
+        placed.append((x, y + dy))
+        ax.annotate(
+            text,
+            (c["track_ms_median"], c["ate_rmse_m"]),
+            xytext=(-5 if left else 5, dy * 72 / fig.dpi),
+            textcoords="offset points",
+            ha="right" if left else "left",
+            fontsize=6.5,
+            color="0.15",
+            arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.5} if dy > 4.0 else None,
+        )
+    handles = [Line2D([], [], ls="", marker="o", ms=6, color=colours[f], label=f) for f in families] + [
+        Line2D([], [], ls="", marker="o", ms=7, mfc="white", mec="black", label="Pareto set (labelled)")
+    ]
+    ax.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=LEGEND_FONT, frameon=False
+    )
     return fig
 
 
-def plot(configs: list[dict[str, Any]], out: Path) -> list[Path]:
-    """The threshold curves and the Pareto picture as PNG files under ``out``."""
+def _config_key(
+    family: str, tracker: str, parameters: Any, detector: str, strategy: str, settings: Any
+) -> str:
+    return json.dumps([family, tracker, parameters or {}, detector, strategy, settings or {}], sort_keys=True)
+
+
+def _loads(text: Any) -> Any:
+    """A row's JSON column (settings, parameters) as a value; text that is not JSON as is."""
+    if not isinstance(text, str):
+        return text
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def runs_of_configurations(
+    configs: list[dict[str, Any]], rows: list[dict[str, Any]]
+) -> dict[str, list[dict[str, Any]]]:
+    """Each configuration's rows (by ``_config_key``), rows of no configuration left out."""
+    wanted = {
+        _config_key(
+            c["family"], c["tracker"], c.get("parameters"), c["detector"], c["strategy"], c.get("settings")
+        )
+        for c in configs
+    }
+    out: dict[str, list[dict]] = defaultdict(list)
+    for r in rows:
+        key = _config_key(
+            r.get("family"),
+            r.get("tracker"),
+            _loads(r.get("parameters") or "{}"),
+            r.get("detector"),
+            r.get("strategy"),
+            _loads(r.get("settings") or "{}"),
+        )
+        if key in wanted:
+            out[key].append(r)
+    return out
+
+
+def figure_name(prefix: str, text: str) -> str:
+    """A file name from a family's name (``runs-walkers_actors.0.count_1``)."""
+    safe = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in text).strip("._") or "family"
+    return f"{prefix}-{safe[:80]}"
+
+
+def strip_figures(
+    configs: list[dict[str, Any]],
+    rows: list[dict[str, Any]],
+    rule: SuccessRule | None = None,
+    only: set[str] | None = None,
+) -> list[tuple[str, str, Any]]:
+    """Per family, ATE RMSE of every run of every configuration: each seed a point (hollow
+    where the run lost track, ``rule``), a failed run a red × at the right edge, the mean and
+    its 95 % interval as a black bar, and the family's ``none`` mean as a dashed line.
+    (family, file name, figure) triples, families sorted; ``only``: these families (each
+    keeps the colour it has among all of ``configs``)."""
+    plt = pyplot()
+    from matplotlib.lines import Line2D
+    from matplotlib.transforms import blended_transform_factory
+
+    rule = rule or SuccessRule()
+    colours = family_colours(c["family"] for c in configs)
+    runs = runs_of_configurations(configs, rows)
+    names: set[str] = set()
+    figures = []
+    for family in sorted({c["family"] for c in configs}):
+        if only is not None and family not in only:
+            continue
+        mine = [c for c in configs if c["family"] == family]
+        # The none configurations first (the reference), then in the summary's order.
+        mine.sort(key=lambda c: c["strategy"] != "none")
+        detectors = len({c["detector"] for c in mine}) > 1
+        colour = colours[family]
+        entries = []
+        for c in mine:
+            key = _config_key(
+                family, c["tracker"], c.get("parameters"), c["detector"], c["strategy"], c.get("settings")
+            )
+            members = sorted(runs.get(key, []), key=lambda r: (str(r.get("seed")), str(r.get("sequence"))))
+            label = short_label(c, 44) + (f" ({c['detector']})" if detectors else "")
+            entries.append((c, label, members))
+        values = [
+            r["ate_rmse_m"]
+            for _, _, members in entries
+            for r in members
+            if not r.get("failure") and _finite(r.get("ate_rmse_m"))
+        ]
+        width = 8.0
+        legend_entries = 3 + any(
+            r.get("failure") or not _finite(r.get("ate_rmse_m")) for _, _, m in entries for r in m
+        )
+        height = 1.1 + 0.34 * len(entries) + _legend_height(legend_entries + 2, 3)
+        fig, ax = plt.subplots(figsize=(width, height), layout="constrained")
+        positive = bool(values) and min(values) > 0
+        log = positive and max(values) / min(values) > 10
+        top = (
+            (
+                max(values) * (1.25 if log else 1.0)
+                + (0 if log else 0.08 * (max(values) - min(values) or max(values) or 1.0))
+            )
+            if values
+            else 1.0
+        )
+        held_at = blended_transform_factory(ax.transAxes, ax.transData)
+        failures = lost = 0
+        for y, (c, _, members) in enumerate(entries):
+            offsets = np.linspace(-0.22, 0.22, len(members)) if len(members) > 1 else np.zeros(len(members))
+            good = [
+                (r, o)
+                for r, o in zip(members, offsets, strict=True)
+                if not r.get("failure") and _finite(r.get("ate_rmse_m"))
+            ]
+            failed = [(r, o) for r, o in zip(members, offsets, strict=True) if (r, o) not in good]
+            held = [(r, o) for r, o in good if rule.holds(r)]
+            slipped = [(r, o) for r, o in good if not rule.holds(r)]
+            if held:
+                ax.scatter(
+                    [r["ate_rmse_m"] for r, _ in held],
+                    [y + o for _, o in held],
+                    s=22,
+                    color=colour,
+                    lw=0,
+                    zorder=3,
+                )
+            if slipped:
+                lost += len(slipped)
+                ax.scatter(
+                    [r["ate_rmse_m"] for r, _ in slipped],
+                    [y + o for _, o in slipped],
+                    s=22,
+                    facecolors="none",
+                    edgecolors=colour,
+                    lw=1.1,
+                    zorder=3,
+                )
+            if failed:
+                failures += len(failed)
+                ax.scatter(
+                    [top] * len(failed),
+                    [y + o for _, o in failed],
+                    s=30,
+                    marker="x",
+                    color=FAILED_COLOUR,
+                    lw=1.3,
+                    zorder=4,
+                )
+            mean = _number(c.get("ate_rmse_m"))
+            if mean is not None and math.isfinite(mean):
+                low, high = _interval(c, "ate_rmse_m")
+                if math.isfinite(low) and math.isfinite(high):
+                    ax.plot([low, high], [y, y], "-", c="black", lw=1.3, zorder=2)
+                ax.plot([mean], [y], "|", c="black", ms=13, mew=1.6, zorder=4)
+            successes = sum(rule.holds(r) for r in members)
+            ax.text(1.01, y, f"{successes}/{len(members)}", transform=held_at, fontsize=7, va="center")
+        ax.text(1.01, -0.75, "held", transform=held_at, fontsize=7, va="center", fontweight="bold")
+        nones = [
+            c
+            for c in mine
+            if c["strategy"] == "none" and not c.get("settings") and _finite(c.get("ate_rmse_m"))
+        ]
+        if len(nones) == 1:
+            ax.axvline(nones[0]["ate_rmse_m"], ls="--", lw=1.0, c=colour, zorder=1)
+        ax.set_yticks(range(len(entries)), [label for _, label, _ in entries], fontsize=7.5)
+        ax.set_ylim(len(entries) - 0.5, -0.5)  # the first configuration on top
+        if log:
+            ax.set_xscale("log")
+        if failures:
+            ax.set_xlim(right=top * (1.15 if log else 1.0) + (0 if log else 0.04 * abs(top)))
+        ax.grid(axis="x", color="0.9", lw=0.6)
+        ax.set_axisbelow(True)
+        seeds = sorted({str(r.get("seed")) for _, _, m in entries for r in m if r.get("seed") is not None})
+        runs_count = sum(len(m) for _, _, m in entries)
+        ax.set(xlabel="ATE RMSE (m) of each run")
+        ax.set_title(
+            f"{family}: every run ({runs_count} runs"
+            + (f", seeds {', '.join(seeds)}" if seeds else "")
+            + ")",
+            fontsize=9,
+        )
+        handles = [
+            Line2D([], [], ls="", marker="o", ms=5, color=colour, label="a run (one seed)"),
+            Line2D([], [], ls="-", marker="|", ms=9, c="black", label="mean and its 95 % interval"),
+        ]
+        if lost:
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    ls="",
+                    marker="o",
+                    ms=5,
+                    mfc="none",
+                    mec=colour,
+                    label=f"a run that tracked under {rule.min_tracked_fraction:.0%} of its frames",
+                )
+            )
+        if failures:
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    ls="",
+                    marker="x",
+                    ms=6,
+                    c=FAILED_COLOUR,
+                    label="a failed run (no ATE), drawn at the right edge",
+                )
+            )
+        if len(nones) == 1:
+            handles.append(Line2D([], [], ls="--", c=colour, label="mean of none"))
+        _legend_below(fig, handles, width)
+        name = figure_name("runs", family)
+        while name in names:
+            name += "_"
+        names.add(name)
+        figures.append((family, name, fig))
+    return figures
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def plot(
+    configs: list[dict[str, Any]],
+    out: Path,
+    rows: list[dict[str, Any]] | None = None,
+    rule: SuccessRule | None = None,
+) -> list[Path]:
+    """The threshold curves, the Pareto picture and, given the rows, each family's runs
+    (``runs-FAMILY.png``) as PNG files under ``out``."""
     plt = pyplot()
     out.mkdir(parents=True, exist_ok=True)
     figures = threshold_figures(configs)
+    if rows is not None:
+        figures += [(name, fig) for _, name, fig in strip_figures(configs, rows, rule)]
     front = pareto_figure(configs)
     if front is not None:
         figures.append(("pareto", front))
