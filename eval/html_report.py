@@ -5,10 +5,13 @@ frames are PNGs drawn by OpenCV, all inlined as data URIs. For a run it shows th
 trajectory against ground truth from above, the error over time with the
 tracking state, a strip of frames with keypoints coloured by decision and by
 true dynamic label, and the scenario's difficulty. For a sweep it adds the best
-configuration per family, ATE and rejection precision/recall against each swept
-threshold, the accuracy/time Pareto plot, and the run detail of each family's
-best configuration (tracked again from the cache; runs are deterministic, so it
-is the stored run).
+configuration per family (each mean with its 95 % interval and n, and the runs that
+held), ATE and rejection precision/recall against each swept threshold (bands, and
+each family's none run), the accuracy/time Pareto plot, each sequence's knobs, seed and
+difficulty, and a section per family (at most ``MAX_FAMILY_SECTIONS``, the others
+named): every run of every configuration, and the run detail of its best
+configuration (tracked again from the cache; runs are deterministic, so it is the
+stored run) and of its none run.
 
 Inputs are read within bounds (regular files, size limits, an .npz's declared sizes
 before any array is allocated) and checked, so a hostile or damaged file is one line
@@ -45,12 +48,14 @@ from pydantic import (
     field_validator,
 )
 
+from eval.aggregate import SuccessRule
 from eval.alignment import Alignment, align
 from eval.sweep_report import (
     configuration_label,
     pareto_figure,
     pyplot,
     settings_text,
+    strip_figures,
     threshold_figures,
     with_rho,
 )
@@ -554,11 +559,12 @@ section{background:#fff;border:1px solid #e2e8f0;border-radius:8px;padding:14px 
 h2{font-size:17px;margin:0 0 10px}h3{font-size:15px;margin:14px 0 6px}
 table{border-collapse:collapse;font-size:13px}
 td,th{border-bottom:1px solid #e5e7eb;padding:3px 10px;text-align:right}
-th{background:#f1f5f9}td:first-child,th:first-child{text-align:left}
+th{background:#f1f5f9}td:first-child,th:first-child{text-align:left;white-space:nowrap}
 img{max-width:100%;height:auto;border:1px solid #e2e8f0}.plots{display:flex;flex-wrap:wrap;gap:12px}
 .legend span{display:inline-block;margin-right:14px}.swatch{display:inline-block;width:11px;height:11px;
 border-radius:50%;margin-right:4px;vertical-align:-1px}.fail{color:#b91c1c;font-weight:600}.pass{color:#15803d}
 .notes{background:#fffbeb;border-color:#f59e0b}
+section section{border-color:#cbd5e1;margin:12px 0 0}td small{color:#64748b;white-space:nowrap}
 """
 
 
@@ -568,7 +574,13 @@ def _img(data: bytes, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/{kind};base64,{encoded}">'
 
 
+class Markup(str):
+    """Table cell text that is HTML already (its parts escaped where it was built)."""
+
+
 def _fmt(value: Any, digits: int = 4) -> str:
+    if isinstance(value, Markup):
+        return value
     if value is None:
         return "–"
     if isinstance(value, float):
@@ -701,6 +713,7 @@ CONFIG_HEADER = [
     "family",
     "configuration",
     "detector",
+    "runs held",
     "ATE (m)",
     "ρ (%)",
     "precision",
@@ -715,10 +728,26 @@ jobs, each its own configuration)."""
 Number = StrictFloat | StrictInt | None
 
 
-class _Configuration(BaseModel):
-    """A configuration as ``eval.sweep_report.configurations`` writes it into summary.json."""
+class _Stats(BaseModel):
+    """One figure over a configuration's runs (``eval.aggregate.Stats``)."""
 
     model_config = ConfigDict(extra="allow")
+    n: StrictInt
+    mean: Number = None
+    ci_low: Number = None
+    ci_high: Number = None
+
+
+class _Configuration(BaseModel):
+    """A configuration as ``eval.sweep_report.configurations`` writes it into summary.json.
+    Its runs and statistics over seeds are optional: a sweep before them has none."""
+
+    model_config = ConfigDict(extra="allow")
+    label: StrictStr | None = None
+    runs: StrictInt | None = None
+    successes: StrictInt | None = None
+    success_rate: Number = None
+    stats: dict[StrictStr, _Stats] | None = None
     family: StrictStr
     tracker: StrictStr
     detector: StrictStr
@@ -746,11 +775,19 @@ class _Configuration(BaseModel):
         return settings
 
 
+class _SuccessRule(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    min_tracked_fraction: StrictFloat | StrictInt
+    best_min_success_rate: StrictFloat | StrictInt
+
+
 class _Summary(BaseModel):
     model_config = ConfigDict(extra="allow")
     configurations: list[_Configuration]
     best: dict[StrictStr, _Configuration]
     pareto: list[_Configuration]
+    unqualified: dict[StrictStr, Number] | None = None
+    success_rule: _SuccessRule | None = None
 
 
 def _first_problem(source: str, exc: ValidationError) -> str:
@@ -836,21 +873,21 @@ class SweepSequences:
 
 
 def _row_of(rows: list[dict[str, Any]], family: str, config: dict[str, Any]) -> dict[str, Any] | None:
-    """A stored row of ``config`` in ``family`` (settings compared as sorted JSON)."""
+    """A stored row of ``config`` in ``family`` (settings compared as sorted JSON): one that
+    did not fail and has an ATE where there is one (a configuration shown for a family where
+    none held may have failed on some seeds)."""
     settings = json.dumps(config["settings"], sort_keys=True)
-    return next(
-        (
-            r
-            for r in rows
-            if r["family"] == family
-            and r["strategy"] == config["strategy"]
-            and r["detector"] == config["detector"]
-            and r["tracker"] == config["tracker"]
-            and json.dumps(json.loads(r["settings"]), sort_keys=True) == settings
-            and json.loads(r.get("parameters") or "{}") == (config.get("parameters") or {})
-        ),
-        None,
-    )
+    matching = [
+        r
+        for r in rows
+        if r["family"] == family
+        and r["strategy"] == config["strategy"]
+        and r["detector"] == config["detector"]
+        and r["tracker"] == config["tracker"]
+        and json.dumps(json.loads(r["settings"]), sort_keys=True) == settings
+        and json.loads(r.get("parameters") or "{}") == (config.get("parameters") or {})
+    ]
+    return min(matching, key=lambda r: bool(r.get("failure")) or r.get("ate_rmse_m") is None, default=None)
 
 
 @dataclass(frozen=True)
@@ -900,9 +937,17 @@ def _missing_job(row: dict[str, Any], fingerprint: str | None) -> str:
 
 
 def _track_family(
-    family: str, config: dict, chosen: dict, rows: list[dict], sequence: Sequence, grid: _Grid, notes: Notes
+    family: str,
+    config: dict,
+    chosen: dict,
+    rows: list[dict],
+    sequence: Sequence,
+    grid: _Grid,
+    notes: Notes,
+    role: str = "best",
 ) -> list[RunView]:
-    """The best run of a family and its none run, tracked again on ``sequence``."""
+    """The featured run of a family (its best configuration's, or ``role``) and its none run,
+    tracked again on ``sequence``."""
     from eval.cache import StageCache
     from eval.harness import track
     from eval.sweep import jobs_for
@@ -925,19 +970,20 @@ def _track_family(
     wanted = [chosen] + ([baseline] if baseline is not None and baseline["key"] != chosen["key"] else [])
     views = []
     for row in wanted:
-        label = "best" if row is chosen else "baseline (none)"
+        label = role if row is chosen else "baseline (none)"
         job = jobs.get(row["key"]) or _job_of_row(row, grid, sequence, fingerprint)
         if job is None:
             notes.add(f"{family}: the {label} run is not tracked again: {_missing_job(row, fingerprint)}")
             continue
         tracked = track(job.job, StageCache.from_env())
-        shown = settings_text(config["settings"]) if label == "best" else ""
+        shown = settings_text(config["settings"]) if row is chosen else ""
         tracker = job.job.tracker
         parameters = settings_text(dict(tracker.parameters)) if tracker.parameters else ""
-        title = (
-            f"{family}: {label} — {tracker.label} {parameters} · {job.job.strategy} {shown} · "
-            f"{job.job.detector.label}"
-        )
+        parts = (f"{tracker.label} {parameters}", f"{job.job.strategy} {shown}", job.job.detector.label)
+        title = f"{family}: {label} — " + " · ".join(part.strip() for part in parts)
+        seed = row.get("seed")
+        if seed is not None:
+            title += f" (seed {seed})"
         if tracker.kind is not TrackerKind.BUILTIN:  # the built-in tracker repeats itself bit for bit
             title += " (run again for this page: an external program may not repeat its stored figures)"
         views.append(view_of(title, tracked, sequence))
@@ -945,17 +991,24 @@ def _track_family(
 
 
 def _featured_runs(
-    folder: Path, rows: list[dict[str, Any]], best: dict[str, dict], sequences: SweepSequences, notes: Notes
-) -> list[RunView]:
-    """Each family's best configuration, and its none run, tracked again from the cache."""
+    folder: Path,
+    rows: list[dict[str, Any]],
+    featured: dict[str, tuple[dict, str]],
+    sequences: SweepSequences,
+    notes: Notes,
+) -> dict[str, list[RunView]]:
+    """Per family, the run of its featured configuration (``featured``: the configuration and
+    what it is, ``best``), and its none run, tracked again from the cache."""
     from eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
 
+    if not featured:
+        return {}
     spec = stored_spec(folder / "results.sqlite")
     if spec is None:
         notes.add(
             "run details: results.sqlite keeps no sweep spec (meta 'spec') to track the best runs again"
         )
-        return []
+        return {}
     source = stored_spec_path(folder / "results.sqlite") or str(folder / "results.sqlite")
     try:
         trackers = tracker_configs(spec, source)
@@ -966,20 +1019,20 @@ def _featured_runs(
         # A spec names its files relative to the spec file, which the sweep folder does not
         # keep (``onnx:models/x.onnx``): every result is still in the database.
         notes.add(f"run details: the sweep's spec cannot build its trackers and detectors again ({exc})")
-        return []
-    views = []
-    for family, config in sorted(best.items()):
+        return {}
+    views: dict[str, list[RunView]] = {}
+    for family, (config, role) in sorted(featured.items()):
         chosen = _row_of(rows, family, config)
         if chosen is None:
             notes.add(
-                f"{family}: run details: no row of results.sqlite has summary.json's best configuration"
+                f"{family}: run details: no row of results.sqlite has summary.json's {role} configuration"
             )
             continue
         sequence = sequences.get(chosen["sequence"])
         if sequence is None:
             continue  # noted by ``sequences``
         try:
-            views += _track_family(family, config, chosen, rows, sequence, grid, notes)
+            views[family] = _track_family(family, config, chosen, rows, sequence, grid, notes, role)
         except FileError as exc:  # a frame file that cannot be read: the sequence is damaged
             if not _inside(exc.path, sequence.root):
                 raise
@@ -993,7 +1046,122 @@ def _configuration(c: dict[str, Any]) -> str:
     return c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
 
 
-def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
+MAX_FAMILY_SECTIONS = 12
+"""Families with a section of their own (every run plotted, the featured run and its none run
+tracked again); a sweep over more names the others in the page's notes."""
+
+
+def _finite(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def mean_cell(c: dict[str, Any], metric: str, value: Any = None, kind: str = "") -> Any:
+    """A mean as the tables show it: with its 95 % interval and n where the configuration has
+    its statistics over runs (``0.0258 [0.0229, 0.0275] n=3``). ``value``: the mean shown
+    (default ``c[metric]``); ``kind``: ``percent`` (to 0.01) or ``complement`` (1 - the
+    figure: the tracked fraction from the lost one)."""
+    stats = c.get("stats") if isinstance(c.get("stats"), dict) else {}
+    entry = stats.get(metric)
+    shown = c.get(metric) if value is None else value
+    if not _finite(shown):
+        return shown
+    number = (lambda v: f"{v:.2f}") if kind == "percent" else (lambda v: f"{v:.4g}")  # noqa: E731
+    if not isinstance(entry, dict) or not isinstance(entry.get("n"), int):
+        return round(shown, 2) if kind == "percent" else shown
+    low, high = entry.get("ci_low"), entry.get("ci_high")
+    if kind == "complement" and _finite(low) and _finite(high):
+        low, high = 1.0 - high, 1.0 - low
+    interval = f"[{number(low)}, {number(high)}] " if _finite(low) and _finite(high) else ""
+    return Markup(f"{html.escape(number(shown))}<br><small>{interval}n={entry['n']}</small>")
+
+
+def held_cell(c: dict[str, Any]) -> str | None:
+    """``3/4``: the configuration's runs that held, of all (None before statistics over seeds)."""
+    runs, successes = c.get("runs"), c.get("successes")
+    return f"{successes}/{runs}" if isinstance(runs, int) and isinstance(successes, int) else None
+
+
+def _rule(summary: dict[str, Any]) -> SuccessRule:
+    stored = summary.get("success_rule") or {}
+    return SuccessRule(float(stored.get("min_tracked_fraction", SuccessRule().min_tracked_fraction)))
+
+
+def _held_text(summary: dict[str, Any]) -> str:
+    """What ``held`` means in this sweep (its spec's statistics)."""
+    stored = summary.get("success_rule")
+    if not isinstance(stored, dict):
+        return ""
+    return (
+        f"<p>A run holds when it did not fail, has an ATE and tracked at least "
+        f"{stored['min_tracked_fraction']:.0%} of its frames; the best configuration of a family is the "
+        f"lowest mean ATE among those that held on at least {stored['best_min_success_rate']:.0%} of their "
+        "runs. A mean is shown with its 95 % bootstrap interval and n, the runs it is over.</p>"
+    )
+
+
+def _unqualified_text(summary: dict[str, Any]) -> str:
+    """The families where no configuration held on enough runs, named."""
+    missing = summary.get("unqualified") or {}
+    if not missing:
+        return ""
+    items = "".join(
+        f"<li>{html.escape(family)}: the best held on {rate:.0%} of its runs</li>"
+        for family, rate in sorted(missing.items())
+        if _finite(rate)
+    )
+    families = f"{len(missing)} {'family' if len(missing) == 1 else 'families'}"
+    head = f"<p class='fail'>No configuration held on enough runs in {families}:</p>"
+    return f"{head}<ul>{items}</ul>"
+
+
+def _featured_configuration(
+    family: str, configs: list[dict[str, Any]], best: dict[str, dict]
+) -> tuple[dict, str] | None:
+    """The configuration a family's section tracks again: its best, or where none held on
+    enough runs the one that held most often (then the lowest mean ATE); None if every run
+    failed."""
+    if family in best:
+        return best[family], "best"
+    usable = [c for c in configs if c["family"] == family and _finite(c["ate_rmse_m"])]
+    if not usable:
+        return None
+    chosen = min(usable, key=lambda c: (-(c.get("success_rate") or 0.0), c["ate_rmse_m"]))
+    return chosen, f"most reliable (held on {held_cell(chosen) or '?'}; none held on enough runs)"
+
+
+def _family_section(
+    family: str,
+    configs: list[dict[str, Any]],
+    featured: tuple[dict, str] | None,
+    strip: bytes | None,
+    views: list[RunView],
+    notes: Notes,
+) -> str:
+    """A family: every run of every configuration, and its featured run and none run."""
+    mine = [c for c in configs if c["family"] == family]
+    runs = sum(c.get("runs") or c.get("sequences") or 0 for c in mine)
+    if featured is None:
+        chosen = "<p class='fail'>Every run of every configuration failed: there is no run to show.</p>"
+    else:
+        config, role = featured
+        held = held_cell(config)
+        chosen = (
+            f"<p>{html.escape(role.split(' (')[0].capitalize())}: "
+            f"<b>{html.escape(_configuration(config))}</b> ({html.escape(config['detector'])})"
+            + (f", held on {held} runs" if held else "")
+            + (f" — {html.escape(role)}" if role != "best" else "")
+            + "</p>"
+        )
+    picture = _img(strip, f"runs of {family}") if strip is not None else ""
+    details = "".join(run_section(view, view.title, notes) for view in views)
+    return (
+        f"<section><h2>Family: {html.escape(family)}</h2>"
+        f"<p>{len(mine)} configurations, {runs} runs.</p>{chosen}{picture}{details}</section>"
+    )
+
+
+def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) -> str:
+    """The sweep's page; ``featured``: how many families (sorted by name) get a section."""
     from eval.store import ResultStore
 
     summary = read_summary(folder / "summary.json")
@@ -1002,19 +1170,20 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]
+    rule = _rule(summary)
     sections = []
     best_rows = [
         [
             family,
             _configuration(c),
             c["detector"],
-            c["sequences"],
-            c["ate_rmse_m"],
-            percent(c["rho_percent"]),
-            c["rejection_precision"],
-            c["rejection_recall"],
-            c["tracked_fraction"],
-            c["track_ms_median"],
+            held_cell(c),
+            mean_cell(c, "ate_rmse_m"),
+            mean_cell(c, "rho_percent", kind="percent"),
+            mean_cell(c, "rejection_precision"),
+            mean_cell(c, "rejection_recall"),
+            mean_cell(c, "lost_fraction", c["tracked_fraction"], "complement"),
+            mean_cell(c, "track_ms_median"),
         ]
         for family, c in sorted(best.items())
     ]
@@ -1022,7 +1191,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
         "family",
         "configuration",
         "detector",
-        "seqs",
+        "runs held",
         "ATE (m)",
         "ρ (%)",
         "precision",
@@ -1030,10 +1199,17 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
         "tracked",
         "ms",
     ]
-    sections.append(f"<section><h2>Best configuration per family</h2>{table(header, best_rows)}</section>")
+    sections.append(
+        f"<section><h2>Best configuration per family</h2>{table(header, best_rows)}"
+        f"{_unqualified_text(summary)}{_held_text(summary)}</section>"
+    )
     plots = [_img(figure_png(fig), name) for name, fig in threshold_figures(configs)]
     if plots:
-        sections.append(f"<section><h2>Against each swept threshold</h2>{''.join(plots)}</section>")
+        sections.append(
+            "<section><h2>Against each swept threshold</h2><p>Each line: a family's mean over its runs, "
+            "the band its 95 % interval; dashed: the family's run without rejection (none).</p>"
+            f"{''.join(plots)}</section>"
+        )
     front = pareto_figure(configs)
     if front is not None:
         pareto_rows = [
@@ -1041,8 +1217,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
                 c["family"],
                 _configuration(c),
                 c["detector"],
-                c["ate_rmse_m"],
-                c["track_ms_median"],
+                mean_cell(c, "ate_rmse_m"),
+                mean_cell(c, "track_ms_median"),
             ]
             for c in summary["pareto"]
         ]
@@ -1053,23 +1229,38 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     difficulty = _difficulty_rows(rows, sequences)
     if difficulty:
         sections.append(f"<section><h2>Scenario difficulty</h2>{difficulty}</section>")
-    for view in _featured_runs(folder, rows, dict(sorted(best.items())[:featured]), sequences, notes):
-        sections.append(run_section(view, view.title, notes))
+    families = sorted({c["family"] for c in configs})
+    shown, left = families[:featured], families[featured:]
+    if left:
+        notes.add(
+            f"the sections of {len(left)} of {len(families)} families (the page shows every run of at most "
+            f"{featured} families, the first by name; the tables hold them all): {', '.join(left)}"
+        )
+    chosen = {family: _featured_configuration(family, configs, best) for family in shown}
+    views = _featured_runs(folder, rows, {f: c for f, c in chosen.items() if c is not None}, sequences, notes)
+    strips = {
+        family: figure_png(fig) for family, _, fig in strip_figures(configs, rows, rule, only=set(shown))
+    }
+    for family in shown:
+        sections.append(
+            _family_section(family, configs, chosen[family], strips.get(family), views.get(family, []), notes)
+        )
     all_rows = [
         [
             c["family"],
             _configuration(c),
             c["detector"],
-            c["ate_rmse_m"],
-            percent(c["rho_percent"]),
-            c["rejection_precision"],
-            c["rejection_recall"],
-            c["track_ms_median"],
+            held_cell(c),
+            mean_cell(c, "ate_rmse_m"),
+            mean_cell(c, "rho_percent", kind="percent"),
+            mean_cell(c, "rejection_precision"),
+            mean_cell(c, "rejection_recall"),
+            mean_cell(c, "track_ms_median"),
         ]
         for c in configs
     ]
     sections.append(
-        "<section><h2>Every configuration (means over each family's sequences)</h2>"
+        "<section><h2>Every configuration (means over each family's runs)</h2>"
         f"{table(CONFIG_HEADER, all_rows)}"
         "</section>"
     )
@@ -1079,16 +1270,44 @@ def sweep_page(folder: Path, notes: Notes, featured: int = 3) -> str:
     return page(f"depotbench sweep: {folder.name}", subtitle, sections, notes)
 
 
+def _knobs(row: dict[str, Any]) -> str:
+    """A row's suite knobs as ``name=value`` words, the seed left to its own column."""
+    text = row.get("knobs")
+    try:
+        knobs = json.loads(text) if isinstance(text, str) and text else {}
+    except ValueError:
+        return str(text)
+    if not isinstance(knobs, dict):
+        return str(text)
+    return settings_text({k: v for k, v in sorted(knobs.items()) if k != "seed"})
+
+
 def _difficulty_rows(rows: list[dict[str, Any]], sequences: SweepSequences) -> str:
-    table_rows, columns = [], []
+    """Per sequence, its seed and suite knobs (from the rows) and its scenario's difficulty
+    (from its meta.json; ``–`` where the sequence is gone or none was recorded)."""
+    found: list[tuple[str, Any, str, dict | None]] = []
     for recorded in sorted({r["sequence"] for r in rows}):
+        mine = [r for r in rows if r["sequence"] == recorded]
+        seed = next((r.get("seed") for r in mine if r.get("seed") is not None), None)
+        knobs = next((_knobs(r) for r in mine if _knobs(r)), "")
         opened = sequences.get(recorded)
         difficulty = (opened.meta or {}).get("difficulty") if opened is not None else None
-        if not isinstance(difficulty, dict):
-            continue  # gone or damaged (noted), or not a generated sequence (none recorded)
-        columns = columns or sorted(difficulty)
-        table_rows.append([Path(recorded).name, *[difficulty.get(c) for c in columns]])
-    return table(["sequence", *[c.replace("_", " ") for c in columns]], table_rows) if table_rows else ""
+        found.append((recorded, seed, knobs, difficulty if isinstance(difficulty, dict) else None))
+    columns = sorted({name for *_, difficulty in found if difficulty for name in difficulty})
+    suite = any(seed is not None or knobs for _, seed, knobs, _ in found)
+    if not columns and not suite:
+        return ""  # gone or damaged (noted), or not generated sequences (none recorded)
+    header = ["sequence", *(["seed", "knobs"] if suite else []), *[c.replace("_", " ") for c in columns]]
+    table_rows = [
+        [
+            Path(recorded).name,
+            *([seed, knobs] if suite else []),
+            *[(difficulty or {}).get(c) for c in columns],
+        ]
+        for recorded, seed, knobs, difficulty in found
+        if difficulty or suite
+    ]
+    return table(header, table_rows)
 
 
 def render_report(source: Path) -> Rendered:
