@@ -277,7 +277,8 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         for (family, detector, fixed), pts in sorted(lines.items(), key=lambda item: str(item[0])):
             pts.sort(key=lambda p: p[0])
             varying = " ".join(f"{k}={v}" for _, k, v in fixed if _varies(members, k))
-            label = " / ".join(part for part in (family, detector, varying) if part)
+            shown = detector if len({m["detector"] for m in members}) > 1 else ""
+            label = " / ".join(part for part in (family, shown, varying) if part)
             marker = styles.setdefault((detector, fixed), MARKERS[len(styles) % len(MARKERS)])
             plotted.append((family, detector, pts, label, marker))
         extra = 2 + (2 if rejection else 0)
@@ -285,6 +286,7 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         height = 3.6 + _legend_height(len(plotted) + extra, columns)
         fig, axes = plt.subplots(1, panels, figsize=(width, height), squeeze=False, layout="constrained")
         ax_ate = axes[0][0]
+        several = len({p[1] for p in plotted}) > 1  # detectors: a none line is marked as its detector
         for family, detector, pts, label, marker in plotted:
             colour = colours[family]
             xs = [x for x, _ in pts]
@@ -309,12 +311,12 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
                 key = (family, detector, tuple(id(b) for b in base))
                 if key not in drawn_baselines and any(v is not None for v in values):
                     drawn_baselines.add(key)
+                    ends = {"marker": marker, "mfc": "white", "ms": 5} if several else {}
                     if len({id(b) for b in base}) == 1:
-                        ax_ate.axhline(values[0], ls="--", lw=1.1, c=colour)
+                        ax_ate.axhline(values[0], ls="--", lw=1.1, c=colour, **ends)
                     else:  # a tracker parameter is swept: its none run changes with it
-                        ax_ate.plot(
-                            xs, [math.nan if v is None else v for v in values], "--", lw=1.1, c=colour
-                        )
+                        nones = [math.nan if v is None else v for v in values]
+                        ax_ate.plot(xs, nones, "--", lw=1.1, c=colour, **ends)
             if rejection:
                 ax = axes[0][1]
                 ax.plot(
