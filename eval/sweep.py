@@ -230,7 +230,8 @@ def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
                 found = [str(spec_path.parent / p) for p in glob.glob(pattern, root_dir=spec_path.parent)]
             folders = sorted(Path(p) for p in found if Path(p).is_dir())
             if not folders:
-                raise InputError(f"{where}: {name!r} matches no folder (relative to {spec_path.parent})")
+                start = spec_path.parent.absolute()
+                raise InputError(f"{where}: {name!r} matches no folder (relative to {start})")
         else:
             folders = [resolve(spec, spec_path, name)]
             if not folders[0].is_dir():
