@@ -713,21 +713,27 @@ def settings_text(settings: dict[str, Any]) -> str:
 
 
 def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | None = None) -> str:
-    """The best configuration per family; ``held``: its runs that succeeded, of all."""
+    """The best configuration per family; ``held``: its runs that succeeded, of all. Columns
+    are as wide as their longest entry: a suite's family names reach 40 characters."""
+    names = {
+        family: f"{c.get('label') or configuration_label('builtin', {}, c['strategy'], c['settings'])} "
+        f"({c['detector']})"
+        for family, c in best.items()
+    }
+    fw = max([len("family"), *(len(f) for f in [*best, *(missing or {})])]) + 2
+    nw = max([len("best configuration"), *(len(n) for n in names.values())]) + 2
     lines = [
-        f"{'family':24s}{'best configuration':52s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
+        f"{'family':{fw}s}{'best configuration':{nw}s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
         f"{'held':>7s}"
     ]
     for family, c in sorted(best.items()):
-        label = c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
-        name = f"{label} ({c['detector']})"
         rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
         prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
         rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"
         held = f"{c['successes']}/{c['runs']}" if "runs" in c else "-"
         lines.append(
-            f"{family:24s}{name[:51]:52s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}{held:>7s}"
+            f"{family:{fw}s}{names[family]:{nw}s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}{held:>7s}"
         )
     for family, rate in sorted((missing or {}).items()):
-        lines.append(f"{family:24s}(no configuration held on enough seeds: the best held on {rate:.0%})")
+        lines.append(f"{family:{fw}s}(no configuration held on enough seeds: the best held on {rate:.0%})")
     return "\n".join(lines)

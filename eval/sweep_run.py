@@ -92,5 +92,5 @@ def execute_sweep(
         "search": search,
     }
     write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
-    plots = plot(configs, out / "plots")
+    plots = plot(configs, out / "plots", rows, rule)
     return SweepOutcome(rows, summary, len(jobs), written, tracked, elapsed, plots, search)

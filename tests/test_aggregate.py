@@ -87,3 +87,18 @@ def test_a_paired_change_is_a_ratio_for_errors_and_a_difference_for_rates():
     assert recall.change == pytest.approx(-0.0966666, rel=1e-4) and recall.p_worse < 0.01
     t = sps.ttest_rel(np.log(noisy), np.log(baseline), alternative="greater").pvalue
     assert paired_change("ate_rmse_m", baseline, noisy).p_worse == pytest.approx(t)
+
+
+def test_the_best_table_keeps_its_columns_for_long_family_names_and_labels():
+    """A suite's family names reach 40 characters ('walkers actors.0.count=1'): the table ran
+    them into the configuration column."""
+    from eval.sweep_report import format_best
+
+    family = "walkers actors.0.count=1 camera.motion=xyz"
+    rows = [_row(seed, ate, family=family, settings='{"k": 2.5}') for seed, ate in enumerate(ATES)]
+    best = best_per_family(configurations(rows))
+    lines = format_best(best, {"another family with a long name": 0.5}).splitlines()
+    header, row, missing = lines
+    assert row.startswith(family + "  ") and missing.startswith("another family with a long name  ")
+    assert row.index(best[family]["label"]) == header.index("best configuration")
+    assert row.split()[-1] == "4/4" and len(row) == len(header)

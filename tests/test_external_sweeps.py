@@ -397,5 +397,6 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
 
 def _numbers(row: dict[str, str]) -> dict:
     """A CSV row's figures as numbers (empty as None), as the store gives them."""
-    columns = ("ate_rmse_m", "rejection_precision", "rejection_recall", "tracked_fraction", "track_ms_median")
-    return {c: float(row[c]) if row[c] else None for c in columns}
+    from eval.aggregate import METRICS
+
+    return {c: float(row[c]) if row[c] else None for c in (*METRICS, "tracked_fraction") if c in row}

@@ -241,6 +241,13 @@ def page(sweep: Path, tmp_path_factory) -> str:
 
 
 @pytest.mark.render
+def test_the_sweep_writes_each_familys_runs_plot(sweep: Path):
+    """The sweep itself (not only the report) draws every family's runs across seeds."""
+    written = {p.name for p in (sweep / "plots").glob("runs-*.png")}
+    assert len(written) == len(COUNTS), written
+
+
+@pytest.mark.render
 def test_every_family_gets_its_section_with_every_run_and_its_best_run(page: str):
     for count in COUNTS:
         family = _family(count)
