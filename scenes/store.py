@@ -210,10 +210,13 @@ class SequenceStore:
             manifest = {"content_key": key, "bytes": size[0], "files": size[1]}
             write_text_atomic(entry.with_name(entry.name + ".json"), json.dumps(manifest) + "\n")
         except OutputError as exc:
-            if _busy(entry):
-                return False  # another process is storing this key: the same bytes
+            stored = read_marker(entry)
+            if _busy(entry) or (stored is not None and stored.content_key == key):
+                return False  # another process is storing (or has stored) this key: the same bytes
             self._unusable("store a sequence", str(exc))
             return False
+        except FileNotFoundError:
+            return False  # the entry was evicted, or the sequence removed, meanwhile
         except OSError as exc:
             self._unusable("store a sequence", exc.strerror or str(exc))
             return False
