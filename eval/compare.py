@@ -185,6 +185,8 @@ def compare_rows(base_rows: list[dict[str, Any]], other_rows: list[dict[str, Any
             unshared.append(f"{key_a[0]}: {_label(key_a)}")
             continue
         for figure in FIGURES:
+            if figure == "rho_percent" and key_a[4] == "none":
+                continue  # ρ is taken against the none run itself: 0 by definition
             a = [runs_a[name].get(figure) for name in shared]
             b = [runs_b[name].get(figure) for name in shared]
             if all(v is None for v in a + b):

@@ -15,7 +15,8 @@ def test_walking(depotbench_run):
     depotbench_run("walking_static", strategy="box_epipolar_flow")  # checked against the marker
 ```
 
-Sequences are generated once per session (and the stage cache serves every run);
+Sequences are generated once per session (and the stage cache serves every run), copied
+from the shared sequence store when it holds them, so a later session renders nothing;
 ``--depotbench-dir`` keeps them between sessions, and pytest-xdist workers may share it
 (one of them makes a sequence or run while the others wait for it). A configuration that
 cannot run (a strategy the tracker does not take, an unknown setting) is refused in one

@@ -161,8 +161,9 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
 
 def spec_inputs(spec: SweepSpec, spec_path: Path) -> tuple[Path, ...]:
     """What a sweep or gate run reads and must never write into: the spec file, the
-    sequence folders it names and its suite file."""
+    sequence and suite folders it names, what its globs match, and its suite file."""
     named = [resolve(spec, spec_path, name) for name in spec.sequences]
+    named += [entry.root for entry in named_sequences(spec, spec_path)]
     if spec.suite is not None:
         named.append(resolve(spec, spec_path, spec.suite))
     return (spec_path, *named)

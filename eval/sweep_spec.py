@@ -4,7 +4,7 @@
 sweep: epsilon
 description: How far from its epipolar line a point may be.
 suite: walking.yaml          # a suite file (relative to this file), generated into OUT/sequences
-sequences: [runs/walk]       # and/or sequence folders
+sequences: [runs/walk, runs/speeds, 'seqs/*']  # and/or sequence folders, suite folders (generate -o), globs
 trackers: [builtin]
 detectors:
   - groundtruth

@@ -31,3 +31,16 @@ def _private_stage_cache(tmp_path_factory: pytest.TempPathFactory):
         os.environ.pop("DEPOTBENCH_CACHE_DIR", None)
     else:
         os.environ["DEPOTBENCH_CACHE_DIR"] = previous
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _no_sequence_store():
+    """Tests never read or fill the user's sequence store (~/.cache/depotbench/sequences),
+    and determinism tests render what they compare; tests of the store set their own."""
+    previous = os.environ.get("DEPOTBENCH_SEQUENCE_STORE")
+    os.environ["DEPOTBENCH_SEQUENCE_STORE"] = "off"
+    yield
+    if previous is None:
+        os.environ.pop("DEPOTBENCH_SEQUENCE_STORE", None)
+    else:
+        os.environ["DEPOTBENCH_SEQUENCE_STORE"] = previous

@@ -163,6 +163,18 @@ def test_a_glob_in_sequences_takes_the_matching_folders_sorted_and_one_matching_
     assert not (tmp_path / "out").exists()
 
 
+def test_an_output_folder_inside_a_folder_a_glob_matched_is_refused(tmp_path: Path, capsys):
+    """The spec's inputs listed the glob itself, so a sweep could write into a sequence."""
+    write_sequence(tmp_path / "seqs" / "walk-a", n=3, with_flow=False)
+    spec_path = tmp_path / "sweep.yaml"
+    spec_path.write_text("sweep: s\nsequences: ['seqs/walk-*']\nstrategies: [none]\n")
+    before = sorted(p.name for p in (tmp_path / "seqs" / "walk-a").iterdir())
+    inside = tmp_path / "seqs" / "walk-a" / "out"
+    assert main(["sweep", str(spec_path), "-o", str(inside)]) == 2
+    assert "walk-a" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "seqs" / "walk-a").iterdir()) == before
+
+
 PLUGIN_CONFTEST = """
 from pathlib import Path
 
