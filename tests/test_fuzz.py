@@ -802,7 +802,9 @@ def _command_cases() -> dict[str, Case]:
             seq, (*run, "--slam", "orbslam3", "--strategy", "box_rule"), "needs the built-in tracker"
         ),
         "run-external-set": Case(
-            seq, (*run, "--slam", "cmd", "--command", "true", "--set", "k=2"), "--set k: --slam cmd takes only"
+            seq,
+            (*run, "--slam", "cmd", "--command", "true", "--set", "k=2"),
+            "--set k: --slam cmd takes only",
         ),
         "run-command-without-cmd": Case(
             seq, (*run, "--command", "slam {sequence}"), "--command applies to --slam cmd only"
