@@ -21,24 +21,17 @@ import hashlib
 import json
 import logging
 import os
-import re
 from pathlib import Path
 
+from sim.cache_home import OFF as _OFF
+from sim.cache_home import ON as _ON
+from sim.cache_home import cache_home, parse_bytes
 from sim.errors import InputError
 from sim.output import OutputError, write_bytes_atomic
 
 DEFAULT_MAX_BYTES = 2 << 30
 SWITCH = "DEPOTBENCH_CACHE"
-_OFF = ("off", "0", "no", "false")
-_ON = ("on", "1", "yes", "true", "")
-_UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
 log = logging.getLogger("depotbench.cache")
-
-
-def cache_home() -> Path:
-    """The folder of all of depotbench's caches (stages, vocabularies), as XDG says."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "depotbench"
 
 
 def default_root() -> Path:
@@ -57,14 +50,6 @@ def cache_enabled() -> bool:
     raise InputError(
         f"{SWITCH}={os.environ[SWITCH]!r}: give on or off (the cache's folder is DEPOTBENCH_CACHE_DIR)"
     )
-
-
-def parse_bytes(text: str, name: str) -> int:
-    """A size such as ``2147483648``, ``500M``, ``2GiB`` or ``1.5 GB`` (units of 1024)."""
-    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmgt]?)(?:i?b)?\s*", text, re.IGNORECASE)
-    if match is None:
-        raise InputError(f"{name}={text!r}: give a size in bytes, e.g. 2147483648, 500M or 2GiB")
-    return int(float(match.group(1)) * _UNITS[match.group(2).lower()])
 
 
 def content_hash(*parts: object) -> str:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from eval.cache import cache_home
+from sim.cache_home import cache_home
 from sim.errors import InputError
 from sim.output import OutputLock, write_text_atomic
 from sim.version import generator_version

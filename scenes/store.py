@@ -43,6 +43,9 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
+from sim.cache_home import OFF as _OFF
+from sim.cache_home import ON as _ON
+from sim.cache_home import cache_home, parse_bytes
 from sim.files import DEFAULT_PNG_COMPRESSION
 from sim.output import (
     MARKER_NAME,
@@ -59,8 +62,6 @@ from sim.output import (
 VARIABLE = "DEPOTBENCH_SEQUENCE_STORE"
 MAX_BYTES_VARIABLE = "DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES"
 DEFAULT_MAX_BYTES = 20 << 30
-_OFF = ("off", "0", "no", "false")  # as eval.cache reads DEPOTBENCH_CACHE
-_ON = ("on", "1", "yes", "true", "")
 _KEY = re.compile(r"sha256:([0-9a-f]{64})")
 _ENTRY = re.compile(r"[0-9a-f]{64}-[0-9]")
 _EVICTED = ".evicted-"
@@ -71,8 +72,6 @@ _warned: set[str] = set()
 
 def default_root() -> Path | None:
     """The store's folder as ``DEPOTBENCH_SEQUENCE_STORE`` says, or None when it is off."""
-    from eval.cache import cache_home
-
     value = os.environ.get(VARIABLE, "")
     if value.strip().lower() in _OFF:
         return None
@@ -82,8 +81,6 @@ def default_root() -> Path | None:
 
 
 def max_bytes_from_env() -> int:
-    from eval.cache import parse_bytes
-
     value = os.environ.get(MAX_BYTES_VARIABLE)
     return parse_bytes(value, MAX_BYTES_VARIABLE) if value else DEFAULT_MAX_BYTES
 

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from eval.cache import StageCache, parse_bytes
+from eval.cache import StageCache
 from eval.cli import main
+from sim.cache_home import parse_bytes
 from sim.output import OutputError
 from tests.sequences import write_sequence
 
