@@ -340,6 +340,7 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         who = strategy if tracker == "builtin" else f"{tracker} · {strategy}"
         ax_ate.set(xlabel=name, ylabel="ATE RMSE (m), mean over runs", title=f"{who}: ATE against {name}")
         _value_ticks(ax_ate, [x for *_, pts, _l, _m in plotted for x, _ in pts])
+        _log_when_spread(ax_ate, [v for line in ax_ate.get_lines() for v in line.get_ydata()])
         if rejection:
             ax = axes[0][1]
             ax.set(
@@ -355,10 +356,21 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
 
 
 def _value_ticks(ax, xs: list[float]) -> None:
-    """Ticks at the swept values when there are few of them (a grid of 3 to 8 values)."""
+    """Ticks at the swept values when there are few and they stand apart (a grid of 3 to 8
+    values); random samples (1.05 beside 1.12) keep matplotlib's own ticks."""
     values = sorted(set(xs))
-    if 1 < len(values) <= 8:
-        ax.set_xticks(values, [f"{v:g}" for v in values])
+    if not 1 < len(values) <= 8:
+        return
+    if np.diff(values).min() >= 0.06 * (values[-1] - values[0]):
+        ax.set_xticks(values, [f"{v:.4g}" for v in values])
+
+
+def _log_when_spread(ax, values: list[float | None], spread: float = 10.0) -> None:
+    """A log scale when the plotted values span more than ``spread`` times: a none run at
+    0.115 m flattened curves at 0.003 m to a line on the axis."""
+    positive = [v for v in values if v is not None and math.isfinite(v) and v > 0]
+    if positive and max(positive) > spread * min(positive):
+        ax.set_yscale("log")
 
 
 def _varies(members: list[dict], name: str) -> bool:
@@ -708,8 +720,15 @@ def plot(
 
 
 def settings_text(settings: dict[str, Any]) -> str:
-    """Threshold values as ``name=value`` words, as tables and plots show them."""
-    return " ".join(f"{k}={v}" for k, v in settings.items())
+    """Threshold values as ``name=value`` words, as tables and plots show them; a number
+    to 6 significant digits (a random sample is 1.0495829065855873; the rows keep it whole)."""
+    return " ".join(f"{k}={_shown(v)}" for k, v in settings.items())
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, float) and math.isfinite(value):
+        return f"{value:.6g}"
+    return str(value)
 
 
 def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | None = None) -> str:

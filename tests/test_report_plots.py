@@ -305,3 +305,31 @@ def test_a_family_where_nothing_held_is_named_and_still_shown(sweep: Path, tmp_p
     assert "No configuration held on enough runs in 1 family" in best
     assert f"<li>{family}: the best held on 50% of its runs</li>" in best
     assert f"<h2>{family}: most reliable (held on 2/2; none held on enough runs)" in page
+
+
+def test_random_samples_are_shown_short_and_a_wide_spread_of_ate_is_drawn_on_a_log_scale():
+    """detector_faults.yaml draws prior_flow's k at random: labels carried 1.0495829065855873,
+    ticks at 1.0496 and 1.1229 overlapped, and a none run at 0.115 m flattened curves at
+    0.003 m onto the axis."""
+    ks = [1.0495829065855873, 1.1229205718085842, 2.910885061964363]
+    rows = []
+    for seed in (1, 2, 3):
+        rows.append(_row("fam a", seed, "none", {}, 0.115 + SPREAD[seed]))
+        rows += [_row("fam a", seed, "prior_flow", {"k": k}, 0.003 + SPREAD[seed] / 10) for k in ks]
+    configs = configurations(rows)
+    labels = {c["label"] for c in configs}
+    assert "prior_flow k=1.04958" in labels and "prior_flow k=2.91089" in labels
+    (fig,) = [fig for name, fig in threshold_figures(configs) if name == "prior_flow-k"]
+    ate = fig.axes[0]
+    assert ate.get_yscale() == "log"
+    fig.canvas.draw()
+    ticks = [t.get_text() for t in ate.get_xticklabels()]
+    samples = {f"{k:{form}}" for k in ks for form in ("g", ".4g")}
+    assert ticks and not samples & set(ticks), ticks  # matplotlib's own ticks, not the samples
+    pyplot().close(fig)
+    grid = [_row("fam a", 1, "prior_flow", {"k": k}, 0.05 + k / 100) for k in (1.5, 2.5, 3.5)]
+    (fig,) = [fig for _, fig in threshold_figures(configurations(grid))]
+    fig.canvas.draw()
+    assert [t.get_text() for t in fig.axes[0].get_xticklabels()] == ["1.5", "2.5", "3.5"]
+    assert fig.axes[0].get_yscale() == "linear"
+    pyplot().close(fig)
