@@ -13,6 +13,7 @@ checks:
     families: ["demo*"]               # globs over scenario families (default: all)
     tags: [crowd]                     # and/or the scenarios' tags
     strategies: [box_epipolar_flow]   # trackers, detectors, strategies: default all
+    detectors: ["groundtruth+*"]      # detector labels, globs (groundtruth+latency=3,miss=0.5)
     settings: {epsilon_px: 1.0}       # only rows with these threshold values
     budgets:
       ate_rmse_m: {max: 0.05}
@@ -115,6 +116,8 @@ class Check(Strict):
     tags: list[str] = Field(default_factory=list)
     trackers: list[str] = Field(default_factory=list)
     detectors: list[str] = Field(default_factory=list)
+    """Detector labels or globs over them: a faulted one names its faults, sorted
+    (``groundtruth+latency=3,miss=0.5``), so ``groundtruth+*miss=*`` selects every missing one."""
     strategies: list[str] = Field(default_factory=list)
     settings: dict[str, float] = Field(default_factory=dict)
     parameters: dict[str, float | str] = Field(default_factory=dict)
@@ -264,13 +267,11 @@ def _selects(check: Check, row: dict[str, Any], tags: dict[str, set[str]]) -> bo
         return False
     if check.tags and not set(check.tags) & _tags(row["sequence"], tags):
         return False
-    for field, allowed in (
-        ("tracker", check.trackers),
-        ("detector", check.detectors),
-        ("strategy", check.strategies),
-    ):
+    for field, allowed in (("tracker", check.trackers), ("strategy", check.strategies)):
         if allowed and row[field] not in allowed:
             return False
+    if check.detectors and not any(fnmatch.fnmatchcase(row["detector"], g) for g in check.detectors):
+        return False  # a label names its faults: globs select fault models by one of them
     settings = json.loads(row["settings"])
     parameters = json.loads(row.get("parameters") or "{}")
     return all(

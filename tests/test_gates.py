@@ -356,6 +356,42 @@ def test_budgets_over_seeds_bound_a_configurations_runs_together():
     assert "over 4 runs" in report.results[0].row
 
 
+def test_a_check_selects_one_fault_model_by_its_label_or_a_glob():
+    """Issue 36: two fault models were one 'groundtruth+faults' label, so a gate could not
+    select one of them."""
+    rows = [
+        _row("a", "box_rule", ate, 20.0, detector=detector, key=f"{detector}")
+        for detector, ate in (
+            ("groundtruth", 0.01),
+            ("groundtruth+miss=0.5", 0.02),
+            ("groundtruth+latency=3", 0.09),
+            ("groundtruth+latency=3,miss=0.5", 0.08),
+        )
+    ]
+    gates = _gates(
+        """\
+        - name: one
+          detectors: [groundtruth+miss=0.5]
+          budgets: {ate_rmse_m: {max: 0.05}}
+        - name: late
+          detectors: ["groundtruth+latency=*"]
+          budgets: {ate_rmse_m: {max: 0.05}}
+        """
+    )
+    report = evaluate(gates, rows)
+    by_check: dict[str, list[str]] = {}
+    for r in report.results:
+        by_check.setdefault(r.check, []).append(r.row.split()[3])
+    assert by_check == {
+        "one": ["groundtruth+miss=0.5"],
+        "late": ["groundtruth+latency=3", "groundtruth+latency=3,miss=0.5"],
+    }
+    assert [f.split("]")[0] for f in report.failures] == [
+        "late [walk a builtin groundtruth+latency=3 box_rule",
+        "late [walk a builtin groundtruth+latency=3,miss=0.5 box_rule",
+    ]
+
+
 def test_a_regression_gate_fails_on_a_real_regression_and_holds_on_noise():
     """A configuration worsened by 30 % on 4 seeds fails a 5 % budget; one that moves by run-
     to-run noise (a few percent either way) passes; ten evaluations give the same verdict."""
