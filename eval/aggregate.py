@@ -110,18 +110,25 @@ def confidence_interval(values: np.ndarray) -> tuple[float | None, float | None]
         return None, None
     if np.all(values == values[0]):
         return float(values[0]), float(values[0])
-    from scipy.stats import bootstrap
+    import warnings
+
+    from scipy.stats import DegenerateDataWarning, bootstrap
 
     for method in ("BCa", "percentile"):
-        result = bootstrap(
-            (values,),
-            np.mean,
-            confidence_level=CONFIDENCE,
-            n_resamples=RESAMPLES,
-            method=method,
-            vectorized=True,
-            random_state=np.random.default_rng(BOOTSTRAP_SEED),
-        )
+        with warnings.catch_warnings():
+            # BCa's NaN on near-equal values (1, 1 + 2**-52, 1) is answered below by the
+            # percentile interval; scipy's warnings about it would reach the user's terminal
+            warnings.simplefilter("ignore", DegenerateDataWarning)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            result = bootstrap(
+                (values,),
+                np.mean,
+                confidence_level=CONFIDENCE,
+                n_resamples=RESAMPLES,
+                method=method,
+                vectorized=True,
+                random_state=np.random.default_rng(BOOTSTRAP_SEED),
+            )
         low, high = result.confidence_interval
         if math.isfinite(low) and math.isfinite(high):
             return float(low), float(high)

@@ -102,3 +102,14 @@ def test_the_best_table_keeps_its_columns_for_long_family_names_and_labels():
     assert row.startswith(family + "  ") and missing.startswith("another family with a long name  ")
     assert row.index(best[family]["label"]) == header.index("best configuration")
     assert row.split()[-1] == "4/4" and len(row) == len(header)
+
+
+def test_near_equal_values_get_the_percentile_interval_without_a_warning():
+    """BCa is NaN on values one ulp apart, and scipy said so on the terminal twice."""
+    import warnings
+
+    values = [1.0, 1.0 + 2**-52, 1.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        s = stats(values)
+    assert s.ci_low == pytest.approx(1.0) and s.ci_high == pytest.approx(1.0)
