@@ -30,19 +30,18 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from depotbench.core.errors import InputError
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.config import DetectorConfigError, parse_detector
+from depotbench.eval.detection_eval import IOU_THRESHOLD, iou_matrix
+from depotbench.eval.detections import build_detector
+from depotbench.sim.conventions import quat_wxyz
+from depotbench.sim.mujoco_env import mujoco
+from depotbench.sim.render import FrameRenderer
+from depotbench.sim.simulation import Simulation
+from depotbench.sim.spec import ActorSpec, CameraSpec, ScenarioSpec
+from depotbench.sim.world import World, build_world
 from sheets import crop_around, fit, grid, write_png
-
-from detectors.base import DetectorFrame
-from detectors.config import DetectorConfigError, parse_detector
-from eval.detection_eval import IOU_THRESHOLD, iou_matrix
-from eval.detections import build_detector
-from sim.conventions import quat_wxyz
-from sim.errors import InputError
-from sim.mujoco_env import mujoco
-from sim.render import FrameRenderer
-from sim.simulation import Simulation
-from sim.spec import ActorSpec, CameraSpec, ScenarioSpec
-from sim.world import World, build_world
 
 KINDS = ("person", "dog", "cat", "bird")
 """Walking actors of a COCO class (COCO has no pig: recognition.py counts pigs called person)."""

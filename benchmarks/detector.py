@@ -23,16 +23,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
-from detectors.config import DetectorConfig, parse_detector  # noqa: E402
-from eval.detections import build_detector, detect_sequence  # noqa: E402
-from eval.frames import FrameSource  # noqa: E402
-from eval.harness import run_sequence  # noqa: E402
-from eval.metrics import improvement_rate  # noqa: E402
-from eval.trackers.builtin import BuiltinTracker  # noqa: E402
-from sim.sequence import Sequence  # noqa: E402
-from slam.config import SlamConfig  # noqa: E402
-from slam.rejection import STRATEGIES  # noqa: E402
+from depotbench.detectors.config import DetectorConfig, parse_detector  # noqa: E402
+from depotbench.eval.detections import build_detector, detect_sequence  # noqa: E402
+from depotbench.eval.frames import FrameSource  # noqa: E402
+from depotbench.eval.harness import run_sequence  # noqa: E402
+from depotbench.eval.metrics import improvement_rate  # noqa: E402
+from depotbench.eval.trackers.builtin import BuiltinTracker  # noqa: E402
+from depotbench.sim.sequence import Sequence  # noqa: E402
+from depotbench.slam.config import SlamConfig  # noqa: E402
+from depotbench.slam.rejection import STRATEGIES  # noqa: E402
 
 DETECTORS = {
     "true boxes": DetectorConfig(),
@@ -42,9 +41,9 @@ DETECTORS = {
 
 
 def _generate(tmp: Path, frames: int) -> Path:
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
 
     scenario = library.get("walking_static").model_copy(update={"frames": frames, "duration_s": None})
     return generate(to_scenario(scenario), tmp / "walking_static", progress=False)
@@ -52,7 +51,7 @@ def _generate(tmp: Path, frames: int) -> Path:
 
 def _latency(sequence: Sequence, config: DetectorConfig) -> np.ndarray:
     detector = build_detector(config, sequence)
-    from detectors.base import DetectorFrame
+    from depotbench.detectors.base import DetectorFrame
 
     times = []
     for i in range(len(sequence)):
@@ -73,7 +72,7 @@ def _throughput(sequence: Sequence, config: DetectorConfig) -> float:
 
 
 def _rho_table(roots: list[Path], out: Path) -> None:
-    from eval.cache import StageCache
+    from depotbench.eval.cache import StageCache
 
     cache = StageCache(out / "cache")
     print(

@@ -45,8 +45,8 @@ def _worker_init() -> None:
 
 def _run(job: tuple[str, str, str, int, str, str | None]) -> tuple[str, str, str, int, dict]:
     sequence, tracker, strategy, repeat, out, vocabulary = job
-    from eval.harness import TrackerConfig, run_sequence
-    from eval.trackers.base import TrackerKind
+    from depotbench.eval.harness import TrackerConfig, run_sequence
+    from depotbench.eval.trackers.base import TrackerKind
 
     config = TrackerConfig(TrackerKind(tracker), vocabulary=Path(vocabulary) if vocabulary else None)
     target = Path(out) / Path(sequence).name / f"{tracker}-{strategy}-{repeat}"
@@ -72,10 +72,10 @@ def main() -> None:
     parser.add_argument("--vocabulary", type=Path)
     args = parser.parse_args()
 
-    from eval.trackers.orbslam3 import available
-    from eval.vocabulary import default_vocabulary
-    from scenes.generation import run_suite
-    from scenes.suite import Suite
+    from depotbench.eval.trackers.orbslam3 import available
+    from depotbench.eval.vocabulary import default_vocabulary
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.suite import Suite
 
     with tempfile.TemporaryDirectory() as tmp:
         out = args.output or Path(tmp)

@@ -5,7 +5,7 @@ Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--pn
 
 For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
 the rate of one process (Mesa's default threads) and of two processes with one thread
-each, as suites run their workers (``sim.executors.single_threaded``), for each PNG
+each, as suites run their workers (``depotbench.core.executors.single_threaded``), for each PNG
 level asked. Each worker generates
 its own seed. Two rates per line: per frame once the world is built (simulation,
 both render passes, the unoccluded passes, ground truth and PNG writes), and with
@@ -53,31 +53,31 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
     its own drift, and on a tiny run under load it gave negative rates.)"""
     frames, width, height, seed, out, one_thread, png_compression, scene = args
     if one_thread:
-        from sim.executors import single_threaded
+        from depotbench.core.executors import single_threaded
 
         single_threaded()
-    import sim.generate
-    from sim.world import build_world
+    import depotbench.sim.generate
+    from depotbench.sim.world import build_world
 
     spec = scenario_at(frames, width, height, seed, scene)
     build_world(scenario_at(frames, width, height, seed + 1000, scene))  # warm imports and code paths
     built: dict[str, float] = defaultdict(float)
-    sim.generate.build_world = _timed(build_world, "build", built, time.perf_counter)
+    depotbench.sim.generate.build_world = _timed(build_world, "build", built, time.perf_counter)
     start = time.perf_counter()
-    sim.generate.generate(spec, Path(out), progress=False, png_compression=png_compression)
+    depotbench.sim.generate.generate(spec, Path(out), progress=False, png_compression=png_compression)
     return built["build"], time.perf_counter() - start
 
 
 def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: str | None):
     """The default scenario, or a library scene, at this image size and seed, with
     ``frames`` frames (None: the scenario's own length). render.py uses it too."""
-    from sim.spec import default_scenario
+    from depotbench.sim.spec import default_scenario
 
     if scene is None:
         spec = default_scenario(seed=seed) if frames is None else default_scenario(frames=frames, seed=seed)
     else:
-        from scenes import library
-        from scenes.schema import to_scenario
+        from depotbench.scenes import library
+        from depotbench.scenes.schema import to_scenario
 
         update = {"seed": seed} if frames is None else {"frames": frames, "duration_s": None, "seed": seed}
         spec = to_scenario(library.get(scene).model_copy(update=update))
@@ -88,7 +88,7 @@ def check_scene(parser: argparse.ArgumentParser, scene: str | None) -> None:
     """A --scene that is no library scene: one line naming the choices, exit 2."""
     if scene is None:
         return
-    from scenes import library
+    from depotbench.scenes import library
 
     if scene not in library.names():
         parser.error(f"--scene: no library scene {scene!r}; choose one of {', '.join(library.names())}")
@@ -99,20 +99,19 @@ def _peer(args: tuple[int, int, int, int, str | None]) -> float:
     ``mjr_render`` then ``mjr_readPixels`` of RGB and depth, then a segmentation pass
     read as RGB, at the world's states along the clip (moving them is not timed)."""
     frames, width, height, seed, scene = args
-    from sim.executors import single_threaded
+    from depotbench.core.executors import single_threaded
 
     single_threaded()
+    from depotbench.sim.mujoco_env import mujoco
+    from depotbench.sim.render import HIDDEN_GROUP, detail_pairs
+    from depotbench.sim.simulation import Simulation
+    from depotbench.sim.world import build_world
     from mujoco import gl_context
-
-    from sim.mujoco_env import mujoco
-    from sim.render import HIDDEN_GROUP, detail_pairs
-    from sim.simulation import Simulation
-    from sim.world import build_world
 
     spec = scenario_at(frames, width, height, seed, scene)
     world = build_world(spec)
     model, sim = world.model, Simulation(world)
-    # Each figure piece once, at full detail: its far version (sim.render) stays hidden.
+    # Each figure piece once, at full detail: its far version (depotbench.sim.render) stays hidden.
     model.geom_group[detail_pairs(model)[1]] = HIDDEN_GROUP
     gl = gl_context.GLContext(width, height)
     gl.make_current()
@@ -171,19 +170,19 @@ def _measure(ctx, jobs: list[tuple]) -> tuple[float, float]:
 
 
 STAGES = (
-    ("colour pass (RGB and depth)", "sim.render", "FrameRenderer._colour_pass"),
-    ("instance pass", "sim.render", "FrameRenderer._instance_pass"),
-    ("unoccluded areas", "sim.render", "FrameRenderer._unoccluded_areas"),
-    ("rest of render", "sim.render", "FrameRenderer.render"),
-    ("poses and physics", "sim.simulation", "Simulation.advance_to"),
-    ("snapshots", "sim.simulation", "Simulation.snapshot"),
-    ("moving pixels' flow", "sim.generate", "flow_at"),
-    ("boxes", "sim.generate", "visible_boxes"),
-    ("object states", "sim.generate", "object_states"),
-    ("sensor model", "sim.sensor", "SensorModel.rgb"),
-    ("sensor model", "sim.sensor", "SensorModel.depth"),
-    ("hand to the writer", "sim.sequence", "SequenceWriter.add_frame"),
-    ("deflate (writer threads)", "sim.png", "_deflate"),
+    ("colour pass (RGB and depth)", "depotbench.sim.render", "FrameRenderer._colour_pass"),
+    ("instance pass", "depotbench.sim.render", "FrameRenderer._instance_pass"),
+    ("unoccluded areas", "depotbench.sim.render", "FrameRenderer._unoccluded_areas"),
+    ("rest of render", "depotbench.sim.render", "FrameRenderer.render"),
+    ("poses and physics", "depotbench.sim.simulation", "Simulation.advance_to"),
+    ("snapshots", "depotbench.sim.simulation", "Simulation.snapshot"),
+    ("moving pixels' flow", "depotbench.sim.generate", "flow_at"),
+    ("boxes", "depotbench.sim.generate", "visible_boxes"),
+    ("object states", "depotbench.sim.generate", "object_states"),
+    ("sensor model", "depotbench.sim.sensor", "SensorModel.rgb"),
+    ("sensor model", "depotbench.sim.sensor", "SensorModel.depth"),
+    ("hand to the writer", "depotbench.sim.sequence", "SequenceWriter.add_frame"),
+    ("deflate (writer threads)", "depotbench.sim.png", "_deflate"),
 )
 """(label, module, attribute) of each timed stage. The passes run inside ``render``,
 whose time they are taken from; deflate runs in the writer's threads, so its thread
@@ -194,11 +193,11 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
     """Time each stage of one process's frames (one thread, as suites run their workers)."""
     import importlib
 
-    from sim.executors import single_threaded
+    from depotbench.core.executors import single_threaded
 
     single_threaded()
-    from sim.generate import generate
-    from sim.world import build_world
+    from depotbench.sim.generate import generate
+    from depotbench.sim.world import build_world
 
     spent: dict[str, float] = defaultdict(float)
     for label, module_name, attribute in STAGES:
@@ -207,10 +206,12 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
         owner = getattr(module, owner_name) if owner_name else module
         clock = time.thread_time if name == "_deflate" else time.perf_counter
         setattr(owner, name, _timed(getattr(owner, name), label, spent, clock))
-    import sim.generate
+    import depotbench.sim.generate
 
     loop: dict[str, float] = defaultdict(float)
-    sim.generate._write_frames = _timed(sim.generate._write_frames, "loop", loop, time.perf_counter)
+    depotbench.sim.generate._write_frames = _timed(
+        depotbench.sim.generate._write_frames, "loop", loop, time.perf_counter
+    )
     spec = scenario_at(frames, width, height, seed, scene)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()

@@ -38,13 +38,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from depotbench.detectors.config import parse_detector
+from depotbench.eval.cache import StageCache
+from depotbench.eval.detection_eval import IOU_THRESHOLD, iou_matrix
+from depotbench.eval.detections import detect_sequence
+from depotbench.sim.sequence import Sequence
 from sheets import crop_around, fit, grid, write_png
-
-from detectors.config import parse_detector
-from eval.cache import StageCache
-from eval.detection_eval import IOU_THRESHOLD, iou_matrix
-from eval.detections import detect_sequence
-from sim.sequence import Sequence
 
 SCENES = (
     "walking_static",
@@ -67,9 +66,9 @@ TARGETS = {
 def _generate(
     out: Path, scenes: list[str], seeds: list[int], frames: int, workers: int, whole_clip: bool
 ) -> list[Path]:
-    from scenes import library
-    from scenes.generation import run_suite
-    from scenes.suite import Suite
+    from depotbench.scenes import library
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.suite import Suite
 
     paths = []
     for scene in scenes:

@@ -56,9 +56,9 @@ def main() -> None:
         _far_from(args)
         return
 
-    from sim.render import FrameRenderer
-    from sim.simulation import Simulation
-    from sim.world import build_world
+    from depotbench.sim.render import FrameRenderer
+    from depotbench.sim.simulation import Simulation
+    from depotbench.sim.world import build_world
 
     spec = scenario_at(None, args.width, args.height, args.seed, None)
     world = build_world(spec)
@@ -107,26 +107,25 @@ def main() -> None:
 
 def _figure_triangles(args: argparse.Namespace) -> None:
     """Render the scene built at each share of figure triangles, in turn, in one process."""
+    import depotbench.sim.shapes
     import numpy as np
-
-    import sim.shapes
-    from sim.render import FrameRenderer
-    from sim.simulation import Simulation
-    from sim.world import build_world
+    from depotbench.sim.render import FrameRenderer
+    from depotbench.sim.simulation import Simulation
+    from depotbench.sim.world import build_world
 
     spec = scenario_at(None, args.width, args.height, args.seed, args.scene)
-    shipped = sim.shapes.KEEP_FACES
+    shipped = depotbench.sim.shapes.KEEP_FACES
     worlds = []
     try:
         for share in args.figure_triangles:
-            sim.shapes.KEEP_FACES = share
+            depotbench.sim.shapes.KEEP_FACES = share
             world = build_world(spec)
             renderer = FrameRenderer(
                 world.model, spec.width, spec.height, world.body_instance[world.model.geom_bodyid]
             )
             worlds.append((share, world, renderer, Simulation(world)))
     finally:
-        sim.shapes.KEEP_FACES = shipped
+        depotbench.sim.shapes.KEEP_FACES = shipped
     fastest = np.full((len(worlds), args.moments), np.inf)
     duration = spec.frames / spec.fps
     for m, t in enumerate(np.linspace(0.1, 0.9, args.moments) * duration):
@@ -150,12 +149,11 @@ def _figure_triangles(args: argparse.Namespace) -> None:
 
 def _far_from(args: argparse.Namespace) -> None:
     """Render one world in turn with each ``--far-from`` distance as ``FAR_M``."""
+    import depotbench.sim.render
     import numpy as np
-
-    import sim.render
-    from sim.render import FrameRenderer
-    from sim.simulation import Simulation
-    from sim.world import build_world
+    from depotbench.sim.render import FrameRenderer
+    from depotbench.sim.simulation import Simulation
+    from depotbench.sim.world import build_world
 
     spec = scenario_at(None, args.width, args.height, args.seed, args.scene)
     world = build_world(spec)
@@ -163,7 +161,7 @@ def _far_from(args: argparse.Namespace) -> None:
     renderer = FrameRenderer(model, spec.width, spec.height, world.body_instance[model.geom_bodyid])
     simulation = Simulation(world)
     faces = model.mesh_facenum[model.geom_dataid[renderer._near_version]]
-    shipped = sim.render.FAR_M
+    shipped = depotbench.sim.render.FAR_M
     fastest = np.full((len(args.far_from), args.moments), np.inf)
     far_share = np.zeros((len(args.far_from), 2))
     changed = np.zeros((len(args.far_from), 2))
@@ -173,20 +171,20 @@ def _far_from(args: argparse.Namespace) -> None:
             in_view = ~renderer._outside_view(simulation.data, world.camera_id)[renderer._near_version]
             for _ in range(args.repeat):
                 for d, far_m in enumerate(args.far_from):
-                    sim.render.FAR_M = far_m
+                    depotbench.sim.render.FAR_M = far_m
                     start = time.perf_counter()
                     renderer.render(simulation.data, world.camera_id)
                     fastest[d, m] = min(fastest[d, m], time.perf_counter() - start)
             frames = []
             for d, far_m in enumerate(args.far_from):
-                sim.render.FAR_M = far_m
+                depotbench.sim.render.FAR_M = far_m
                 frames.append(renderer.render(simulation.data, world.camera_id))
                 far = renderer._far_from(simulation.data, world.camera_id)
                 far_share[d] += faces[far & in_view].sum(), faces[in_view].sum()
                 changed[d, 0] += (frames[d].rgb != frames[0].rgb).any(axis=-1).sum()
                 changed[d, 1] += (frames[d].instances != frames[0].instances).sum()
     finally:
-        sim.render.FAR_M = shipped
+        depotbench.sim.render.FAR_M = shipped
         renderer.close()
     print(
         f"{args.scene or 'default scenario'}, seed {args.seed}, {spec.width}x{spec.height}: render (both "

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from sim.output import write_bytes_atomic
+from depotbench.core.output import write_bytes_atomic
 
 
 def fit(image: np.ndarray, side: int) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/strategies.py SEQUENCE [SEQUENCE ...] [-o OUT] [--set name=value ...]
 Each sequence is tracked with every strategy (ground-truth boxes); results go to
-OUT/<sequence>/<strategy>/ and a table (eval.report) is printed.
+OUT/<sequence>/<strategy>/ and a table (depotbench.eval.report) is printed.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from eval.harness import run_sequence
-from eval.report import format_table, summarise
-from slam.rejection import STRATEGIES
+from depotbench.eval.harness import run_sequence
+from depotbench.eval.report import format_table, summarise
+from depotbench.slam.rejection import STRATEGIES
 
 
 def main() -> None:

@@ -23,13 +23,13 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from eval.detections import sequence_fingerprint
-from eval.harness import job_key, tracker_identity
-from eval.record import DETERMINISTIC_FIELDS
-from eval.store import ResultStore
-from eval.sweep import SweepJob, expand, run_jobs
-from eval.sweep_spec import SweepSpec
-from sim.sequence import Sequence
+from depotbench.eval.detections import sequence_fingerprint
+from depotbench.eval.harness import job_key, tracker_identity
+from depotbench.eval.record import DETERMINISTIC_FIELDS
+from depotbench.eval.store import ResultStore
+from depotbench.eval.sweep import SweepJob, expand, run_jobs
+from depotbench.eval.sweep_spec import SweepSpec
+from depotbench.sim.sequence import Sequence
 
 GRID = {
     "epsilon_px": [0.25, 0.5, 1.0, 2.0, 4.0],
@@ -39,8 +39,8 @@ GRID = {
 
 
 def _sequences(out: Path, frames: int, seeds: list[int], workers: int) -> list[tuple[Path, str]]:
-    from scenes.generation import run_suite
-    from scenes.suite import Suite
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.suite import Suite
 
     suite = Suite(
         suite="walking", base="walking_static", overrides={"frames": frames, "duration_s": None}, seeds=seeds

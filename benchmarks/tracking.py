@@ -22,17 +22,16 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-
-from detectors.config import DetectorConfig  # noqa: E402
-from eval.detections import detect_sequence  # noqa: E402
-from eval.frames import FrameSource  # noqa: E402
-from eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
-from scenes import library  # noqa: E402
-from scenes.schema import to_scenario  # noqa: E402
-from sim.generate import generate  # noqa: E402
-from sim.sequence import Sequence  # noqa: E402
-from slam.config import SlamConfig  # noqa: E402
-from slam.rejection import STRATEGIES  # noqa: E402
+from depotbench.detectors.config import DetectorConfig  # noqa: E402
+from depotbench.eval.detections import detect_sequence  # noqa: E402
+from depotbench.eval.frames import FrameSource  # noqa: E402
+from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
+from depotbench.scenes import library  # noqa: E402
+from depotbench.scenes.schema import to_scenario  # noqa: E402
+from depotbench.sim.generate import generate  # noqa: E402
+from depotbench.sim.sequence import Sequence  # noqa: E402
+from depotbench.slam.config import SlamConfig  # noqa: E402
+from depotbench.slam.rejection import STRATEGIES  # noqa: E402
 
 
 def _cell(values: np.ndarray) -> str:
@@ -69,12 +68,12 @@ def main() -> None:
                 f"{'builtin ' + strategy:24s} " + " ".join(f"{_cell(run.stage_ms[s]):>24s}" for s in STAGES)
             )
         os.sched_setaffinity(0, every_core)
-        from eval.trackers.orbslam3 import Orbslam3Tracker, available
+        from depotbench.eval.trackers.orbslam3 import Orbslam3Tracker, available
 
         if not available():
             print("orbslam3: not installed (pip install 'depotbench[orbslam3]')")
             return
-        from eval.vocabulary import default_vocabulary
+        from depotbench.eval.vocabulary import default_vocabulary
 
         vocabulary = args.vocabulary or default_vocabulary()
         run = Orbslam3Tracker(vocabulary).run(FrameSource(seq), progress=False)

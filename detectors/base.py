@@ -1,6 +1,6 @@
 """What every detector is: a callable from a frame to boxes.
 
-The harness builds detectors from a ``DetectorConfig`` (``detectors.config``);
+The harness builds detectors from a ``DetectorConfig`` (``depotbench.detectors.config``);
 this Protocol is what it then calls, so a user's own detector plugs in by
 having a ``name`` and a ``detect``.
 """
@@ -11,8 +11,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-
-from detectors.detection import Detection
+from depotbench.detectors.detection import Detection
 
 
 @dataclass(frozen=True)

@@ -17,15 +17,14 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from detectors.detection import Prior
-from detectors.faults import Faults, check_range
-from detectors.priors import DEFAULT_PRIORS, PriorTable
-from sim.errors import FileError, InputError
-from sim.files import MIB, file_digest, open_regular
+from depotbench.core.assets import asset
+from depotbench.core.errors import FileError, InputError
+from depotbench.core.files import MIB, file_digest, open_regular
+from depotbench.detectors.detection import Prior
+from depotbench.detectors.faults import Faults, check_range
+from depotbench.detectors.priors import DEFAULT_PRIORS, PriorTable
 
-SHIPPED_MODEL = (
-    Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "yolox_nano.onnx"
-)
+SHIPPED_MODEL = asset("models", "yolox_nano", "yolox_nano.onnx")
 MAX_NAMES_BYTES = 64 * 1024
 """A class table (names file or metadata): COCO's 80 names take 624 bytes, LVIS's 1203 about 20 KiB."""
 MAX_MODEL_BYTES = 1024 * MIB

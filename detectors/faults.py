@@ -19,9 +19,8 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-
-from detectors.detection import Detection
-from detectors.priors import PriorTable
+from depotbench.detectors.detection import Detection
+from depotbench.detectors.priors import PriorTable
 
 
 class FaultError(ValueError):

@@ -1,6 +1,6 @@
 """The ground-truth detector: the true visible boxes of a generated sequence.
 
-Priors come from the class table (``detectors.priors``), as a real detector's
+Priors come from the class table (``depotbench.detectors.priors``), as a real detector's
 would, not from the simulator's own labels. Beside the boxes it knows what makes
 each object hard to see (``Difficulty``: size, occlusion, image motion), which
 fault injection and detector evaluation use.
@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from detectors.base import DetectorFrame
-from detectors.detection import Detection
-from detectors.faults import Difficulty
-from detectors.priors import DEFAULT_PRIORS, PriorTable
-from sim.errors import InputError
-from sim.ground_truth import ObjectState
-from sim.sequence import Sequence
+from depotbench.core.errors import InputError
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.detection import Detection
+from depotbench.detectors.faults import Difficulty
+from depotbench.detectors.priors import DEFAULT_PRIORS, PriorTable
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.sequence import Sequence
 
 OCCLUDER_MARGIN_M = 0.05
 """A neighbouring pixel occludes when it is this much nearer than the object beside it."""

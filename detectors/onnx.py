@@ -22,15 +22,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from depotbench.core.assets import asset
+from depotbench.core.errors import FileError, InputError
+from depotbench.core.files import KIB, read_text
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.config import MAX_NAMES_BYTES, OnnxSettings, check_model_file
+from depotbench.detectors.detection import Detection
+from depotbench.detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
 
-from detectors.base import DetectorFrame
-from detectors.config import MAX_NAMES_BYTES, OnnxSettings, check_model_file
-from detectors.detection import Detection
-from detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
-from sim.errors import FileError, InputError
-from sim.files import KIB, read_text
-
-COCO_NAMES = Path(__file__).resolve().parent.parent / "assets" / "models" / "yolox_nano" / "coco.names"
+COCO_NAMES = asset("models", "yolox_nano", "coco.names")
 STRIDES = (8, 16, 32)
 PAD_VALUE = 114
 DEFAULT_SIDE = 640

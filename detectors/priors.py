@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from detectors.detection import Prior
+from depotbench.detectors.detection import Prior
 
 DYNAMIC_CLASSES = frozenset(
     {"person", "dog", "cat", "bird", "pig", "horse", "sheep", "cow", "elephant", "bear", "zebra", "giraffe"}

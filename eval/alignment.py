@@ -6,9 +6,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
-
-from eval.trajectory import Trajectory
-from sim.errors import InputError
+from depotbench.core.errors import InputError
+from depotbench.eval.trajectory import Trajectory
 
 
 class Alignment(StrEnum):

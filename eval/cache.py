@@ -23,11 +23,11 @@ import logging
 import os
 from pathlib import Path
 
-from sim.cache_home import OFF as _OFF
-from sim.cache_home import ON as _ON
-from sim.cache_home import cache_home, parse_bytes
-from sim.errors import InputError
-from sim.output import OutputError, write_bytes_atomic
+from depotbench.core.cache_home import OFF as _OFF
+from depotbench.core.cache_home import ON as _ON
+from depotbench.core.cache_home import cache_home, parse_bytes
+from depotbench.core.errors import InputError
+from depotbench.core.output import OutputError, write_bytes_atomic
 
 DEFAULT_MAX_BYTES = 2 << 30
 SWITCH = "DEPOTBENCH_CACHE"

@@ -18,27 +18,27 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from eval.cli_compare import add_compare
-from eval.cli_detectors import (
+from depotbench.core.errors import InputError
+from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
+from depotbench.eval.cli_compare import add_compare
+from depotbench.eval.cli_detectors import (
     add_detect_eval,
     add_detector_options,
     add_export_dataset,
     detector_config,
     pairs,
 )
-from eval.cli_gates import add_check
-from eval.cli_report import add_report
-from eval.cli_sweep import add_sweep
-from sim.errors import InputError
-from sim.processes import OutsideImports  # light: the handler is set before any heavy import
+from depotbench.eval.cli_gates import add_check
+from depotbench.eval.cli_report import add_report
+from depotbench.eval.cli_sweep import add_sweep
 
 if TYPE_CHECKING:
-    from eval.comparison import Comparison
-    from eval.metrics import Statistics
+    from depotbench.eval.comparison import Comparison
+    from depotbench.eval.metrics import Statistics
 
 EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
-"""``sim.files.DEFAULT_PNG_COMPRESSION``, named here so that ``--help`` imports no numpy
+"""``depotbench.core.files.DEFAULT_PNG_COMPRESSION``, named here so that ``--help`` imports no numpy
 (a test holds the two equal)."""
 MAX_PREVIEW_FRAMES = 16
 """Rows of one preview picture (each 3 frames wide)."""
@@ -77,9 +77,9 @@ def _workers(text: str) -> int:
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
-    from eval.alignment import Alignment
-    from eval.metrics import DeltaUnit
-    from eval.trajectory import DEFAULT_MAX_DIFF_S
+    from depotbench.eval.alignment import Alignment
+    from depotbench.eval.metrics import DeltaUnit
+    from depotbench.eval.trajectory import DEFAULT_MAX_DIFF_S
 
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
@@ -112,11 +112,11 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
-    from eval.alignment import Alignment
-    from eval.comparison import ComparisonOptions, compare
-    from eval.metrics import DeltaUnit
-    from eval.trajectory import read_tum
-    from sim.files import dumps_json
+    from depotbench.core.files import dumps_json
+    from depotbench.eval.alignment import Alignment
+    from depotbench.eval.comparison import ComparisonOptions, compare
+    from depotbench.eval.metrics import DeltaUnit
+    from depotbench.eval.trajectory import read_tum
 
     options = ComparisonOptions(
         alignment=Alignment(args.align),
@@ -135,7 +135,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def format_comparison(result: Comparison) -> str:
-    from eval.alignment import Alignment
+    from depotbench.eval.alignment import Alignment
 
     o = result.options
     header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
@@ -176,11 +176,11 @@ DEMO_GATES = Path(__file__).resolve().parent / "demo_gates.yaml"
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     """The README's first command: the sweep, the gates and the report of eval/demo_gates.yaml."""
-    from eval.gates import evaluate, format_report, junit_xml, load_gates
-    from eval.html_report import write_report
-    from eval.sweep_report import format_best
-    from eval.sweep_run import execute_sweep
-    from sim.output import OutputContainer, OutputKind, write_text_atomic
+    from depotbench.core.output import OutputContainer, OutputKind, write_text_atomic
+    from depotbench.eval.gates import evaluate, format_report, junit_xml, load_gates
+    from depotbench.eval.html_report import write_report
+    from depotbench.eval.sweep_report import format_best
+    from depotbench.eval.sweep_run import execute_sweep
 
     gates = load_gates(DEMO_GATES)
     started = time.perf_counter()
@@ -255,9 +255,9 @@ def _png_level(text: str) -> int:
 
 
 def _resolve_scenario(spec: str):
-    """A validated scenes.schema.Scenario from a library name or a file."""
-    from scenes import library
-    from scenes.schema import load_scenario
+    """A validated depotbench.scenes.schema.Scenario from a library name or a file."""
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import load_scenario
 
     path = Path(spec)
     if path.suffix in (".yaml", ".yml", ".json") or path.exists():
@@ -268,11 +268,11 @@ def _resolve_scenario(spec: str):
 def _cmd_generate(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from scenes.generation import run_suite
-    from scenes.schema import check_option, to_scenario
-    from scenes.suite import is_suite_file, load_suite
-    from sim.generate import generate
-    from sim.spec import default_scenario
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.schema import check_option, to_scenario
+    from depotbench.scenes.suite import is_suite_file, load_suite
+    from depotbench.sim.generate import generate
+    from depotbench.sim.spec import default_scenario
 
     path = Path(args.spec)
     if args.address and args.backend != "ray":
@@ -316,7 +316,7 @@ def _add_validate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from scenes.suite import is_suite_file, load_suite, variations
+    from depotbench.scenes.suite import is_suite_file, load_suite, variations
 
     path = Path(args.spec)
     if path.is_file() and is_suite_file(path):
@@ -339,7 +339,7 @@ def _add_scenarios(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    from scenes import library
+    from depotbench.scenes import library
 
     for name in library.names(args.tag):
         scenario = library.get(name)
@@ -348,8 +348,8 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from eval.harness import STRATEGY_CHOICES
-    from eval.trackers.base import TrackerKind
+    from depotbench.eval.harness import STRATEGY_CHOICES
+    from depotbench.eval.trackers.base import TrackerKind
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
     p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
@@ -421,9 +421,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from eval.cache import StageCache
-    from eval.harness import TrackerConfig, check_tracker, run_sequence
-    from eval.trackers.base import TrackerKind
+    from depotbench.eval.cache import StageCache
+    from depotbench.eval.harness import TrackerConfig, check_tracker, run_sequence
+    from depotbench.eval.trackers.base import TrackerKind
 
     settings = pairs(args.set, "--set")
     detector = detector_config(args)
@@ -438,7 +438,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise InputError("--settings-template applies to --slam cmd only")
     parameters = pairs(args.param, "--param")
     if kind is TrackerKind.ORBSLAM3:
-        from eval.trackers.orbslam3 import default_parameters
+        from depotbench.eval.trackers.orbslam3 import default_parameters
 
         parameters = default_parameters() | parameters
     tracker = TrackerConfig(
@@ -500,7 +500,7 @@ def format_run(metrics: dict) -> str:
 
 
 def _add_vocab(sub: argparse._SubParsersAction) -> None:
-    from eval.vocabulary import TRAINING_SCENES, VocabularySpec
+    from depotbench.eval.vocabulary import TRAINING_SCENES, VocabularySpec
 
     default = VocabularySpec()
     p = sub.add_parser(
@@ -528,9 +528,9 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_vocab(args: argparse.Namespace) -> int:
-    from eval.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
-    from scenes import library
-    from sim.output import check_output_file
+    from depotbench.core.output import check_output_file
+    from depotbench.eval.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
+    from depotbench.scenes import library
 
     for name in args.scenes:
         library.get(name)  # refuses an unknown scene by name, before any work
@@ -557,10 +557,9 @@ def _add_preview(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_preview(args: argparse.Namespace) -> int:
     import numpy as np
-
-    from eval.preview import preview, save_png
-    from sim.output import check_output_file
-    from sim.sequence import Sequence
+    from depotbench.core.output import check_output_file
+    from depotbench.eval.preview import preview, save_png
+    from depotbench.sim.sequence import Sequence
 
     if args.output.suffix.lower() != ".png":
         raise InputError(f"{args.output}: the preview is a PNG; give a file name ending in .png")
@@ -635,7 +634,7 @@ def _show_warnings(verb: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    # Ctrl-C and SIGTERM raise, but never inside an import (sim.processes.OutsideImports):
+    # Ctrl-C and SIGTERM raise, but never inside an import (depotbench.core.processes.OutsideImports):
     # building the parser alone imports numpy, SciPy and OpenCV, and commands import MuJoCo.
     in_main = threading.current_thread() is threading.main_thread()
     previous = {}
@@ -659,7 +658,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     """The command's exit code; a user's mistake or an interruption ends in one line."""
-    from sim.errors import EnvironmentProblem
+    from depotbench.core.errors import EnvironmentProblem
 
     try:
         return int(args.handler(args))
@@ -671,7 +670,7 @@ def _run(args: argparse.Namespace) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
     except OSError as exc:
-        from sim.output import WRITE_FAILURES
+        from depotbench.core.output import WRITE_FAILURES
 
         if exc.filename is None and exc.errno not in WRITE_FAILURES:
             raise

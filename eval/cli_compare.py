@@ -43,10 +43,10 @@ def add_compare(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from eval.compare import compare_rows, format_comparisons, load_rows
-    from sim.errors import InputError
-    from sim.files import dumps_json
-    from sim.output import check_output_file, write_text_atomic
+    from depotbench.core.errors import InputError
+    from depotbench.core.files import dumps_json
+    from depotbench.core.output import check_output_file, write_text_atomic
+    from depotbench.eval.compare import compare_rows, format_comparisons, load_rows
 
     if len(args.folders) < 2:
         raise InputError("compare needs two folders or more: the base, then what to compare with it")
@@ -77,9 +77,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _page(base: Path, results: dict) -> str:
     import html
 
-    from eval.aggregate import RATIO_METRICS
-    from eval.compare import change_text, value_text
-    from eval.html_report import Notes, page, table
+    from depotbench.eval.aggregate import RATIO_METRICS
+    from depotbench.eval.compare import change_text, value_text
+    from depotbench.eval.html_report import Notes, page, table
 
     header = ["family", "configuration", "figure", "first", "this", "change", "95 % interval", "pairs"]
     header += ["p(worse)", ""]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sim.errors import InputError
+from depotbench.core.errors import InputError
 
 
 def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth") -> None:
@@ -55,7 +55,7 @@ def pairs(items: list[str], flag: str) -> dict[str, str]:
 
 
 def detector_config(args: argparse.Namespace):
-    from detectors.config import DetectorConfigError, parse_detector
+    from depotbench.detectors.config import DetectorConfigError, parse_detector
 
     try:
         return parse_detector(
@@ -88,12 +88,12 @@ def add_detect_eval(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_detect_eval(args: argparse.Namespace) -> int:
-    from detectors.config import DetectorKind
-    from eval.cache import StageCache
-    from eval.detection_eval import evaluate_detector, format_evaluation
-    from sim.files import dumps_json
-    from sim.output import check_output_file, write_text_atomic
-    from sim.sequence import Sequence
+    from depotbench.core.files import dumps_json
+    from depotbench.core.output import check_output_file, write_text_atomic
+    from depotbench.detectors.config import DetectorKind
+    from depotbench.eval.cache import StageCache
+    from depotbench.eval.detection_eval import evaluate_detector, format_evaluation
+    from depotbench.sim.sequence import Sequence
 
     config = detector_config(args)
     if config.kind is DetectorKind.NONE:
@@ -140,8 +140,8 @@ def add_export_dataset(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_export_dataset(args: argparse.Namespace) -> int:
-    from eval.dataset import ExportOptions, export_dataset
-    from sim.files import read_text
+    from depotbench.core.files import read_text
+    from depotbench.eval.dataset import ExportOptions, export_dataset
 
     if not 0.0 <= args.val_fraction < 1.0:
         raise InputError(f"--val-fraction must lie in [0, 1), got {args.val_fraction}")

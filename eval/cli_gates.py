@@ -8,13 +8,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from eval.gates import GateFile, GateReport
+    from depotbench.eval.gates import GateFile, GateReport
 
 EXIT_FAILED = 1
 
 
 def add_check(sub: argparse._SubParsersAction) -> None:
-    from eval.cli import _workers  # the CLI's own --workers type (eval.cli imports this module)
+    from depotbench.eval.cli import (
+        _workers,  # the CLI's own --workers type (depotbench.eval.cli imports this module)
+    )
 
     p = sub.add_parser(
         "check",
@@ -43,10 +45,10 @@ def add_check(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from eval.gates import format_report, junit_xml, load_gates
-    from eval.sweep import spec_inputs, validate
-    from sim.errors import InputError
-    from sim.output import OutputContainer, OutputKind, check_output_file, write_text_atomic
+    from depotbench.core.errors import InputError
+    from depotbench.core.output import OutputContainer, OutputKind, check_output_file, write_text_atomic
+    from depotbench.eval.gates import format_report, junit_xml, load_gates
+    from depotbench.eval.sweep import spec_inputs, validate
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
@@ -85,8 +87,8 @@ def run_gates(
 ) -> GateReport:
     """The gate file's matrix through the sweep engine (cache and stored rows reused), checked
     (``baseline``: an earlier run's rows, for ``vs_baseline`` budgets)."""
-    from eval.gates import evaluate
-    from eval.sweep_run import execute_sweep
+    from depotbench.eval.gates import evaluate
+    from depotbench.eval.sweep_run import execute_sweep
 
     outcome = execute_sweep(gates.run, gates_path, out, workers, backend=backend, address=address)
     return evaluate(gates, outcome.rows, baseline)
@@ -94,8 +96,8 @@ def run_gates(
 
 def load_baseline(folder: Path) -> list[dict]:
     """An earlier check's or sweep's rows (read only), as the gates compare against them."""
-    from eval.store import ResultStore
-    from sim.errors import InputError
+    from depotbench.core.errors import InputError
+    from depotbench.eval.store import ResultStore
 
     database = folder / "results.sqlite"
     if not database.is_file():

@@ -24,7 +24,7 @@ def add_report(sub: argparse._SubParsersAction) -> None:
 
 
 def _check_rerun(args: argparse.Namespace) -> None:
-    from sim.errors import InputError
+    from depotbench.core.errors import InputError
 
     if not (args.source / "metrics.json").is_file():
         raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
@@ -44,9 +44,9 @@ def _cmd_report(args: argparse.Namespace) -> int:
     """Render, then write: bad input writes nothing. The report folder is staged and swapped
     into place whole, and the recording is renamed into place after it, so a failure at any
     point (a full disk, probe C6) leaves neither half-written."""
-    from eval.html_report import render_report, warn
-    from sim.errors import InputError
-    from sim.output import OutputKind, StagedOutput, write_text_atomic
+    from depotbench.core.errors import InputError
+    from depotbench.core.output import OutputKind, StagedOutput, write_text_atomic
+    from depotbench.eval.html_report import render_report, warn
 
     if not args.source.is_dir():
         raise InputError(f"{args.source}: no such folder")
@@ -57,7 +57,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
     recording = contextlib.nullcontext()
     if args.rerun is not None:
-        from eval.rerun import staged_recording
+        from depotbench.eval.rerun import staged_recording
 
         recording = staged_recording(rendered.run, args.rerun)
     # A folder of depotbench reports (or a new or empty one): never someone else's files.

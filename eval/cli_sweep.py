@@ -6,11 +6,13 @@ import argparse
 import os
 from pathlib import Path
 
-from sim.errors import InputError
+from depotbench.core.errors import InputError
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
-    from eval.cli import _workers  # the CLI's own --workers type (eval.cli imports this module)
+    from depotbench.eval.cli import (
+        _workers,  # the CLI's own --workers type (depotbench.eval.cli imports this module)
+    )
 
     p = sub.add_parser(
         "sweep",
@@ -36,11 +38,11 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from eval.sweep import spec_inputs, validate
-    from eval.sweep_report import format_best
-    from eval.sweep_run import execute_sweep
-    from eval.sweep_spec import load_sweep
-    from sim.output import OutputContainer, OutputKind
+    from depotbench.core.output import OutputContainer, OutputKind
+    from depotbench.eval.sweep import spec_inputs, validate
+    from depotbench.eval.sweep_report import format_best
+    from depotbench.eval.sweep_run import execute_sweep
+    from depotbench.eval.sweep_spec import load_sweep
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")

@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from eval.aggregate import HIGHER_IS_BETTER, RATIO_METRICS, Change, paired_change, stats
-from eval.sweep_report import configuration_label, with_rho
-from sim.errors import InputError
+from depotbench.core.errors import InputError
+from depotbench.eval.aggregate import HIGHER_IS_BETTER, RATIO_METRICS, Change, paired_change, stats
+from depotbench.eval.sweep_report import configuration_label, with_rho
 
 FIGURES = (
     "ate_rmse_m",
@@ -85,8 +85,8 @@ class Comparison:
 
 def load_rows(folder: Path) -> list[dict[str, Any]]:
     """A sweep's or check's rows (results.sqlite), or a run folder's one row (record.json)."""
-    from eval.store import ResultStore
-    from sim.files import read_text
+    from depotbench.core.files import read_text
+    from depotbench.eval.store import ResultStore
 
     if (folder / "results.sqlite").is_file():
         with ResultStore(folder / "results.sqlite", readonly=True) as store:

@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from eval.alignment import Alignment
-from eval.metrics import AteResult, DeltaUnit, RpeResult, ate, rpe
-from eval.trajectory import DEFAULT_MAX_DIFF_S, Trajectory, associate
+from depotbench.eval.alignment import Alignment
+from depotbench.eval.metrics import AteResult, DeltaUnit, RpeResult, ate, rpe
+from depotbench.eval.trajectory import DEFAULT_MAX_DIFF_S, Trajectory, associate
 
 
 @dataclass(frozen=True)

@@ -26,13 +26,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.errors import FileError, InputError
+from depotbench.core.files import MAX_IMAGE_BYTES, dumps_json
+from depotbench.core.output import OutputError, OutputKind, StagedOutput
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.sequence import Sequence, timestamp_name
 from tqdm import tqdm
-
-from sim.errors import FileError, InputError
-from sim.files import MAX_IMAGE_BYTES, dumps_json
-from sim.ground_truth import ObjectState
-from sim.output import OutputError, OutputKind, StagedOutput
-from sim.sequence import Sequence, timestamp_name
 
 PARTS = ("train", "val")
 

@@ -16,15 +16,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-
-from detectors.config import DetectorConfig
-from detectors.detection import Detection, Prior
-from detectors.faults import Difficulty
-from detectors.groundtruth import GroundTruthDetector, is_truncated
-from eval.cache import StageCache
-from eval.detections import detect_sequence
-from sim.errors import InputError
-from sim.sequence import Sequence
+from depotbench.core.errors import InputError
+from depotbench.detectors.config import DetectorConfig
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.detectors.faults import Difficulty
+from depotbench.detectors.groundtruth import GroundTruthDetector, is_truncated
+from depotbench.eval.cache import StageCache
+from depotbench.eval.detections import detect_sequence
+from depotbench.sim.sequence import Sequence
 
 IOU_THRESHOLD = 0.5
 DYNAMIC = "dynamic (any class)"

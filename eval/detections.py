@@ -2,7 +2,7 @@
 
 The detector itself (ground truth or a network) runs once per sequence and
 detector configuration; its boxes and per-frame latency are cached on disk
-(``eval.cache``) keyed by a fingerprint of the sequence's files and the
+(``depotbench.eval.cache``) keyed by a fingerprint of the sequence's files and the
 detector's content key. Faults are applied on top, after the cache: they are
 cheap and seeded, so changing a fault setting never re-runs a network.
 """
@@ -17,17 +17,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.errors import InputError
+from depotbench.core.files import file_digest
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.config import DetectorConfig, DetectorKind, check_model_file
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.detectors.faults import inject
+from depotbench.detectors.groundtruth import GroundTruthDetector
+from depotbench.eval.cache import StageCache, content_hash
+from depotbench.sim.sequence import Sequence
 from tqdm import tqdm
-
-from detectors.base import DetectorFrame
-from detectors.config import DetectorConfig, DetectorKind, check_model_file
-from detectors.detection import Detection, Prior
-from detectors.faults import inject
-from detectors.groundtruth import GroundTruthDetector
-from eval.cache import StageCache, content_hash
-from sim.errors import InputError
-from sim.files import file_digest
-from sim.sequence import Sequence
 
 CACHE_STAGE = "detections"
 CACHE_FORMAT = 1
@@ -75,7 +74,7 @@ def build_detector(config: DetectorConfig, sequence: Sequence):
     if config.kind is DetectorKind.GROUNDTRUTH:
         return GroundTruthDetector(sequence, config.min_visible_pixels, config.priors)
     if config.kind is DetectorKind.ONNX:
-        from detectors.onnx import OnnxDetector, OnnxModelError
+        from depotbench.detectors.onnx import OnnxDetector, OnnxModelError
 
         try:
             return OnnxDetector(config.model_path, config.onnx, config.priors)

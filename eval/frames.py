@@ -15,12 +15,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from detectors.detection import Detection, Prior
-from sim.camera import OrbSlamSettings, orbslam_yaml
-from sim.errors import InputError
-from sim.sequence import Sequence, timestamp_name
-from sim.tum_files import write_frame_list
+from depotbench.core.errors import InputError
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
+from depotbench.sim.sequence import Sequence, timestamp_name
+from depotbench.sim.tum_files import write_frame_list
 
 
 @dataclass(frozen=True)

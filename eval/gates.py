@@ -37,13 +37,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from depotbench.eval.aggregate import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
+from depotbench.eval.sweep_report import settings_text, with_rho
+from depotbench.eval.sweep_spec import SweepSpec
+from depotbench.scenes.schema import Strict, load_model
+from depotbench.sim.sequence import Sequence
 from pydantic import Field, model_validator
-
-from eval.aggregate import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
-from eval.sweep_report import settings_text, with_rho
-from eval.sweep_spec import SweepSpec
-from scenes.schema import Strict, load_model
-from sim.sequence import Sequence
 
 METRICS: dict[str, str] = {
     "ate_rmse_m": "ATE RMSE (m)",

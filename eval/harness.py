@@ -21,25 +21,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from detectors.config import DetectorConfig, DetectorKind
-from eval.cache import StageCache, content_hash
-from eval.comparison import ComparisonOptions, compare
-from eval.detections import SequenceDetections, detect_sequence, sequence_fingerprint
-from eval.frames import FrameSource, MaskSettings
-from eval.record import RECORD_VERSION, RunIdentity, RunRecord
-from eval.stages import FrameStages, features_key, sequence_stages
-from eval.trackers.base import Tracker, TrackerKind, TrackerRun
-from eval.trackers.builtin import BuiltinTracker, camera_of
-from eval.trajectory import Trajectory, write_tum
-from sim.errors import InputError
-from sim.files import dumps_json, file_digest
-from sim.output import OutputKind, StagedOutput
-from sim.sequence import Sequence
-from sim.version import generator_version
-from slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
-from slam.rejection import STRATEGIES
-from slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
+from depotbench.core.errors import InputError
+from depotbench.core.files import dumps_json, file_digest
+from depotbench.core.output import OutputKind, StagedOutput
+from depotbench.core.version import generator_version
+from depotbench.detectors.config import DetectorConfig, DetectorKind
+from depotbench.eval.cache import StageCache, content_hash
+from depotbench.eval.comparison import ComparisonOptions, compare
+from depotbench.eval.detections import SequenceDetections, detect_sequence, sequence_fingerprint
+from depotbench.eval.frames import FrameSource, MaskSettings
+from depotbench.eval.record import RECORD_VERSION, RunIdentity, RunRecord
+from depotbench.eval.stages import FrameStages, features_key, sequence_stages
+from depotbench.eval.trackers.base import Tracker, TrackerKind, TrackerRun
+from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
+from depotbench.eval.trajectory import Trajectory, write_tum
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
+from depotbench.slam.rejection import STRATEGIES
+from depotbench.slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
 MASK = "mask"
 STRATEGY_CHOICES = (*STRATEGIES, MASK)
@@ -55,7 +54,7 @@ class TrackerConfig:
 
     kind: TrackerKind = TrackerKind.BUILTIN
     command: str | None = None
-    """``cmd``: the command template (see ``eval.trackers.command``)."""
+    """``cmd``: the command template (see ``depotbench.eval.trackers.command``)."""
     vocabulary: Path | None = None
     """``orbslam3`` and ``cmd``: a DBoW2 text vocabulary; the bench's default one if None."""
     timeout_s: float = 3600.0
@@ -77,7 +76,7 @@ class TrackerConfig:
 def make_tracker(
     tracker: TrackerConfig, config: SlamConfig, progress: bool, stages: list[FrameStages] | None = None
 ) -> Tracker:
-    from eval.vocabulary import default_vocabulary
+    from depotbench.eval.vocabulary import default_vocabulary
 
     def vocabulary() -> Path:
         return tracker.vocabulary or default_vocabulary(progress)
@@ -85,7 +84,7 @@ def make_tracker(
     if tracker.kind is TrackerKind.BUILTIN:
         return BuiltinTracker(config, stages)
     if tracker.kind is TrackerKind.ORBSLAM3:
-        from eval.trackers.orbslam3 import INSTALL_HINT, Orbslam3Tracker, available
+        from depotbench.eval.trackers.orbslam3 import INSTALL_HINT, Orbslam3Tracker, available
 
         if not available():  # before a vocabulary is built for nothing
             raise InputError(f"--slam orbslam3: ORB-SLAM3 is not installed: {INSTALL_HINT}")
@@ -97,7 +96,7 @@ def command_tracker(tracker: TrackerConfig, vocabulary=None):
     """The ``cmd`` tracker of a configuration: its template, parameter names and settings
     template are checked here, so building one (``check_tracker``) refuses a bad one
     before any run."""
-    from eval.trackers.command import CommandTracker, SettingsTemplate
+    from depotbench.eval.trackers.command import CommandTracker, SettingsTemplate
 
     if not tracker.command:
         raise InputError("--slam cmd needs --command TEMPLATE")
@@ -119,11 +118,11 @@ def check_tracker(tracker: TrackerConfig, camera_sequence: Sequence | None = Non
     parse or names what it is not given (rendered on ``camera_sequence``), an ORB-SLAM3
     setting out of range."""
     if tracker.kind is TrackerKind.ORBSLAM3:
-        from eval.trackers.orbslam3 import orbslam_settings
+        from depotbench.eval.trackers.orbslam3 import orbslam_settings
 
         orbslam_settings(30.0, tracker.parameters)
     elif tracker.kind is TrackerKind.COMMAND:
-        from eval.trackers.command import check_program
+        from depotbench.eval.trackers.command import check_program
 
         program = command_tracker(tracker)
         check_program(program.words, Path.cwd())
@@ -243,7 +242,7 @@ def branch_root(job: RunJob, features: str, config: SlamConfig) -> str:
 
 def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCache) -> list[Tracked]:
     """Track jobs of one ``branch_root`` together: once while they keep the same keypoints
-    (``paths``: per job and frame, ``eval.stages.decision_path``), forked where they part.
+    (``paths``: per job and frame, ``depotbench.eval.stages.decision_path``), forked where they part.
     Each result equals the job's own ``track``, timings aside."""
     sequence = Sequence.open(jobs[0].sequence)
     prepared = [prepare(job, sequence) for job in jobs]
@@ -494,7 +493,7 @@ def frame_decisions(sequence: Sequence, run: TrackerRun) -> tuple[list[np.ndarra
         return [r.diagnostics.rejection != kept for r in run.results], list(run.labels)
     if run.decisions is None or not sequence.is_generated:
         return None
-    from eval.trackers.builtin import true_moving_labels
+    from depotbench.eval.trackers.builtin import true_moving_labels
 
     objects = sequence.objects()
     moving = [

@@ -38,6 +38,23 @@ from typing import Any
 
 import cv2
 import numpy as np
+from depotbench.core.errors import FileError, InputError
+from depotbench.core.files import MIB, open_regular, read_text
+from depotbench.eval.aggregate import SuccessRule
+from depotbench.eval.alignment import Alignment, align
+from depotbench.eval.sweep_report import (
+    configuration_label,
+    pareto_figure,
+    pyplot,
+    settings_text,
+    strip_figures,
+    threshold_figures,
+    with_rho,
+)
+from depotbench.eval.trackers.base import TrackerKind
+from depotbench.eval.trajectory import Trajectory, associate, read_tum
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.types import Rejection, TrackingState
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -47,24 +64,6 @@ from pydantic import (
     ValidationError,
     field_validator,
 )
-
-from eval.aggregate import SuccessRule
-from eval.alignment import Alignment, align
-from eval.sweep_report import (
-    configuration_label,
-    pareto_figure,
-    pyplot,
-    settings_text,
-    strip_figures,
-    threshold_figures,
-    with_rho,
-)
-from eval.trackers.base import TrackerKind
-from eval.trajectory import Trajectory, associate, read_tum
-from sim.errors import FileError, InputError
-from sim.files import MIB, open_regular, read_text
-from sim.sequence import Sequence
-from slam.types import Rejection, TrackingState
 
 DECISION_COLOURS: dict[str, tuple[int, int, int]] = {
     Rejection.KEPT.value: (40, 200, 60),
@@ -178,7 +177,7 @@ MAX_METRICS_BYTES = 1 * MIB
 """metrics.json holds statistics, not per-frame values: about 3 KB whatever the run's length."""
 MAX_FRAMES_CSV_BYTES = 8 * MIB
 """frames.csv: at most ~45 bytes a frame (``1234.123456,not_initialized,12.345``), so a
-100,000-frame run (scenes.schema.MAX_FRAMES) writes about 4.5 MB."""
+100,000-frame run (depotbench.scenes.schema.MAX_FRAMES) writes about 4.5 MB."""
 MAX_DIAGNOSTICS_BYTES = 2048 * MIB
 """The decoded arrays of diagnostics.npz: 13.1 KB a frame at the tracker's default 1,000
 keypoints (walking_static), so 1.3 GB for a 100,000-frame run. Checked from the members'
@@ -385,8 +384,8 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
 
 
 def view_of(title: str, tracked, sequence: Sequence) -> RunView:
-    """A run tracked in this process (``eval.harness.Tracked``) on ``sequence``."""
-    from eval.harness import diagnostics_arrays
+    """A run tracked in this process (``depotbench.eval.harness.Tracked``) on ``sequence``."""
+    from depotbench.eval.harness import diagnostics_arrays
 
     run = tracked.run
     return RunView(
@@ -729,7 +728,7 @@ Number = StrictFloat | StrictInt | None
 
 
 class _Stats(BaseModel):
-    """One figure over a configuration's runs (``eval.aggregate.Stats``)."""
+    """One figure over a configuration's runs (``depotbench.eval.aggregate.Stats``)."""
 
     model_config = ConfigDict(extra="allow")
     n: StrictInt
@@ -739,7 +738,7 @@ class _Stats(BaseModel):
 
 
 class _Configuration(BaseModel):
-    """A configuration as ``eval.sweep_report.configurations`` writes it into summary.json.
+    """A configuration as ``depotbench.eval.sweep_report.configurations`` writes it into summary.json.
     Its runs and statistics over seeds are optional: a sweep before them has none."""
 
     model_config = ConfigDict(extra="allow")
@@ -792,7 +791,7 @@ class _Summary(BaseModel):
 
 def _first_problem(source: str, exc: ValidationError) -> str:
     """One line: the first problem pydantic found, and how many more there are."""
-    from scenes.schema import format_validation_error
+    from depotbench.scenes.schema import format_validation_error
 
     lines = format_validation_error(source, exc).splitlines()
     return lines[0] + (f" (and {len(lines) - 1} more)" if len(lines) > 1 else "")
@@ -820,8 +819,8 @@ def read_summary(path: Path) -> dict[str, Any]:
 
 def stored_spec(path: Path):
     """The sweep spec kept in results.sqlite (meta ``spec``), or None for a sweep without one."""
-    from eval.store import ResultStore
-    from eval.sweep_spec import SweepSpec
+    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep_spec import SweepSpec
 
     with ResultStore(path, readonly=True) as store:
         stored = store.meta("spec")
@@ -836,7 +835,7 @@ def stored_spec(path: Path):
 def stored_spec_path(path: Path) -> str | None:
     """Where the sweep's spec file was (meta ``spec_path``): its relative paths (a program,
     a model, a settings template) start there."""
-    from eval.store import ResultStore
+    from depotbench.eval.store import ResultStore
 
     with ResultStore(path, readonly=True) as store:
         return store.meta("spec_path")
@@ -905,8 +904,8 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
     """The job of a stored row outside the spec's grid (a search trial: its tracker's
     parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
     if its key is the row's."""
-    from eval.harness import RunJob, identity_of, job_key, tracker_identity
-    from eval.sweep import SweepJob
+    from depotbench.eval.harness import RunJob, identity_of, job_key, tracker_identity
+    from depotbench.eval.sweep import SweepJob
 
     if fingerprint is None:
         return None
@@ -948,9 +947,9 @@ def _track_family(
 ) -> list[RunView]:
     """The featured run of a family (its best configuration's, or ``role``) and its none run,
     tracked again on ``sequence``."""
-    from eval.cache import StageCache
-    from eval.harness import track
-    from eval.sweep import jobs_for
+    from depotbench.eval.cache import StageCache
+    from depotbench.eval.harness import track
+    from depotbench.eval.sweep import jobs_for
 
     found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)], grid.anchor)
     jobs = {j.key: j for j in found}
@@ -999,7 +998,7 @@ def _featured_runs(
 ) -> dict[str, list[RunView]]:
     """Per family, the run of its featured configuration (``featured``: the configuration and
     what it is, ``best``), and its none run, tracked again from the cache."""
-    from eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
+    from depotbench.eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
 
     if not featured:
         return {}
@@ -1162,7 +1161,7 @@ def _family_section(
 
 def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) -> str:
     """The sweep's page; ``featured``: how many families (sorted by name) get a section."""
-    from eval.store import ResultStore
+    from depotbench.eval.store import ResultStore
 
     summary = read_summary(folder / "summary.json")
     with ResultStore(folder / "results.sqlite", readonly=True) as store:
@@ -1333,7 +1332,7 @@ def warn(notes: Notes, verb: str = "report") -> None:
 def write_report(source: Path, out: Path) -> Path:
     """The page written atomically as OUT/index.html (OUT: a folder the caller owns); what it
     leaves out is warned about on stderr."""
-    from sim.output import write_text_atomic
+    from depotbench.core.output import write_text_atomic
 
     rendered = render_report(source)
     out.mkdir(parents=True, exist_ok=True)

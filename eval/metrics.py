@@ -1,6 +1,6 @@
 """ATE and RPE as evo computes them, and the improvement rate against a baseline.
 
-Functions take associated trajectories (see ``eval.trajectory.associate``) and
+Functions take associated trajectories (see ``depotbench.eval.trajectory.associate``) and
 return frozen results; nothing is modified in place, so sweeps can reuse inputs.
 """
 
@@ -10,11 +10,10 @@ from dataclasses import asdict, dataclass
 from enum import StrEnum
 
 import numpy as np
+from depotbench.core.errors import InputError
+from depotbench.eval.alignment import Alignment, Similarity, align
+from depotbench.eval.trajectory import Trajectory
 from scipy.spatial.transform import Rotation
-
-from eval.alignment import Alignment, Similarity, align
-from eval.trajectory import Trajectory
-from sim.errors import InputError
 
 RPE_REL_DELTA_TOL = 0.1
 """All-pairs RPE in metres accepts a pair whose path length is delta +- this fraction (evo)."""

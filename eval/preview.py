@@ -6,10 +6,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from sim.ground_truth import ObjectState
-from sim.output import write_bytes_atomic
-from sim.sequence import Sequence
+from depotbench.core.output import write_bytes_atomic
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.sequence import Sequence
 
 DEPTH_RANGE_M = 8.0
 

@@ -33,13 +33,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
-
-from sim.errors import InputError
-from sim.output import OutputLock
+from depotbench.core.errors import InputError
+from depotbench.core.output import OutputLock
 
 if TYPE_CHECKING:
-    from eval.sweep_spec import SweepSpec
-    from sim.spec import ScenarioSpec
+    from depotbench.eval.sweep_spec import SweepSpec
+    from depotbench.sim.spec import ScenarioSpec
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -90,7 +89,7 @@ def _claim(target: Path) -> OutputLock:
     workers sharing ``--depotbench-dir`` ask for the same sequence or run at once.
 
     It is ``.NAME.claim.lock``, not the target's own ``.NAME.lock``: the writer
-    (``sim.output.StagedOutput``) takes that one without waiting, and a second ``flock``
+    (``depotbench.core.output.StagedOutput``) takes that one without waiting, and a second ``flock``
     on it from this process would be refused."""
     target.parent.mkdir(parents=True, exist_ok=True)
     return OutputLock(target.with_name(f"{target.name}.claim"), wait=True)
@@ -118,9 +117,9 @@ def _fail_on(report) -> None:
 def depotbench_gates(request: pytest.FixtureRequest, depotbench_dir: Path) -> Callable[..., Any]:
     """Call with a gate file to run and check it (``check=False`` returns the report
     without failing). A test marked ``depotbench_gates(path)`` runs that file first."""
-    from eval.cli_gates import run_gates
-    from eval.gates import load_gates
-    from eval.sweep import validate
+    from depotbench.eval.cli_gates import run_gates
+    from depotbench.eval.gates import load_gates
+    from depotbench.eval.sweep import validate
 
     workers = request.config.getoption("--depotbench-workers")
 
@@ -169,9 +168,9 @@ def _plan_sequence(scenario: str, frames: int | None, seed: int, root: Path, job
     """Where ``scenario`` (a library name or a YAML file) with this seed and length lives
     under ``root``: named by a hash of the scenario, so no work is needed to know it. The
     seed and length are checked as a scenario file's would be (``frames=0`` is refused)."""
-    from scenes import library
-    from scenes.schema import Scenario, load_scenario, to_scenario, validate_model
-    from sim.spec import content_key
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import Scenario, load_scenario, to_scenario, validate_model
+    from depotbench.sim.spec import content_key
 
     path = Path(scenario)
     spec = load_scenario(path) if path.suffix in (".yaml", ".yml") else library.get(scenario)
@@ -186,12 +185,12 @@ def _plan_sequence(scenario: str, frames: int | None, seed: int, root: Path, job
 
 def _generate(sequence: _Sequence) -> None:
     """Generate the sequence unless it is complete and current (its marker holds this
-    content key, as ``scenes.generation`` decides); one process at a time. A sequence the
-    shared store (``scenes.store``) holds is copied from it, and one rendered is added to
+    content key, as ``depotbench.scenes.generation`` decides); one process at a time. A sequence the
+    shared store (``depotbench.scenes.store``) holds is copied from it, and one rendered is added to
     it: a second session, even with a fresh ``--depotbench-dir``, renders nothing."""
-    from scenes.generation import is_complete
-    from scenes.store import SequenceStore
-    from sim.generate import generate
+    from depotbench.scenes.generation import is_complete
+    from depotbench.scenes.store import SequenceStore
+    from depotbench.sim.generate import generate
 
     if is_complete(sequence.path, sequence.key):
         return
@@ -212,8 +211,8 @@ def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:
     sweep's own checks of trackers and detectors, and every job it will run checked
     against the tracker (the sweep skips those an external tracker cannot run, and then
     no row comes back)."""
-    from eval.harness import slam_config
-    from eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
+    from depotbench.eval.harness import slam_config
+    from depotbench.eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
 
     try:
         trackers = tracker_configs(spec, str(spec_path))
@@ -247,10 +246,10 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
     ``none`` run). ``budgets`` (and a ``depotbench_budgets`` marker) are checked.
     Everything is checked before any work: a configuration that cannot run is refused
     in one line, before a sequence is generated or a vocabulary built."""
-    from eval.gates import Check, GateFile, derived_rows, evaluate
-    from eval.sweep_run import execute_sweep
-    from eval.sweep_spec import SweepSpec
-    from scenes.schema import validate_model
+    from depotbench.eval.gates import Check, GateFile, derived_rows, evaluate
+    from depotbench.eval.sweep_run import execute_sweep
+    from depotbench.eval.sweep_spec import SweepSpec
+    from depotbench.scenes.schema import validate_model
 
     workers = request.config.getoption("--depotbench-workers")
     marker = request.node.get_closest_marker("depotbench_budgets")

@@ -19,15 +19,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-
-from eval.html_report import (
+from depotbench.core.errors import InputError
+from depotbench.eval.html_report import (
     DECISION_COLOURS,
     MOVING_COLOUR,
     STATIC_COLOUR,
     RunView,
     aligned_trajectories,
 )
-from sim.errors import InputError
 
 PIPE_CHUNK = 1 << 16
 

@@ -18,14 +18,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from detectors.config import DetectorConfig
-from eval.cache import content_hash
-from eval.detections import sequence_fingerprint
-from eval.harness import TrackerConfig, check_tracker, tracker_identity
-from eval.store import SQLITE_HEADER, ResultStore
-from eval.sweep import jobs_for, run_jobs, sequence_entries
-from eval.sweep_spec import (
+from depotbench.core.errors import InputError
+from depotbench.core.files import open_regular
+from depotbench.detectors.config import DetectorConfig
+from depotbench.eval.cache import content_hash
+from depotbench.eval.detections import sequence_fingerprint
+from depotbench.eval.harness import TrackerConfig, check_tracker, tracker_identity
+from depotbench.eval.store import SQLITE_HEADER, ResultStore
+from depotbench.eval.sweep import jobs_for, run_jobs, sequence_entries
+from depotbench.eval.sweep_spec import (
     Search,
     SweepSpec,
     Variant,
@@ -34,9 +35,7 @@ from eval.sweep_spec import (
     setting_text,
     tracker_configs,
 )
-from sim.errors import InputError
-from sim.files import open_regular
-from sim.sequence import Sequence
+from depotbench.sim.sequence import Sequence
 
 STUDY = "optuna.sqlite"
 

@@ -22,17 +22,16 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from depotbench.eval.cache import StageCache, content_hash
+from depotbench.eval.detections import sequence_fingerprint
+from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.config import RejectionConfig, SlamConfig, TrackingConfig
+from depotbench.slam.features import FeatureExtractor, FrameFeatures
+from depotbench.slam.rejection import Flow, classify, flow_to_previous
+from depotbench.slam.system import seed_frame
+from depotbench.slam.types import REJECTION_CODES, Rejection
 from tqdm import tqdm
-
-from eval.cache import StageCache, content_hash
-from eval.detections import sequence_fingerprint
-from eval.trackers.builtin import camera_of, true_moving_labels
-from sim.sequence import Sequence
-from slam.config import RejectionConfig, SlamConfig, TrackingConfig
-from slam.features import FeatureExtractor, FrameFeatures
-from slam.rejection import Flow, classify, flow_to_previous
-from slam.system import seed_frame
-from slam.types import REJECTION_CODES, Rejection
 
 FEATURES_STAGE = "features"
 FLOW_STAGE = "flow"

@@ -18,10 +18,10 @@ from dataclasses import fields as dataclass_fields
 from pathlib import Path
 from typing import Any
 
-from eval.record import FIELDS, RECORD_VERSION, RunRecord
-from sim.errors import InputError
-from sim.files import open_regular
-from sim.output import write_text_atomic
+from depotbench.core.errors import InputError
+from depotbench.core.files import open_regular
+from depotbench.core.output import write_text_atomic
+from depotbench.eval.record import FIELDS, RECORD_VERSION, RunRecord
 
 _KIND_OF_TYPE = {"str": str, "int": int, "float": float}
 _KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_fields(RunRecord)}

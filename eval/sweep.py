@@ -13,12 +13,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
-from detectors.config import DetectorConfig
-from eval.cache import StageCache
-from eval.detections import detect_sequence, sequence_fingerprint, stored_path
-from eval.harness import (
+from depotbench.core.errors import InputError
+from depotbench.core.executors import make_pool
+from depotbench.core.version import generator_version
+from depotbench.detectors.config import DetectorConfig
+from depotbench.eval.cache import StageCache
+from depotbench.eval.detections import detect_sequence, sequence_fingerprint, stored_path
+from depotbench.eval.harness import (
     RunJob,
     TrackerConfig,
     branch_root,
@@ -35,10 +36,10 @@ from eval.harness import (
     tracker_identity,
     uses_stages,
 )
-from eval.record import RunIdentity, RunRecord
-from eval.stages import decision_path, decision_signature, features_key, sequence_stages
-from eval.store import ResultStore
-from eval.sweep_spec import (
+from depotbench.eval.record import RunIdentity, RunRecord
+from depotbench.eval.stages import decision_path, decision_signature, features_key, sequence_stages
+from depotbench.eval.store import ResultStore
+from depotbench.eval.sweep_spec import (
     MAX_JOBS,
     SweepSpec,
     Variant,
@@ -52,13 +53,11 @@ from eval.sweep_spec import (
     variant_count,
     variants,
 )
-from eval.trackers.base import TrackerError, TrackerKind
-from scenes.schema import SpecError
-from sim.errors import InputError
-from sim.executors import make_pool
-from sim.sequence import Sequence
-from sim.version import generator_version
-from slam.config import TrackingConfig
+from depotbench.eval.trackers.base import TrackerError, TrackerKind
+from depotbench.scenes.schema import SpecError
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.config import TrackingConfig
+from tqdm import tqdm
 
 DATABASE = "results.sqlite"
 
@@ -151,7 +150,7 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
             except InputError as exc:
                 raise SpecError(f"{source}: trackers.{i} ({tracker.label}): {exc}") from None
     if spec.suite is not None:
-        from scenes.suite import load_suite
+        from depotbench.scenes.suite import load_suite
 
         suite_path = resolve(spec, spec_path, spec.suite)
         if not suite_path.is_file():
@@ -184,8 +183,8 @@ def sequences_of(
     averaged together."""
     roots = named_sequences(spec, spec_path)
     if spec.suite is not None:
-        from scenes.generation import run_suite
-        from scenes.suite import load_suite
+        from depotbench.scenes.generation import run_suite
+        from depotbench.scenes.suite import load_suite
 
         suite_path = resolve(spec, spec_path, spec.suite)
         if not suite_path.is_file():
@@ -246,8 +245,8 @@ def _folder_entries(folder: Path, where: str) -> list[SequenceEntry]:
     """A sequence folder's entry, or a suite folder's sequences, each checked complete."""
     import json
 
-    from scenes.generation import INDEX_NAME, is_complete
-    from sim.output import OutputKind, read_marker
+    from depotbench.core.output import OutputKind, read_marker
+    from depotbench.scenes.generation import INDEX_NAME, is_complete
 
     marker = read_marker(folder)
     if marker is None or marker.kind is not OutputKind.SUITE:

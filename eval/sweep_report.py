@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from eval.aggregate import SuccessRule, summarize
-from eval.metrics import improvement_rate
+from depotbench.eval.aggregate import SuccessRule, summarize
+from depotbench.eval.metrics import improvement_rate
 
 
 def _parameters(row: dict[str, Any]) -> str:

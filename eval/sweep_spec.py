@@ -32,19 +32,24 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from pydantic import Field, model_validator
-
-from detectors.config import (
+from depotbench.core.errors import InputError
+from depotbench.detectors.config import (
     DetectorConfig,
     DetectorConfigError,
     DetectorKind,
     check_model_file,
     parse_detector,
 )
-from eval.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, TrackerConfig, check_tracker, slam_config
-from eval.trackers.base import TrackerKind
-from scenes.schema import SpecError, Strict, load_model
-from sim.errors import InputError
+from depotbench.eval.harness import (
+    EXTERNAL_STRATEGIES,
+    STRATEGY_CHOICES,
+    TrackerConfig,
+    check_tracker,
+    slam_config,
+)
+from depotbench.eval.trackers.base import TrackerKind
+from depotbench.scenes.schema import SpecError, Strict, load_model
+from pydantic import Field, model_validator
 
 MAX_JOBS = 100_000
 
@@ -379,7 +384,7 @@ def _parameter_defaults(entry: TrackerEntry) -> tuple[tuple[str, str], ...]:
         for name, value in entry.parameters.items()
     }
     if entry.kind == "orbslam3":
-        from eval.trackers.orbslam3 import PARAMETERS, default_parameters
+        from depotbench.eval.trackers.orbslam3 import PARAMETERS, default_parameters
 
         unknown = sorted(set(defaults) - set(PARAMETERS))
         if unknown:

@@ -6,10 +6,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.errors import InputError
+from depotbench.sim.tum_files import read_pose_file, write_pose_file
 from scipy.spatial.transform import Rotation
-
-from sim.errors import InputError
-from sim.tum_files import read_pose_file, write_pose_file
 
 DEFAULT_MAX_DIFF_S = 0.02
 """Association window, as TUM's associate.py and evaluate_ate.py use."""

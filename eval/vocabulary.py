@@ -29,12 +29,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.cache_home import cache_home
+from depotbench.core.errors import InputError
+from depotbench.core.output import OutputLock, write_text_atomic
+from depotbench.core.version import generator_version
 from tqdm import tqdm
-
-from sim.cache_home import cache_home
-from sim.errors import InputError
-from sim.output import OutputLock, write_text_atomic
-from sim.version import generator_version
 
 BUILDER_VERSION = 1
 TRAINING_SCENES = (
@@ -193,13 +192,13 @@ def read_text(path: Path) -> Vocabulary:
 def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarray]:
     """ORB descriptors (the built-in extractor's, which chooses as ORB-SLAM does) of every
     frame of the training scenes, rendered into a temporary folder."""
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
-    from sim.sequence import Sequence
-    from slam.config import TrackingConfig
-    from slam.features import FeatureExtractor
-    from slam.types import PinholeCamera
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
+    from depotbench.sim.sequence import Sequence
+    from depotbench.slam.config import TrackingConfig
+    from depotbench.slam.features import FeatureExtractor
+    from depotbench.slam.types import PinholeCamera
 
     extractor = FeatureExtractor(TrackingConfig())
     images = []

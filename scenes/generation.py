@@ -6,7 +6,7 @@ complete only when its marker holds the content key of what is asked for now
 (spec, seed, format and generator version); anything else is regenerated. The
 suite folder is locked while a run owns it, each sequence while a worker writes
 it, and workers die with their parent. A sequence the shared store holds
-(``scenes.store``) is copied from it instead of rendered, and every sequence rendered
+(``depotbench.scenes.store``) is copied from it instead of rendered, and every sequence rendered
 is added to it.
 """
 
@@ -18,14 +18,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
-from scenes.schema import Scenario, to_scenario
-from scenes.store import SequenceStore
-from scenes.suite import Suite, variations
-from sim.executors import make_pool
-from sim.files import DEFAULT_PNG_COMPRESSION, dumps_json
-from sim.output import (
+from depotbench.core.executors import make_pool
+from depotbench.core.files import DEFAULT_PNG_COMPRESSION, dumps_json
+from depotbench.core.output import (
     OutputContainer,
     OutputKind,
     check_replaceable,
@@ -33,14 +28,18 @@ from sim.output import (
     read_marker,
     write_text_atomic,
 )
-from sim.spec import content_key
+from depotbench.scenes.schema import Scenario, to_scenario
+from depotbench.scenes.store import SequenceStore
+from depotbench.scenes.suite import Suite, variations
+from depotbench.sim.spec import content_key
+from tqdm import tqdm
 
 INDEX_NAME = "index.json"
 
 
 def generate_job(scenario_data: dict[str, Any], out: str, png_compression: int) -> dict[str, Any]:
     """Worker entry point: validate, generate (replacing a stale sequence), return its difficulty."""
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     scenario = Scenario.model_validate(scenario_data)
     generate(
@@ -105,11 +104,11 @@ def run_suite(
 ) -> dict:
     """Generate every variation whose sequence is missing or stale; write ``index.json``.
 
-    ``backend`` ``ray`` generates on a Ray cluster (``sim.executors``); the bytes are the same.
+    ``backend`` ``ray`` generates on a Ray cluster (``depotbench.core.executors``); the bytes are the same.
 
     ``overwrite`` regenerates every sequence, even those that are up to date.
     ``png_compression`` is the zlib level of the PNGs (0: fastest, largest).
-    ``store``: the shared sequence store (``scenes.store``) to copy held sequences from
+    ``store``: the shared sequence store (``depotbench.scenes.store``) to copy held sequences from
     instead of rendering them, and to add rendered ones to; True (the default) takes the
     one the environment names, None or False none. ``overwrite`` renders every sequence.
     """

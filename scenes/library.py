@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scenes.schema import Scenario, SpecError, load_scenario
+from depotbench.scenes.schema import Scenario, SpecError, load_scenario
 
 LIBRARY_DIR = Path(__file__).resolve().parent / "library"
 

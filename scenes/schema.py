@@ -2,7 +2,7 @@
 
 A scenario file describes what a user wants (counts, speed ranges, a camera
 motion, a sensor); ``to_scenario`` turns it, with its seed, into the simulator's
-exact ``sim.spec.ScenarioSpec``.
+exact ``depotbench.sim.spec.ScenarioSpec``.
 """
 
 from __future__ import annotations
@@ -13,6 +13,10 @@ from typing import Annotated, Any, Literal, TypeVar
 
 import numpy as np
 import yaml
+from depotbench.core.errors import FileError, InputError
+from depotbench.core.files import MAX_SPEC_BYTES, read_text
+from depotbench.sim import spec as sim_spec
+from depotbench.sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -24,11 +28,6 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-
-from sim import spec as sim_spec
-from sim.errors import FileError, InputError
-from sim.files import MAX_SPEC_BYTES, read_text
-from sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -1,6 +1,6 @@
 """A store of generated sequences shared by every job of a machine, by content key.
 
-A sequence's bytes depend only on its content key (``sim.spec.content_key``: the
+A sequence's bytes depend only on its content key (``depotbench.sim.spec.content_key``: the
 simulator spec, seed, format and generator version), so a sequence rendered once can
 be copied wherever it is asked for again: ``depotbench generate``, a sweep's suite and
 the pytest plugin render a sequence once per machine instead of once per job.
@@ -11,7 +11,7 @@ the pytest plugin render a sequence once per machine instead of once per job.
   stage cache.
 - **What.** One folder per key and PNG compression level, ``HEX-L`` (the key's SHA-256
   digest; the level shapes the bytes, not the pixels, and the key leaves it out): a
-  complete sequence with its marker, written through ``sim.output.StagedOutput``
+  complete sequence with its marker, written through ``depotbench.core.output.StagedOutput``
   (staged, locked, swapped into place), and beside it ``HEX-L.json`` with the key, the
   bytes and the files, written last. A second writer of one entry finds it locked (or
   complete) and leaves it be.
@@ -43,11 +43,11 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from sim.cache_home import OFF as _OFF
-from sim.cache_home import ON as _ON
-from sim.cache_home import cache_home, parse_bytes
-from sim.files import DEFAULT_PNG_COMPRESSION
-from sim.output import (
+from depotbench.core.cache_home import OFF as _OFF
+from depotbench.core.cache_home import ON as _ON
+from depotbench.core.cache_home import cache_home, parse_bytes
+from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+from depotbench.core.output import (
     MARKER_NAME,
     OutputError,
     OutputKind,

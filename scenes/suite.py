@@ -15,10 +15,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import Field, model_validator
-
-from scenes import library
-from scenes.schema import (
+from depotbench.scenes import library
+from depotbench.scenes.schema import (
     Scenario,
     SpecError,
     Strict,
@@ -26,6 +24,7 @@ from scenes.schema import (
     parse_scenario,
     read_yaml,
 )
+from pydantic import Field, model_validator
 
 MAX_VARIATIONS = 10_000
 Bound = Annotated[float, Field(ge=-1e12, le=1e12)]

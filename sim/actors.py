@@ -13,9 +13,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim.conventions import frame_along
-from sim.figures import (
+from depotbench.sim.conventions import frame_along
+from depotbench.sim.figures import (
     BIRD_SHOULDER,
     SHOULDER_Y,
     AnimalLook,
@@ -25,8 +24,8 @@ from sim.figures import (
     person_surfaces,
     quadruped_surfaces,
 )
-from sim.paths import Path
-from sim.products import product
+from depotbench.sim.paths import Path
+from depotbench.sim.products import product
 
 FD_STEP_S = 1e-3
 """Step of the central differences that give an actor's velocity."""

@@ -12,9 +12,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from sim.errors import FileError, SequenceFormatError
-from sim.files import MAX_SPEC_BYTES, read_text
+from depotbench.core.errors import FileError, SequenceFormatError
+from depotbench.core.files import MAX_SPEC_BYTES, read_text
 
 MAX_IMAGE_SIDE = 16384
 """Largest image width or height a settings file may declare."""

@@ -10,12 +10,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from depotbench.sim.conventions import look_at
+from depotbench.sim.paths import Path
+from depotbench.sim.products import product
+from depotbench.sim.spec import CameraSpec
 from scipy.spatial.transform import Rotation
-
-from sim.conventions import look_at
-from sim.paths import Path
-from sim.products import product
-from sim.spec import CameraSpec
 
 ROBOT_LOOP = np.array([[-2.6, -2.0], [2.6, -2.0], [2.6, 2.95], [-2.6, 2.95]])
 ROBOT_CAMERA_HEIGHT_M = 0.45

@@ -7,9 +7,8 @@ frame: x right, y up, looking along -z. ``R_gl = R_cv @ GL_FROM_CV``.
 from __future__ import annotations
 
 import numpy as np
+from depotbench.sim.products import product
 from scipy.spatial.transform import Rotation
-
-from sim.products import product
 
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0])
 """Right-multiplying a rotation by this flips between the optical and the OpenGL camera axes."""

@@ -23,11 +23,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim.conventions import frame_along
-from sim.draws import pick
-from sim.products import product
-from sim.shapes import (
+from depotbench.sim.conventions import frame_along
+from depotbench.sim.draws import pick
+from depotbench.sim.products import product
+from depotbench.sim.shapes import (
     Field,
     Grid,
     Mesh,
@@ -41,7 +40,7 @@ from sim.shapes import (
     smooth_union,
     union,
 )
-from sim.textures import COAT_WIDTH_M, LAID_ON
+from depotbench.sim.textures import COAT_WIDTH_M, LAID_ON
 
 ARM_SPREAD_DEG = 14.0
 """Arms of the bind pose hang this far from the body, so they do not melt into it."""
@@ -66,7 +65,7 @@ class Surface:
     where a coat is laid on along the body (``wrapped``), not projected by a cube map."""
     far: Surface | None = None
     """The same mesh piece with fewer triangles, drawn in its place when it is far from
-    the camera (``sim.render.FAR_M``); None for primitives and small pieces."""
+    the camera (``depotbench.sim.render.FAR_M``); None for primitives and small pieces."""
 
 
 @dataclass(frozen=True)

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
-from sim.camera import Intrinsics
-from sim.products import product, rigid_inverse
+from depotbench.sim.camera import Intrinsics
+from depotbench.sim.products import product, rigid_inverse
 
 
 def rigid_motions(pos0: np.ndarray, rot0: np.ndarray, pos1: np.ndarray, rot1: np.ndarray) -> np.ndarray:

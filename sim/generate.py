@@ -8,21 +8,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.errors import ScenarioError
+from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+from depotbench.sim.flow import exact_flow, flow_at, rigid_motions
+from depotbench.sim.ground_truth import ObjectState, visible_boxes
+from depotbench.sim.mujoco_env import mujoco
+from depotbench.sim.products import product
+from depotbench.sim.render import FrameRenderer
+from depotbench.sim.sensor import SensorModel
+from depotbench.sim.sequence import SequenceWriter
+from depotbench.sim.simulation import Simulation, Snapshot
+from depotbench.sim.spec import ScenarioSpec, content_key
+from depotbench.sim.world import World, build_world, intrinsics_of, scenario_streams
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
-
-from sim.errors import ScenarioError
-from sim.files import DEFAULT_PNG_COMPRESSION
-from sim.flow import exact_flow, flow_at, rigid_motions
-from sim.ground_truth import ObjectState, visible_boxes
-from sim.mujoco_env import mujoco
-from sim.products import product
-from sim.render import FrameRenderer
-from sim.sensor import SensorModel
-from sim.sequence import SequenceWriter
-from sim.simulation import Simulation, Snapshot
-from sim.spec import ScenarioSpec, content_key
-from sim.world import World, build_world, intrinsics_of, scenario_streams
 
 MOVING_SPEED_MPS = 0.01
 """An instance is 'moving' when any of its parts moves faster than this."""

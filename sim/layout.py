@@ -10,9 +10,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim.draws import pick
-from sim.spec import LayoutSpec
+from depotbench.sim.draws import pick
+from depotbench.sim.spec import LayoutSpec
 
 Vec3 = tuple[float, float, float]
 Rect = tuple[float, float, float, float]  # x0, y0, x1, y1

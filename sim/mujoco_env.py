@@ -4,7 +4,7 @@
 module of ours that needs MuJoCo imports it from here. MuJoCo's default warning
 handler prints and appends to ``MUJOCO_LOG.TXT`` in the current directory, a file
 the user never asked for; warnings are counted in ``MjData.warning`` anyway, and
-``sim.simulation`` turns them into errors.
+``depotbench.sim.simulation`` turns them into errors.
 """
 
 from __future__ import annotations

@@ -6,10 +6,9 @@ import bisect
 import math
 
 import numpy as np
+from depotbench.core.errors import ScenarioError
+from depotbench.sim.layout import Rect, is_free
 from numpy.lib.stride_tricks import sliding_window_view
-
-from sim.errors import ScenarioError
-from sim.layout import Rect, is_free
 
 SAMPLE_SPACING_M = 0.05
 

@@ -17,9 +17,8 @@ import struct
 import zlib
 
 import numpy as np
+from depotbench.core.files import PNG_SIGNATURE
 from isal import isal_zlib
-
-from sim.files import PNG_SIGNATURE
 
 _COLOR_TYPE = {1: 0, 3: 2}
 """PNG colour type for a number of channels: grey, RGB."""

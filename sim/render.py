@@ -22,10 +22,9 @@ import dataclasses
 
 import cv2
 import numpy as np
-
-from sim.errors import EnvironmentProblem
-from sim.mujoco_env import mujoco
-from sim.products import product
+from depotbench.core.errors import EnvironmentProblem
+from depotbench.sim.mujoco_env import mujoco
+from depotbench.sim.products import product
 
 
 class RenderingUnavailable(EnvironmentProblem):

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from sim.ipp import without_ipp
-from sim.spec import SensorSpec
+from depotbench.sim.ipp import without_ipp
+from depotbench.sim.spec import SensorSpec
 
 KINECT_FOCAL_PX = 580.0
 KINECT_BASELINE_M = 0.075

@@ -19,17 +19,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from sim.camera import (
-    Intrinsics,
-    OrbSlamSettings,
-    orbslam_yaml,
-    read_orbslam_yaml,
-    tum_intrinsics_for,
-)
-from sim.errors import FileError, SequenceFormatError
-from sim.files import (
+from depotbench.core.errors import FileError, SequenceFormatError
+from depotbench.core.files import (
     DEFAULT_PNG_COMPRESSION,
     MAX_META_BYTES,
     MAX_RECORD_BYTES,
@@ -38,10 +29,18 @@ from sim.files import (
     png_header,
     read_text,
 )
-from sim.ground_truth import ObjectState
-from sim.output import OutputKind, StagedOutput
-from sim.png import assemble_png, sub_filtered
-from sim.tum_files import (
+from depotbench.core.output import OutputKind, StagedOutput
+from depotbench.core.version import FORMAT_VERSION, SUPPORTED_FORMAT_VERSIONS, generator_version
+from depotbench.sim.camera import (
+    Intrinsics,
+    OrbSlamSettings,
+    orbslam_yaml,
+    read_orbslam_yaml,
+    tum_intrinsics_for,
+)
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.png import assemble_png, sub_filtered
+from depotbench.sim.tum_files import (
     FrameList,
     PoseTable,
     check_increasing,
@@ -52,7 +51,7 @@ from sim.tum_files import (
     write_frame_list,
     write_pose_file,
 )
-from sim.version import FORMAT_VERSION, SUPPORTED_FORMAT_VERSIONS, generator_version
+from scipy.spatial.transform import Rotation
 
 PNG_WRITER_THREADS = 2
 ASSOCIATION_MAX_DIFF_S = 0.02

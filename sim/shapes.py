@@ -20,8 +20,7 @@ import fast_simplification
 import mcubes
 import numpy as np
 import trimesh
-
-from sim.products import product
+from depotbench.sim.products import product
 
 Field = Callable[[np.ndarray], np.ndarray]
 """Signed distance (negative inside) at points (N, 3)."""
@@ -31,7 +30,7 @@ KEEP_FACES = 0.2
 FAR_KEEP_FACES = 0.08
 """Share of marching cubes' triangles a mesh's far version keeps. Its edges are about
 1.6 times the near version's (the square root of 0.2 / 0.08); drawn beyond
-``sim.render.FAR_M`` (3 m), they are about as long on screen as the near version's at
+``depotbench.sim.render.FAR_M`` (3 m), they are about as long on screen as the near version's at
 2 m (benchmarks/render.py --far-from)."""
 MIN_FACES = 48
 """Meshes with fewer triangles than this after decimation are kept whole."""

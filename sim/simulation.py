@@ -5,11 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, quat_wxyz
-from sim.errors import ScenarioError
-from sim.mujoco_env import mujoco
-from sim.world import World
+from depotbench.core.errors import ScenarioError
+from depotbench.sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, quat_wxyz
+from depotbench.sim.mujoco_env import mujoco
+from depotbench.sim.world import World
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,7 +11,7 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 
-from sim.version import FORMAT_VERSION, generator_version
+from depotbench.core.version import FORMAT_VERSION, generator_version
 
 ACTOR_KINDS = ("person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird")
 PATH_MODES = ("loop", "random_walk", "seated")

@@ -11,13 +11,12 @@ projected by a cube map (``tabby``).
 from __future__ import annotations
 
 import functools
-from pathlib import Path
 
 import cv2
 import numpy as np
-
-from sim.draws import picks
-from sim.ipp import without_ipp
+from depotbench.core.assets import asset
+from depotbench.sim.draws import picks
+from depotbench.sim.ipp import without_ipp
 
 Colour = tuple[int, int, int]
 _LETTERS = "ABCDEFGHJKLMNPRSTUVWXYZ0123456789"
@@ -472,7 +471,7 @@ COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
 }
 
 
-FUR_PHOTO = Path(__file__).resolve().parent.parent / "assets" / "textures" / "cat_fur.png"
+FUR_PHOTO = asset("textures", "cat_fur.png")
 """A tabby's forehead fur, cropped from scikit-image's CC0 photograph of Chelsea the cat
 (``assets/textures/PROVENANCE.md``)."""
 

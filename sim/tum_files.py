@@ -11,9 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from sim.errors import FileError, SequenceFormatError
-from sim.files import MAX_TEXT_BYTES, MAX_TEXT_LINES, read_text
+from depotbench.core.errors import FileError, SequenceFormatError
+from depotbench.core.files import MAX_TEXT_BYTES, MAX_TEXT_LINES, read_text
 
 MAX_ABS_POSITION_M = 1e9
 """Positions beyond this are refused: their squares would overflow the error statistics."""

@@ -11,19 +11,18 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
-from sim import textures
-from sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
-from sim.camera import Intrinsics
-from sim.camera_rig import CameraRig
-from sim.conventions import gl_from_cv_rotation, quat_wxyz
-from sim.draws import pick
-from sim.figures import AnimalLook, Look, Surface
-from sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
-from sim.mujoco_env import mujoco
-from sim.paths import Path, plan_loop
-from sim.render import FAR_SUFFIX, HIDDEN_GROUP
-from sim.spec import ActorSpec, ChairSpec, ScenarioSpec
+from depotbench.sim import textures
+from depotbench.sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
+from depotbench.sim.camera import Intrinsics
+from depotbench.sim.camera_rig import CameraRig
+from depotbench.sim.conventions import gl_from_cv_rotation, quat_wxyz
+from depotbench.sim.draws import pick
+from depotbench.sim.figures import AnimalLook, Look, Surface
+from depotbench.sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
+from depotbench.sim.mujoco_env import mujoco
+from depotbench.sim.paths import Path, plan_loop
+from depotbench.sim.render import FAR_SUFFIX, HIDDEN_GROUP
+from depotbench.sim.spec import ActorSpec, ChairSpec, ScenarioSpec
 
 STATIC_BITS, CHAIR_BITS, ACTOR_BITS = (1, 1), (1, 3), (2, 0)
 """(contype, conaffinity): actors collide with chairs only; chairs with everything."""

@@ -1,5 +1,5 @@
 """RGB-D SLAM: features, tracking, rejection strategies, pose estimation, mapping.
 
-Consumes frames and ``detectors.detection.Detection`` only, so it runs unchanged
+Consumes frames and ``depotbench.detectors.detection.Detection`` only, so it runs unchanged
 on real TUM sequences with any detector.
 """

@@ -1,6 +1,6 @@
 """Local bundle adjustment: Levenberg-Marquardt on the reduced camera system.
 
-The cost is ORB-SLAM's RGB-D edge, the one ``slam.optimize`` refines poses on:
+The cost is ORB-SLAM's RGB-D edge, the one ``depotbench.slam.optimize`` refines poses on:
 (u, v) plus the virtual right coordinate u_r = u - bf / z, whitened by the
 keypoint's pyramid level (sigma = scale_factor^octave), a 2-D edge where a
 keypoint had no depth, under a Huber kernel (k^2 = 7.815) applied to each
@@ -22,11 +22,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from depotbench.slam.geometry import exp_se3
+from depotbench.slam.optimize import is_inlier
+from depotbench.slam.types import PinholeCamera
 from scipy import sparse
-
-from slam.geometry import exp_se3
-from slam.optimize import is_inlier
-from slam.types import PinholeCamera
 
 HUBER_K = float(np.sqrt(7.815))
 """Huber threshold on an observation's whitened error (ORB-SLAM's RGB-D chi-square at 95 %)."""

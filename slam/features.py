@@ -16,9 +16,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from slam.config import TrackingConfig
-from slam.types import PinholeCamera
+from depotbench.slam.config import TrackingConfig
+from depotbench.slam.types import PinholeCamera
 
 CANDIDATE_FACTOR = 5
 """OpenCV keeps this many times the budget of FAST candidates (best by score, per level) before

@@ -5,8 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-
-from slam.features import FrameFeatures
+from depotbench.slam.features import FrameFeatures
 
 
 @dataclass(eq=False)

@@ -5,15 +5,14 @@ coordinate u_r = u - bf / z, weighted by the keypoint's pyramid level, under a
 Huber loss. The pose-only refinement is a small Gauss-Newton on the analytic
 Jacobian (6 unknowns; a solver call would cost more than the solve).
 
-Local BA (``slam.bundle``) minimises the same edges over a keyframe window.
+Local BA (``depotbench.slam.bundle``) minimises the same edges over a keyframe window.
 """
 
 from __future__ import annotations
 
 import numpy as np
-
-from slam.geometry import exp_se3
-from slam.types import PinholeCamera
+from depotbench.slam.geometry import exp_se3
+from depotbench.slam.types import PinholeCamera
 
 CHI2_STEREO = 7.815
 """95 % quantile of chi-square with 3 dof (ORB-SLAM's RGB-D outlier threshold)."""

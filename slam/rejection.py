@@ -16,11 +16,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from detectors.detection import Detection, Prior
-from slam.config import RejectionConfig
-from slam.features import FrameFeatures
-from slam.types import REJECTION_CODES, Rejection
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.slam.config import RejectionConfig
+from depotbench.slam.features import FrameFeatures
+from depotbench.slam.types import REJECTION_CODES, Rejection
 
 STRATEGIES = ("none", "box_rule", "prior_flow", "box_epipolar_flow")
 

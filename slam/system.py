@@ -17,12 +17,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
-
-from slam.bundle import BundleWindow, bundle_adjust
-from slam.config import SlamConfig, TrackingConfig, check_pyramid
-from slam.features import FeatureExtractor, FrameFeatures
-from slam.geometry import (
+from depotbench.slam.bundle import BundleWindow, bundle_adjust
+from depotbench.slam.config import SlamConfig, TrackingConfig, check_pyramid
+from depotbench.slam.features import FeatureExtractor, FrameFeatures
+from depotbench.slam.geometry import (
     backproject,
     constant_velocity,
     hamming,
@@ -32,10 +30,10 @@ from slam.geometry import (
     project,
     transform,
 )
-from slam.map import KeyFrame, Map
-from slam.optimize import refine_pose
-from slam.rejection import Flow, box_classes, classify
-from slam.types import (
+from depotbench.slam.map import KeyFrame, Map
+from depotbench.slam.optimize import refine_pose
+from depotbench.slam.rejection import Flow, box_classes, classify
+from depotbench.slam.types import (
     REJECTION_CODES,
     Frame,
     FrameDiagnostics,
@@ -44,6 +42,7 @@ from slam.types import (
     Rejection,
     TrackingState,
 )
+from scipy.spatial import cKDTree
 
 MIN_INIT_POINTS = 50
 MIN_MATCHES = 15
@@ -82,7 +81,7 @@ def _consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
 
 def seed_frame(tracking: TrackingConfig, frame_index: int) -> None:
     """Seed OpenCV's RNG (the RANSACs of rejection and tracking) for a frame, before its
-    rejection: decisions computed apart from the tracker (``eval.stages.decision_path``,
+    rejection: decisions computed apart from the tracker (``depotbench.eval.stages.decision_path``,
     the shared frames of a branching run) then match the tracker's own."""
     cv2.setRNGSeed(tracking.seed + frame_index)
 
@@ -114,7 +113,7 @@ class Slam:
         """An independent copy of this system's state that goes on with ``config``.
 
         Sweeps run configurations that keep the same keypoints up to some frame once up
-        to there and fork (``eval.trackers.builtin.BuiltinTracker.run_tree``). Only the
+        to there and fork (``depotbench.eval.trackers.builtin.BuiltinTracker.run_tree``). Only the
         rejection settings may differ: tracking with other settings is another run.
         """
         if config.tracking != self.tc:

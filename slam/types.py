@@ -7,8 +7,7 @@ from enum import StrEnum
 
 import cv2
 import numpy as np
-
-from detectors.detection import Detection
+from depotbench.detectors.detection import Detection
 
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
 """OpenCV's default 5 iterations leave ~0.5 px at the corners of a TUM fr1 image; 30 leave < 0.01."""

@@ -32,7 +32,16 @@ process forks the command instead. The last 100 kB of the command's stderr are p
 def peak_rss_mb(args: list[str], timeout_s: float | None = None) -> tuple[int, str, float]:
     """Exit code, stderr and peak resident memory (MB) of ``depotbench ARGS`` in a capped child."""
     proc = subprocess.run(
-        [sys.executable, "-c", _MEASURE, str(MEMORY_CAP_BYTES), sys.executable, "-m", "eval.cli", *args],
+        [
+            sys.executable,
+            "-c",
+            _MEASURE,
+            str(MEMORY_CAP_BYTES),
+            sys.executable,
+            "-m",
+            "depotbench.eval.cli",
+            *args,
+        ],
         cwd=REPO,
         capture_output=True,
         env={**os.environ, "OPENBLAS_NUM_THREADS": "1"},

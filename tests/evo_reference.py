@@ -5,10 +5,9 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+from depotbench.eval.trajectory import Trajectory
 from evo.core import metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
-
-from eval.trajectory import Trajectory
 
 
 def to_evo(trajectory: Trajectory) -> PoseTrajectory3D:

@@ -1,4 +1,4 @@
-"""The same local bundle adjustment solved by GTSAM: the independent reference for ``slam.bundle``.
+"""The same local bundle adjustment solved by GTSAM: the independent reference for ``depotbench.slam.bundle``.
 
 GTSAM's stereo factor is exactly ORB-SLAM's RGB-D edge (u_left, u_right, v) and its
 projection factor the edge of a keypoint without depth; the Huber kernel is applied
@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-
-from slam.bundle import BundleWindow
-from slam.geometry import invert
+from depotbench.slam.bundle import BundleWindow
+from depotbench.slam.geometry import invert
 
 FIXED_POSE_SIGMA = 1e-9
 

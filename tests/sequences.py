@@ -5,11 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from depotbench.sim.camera import Intrinsics
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.sequence import SequenceWriter
 from scipy.spatial.transform import Rotation
-
-from sim.camera import Intrinsics
-from sim.ground_truth import ObjectState
-from sim.sequence import SequenceWriter
 
 SMALL = Intrinsics(fx=50.0, fy=50.0, cx=31.5, cy=23.5, width=64, height=48)
 

@@ -9,13 +9,14 @@ from pathlib import Path
 
 from tests.conftest import REPO
 
-PACKAGES = ("sim", "scenes", "slam", "detectors", "eval")
+PACKAGES = ("core", "sim", "scenes", "slam", "detectors", "eval")
 ALLOWED: dict[str, set[str]] = {
-    "sim": set(),
-    "scenes": {"sim"},
-    "detectors": {"sim"},
+    "core": set(),
+    "sim": {"core"},
+    "scenes": {"core", "sim"},
+    "detectors": {"core", "sim"},
     "slam": {"detectors.detection"},
-    "eval": {"sim", "scenes", "detectors", "slam"},
+    "eval": {"core", "sim", "scenes", "detectors", "slam"},
 }
 """For each package, the other project modules it may import (a package allows its submodules)."""
 
@@ -44,14 +45,17 @@ def violations(root: Path) -> list[str]:
         for path in sorted((root / package).rglob("*.py")):
             rel = path.relative_to(root).as_posix()
             allowed = set() if rel in STANDALONE else ALLOWED[package]
-            for line, module, names in imported_modules(path):
+            for line, full, names in imported_modules(path):
+                if not full.startswith("depotbench."):
+                    continue
+                module = full.removeprefix("depotbench.")
                 top = module.split(".")[0]
                 if top not in PACKAGES or top == package or _within(module, allowed):
                     continue
-                # ``from detectors import detection`` imports the allowed submodule.
+                # ``from depotbench.detectors import detection`` imports the allowed submodule.
                 if names and all(_within(f"{module}.{n}", allowed) for n in names):
                     continue
-                problems.append(f"{rel}:{line}: {package} must not import {module}")
+                problems.append(f"{rel}:{line}: {package} must not import {full}")
     return sorted(problems)
 
 
@@ -62,25 +66,27 @@ def test_import_graph_points_one_way():
 def test_checker_catches_a_wrong_import(tmp_path: Path):
     for package in PACKAGES:
         (tmp_path / package).mkdir()
-    (tmp_path / "slam" / "bad.py").write_text("from eval.metrics import ate\nimport sim.camera\n")
-    (tmp_path / "slam" / "ok.py").write_text(
-        "from detectors.detection import Detection\nfrom detectors import detection\n"
+    (tmp_path / "slam" / "bad.py").write_text(
+        "from depotbench.eval.metrics import ate\nimport depotbench.sim.camera\n"
     )
-    (tmp_path / "sim" / "bad.py").write_text("import numpy\nfrom scenes import library\n")
-    (tmp_path / "detectors" / "detection.py").write_text("import sim.camera\n")
-    (tmp_path / "detectors" / "gt.py").write_text("from sim.sequence import Sequence\n")
+    (tmp_path / "slam" / "ok.py").write_text(
+        "from depotbench.detectors.detection import Detection\nfrom depotbench.detectors import detection\n"
+    )
+    (tmp_path / "sim" / "bad.py").write_text("import numpy\nfrom depotbench.scenes import library\n")
+    (tmp_path / "detectors" / "detection.py").write_text("import depotbench.sim.camera\n")
+    (tmp_path / "detectors" / "gt.py").write_text("from depotbench.sim.sequence import Sequence\n")
     found = violations(tmp_path)
     assert found == [
-        "detectors/detection.py:1: detectors must not import sim.camera",
-        "sim/bad.py:2: sim must not import scenes",
-        "slam/bad.py:1: slam must not import eval.metrics",
-        "slam/bad.py:2: slam must not import sim.camera",
+        "detectors/detection.py:1: detectors must not import depotbench.sim.camera",
+        "sim/bad.py:2: sim must not import depotbench.scenes",
+        "slam/bad.py:1: slam must not import depotbench.eval.metrics",
+        "slam/bad.py:2: slam must not import depotbench.sim.camera",
     ]
 
 
 def test_sequence_reader_imports_no_mujoco_or_opengl():
     code = (
-        "import sys, sim.sequence, eval.cli, detectors.detection\n"
+        "import sys, depotbench.sim.sequence, depotbench.eval.cli, depotbench.detectors.detection\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('mujoco', 'OpenGL', 'pyrender')]\n"
         "print(bad); sys.exit(1 if bad else 0)"
     )

@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from depotbench.eval.cli import main
+from depotbench.eval.trajectory import read_tum
 
-from eval.cli import main
-from eval.trajectory import read_tum
 from tests.evo_reference import evo_ape, evo_rpe
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "assets" / "examples"
@@ -32,7 +32,7 @@ def test_demo_generates_sweeps_gates_and_reports(capsys, tmp_path: Path):
 
 
 def test_report_table_and_rho():
-    from eval.report import format_table, summarise
+    from depotbench.eval.report import format_table, summarise
 
     def metrics(ate, precision=None):
         return {
@@ -112,7 +112,7 @@ def test_console_script_and_module_entry_point():
 def test_png_compression_changes_file_sizes_not_pixels(tmp_path: Path, capsys):
     """`generate --png-compression 0` writes the same pixels as the default level, in larger
     files; a level outside 0-9 is refused before anything is written."""
-    from sim.sequence import Sequence
+    from depotbench.sim.sequence import Sequence
 
     for level in ("0", "1"):
         assert (
@@ -148,8 +148,8 @@ def _default_sigint() -> None:
 
 
 _STARTER = (
-    "import sys\nimport eval.cli\nsys.stderr.write('started\\n')\nsys.stderr.flush()\n"
-    "sys.argv = ['depotbench', *sys.argv[1:]]\neval.cli.entry()\n"
+    "import sys\nimport depotbench.eval.cli\nsys.stderr.write('started\\n')\nsys.stderr.flush()\n"
+    "sys.argv = ['depotbench', *sys.argv[1:]]\ndepotbench.eval.cli.entry()\n"
 )
 """The program as the console script starts it, saying when depotbench's module is loaded:
 from there on a Ctrl-C is depotbench's to report (before it, Python's own start-up is
@@ -185,7 +185,7 @@ def test_ctrl_c_while_the_command_line_starts_is_one_line(tmp_path: Path, delay_
 
 
 def test_the_command_line_names_the_png_level_it_defaults_to():
-    from eval.cli import DEFAULT_PNG_COMPRESSION_LEVEL
-    from sim.files import DEFAULT_PNG_COMPRESSION
+    from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+    from depotbench.eval.cli import DEFAULT_PNG_COMPRESSION_LEVEL
 
     assert DEFAULT_PNG_COMPRESSION_LEVEL == DEFAULT_PNG_COMPRESSION

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from depotbench.eval.cli import main
+from depotbench.eval.compare import compare_rows
 from scipy.stats import ttest_rel
 
-from eval.cli import main
-from eval.compare import compare_rows
 from tests.conftest import REPO
 
 ORACLE = REPO / "tests" / "programs" / "oracle_slam.py"

@@ -9,16 +9,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.config import DetectorConfig, DetectorKind, OnnxSettings, parse_detector
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.detectors.faults import Difficulty, Faults, inject, miss_probability
+from depotbench.detectors.onnx import OnnxDetector, OnnxModelError, class_wise_nms, recognise_layout
+from depotbench.detectors.priors import DEFAULT_PRIORS
+from depotbench.eval.cache import StageCache
+from depotbench.eval.detection_eval import TruthBox, average_precision, match
+from depotbench.eval.detections import detect_sequence
 
-from detectors.base import DetectorFrame
-from detectors.config import DetectorConfig, DetectorKind, OnnxSettings, parse_detector
-from detectors.detection import Detection, Prior
-from detectors.faults import Difficulty, Faults, inject, miss_probability
-from detectors.onnx import OnnxDetector, OnnxModelError, class_wise_nms, recognise_layout
-from detectors.priors import DEFAULT_PRIORS
-from eval.cache import StageCache
-from eval.detection_eval import TruthBox, average_precision, match
-from eval.detections import detect_sequence
 from tests.sequences import write_sequence
 
 IMAGE = (1000, 1000)
@@ -371,7 +371,7 @@ def test_ap50_agrees_with_pycocotools():
 
 def test_detections_are_cached_per_sequence_and_detector_and_invalidated_by_an_edit(tmp_path: Path):
     write_sequence(tmp_path / "seq", n=4, with_flow=False)
-    from sim.sequence import Sequence
+    from depotbench.sim.sequence import Sequence
 
     cache = StageCache(tmp_path / "cache")
     sequence = Sequence.open(tmp_path / "seq")
@@ -405,7 +405,7 @@ def test_the_cache_evicts_least_recently_used_entries(tmp_path: Path):
 
 
 def test_export_writes_yolo_labels_and_coco_json_split_by_sequence(tmp_path: Path, capsys):
-    from eval.cli import main
+    from depotbench.eval.cli import main
 
     for name, seed in (("a", 0), ("b", 1), ("c", 2)):
         write_sequence(tmp_path / name, n=3, seed=seed, with_flow=False)
@@ -452,8 +452,8 @@ camera: {motion: static, position_m: [0.0, -3.6, 1.2], target_m: [0.0, 1.5, 1.0]
 
 @pytest.fixture(scope="module")
 def one_person(tmp_path_factory) -> Path:
-    from scenes.schema import load_scenario, to_scenario
-    from sim.generate import generate
+    from depotbench.scenes.schema import load_scenario, to_scenario
+    from depotbench.sim.generate import generate
 
     root = tmp_path_factory.mktemp("one_person")
     (root / "one.yaml").write_text(ONE_PERSON)
@@ -462,10 +462,10 @@ def one_person(tmp_path_factory) -> Path:
 
 @pytest.mark.render
 def test_the_shipped_model_finds_the_rendered_person(one_person: Path):
-    from detectors.config import SHIPPED_MODEL
-    from detectors.groundtruth import GroundTruthDetector, truncated
-    from eval.detection_eval import iou_matrix
-    from sim.sequence import Sequence
+    from depotbench.detectors.config import SHIPPED_MODEL
+    from depotbench.detectors.groundtruth import GroundTruthDetector, truncated
+    from depotbench.eval.detection_eval import iou_matrix
+    from depotbench.sim.sequence import Sequence
 
     sequence = Sequence.open(one_person)
     truth = GroundTruthDetector(sequence)
@@ -484,8 +484,8 @@ def test_the_shipped_model_finds_the_rendered_person(one_person: Path):
 
 @pytest.mark.render
 def test_run_with_the_onnx_detector_works_with_every_strategy(one_person: Path, tmp_path: Path, capsys):
-    from eval.cli import main
-    from eval.harness import STRATEGY_CHOICES
+    from depotbench.eval.cli import main
+    from depotbench.eval.harness import STRATEGY_CHOICES
 
     for strategy in STRATEGY_CHOICES:
         out = tmp_path / strategy
@@ -509,12 +509,12 @@ def animal_sightings(tmp_path_factory) -> dict[str, list[tuple[bool, bool]]]:
     by recognition.py's rule: per class ("dog", "cat"), one (found, cut by the image
     edge) per sighting of >= 2000 visible px, found when a box of that class at
     confidence 0.3 overlaps the true visible box at IoU >= 0.5."""
-    from detectors.config import SHIPPED_MODEL
-    from eval.detection_eval import iou_matrix
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
-    from sim.sequence import Sequence
+    from depotbench.detectors.config import SHIPPED_MODEL
+    from depotbench.eval.detection_eval import iou_matrix
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
+    from depotbench.sim.sequence import Sequence
 
     root = tmp_path_factory.mktemp("animals")
     detector = OnnxDetector(SHIPPED_MODEL)
@@ -575,10 +575,10 @@ def test_the_animal_scenes_dog_and_cat_are_seen_whole_in_most_sightings(tmp_path
     120. The ground truth's own truncation flag is the measure: no detector involved."""
     import dataclasses
 
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
-    from sim.sequence import Sequence
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
+    from depotbench.sim.sequence import Sequence
 
     sightings = {"dog": [0, 0], "cat": [0, 0]}  # [sightings, cut by the edge]
     for seed in (1, 2, 3, 4):

@@ -9,8 +9,7 @@ import time
 
 import numpy as np
 import pytest
-
-from sim.draws import pick, picks
+from depotbench.sim.draws import pick, picks
 
 OPTIONS = ("cardboard", "crate", "sack")
 

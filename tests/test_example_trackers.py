@@ -2,7 +2,7 @@
 docs/external-trackers.md: run as programs on the files the bench would hand them, the
 wrapped built-in tracker gives the built-in run exactly, and my_slam.py tracks and rejects
 what lies in dynamic boxes. The bench's engine is not involved: each test writes the
-program's inputs with eval.trackers.protocol and reads its outputs back itself."""
+program's inputs with depotbench.eval.trackers.protocol and reads its outputs back itself."""
 
 from __future__ import annotations
 
@@ -14,22 +14,27 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from depotbench.detectors.config import DetectorConfig, parse_detector
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.cache import StageCache
+from depotbench.eval.comparison import ComparisonOptions, compare
+from depotbench.eval.detections import detect_sequence
+from depotbench.eval.harness import RunJob, Tracked, track
+from depotbench.eval.sweep_spec import setting_text
+from depotbench.eval.trackers.builtin import true_moving_labels
+from depotbench.eval.trackers.protocol import (
+    read_detections,
+    read_keypoints,
+    write_detections,
+    write_keypoints,
+)
+from depotbench.eval.trajectory import Trajectory, read_tum
+from depotbench.scenes import library
+from depotbench.scenes.schema import Image, IntrinsicsSpec, to_scenario
+from depotbench.sim.sequence import Sequence
+from depotbench.sim.tum_files import read_pose_file
+from depotbench.slam.types import REJECTION_CODES, Rejection
 
-from detectors.config import DetectorConfig, parse_detector
-from detectors.detection import Detection, Prior
-from eval.cache import StageCache
-from eval.comparison import ComparisonOptions, compare
-from eval.detections import detect_sequence
-from eval.harness import RunJob, Tracked, track
-from eval.sweep_spec import setting_text
-from eval.trackers.builtin import true_moving_labels
-from eval.trackers.protocol import read_detections, read_keypoints, write_detections, write_keypoints
-from eval.trajectory import Trajectory, read_tum
-from scenes import library
-from scenes.schema import Image, IntrinsicsSpec, to_scenario
-from sim.sequence import Sequence
-from sim.tum_files import read_pose_file
-from slam.types import REJECTION_CODES, Rejection
 from tests.sequences import write_sequence
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "assets" / "examples" / "external"
@@ -46,7 +51,7 @@ FAULTED = {"miss": "0.3", "jitter": "0.05", "false_positives": "0.5", "latency":
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory) -> Callable[[str], Path]:
     """Each small sequence generated once, the first time a test asks for it."""
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     made: dict[str, Path] = {}
 
@@ -80,7 +85,7 @@ def last_count(stderr: str) -> int:
 
 def rejection_figures(kept: list[np.ndarray], labels: list[np.ndarray]) -> dict:
     """Rejection as a classification of keypoints against their true moving labels,
-    computed as eval.harness._rejection computes it for the built-in run."""
+    computed as depotbench.eval.harness._rejection computes it for the built-in run."""
     rejected, moving = ~np.concatenate(kept), np.concatenate(labels)
     true_positive = int((rejected & moving).sum())
     return {

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 import pytest
+from depotbench.core.errors import InputError
+from depotbench.eval.trackers.command import parse_template
 
-from eval.trackers.command import parse_template
-from sim.errors import InputError
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.conftest import REPO
 from tests.sequences import write_sequence
@@ -155,7 +155,7 @@ def test_a_flood_of_stderr_without_newlines_stays_bounded_and_ends_at_once(seq: 
 
 
 def test_the_error_shows_the_last_line_of_the_programs_stderr_cut_to_a_bound():
-    from eval.trackers.external import StderrTail
+    from depotbench.eval.trackers.external import StderrTail
 
     tail = StderrTail(lines=3, line_chars=10)
     for piece in (b"12\nfirst li", b"ne\n\xff\xfe broken\n", b"a" * 100, b"\r\nlast\n34\n"):
@@ -192,7 +192,17 @@ def start_spawner(seq: Path, tmp_path: Path, tmp: Path, token: str) -> tuple[sub
     pids = tmp_path / "pids"
     command = f"{shlex.quote(sys.executable)} {tmp_path / 'spawner.py'} {pids} {{trajectory}}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "eval.cli", "run", str(seq), "-o", str(tmp_path / "r"), "--slam", "cmd"]
+        [
+            sys.executable,
+            "-m",
+            "depotbench.eval.cli",
+            "run",
+            str(seq),
+            "-o",
+            str(tmp_path / "r"),
+            "--slam",
+            "cmd",
+        ]
         + ["--strategy", "mask", "--command", command],
         cwd=REPO,
         env={**os.environ, "TMPDIR": str(tmp), "DEPOTBENCH_TEST_TOKEN": token, "MUJOCO_GL": "egl"},
@@ -252,7 +262,7 @@ def test_a_killed_caller_leaves_no_scratch_before_the_program_starts(tmp_path: P
     tmp.mkdir()
     caller = (
         "import sys, time\n"
-        "from eval.trackers.reaper import Scratch\n"
+        "from depotbench.eval.trackers.reaper import Scratch\n"
         "scratch = Scratch('depotbench-cmd-')\n"
         "(scratch.path / 'half-written.png').write_bytes(b'x')\n"
         "print(scratch.path, flush=True)\n"
@@ -274,7 +284,7 @@ def test_a_killed_caller_leaves_no_scratch_before_the_program_starts(tmp_path: P
 
 
 def test_an_interrupted_cleanup_is_finished_by_the_watcher(tmp_path: Path, tmpdir_env: Path, monkeypatch):
-    from eval.trackers import reaper
+    from depotbench.eval.trackers import reaper
 
     scratch = reaper.Scratch("depotbench-cmd-")
     (scratch.path / "masked").mkdir()
@@ -342,7 +352,7 @@ def test_a_really_full_tmpfs_as_tmpdir_is_one_line(seq: Path, tmp_path: Path):
     """The probe's own case: TMPDIR on a 32 KB tmpfs, mounted in a user namespace."""
     small = tmp_path / "small"
     small.mkdir()
-    depotbench = [sys.executable, "-m", "eval.cli", "run", str(seq), "-o", str(tmp_path / "r")]
+    depotbench = [sys.executable, "-m", "depotbench.eval.cli", "run", str(seq), "-o", str(tmp_path / "r")]
     depotbench += ["--slam", "cmd", "--strategy", "mask", "--command", COPY_TRUTH]
     script = (
         f"mount -t tmpfs -o size=32k tmpfs {shlex.quote(str(small))} && "

@@ -8,14 +8,13 @@ import cv2
 import mujoco
 import numpy as np
 import pytest
+from depotbench.sim.figures import AnimalLook, Look, person_bind, person_surfaces
+from depotbench.sim.ground_truth import boxes_and_counts
+from depotbench.sim.render import HIDDEN_GROUP, FrameRenderer
+from depotbench.sim.simulation import Simulation
+from depotbench.sim.spec import ActorSpec, CameraSpec, ChairSpec, LayoutSpec, ScenarioSpec
+from depotbench.sim.world import build_world
 from scipy.spatial.transform import Rotation
-
-from sim.figures import AnimalLook, Look, person_bind, person_surfaces
-from sim.ground_truth import boxes_and_counts
-from sim.render import HIDDEN_GROUP, FrameRenderer
-from sim.simulation import Simulation
-from sim.spec import ActorSpec, CameraSpec, ChairSpec, LayoutSpec, ScenarioSpec
-from sim.world import build_world
 
 
 def _edges_shared_twice(faces: np.ndarray) -> bool:
@@ -70,8 +69,8 @@ def test_looks_vary_with_the_seed_and_repeat_with_it():
 
 
 def _quadruped(kind: str, seed: int):
-    from sim.actors import QUADRUPEDS, Quadruped
-    from sim.paths import Path
+    from depotbench.sim.actors import QUADRUPEDS, Quadruped
+    from depotbench.sim.paths import Path
 
     look = AnimalLook.draw(np.random.default_rng(seed), kind)
     path = Path(np.array([[-2.0, 0.0], [2.0, 0.0]]))
@@ -91,7 +90,7 @@ def test_every_piece_keeps_a_fifth_of_its_marching_cubes_triangles(monkeypatch, 
     closes up below that). fast-simplification's default aggressiveness opened a piece of
     each of these figures, which was then drawn whole: five times the triangles, in every
     render pass."""
-    import sim.shapes as shapes
+    import depotbench.sim.shapes as shapes
 
     kept: list[tuple[int, object]] = []
     decimate = shapes.decimate
@@ -124,7 +123,7 @@ def test_a_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(
     """A cat's or dog's tail is meshed in a box around its curve, not in the cube its
     bone's reach would give (a fifth of the build time): the same tail, to the grid's
     alignment (``step``: about one step of the tail's grid, 0.3 of its root radius)."""
-    import sim.figures as figures
+    import depotbench.sim.figures as figures
 
     boxed = [s.mesh for p in _quadruped(kind, seed).parts if p.name == "tail" for s in p.surfaces]
     carve = figures.carve
@@ -145,7 +144,7 @@ def test_a_union_remembers_the_box_only_of_points_that_cannot_change():
     """``smooth_union`` skips members far from the points asked, by the points' box; the
     box is remembered for the grid's read-only points. Points changed in place between
     two calls get a fresh box (a stale one would skip the member they now lie on)."""
-    from sim.shapes import Grid, ellipsoid, smooth_union
+    from depotbench.sim.shapes import Grid, ellipsoid, smooth_union
 
     body = smooth_union(
         [ellipsoid((0.0, 0.0, 0.0), (0.1, 0.1, 0.1)), ellipsoid((1.0, 0.0, 0.0), (0.1, 0.1, 0.1))], 0.05
@@ -169,7 +168,7 @@ def test_a_dogs_tail_leaves_the_rump_level_and_sweeps_up():
     """The dog's tail (TAIL_BENDS) starts out nearly level behind the rump and ends
     steeply up, thick at the root: a straight stick at the tail's rise was called cow
     or person (docs/recognition.md); the curve's shape, not the bone's rise, carries that."""
-    from sim.figures import TAIL_BENDS, _tail_curve
+    from depotbench.sim.figures import TAIL_BENDS, _tail_curve
 
     curve = _tail_curve(np.zeros(3), np.array([-0.3, 0.0, 0.0]), TAIL_BENDS["dog"])
     steps = np.diff(curve, axis=0)
@@ -242,8 +241,8 @@ def test_far_versions_stand_in_beyond_far_m_and_keep_the_silhouette(monkeypatch)
     """A person 5 m away is drawn by its pieces' far versions (two fifths of the triangles),
     one 2 m away by the full pieces, never both; and at 5 m the far silhouette is the full
     one's to within a few pixels in a hundred."""
-    import sim.render as render
-    from sim.render import FAR_M, FAR_SUFFIX
+    import depotbench.sim.render as render
+    from depotbench.sim.render import FAR_M, FAR_SUFFIX
 
     checked = []
     for distance in (2.0, 5.0):
@@ -307,9 +306,9 @@ def test_seated_people_keep_their_knees_under_the_desk_between_its_legs():
     """Seats turn their people towards each other (a 3/4 view, as two people talking sit):
     the shins must still hang under the desk top, inside its footprint and clear of its
     legs, at every moment of the sway."""
-    from sim.actors import SittingPerson
-    from sim.layout import DESK_CENTRE, DESK_HALF, plan_layout
-    from sim.world import PERSON_ROLES
+    from depotbench.sim.actors import SittingPerson
+    from depotbench.sim.layout import DESK_CENTRE, DESK_HALF, plan_layout
+    from depotbench.sim.world import PERSON_ROLES
 
     layout = plan_layout(LayoutSpec(), np.random.default_rng(0))
     (cx, cy), (hx, hy) = DESK_CENTRE, DESK_HALF
@@ -327,8 +326,8 @@ def test_seated_people_keep_their_knees_under_the_desk_between_its_legs():
 
 
 def _bird():
-    from sim.actors import Bird
-    from sim.paths import Path
+    from depotbench.sim.actors import Bird
+    from depotbench.sim.paths import Path
 
     return Bird(Path(np.array([[-1.0, 0.0], [1.0, 0.0]])), 0.0, 10.0, np.random.default_rng(3))
 
@@ -365,9 +364,8 @@ def test_a_bird_stays_in_one_piece_as_its_wings_open_and_flap(yaw_deg):
     wings folded, half open, open, and flapping up and down (a joint that opened would
     split the mask)."""
     import mujoco
-
-    from sim.actors import yaw_matrix
-    from sim.conventions import quat_wxyz
+    from depotbench.sim.actors import yaw_matrix
+    from depotbench.sim.conventions import quat_wxyz
 
     spec = ScenarioSpec(
         frames=1,
@@ -433,7 +431,7 @@ def test_cats_wear_the_photographed_fur_in_their_coat_colour():
     cats' coat colours, laid out round the body: it repeats without a seam along and
     round a part, is darker along the back (middle rows) and pales to cream underneath
     (first and last rows); a dog's coat stays drawn."""
-    from sim import textures
+    from depotbench.sim import textures
 
     photo = cv2.imread(str(textures.FUR_PHOTO), cv2.IMREAD_COLOR)[:, :, ::-1].astype(np.float32)
     tile = np.concatenate([photo, photo[:, ::-1]], axis=1)
@@ -480,8 +478,8 @@ def test_a_coat_laid_on_round_a_part_follows_its_axis_and_unwraps_its_seam():
     u is the distance along the axis in texture widths, v the angle round it from
     ``down``; no face spans more than a few cells of the texture (the seam under the
     body is unwrapped, not squeezed across it)."""
-    from sim.figures import Surface, wrapped
-    from sim.shapes import mesh_field, round_cone
+    from depotbench.sim.figures import Surface, wrapped
+    from depotbench.sim.shapes import mesh_field, round_cone
 
     a, b = np.array([0.1, 0.2, 0.3]), np.array([0.5, 0.25, 0.4])
     mesh = mesh_field(round_cone(a, b, 0.06, 0.05), np.minimum(a, b) - 0.07, np.maximum(a, b) + 0.07, 0.006)
@@ -513,7 +511,7 @@ def test_a_coat_laid_on_round_a_part_follows_its_axis_and_unwraps_its_seam():
 
 
 def test_a_missing_fur_photograph_is_named(monkeypatch, tmp_path):
-    from sim import textures
+    from depotbench.sim import textures
 
     monkeypatch.setattr(textures, "FUR_PHOTO", tmp_path / "cat_fur.png")
     textures._fur_photo.cache_clear()

@@ -17,8 +17,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from depotbench.eval.cli import main
 
-from eval.cli import main
 from tests.conftest import REPO
 
 pytestmark = pytest.mark.render
@@ -32,7 +32,7 @@ def capped(args: list[str], cwd: Path, limit_bytes: int) -> subprocess.Completed
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "DEPOTBENCH_CACHE": "off", "MUJOCO_GL": "egl"}
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
     return subprocess.run(
-        [sys.executable, "-m", "eval.cli", *args],
+        [sys.executable, "-m", "depotbench.eval.cli", *args],
         cwd=cwd,
         env=env,
         preexec_fn=limit,

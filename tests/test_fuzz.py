@@ -20,10 +20,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.eval.cli import main
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from eval.cli import main
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.sequences import write_sequence
 from tests.test_output import snapshot

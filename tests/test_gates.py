@@ -8,10 +8,9 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 import pytest
-
-from eval.cli import main
-from eval.gates import GateFile, evaluate, junit_xml, load_gates
-from scenes.schema import SpecError
+from depotbench.eval.cli import main
+from depotbench.eval.gates import GateFile, evaluate, junit_xml, load_gates
+from depotbench.scenes.schema import SpecError
 
 
 def _row(sequence: str, strategy: str, ate: float, ms: float, **extra) -> dict:
@@ -154,9 +153,9 @@ IMPOSSIBLE = (
 
 @pytest.fixture(scope="module")
 def walking(tmp_path_factory) -> Path:
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
 
     scenario = library.get("walking_static").model_copy(update={"frames": 24, "duration_s": None})
     return generate(to_scenario(scenario), tmp_path_factory.mktemp("walk") / "walking", progress=False)

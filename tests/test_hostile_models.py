@@ -13,16 +13,16 @@ import os
 import time
 from pathlib import Path
 
+import depotbench.detectors.config as dconfig
+import depotbench.detectors.onnx as donnx
 import numpy as np
 import pytest
+from depotbench.core.errors import InputError
+from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.config import SHIPPED_MODEL, OnnxSettings
+from depotbench.detectors.onnx import OnnxDetector, OnnxModelError
+from depotbench.eval.cli import main
 
-import detectors.config as dconfig
-import detectors.onnx as donnx
-from detectors.base import DetectorFrame
-from detectors.config import SHIPPED_MODEL, OnnxSettings
-from detectors.onnx import OnnxDetector, OnnxModelError
-from eval.cli import main
-from sim.errors import InputError
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.sequences import write_sequence
 

@@ -19,12 +19,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from eval.cache import StageCache
-from eval.cli import main
-from eval.detections import sequence_fingerprint
-from eval.harness import RunJob, track
-from sim.sequence import Sequence
+from depotbench.eval.cache import StageCache
+from depotbench.eval.cli import main
+from depotbench.eval.detections import sequence_fingerprint
+from depotbench.eval.harness import RunJob, track
+from depotbench.sim.sequence import Sequence
 
 SPEC = (
     "name: keyed\nframes: 4\nimage: {width: 160, height: 120}\nintrinsics: {fx: 131.25}\n"
@@ -223,8 +222,8 @@ def _scale_position(line: str, factor: float) -> str:
 def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_bytes(tmp_path: Path):
     """A rebuilt program or another vocabulary under the same path is a new run, not a row
     to resume."""
-    from eval.harness import TrackerConfig, tracker_identity
-    from eval.trackers.base import TrackerKind
+    from depotbench.eval.harness import TrackerConfig, tracker_identity
+    from depotbench.eval.trackers.base import TrackerKind
 
     program, vocabulary = tmp_path / "my_slam.sh", tmp_path / "voc.txt"
     program.write_text("#!/bin/sh\nexit 0\n")
@@ -243,7 +242,7 @@ def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_byt
 def test_a_detector_is_keyed_by_the_bytes_of_its_class_names_file(tmp_path: Path):
     """`names=FILE` renames classes: an edited file under the same path is another detector,
     whose cached boxes and sweep rows are not the old ones."""
-    from detectors.config import parse_detector
+    from depotbench.detectors.config import parse_detector
 
     names = tmp_path / "names.txt"
     names.write_text("person\ndog\n")

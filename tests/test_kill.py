@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from depotbench.core.output import read_marker
 
-from sim.output import read_marker
 from tests.conftest import REPO
 from tests.test_output import snapshot, wait_until_gone
 
@@ -37,7 +37,7 @@ KILLS = int(os.environ.get("DEPOTBENCH_KILLS", "20"))
 
 def start(args: list[str], token: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "eval.cli", *args],
+        [sys.executable, "-m", "depotbench.eval.cli", *args],
         cwd=REPO,
         env={**os.environ, "DEPOTBENCH_TEST_TOKEN": token, "MUJOCO_GL": "egl"},
         stdout=subprocess.DEVNULL,
@@ -83,9 +83,9 @@ def leftovers(folder: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def smoke_sequence(tmp_path_factory) -> Path:
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
 
     out = tmp_path_factory.mktemp("kill") / "smoke"
     return generate(to_scenario(library.get("smoke")), out, progress=False)

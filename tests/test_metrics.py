@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from depotbench.core.errors import InputError
+from depotbench.eval.alignment import Alignment, AlignmentError
+from depotbench.eval.comparison import ComparisonOptions, compare
+from depotbench.eval.metrics import DeltaUnit, Statistics, ate, improvement_rate, rpe
+from depotbench.eval.trajectory import AssociationError, Trajectory, associate, read_tum
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from eval.alignment import Alignment, AlignmentError
-from eval.comparison import ComparisonOptions, compare
-from eval.metrics import DeltaUnit, Statistics, ate, improvement_rate, rpe
-from eval.trajectory import AssociationError, Trajectory, associate, read_tum
-from sim.errors import InputError
 from tests.evo_reference import evo_ape, evo_rpe
 
 REL = 1e-6

@@ -17,9 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-
-from eval.cli import main
-from sim.output import (
+from depotbench.core.output import (
     MARKER_NAME,
     OutputContainer,
     OutputError,
@@ -30,6 +28,8 @@ from sim.output import (
     lock_path,
     read_marker,
 )
+from depotbench.eval.cli import main
+
 from tests.conftest import REPO
 from tests.sequences import write_sequence
 
@@ -135,7 +135,7 @@ def test_exchange_swaps_two_folders_in_one_step(tmp_path: Path):
 
 
 def test_without_exchange_a_kill_between_the_renames_is_undone(tmp_path: Path, monkeypatch):
-    import sim.output as output
+    import depotbench.core.output as output
 
     target = tmp_path / "out"
     with StagedOutput(target, OutputKind.RUN) as out:
@@ -159,7 +159,7 @@ def test_without_exchange_a_kill_between_the_renames_is_undone(tmp_path: Path, m
 HOLD_LOCK = """
 import sys, time
 from pathlib import Path
-from sim.output import OutputLock
+from depotbench.core.output import OutputLock
 OutputLock(Path(sys.argv[1])).acquire()
 print("held", flush=True)
 time.sleep(120)
@@ -259,12 +259,12 @@ def test_overwrite_onto_a_file_or_a_foreign_folder_is_refused(sequence: Path, tm
 
 
 def test_unwritable_output_is_found_before_any_work(sequence: Path, tmp_path: Path, capsys, monkeypatch):
-    import slam.system
+    import depotbench.slam.system
 
     def no_work(*args, **kwargs):
         raise AssertionError("the SLAM ran before the output was checked")
 
-    monkeypatch.setattr(slam.system.Slam, "process", no_work)
+    monkeypatch.setattr(depotbench.slam.system.Slam, "process", no_work)
     a_file = tmp_path / "plain-file"
     a_file.write_text("")
     for target in (a_file / "run", Path("/proc/depotbench-cannot-write/run")):
@@ -318,8 +318,7 @@ def test_eval_json_holds_only_json_numbers(tmp_path: Path, capsys):
 def test_validated_specs_generate_including_a_top_down_camera(tmp_path: Path, capsys):
     """Specs that validated and then crashed ``generate``: now refused, or generated correctly."""
     import numpy as np
-
-    from sim.sequence import Sequence
+    from depotbench.sim.sequence import Sequence
 
     spec = tmp_path / "top.yaml"
     spec.write_text(
@@ -433,7 +432,7 @@ def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(
     token = f"depotbench-test-{os.getpid()}-{time.time_ns()}"
     out = tmp_path / "o"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "eval.cli", "generate", str(suite), "-o", str(out)],
+        [sys.executable, "-m", "depotbench.eval.cli", "generate", str(suite), "-o", str(out)],
         cwd=REPO,
         env={**os.environ, "DEPOTBENCH_TEST_TOKEN": token},
         stderr=subprocess.PIPE,
@@ -505,7 +504,7 @@ def test_leftovers_of_a_name_with_glob_characters_are_found(tmp_path: Path):
 def test_a_container_cleans_its_outputs_leftovers_unless_a_live_writer_owns_them(tmp_path: Path):
     """A suite whose sequences are all complete writes none of them again, so it cleans
     what killed workers left beside them itself, but never under a live writer."""
-    from sim.output import clean_if_unowned
+    from depotbench.core.output import clean_if_unowned
 
     done, busy = tmp_path / "s-0000", tmp_path / "s-0001"
     for target in (done, busy):
@@ -542,14 +541,14 @@ def test_ctrl_c_while_workers_are_spawned_interrupts_the_parent(python_sigint):
     with exit code 0: the ctrl-c-at-start case above, on CI). A worker starts with
     SIGINT blocked, so it cannot die of one while starting, and ignores it once
     released."""
-    from sim.processes import children_block_sigint
+    from depotbench.core.processes import children_block_sigint
 
     with children_block_sigint():
         child = subprocess.run(
             [
                 sys.executable,
                 "-c",
-                "import signal; from sim.processes import release_sigint; "
+                "import signal; from depotbench.core.processes import release_sigint; "
                 "mask = lambda: signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set()); "
                 "print(mask(), end=' '); release_sigint(); "
                 "print(mask(), signal.getsignal(signal.SIGINT) == signal.SIG_IGN)",
@@ -577,7 +576,7 @@ def test_a_ctrl_c_taken_by_another_thread_waits_until_the_workers_are_spawned(py
     worker, which died reading its start-up data with a traceback ("Ran out of input":
     the ctrl-c-at-start case above, on a busy machine). The interrupt must wait for the
     window to close, and must not be lost."""
-    from sim.processes import children_block_sigint
+    from depotbench.core.processes import children_block_sigint
 
     release = threading.Event()
     other = threading.Thread(target=release.wait)  # started before the window: SIGINT not blocked
@@ -632,7 +631,7 @@ def _no_run(monkeypatch) -> None:
     def refuse(*args, **kwargs):
         raise AssertionError("the matrix ran before the output was checked")
 
-    monkeypatch.setattr("eval.cli_gates.run_gates", refuse)
+    monkeypatch.setattr("depotbench.eval.cli_gates.run_gates", refuse)
 
 
 @pytest.mark.parametrize(
@@ -681,7 +680,7 @@ def test_a_vocabulary_that_cannot_be_written_is_refused_before_it_is_built(
     def refuse(*args, **kwargs):
         raise AssertionError("the vocabulary was built before its file was checked")
 
-    monkeypatch.setattr("eval.vocabulary.build_file", refuse)
+    monkeypatch.setattr("depotbench.eval.vocabulary.build_file", refuse)
     (tmp_path / "afile").write_text("x")
     code, _, err = cli(capsys, "vocab", "-o", tmp_path / "afile" / "v.txt", "--scenes", "smoke")
     assert code == 2

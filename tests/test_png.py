@@ -8,9 +8,8 @@ import io
 import cv2
 import numpy as np
 import pytest
+from depotbench.sim.png import encode_png
 from PIL import Image
-
-from sim.png import encode_png
 
 SHAPES = [(1, 1), (3, 7), (48, 64), (480, 640)]
 

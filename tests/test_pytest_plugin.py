@@ -7,15 +7,14 @@ import subprocess
 import sys
 import textwrap
 
-import pytest
-
 # Imported here, before any pytester fixture: pytester drops the modules a test imported when
 # it ends, and numpy's C core cannot be loaded twice in one process.
-import eval.sweep_run  # noqa: F401
-import eval.vocabulary
-import scenes.generation  # noqa: F401
-import sim.generate
-from sim.errors import InputError
+import depotbench.eval.sweep_run  # noqa: F401
+import depotbench.eval.vocabulary
+import depotbench.scenes.generation  # noqa: F401
+import depotbench.sim.generate
+import pytest
+from depotbench.core.errors import InputError
 
 FAST_S = 5.0
 """A refused configuration returns within this: the refusal comes before generation
@@ -51,9 +50,9 @@ from pathlib import Path
 
 import pytest
 
-import sim.generate
+import depotbench.sim.generate
 
-_build_world = sim.generate.build_world
+_build_world = depotbench.sim.generate.build_world
 
 
 def _slow_build_world(scenario):
@@ -63,7 +62,7 @@ def _slow_build_world(scenario):
     return _build_world(scenario)
 
 
-sim.generate.build_world = _slow_build_world
+depotbench.sim.generate.build_world = _slow_build_world
 
 
 @pytest.fixture
@@ -135,8 +134,8 @@ def _refused(pytester, monkeypatch, call: str) -> pytest.RunResult:
     def tripwire(*args, **kwargs):
         raise AssertionError("depotbench_run did work before refusing the configuration")
 
-    monkeypatch.setattr(sim.generate, "generate", tripwire)
-    monkeypatch.setattr(eval.vocabulary, "default_vocabulary", tripwire)
+    monkeypatch.setattr(depotbench.sim.generate, "generate", tripwire)
+    monkeypatch.setattr(depotbench.eval.vocabulary, "default_vocabulary", tripwire)
     pytester.makepyfile(
         textwrap.dedent(
             f"""
@@ -144,7 +143,7 @@ def _refused(pytester, monkeypatch, call: str) -> pytest.RunResult:
 
             import pytest
 
-            from sim.errors import InputError
+            from depotbench.core.errors import InputError
 
             def test_refused(depotbench_run):
                 started = time.monotonic()
@@ -215,7 +214,7 @@ def test_settings_and_values_that_cannot_run_are_refused_before_any_work(pyteste
 
 def test_a_run_without_its_row_is_an_error_naming_the_job():
     """C18: ``rows[0]`` of an empty list was an IndexError naming nothing."""
-    from eval.pytest_plugin import the_row
+    from depotbench.eval.pytest_plugin import the_row
 
     row = {"strategy": "none", "settings": "{}"}
     assert the_row([row], "none", "depotbench_run('smoke')") is row
@@ -269,7 +268,7 @@ def test_a_gate_file_is_found_beside_the_test_that_names_it(pytester):
         "gates: g\nrun:\n  sequences: [seq]\n  strategies: [none]\n"
         "checks:\n  - name: c\n    budgets: {lost_fraction: {max: 1}}\n"
     )
-    from eval.cli import main
+    from depotbench.eval.cli import main
 
     assert main(["generate", "smoke", "-o", str(sub / "seq"), "--frames", "3"]) == 0
     (sub / "test_gate.py").write_text(

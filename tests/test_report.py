@@ -7,8 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-
-from eval.cli import main
+from depotbench.eval.cli import main
 
 pytestmark = pytest.mark.render
 
@@ -17,9 +16,9 @@ BROWSERS = ("chromium", "chromium-browser", "google-chrome")
 
 @pytest.fixture(scope="module")
 def walking(tmp_path_factory) -> Path:
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
 
     scenario = library.get("walking_static").model_copy(update={"frames": 24, "duration_s": None})
     return generate(to_scenario(scenario), tmp_path_factory.mktemp("walk") / "walking", progress=False)
@@ -133,7 +132,7 @@ def test_rerun_recording_of_a_run(run_folder: Path, tmp_path: Path):
 def test_percentages_in_the_tables_are_shown_to_a_hundredth():
     """The demo's best run on the empty depot matched its reference within micrometres:
     rho was shown as '1.304e-06'; a percentage reads 0 there, and 82.39 elsewhere."""
-    from eval.html_report import percent, table
+    from depotbench.eval.html_report import percent, table
 
     page = table(["rho"], [[percent(1.304e-06)], [percent(82.39431659)], [percent(None)]])
     assert "e-06" not in page

@@ -20,8 +20,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from depotbench.eval.cli import main
 
-from eval.cli import main
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.conftest import REPO
 
@@ -216,7 +216,7 @@ def test_rerun_on_a_full_disk_is_one_line_and_writes_nothing(copy: Path):
     rrd, out = copy / "x.rrd", copy / "out"
     args = ["report", str(copy / "r1"), "-o", str(out), "--rerun", str(rrd)]
     proc = subprocess.run(
-        [sys.executable, "-c", _FSIZE, str(100_000), sys.executable, "-m", "eval.cli", *args],
+        [sys.executable, "-c", _FSIZE, str(100_000), sys.executable, "-m", "depotbench.eval.cli", *args],
         cwd=REPO,
         env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},  # a .pyc cut short by the cap breaks imports
         capture_output=True,

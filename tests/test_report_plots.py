@@ -13,11 +13,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-from matplotlib.collections import PathCollection, PolyCollection
-from matplotlib.colors import to_rgba
-
-from eval.cli import main
-from eval.sweep_report import (
+from depotbench.eval.cli import main
+from depotbench.eval.sweep_report import (
     FAILED_COLOUR,
     configurations,
     family_colours,
@@ -29,6 +26,8 @@ from eval.sweep_report import (
     strip_figures,
     threshold_figures,
 )
+from matplotlib.collections import PathCollection, PolyCollection
+from matplotlib.colors import to_rgba
 
 FAMILIES = ("fam a", "fam b", "fam c")
 """fam c ran one seed: its curves have no interval."""
@@ -279,7 +278,7 @@ def test_the_difficulty_table_lists_each_sequences_knobs_and_seed(page: str):
 
 @pytest.mark.render
 def test_families_past_the_bound_are_named_in_the_notes(sweep: Path):
-    from eval.html_report import Notes, sweep_page
+    from depotbench.eval.html_report import Notes, sweep_page
 
     notes = Notes()
     text = sweep_page(sweep, notes, featured=3)

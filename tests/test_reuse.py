@@ -10,20 +10,20 @@ import os
 import shutil
 from pathlib import Path
 
-import pytest
-
 # Imported here, before any pytester fixture: pytester drops the modules a test imported when
 # it ends, and numpy's C core cannot be loaded twice in one process.
-import eval.sweep_run
-import scenes.generation
-import sim.generate  # noqa: F401
-from eval.cli import main
-from eval.sweep import named_sequences, validate
-from eval.sweep_spec import load_sweep
-from scenes.store import DEFAULT_MAX_BYTES, SequenceStore
-from scenes.suite import load_suite
-from sim.errors import InputError
-from sim.output import MARKER_NAME, OutputKind, OutputLock, StagedOutput, read_marker
+import depotbench.eval.sweep_run
+import depotbench.scenes.generation
+import depotbench.sim.generate  # noqa: F401
+import pytest
+from depotbench.core.errors import InputError
+from depotbench.core.output import MARKER_NAME, OutputKind, OutputLock, StagedOutput, read_marker
+from depotbench.eval.cli import main
+from depotbench.eval.sweep import named_sequences, validate
+from depotbench.eval.sweep_spec import load_sweep
+from depotbench.scenes.store import DEFAULT_MAX_BYTES, SequenceStore
+from depotbench.scenes.suite import load_suite
+
 from tests.sequences import tree_differences, write_sequence
 
 SUITE = "suite: tiny\nbase: smoke\noverrides: {frames: 3}\ngrid: {actors.0.speed_mps: [0.6, 1.2]}\n"
@@ -44,13 +44,13 @@ class Renders:
 
     def __init__(self, monkeypatch) -> None:
         self.frames = 0
-        real = scenes.generation._generate_all
+        real = depotbench.scenes.generation._generate_all
 
         def counted(pending, *args, **kwargs):
             self.frames += sum(sc.n_frames for _, sc in pending)
             return real(pending, *args, **kwargs)
 
-        monkeypatch.setattr(scenes.generation, "_generate_all", counted)
+        monkeypatch.setattr(depotbench.scenes.generation, "_generate_all", counted)
 
 
 def _suite(tmp_path: Path) -> Path:
@@ -69,11 +69,11 @@ def test_run_suite_twice_into_two_folders_renders_once_and_copies_byte_for_byte(
 ):
     renders = Renders(monkeypatch)
     path = _suite(tmp_path)
-    scenes.generation.run_suite(load_suite(path), path, tmp_path / "a", workers=2, progress=False)
+    depotbench.scenes.generation.run_suite(load_suite(path), path, tmp_path / "a", workers=2, progress=False)
     assert renders.frames == 6
     assert "0 from the store and 2 to generate" in _summary(capsys.readouterr().out)
     assert len([p for p in store.iterdir() if p.is_dir()]) == 2
-    scenes.generation.run_suite(load_suite(path), path, tmp_path / "b", workers=2, progress=False)
+    depotbench.scenes.generation.run_suite(load_suite(path), path, tmp_path / "b", workers=2, progress=False)
     assert renders.frames == 6  # none more
     assert "2 from the store and 0 to generate" in _summary(capsys.readouterr().out)
     assert tree_differences(tmp_path / "a", tmp_path / "b") == []
@@ -81,7 +81,7 @@ def test_run_suite_twice_into_two_folders_renders_once_and_copies_byte_for_byte(
     frame = next((tmp_path / "b" / "tiny-0000" / "rgb").iterdir())
     assert frame.stat().st_nlink == 1
     frame.write_bytes(b"edited")
-    scenes.generation.run_suite(load_suite(path), path, tmp_path / "c", workers=2, progress=False)
+    depotbench.scenes.generation.run_suite(load_suite(path), path, tmp_path / "c", workers=2, progress=False)
     assert tree_differences(tmp_path / "a", tmp_path / "c") == []
 
 
@@ -103,7 +103,7 @@ def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_sui
     for spec_path in (by_suite, by_folder):
         spec = load_sweep(spec_path)
         validate(spec, spec_path)
-        outcome = eval.sweep_run.execute_sweep(
+        outcome = depotbench.eval.sweep_run.execute_sweep(
             spec, spec_path, tmp_path / spec_path.stem, 1, progress=False, announce=False
         )
         rows[spec_path.stem] = sorted((r["family"], r["knobs"], r["seed"]) for r in outcome.rows)
@@ -178,9 +178,9 @@ def test_an_output_folder_inside_a_folder_a_glob_matched_is_refused(tmp_path: Pa
 PLUGIN_CONFTEST = """
 from pathlib import Path
 
-import sim.generate  # noqa: F401
+import depotbench.sim.generate  # noqa: F401
 
-_generate = sim.generate.generate
+_generate = depotbench.sim.generate.generate
 
 
 def _counted(scenario, out, **kwargs):
@@ -189,7 +189,7 @@ def _counted(scenario, out, **kwargs):
     return _generate(scenario, out, **kwargs)
 
 
-sim.generate.generate = _counted
+depotbench.sim.generate.generate = _counted
 """
 
 

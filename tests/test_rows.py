@@ -11,8 +11,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
-
-from eval.cli import main
+from depotbench.eval.cli import main
 
 pytestmark = pytest.mark.render
 

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from depotbench.eval.cli import main
+from depotbench.scenes import library
+from depotbench.scenes.generation import run_suite
+from depotbench.scenes.schema import Scenario, parse_scenario, to_scenario
+from depotbench.scenes.suite import load_suite, variations
+from depotbench.sim.sensor import kinect_sigma
+from depotbench.sim.sequence import Sequence
 
-from eval.cli import main
-from scenes import library
-from scenes.generation import run_suite
-from scenes.schema import Scenario, parse_scenario, to_scenario
-from scenes.suite import load_suite, variations
-from sim.sensor import kinect_sigma
-from sim.sequence import Sequence
 from tests.conftest import REPO
 
 
@@ -75,18 +75,18 @@ def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: P
     order the scenes as their names say, and in each only instances move and every
     instance has geoms (checked on the world generate builds, so that no scene is built
     twice)."""
-    import sim.generate
-    from scenes.generation import read_difficulty
-    from sim.generate import generate
+    import depotbench.sim.generate
+    from depotbench.scenes.generation import read_difficulty
+    from depotbench.sim.generate import generate
 
     built = []
-    build_world = sim.generate.build_world
+    build_world = depotbench.sim.generate.build_world
 
     def recording(spec):
         built.append(build_world(spec))
         return built[-1]
 
-    monkeypatch.setattr(sim.generate, "build_world", recording)
+    monkeypatch.setattr(depotbench.sim.generate, "build_world", recording)
     difficulty = {}
     for name in library.names():
         out = generate(to_scenario(small(library.get(name), frames=6)), tmp_path / name, progress=False)
@@ -111,7 +111,7 @@ def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: P
 @pytest.mark.render
 @pytest.mark.parametrize("distance", [1.0, 2.0, 3.0, 4.0])
 def test_depth_noise_on_a_flat_wall_matches_kinect_sigma(tmp_path: Path, distance: float):
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     wall_y = 5.5
     scenario = parse_scenario(
@@ -141,8 +141,8 @@ def test_depth_noise_on_a_flat_wall_matches_kinect_sigma(tmp_path: Path, distanc
 
 
 def test_sensor_models_change_only_what_they_should():
-    from sim.sensor import SensorModel
-    from sim.spec import SensorSpec
+    from depotbench.sim.sensor import SensorModel
+    from depotbench.sim.spec import SensorSpec
 
     rng = np.random.default_rng(0)
     depth = np.full((60, 80), 3.0, np.float32)
@@ -295,7 +295,17 @@ def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Pa
     # Kill a run midway, then rerun: only the missing sequences are generated.
     out = tmp_path / "c"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "eval.cli", "generate", str(path), "-o", str(out), "--workers", "2"],
+        [
+            sys.executable,
+            "-m",
+            "depotbench.eval.cli",
+            "generate",
+            str(path),
+            "-o",
+            str(out),
+            "--workers",
+            "2",
+        ],
         cwd=REPO,
         start_new_session=True,
         stdout=subprocess.DEVNULL,
@@ -323,8 +333,8 @@ def test_difficultys_mean_flow_on_a_grid_is_within_half_a_percent_of_every_pixel
 ):
     """Generation takes the moving pixels' mean flow on every 4th row and column (a
     sixteenth of the work); against every moving pixel it stays within 0.5%."""
-    import sim.generate as generate_module
-    from scenes.generation import read_difficulty
+    import depotbench.sim.generate as generate_module
+    from depotbench.scenes.generation import read_difficulty
 
     spec = to_scenario(
         library.get("walking_halfsphere").model_copy(update={"frames": 20, "duration_s": None})

@@ -9,11 +9,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.core.errors import SequenceFormatError
+from depotbench.core.output import OutputError
+from depotbench.sim.camera import TUM_FREIBURG, read_orbslam_yaml
+from depotbench.sim.sequence import Sequence, SequenceWriter, encode_depth
 
-from sim.camera import TUM_FREIBURG, read_orbslam_yaml
-from sim.errors import SequenceFormatError
-from sim.output import OutputError
-from sim.sequence import Sequence, SequenceWriter, encode_depth
 from tests.sequences import SMALL, random_frame, tree_differences, write_sequence
 
 

@@ -12,14 +12,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.sim.camera_rig import CameraRig
+from depotbench.sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, look_at
+from depotbench.sim.sequence import Sequence
+from depotbench.sim.simulation import Simulation
+from depotbench.sim.spec import ActorSpec, CameraSpec, ChairSpec, ScenarioSpec, default_scenario
+from depotbench.sim.world import build_world
 from scipy.ndimage import map_coordinates
 
-from sim.camera_rig import CameraRig
-from sim.conventions import cv_from_gl_rotation, gl_from_cv_rotation, look_at
-from sim.sequence import Sequence
-from sim.simulation import Simulation
-from sim.spec import ActorSpec, CameraSpec, ChairSpec, ScenarioSpec, default_scenario
-from sim.world import build_world
 from tests.conftest import REPO
 from tests.sequences import tree_differences
 
@@ -40,7 +40,7 @@ def small(spec: ScenarioSpec, frames: int, scale: int = 4, **changes) -> Scenari
 
 @pytest.fixture(scope="module")
 def walking(tmp_path_factory) -> Sequence:
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     out = tmp_path_factory.mktemp("sim") / "walking"
     spec = small(default_scenario(), frames=8, scale=2, flow=True)
@@ -69,7 +69,7 @@ def test_ground_truth_pose_is_the_rigs_pose(walking: Sequence):
 
 
 def scenario_of(seq: Sequence) -> ScenarioSpec:
-    from sim.spec import spec_from_dict
+    from depotbench.sim.spec import spec_from_dict
 
     return spec_from_dict(seq.meta["scenario"])
 
@@ -209,7 +209,7 @@ def test_a_paths_single_points_and_tangents_are_numpys_to_the_bit():
     """Path.point and Path.tangent take a fast path for one arc length (Python floats with
     np.interp's arithmetic): over seeded loops, at arc lengths wrapped both ways, on the
     samples themselves and at the seam, they give the array path's bits."""
-    from sim.paths import Path as Loop
+    from depotbench.sim.paths import Path as Loop
 
     rng = np.random.default_rng(7)
     for _ in range(6):
@@ -248,7 +248,7 @@ def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
         out = tmp_path / name
         environ = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"} | env
         result = subprocess.run(
-            [sys.executable, "-m", "eval.cli", "generate", str(spec), "-o", str(out)],
+            [sys.executable, "-m", "depotbench.eval.cli", "generate", str(spec), "-o", str(out)],
             cwd=REPO,
             capture_output=True,
             text=True,
@@ -264,10 +264,10 @@ def test_same_spec_and_seed_same_bytes_in_two_processes(tmp_path: Path):
 
 
 def test_product_is_matmul_summed_in_one_order():
-    """sim.products.product: numpy's ``@`` to rounding for every shape the generator
+    """depotbench.sim.products.product: numpy's ``@`` to rounding for every shape the generator
     multiplies (matrices, points, batches, row and column vectors), and to the bit the
     sum of Python floats taken in order, whatever the CPU."""
-    from sim.products import product, rigid_inverse
+    from depotbench.sim.products import product, rigid_inverse
 
     rng = np.random.default_rng(3)
     shapes = [((3, 3), (3, 3)), ((3, 3), (3,)), ((500, 3), (3, 3)), ((500, 3), (3,)), ((3,), (3, 3))]
@@ -317,9 +317,9 @@ def _blas_kernels_differ() -> str | None:
 
 IPP_PROBE = """
 import hashlib, numpy as np
-from sim import textures
-from sim.sensor import SensorModel
-from sim.spec import SensorSpec
+from depotbench.sim import textures
+from depotbench.sim.sensor import SensorModel
+from depotbench.sim.spec import SensorSpec
 h = hashlib.sha256()
 for seed in range(4):
     rng = np.random.default_rng(seed)
@@ -382,7 +382,7 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     )
     runs = {
         core: subprocess.Popen(
-            [sys.executable, "-m", "eval.cli", "generate", str(spec), "-o", str(tmp_path / core)],
+            [sys.executable, "-m", "depotbench.eval.cli", "generate", str(spec), "-o", str(tmp_path / core)],
             cwd=REPO,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
@@ -412,7 +412,7 @@ def test_the_robot_rig_ignores_position_and_target_as_validation_does(tmp_path: 
     """The robot drives its own loop, so validation does not check the camera's position
     and target for it; the rig must not use them either. Found by the fuzz test: a robot
     spec with position_m == target_m validated, then generate crashed in look_at."""
-    from eval.cli import main
+    from depotbench.eval.cli import main
 
     spec = tmp_path / "robot.yaml"
     camera = "{motion: robot, position_m: [0, 0, 0], target_m: [0, 0, 0]}"
@@ -427,7 +427,7 @@ def test_the_robot_rig_ignores_position_and_target_as_validation_does(tmp_path: 
 
 
 def test_orb_finds_well_spread_features_on_the_default_scenario(tmp_path: Path):
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     out = generate(dataclasses.replace(default_scenario(), frames=30), tmp_path / "seq", progress=False)
     seq = Sequence.open(out)
@@ -455,7 +455,7 @@ def test_missing_gl_gives_an_install_hint(tmp_path: Path):
         [
             sys.executable,
             "-m",
-            "eval.cli",
+            "depotbench.eval.cli",
             "generate",
             "default",
             "-o",
@@ -509,12 +509,12 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
     because people carry features; featureless people would make rejection moot. Keypoint
     density (per pixel) on people must be at least 0.4x that on the static world (measured
     0.49 on walking_static; the earlier smooth clothing gave 0.13)."""
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.generate import generate
-    from slam.config import TrackingConfig
-    from slam.features import FeatureExtractor
-    from slam.types import PinholeCamera
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
+    from depotbench.slam.config import TrackingConfig
+    from depotbench.slam.features import FeatureExtractor
+    from depotbench.slam.types import PinholeCamera
 
     scenario = library.get("walking_static").model_copy(update={"frames": 40, "duration_s": None})
     seq = Sequence.open(generate(to_scenario(scenario), tmp_path / "seq", progress=False))
@@ -550,8 +550,8 @@ def test_reading_rgba_gives_mujocos_own_pixels_and_depth(offsamples):
     """FrameRenderer reads the offscreen buffer as RGBA (llvmpipe's RGB read is a slow
     path); it must give the pixels and depth mjr_readPixels gives, whole and in a window,
     and through MuJoCo's own reader where the buffer is multisampled."""
-    from sim.mujoco_env import mujoco
-    from sim.render import FrameRenderer
+    from depotbench.sim.mujoco_env import mujoco
+    from depotbench.sim.render import FrameRenderer
 
     spec = mujoco.MjSpec()
     spec.visual.quality.offsamples = offsamples
@@ -589,8 +589,8 @@ def _render_facing_boxes(
     unoccluded areas, and how many instances each unoccluded pass draws. The areas the
     frame gives (read from its instance pass where no other window overlaps) must be
     the bit passes' for every instance seen."""
-    from sim.mujoco_env import mujoco
-    from sim.render import FrameRenderer, _bit_passes
+    from depotbench.sim.mujoco_env import mujoco
+    from depotbench.sim.render import FrameRenderer, _bit_passes
 
     spec = mujoco.MjSpec()
     spec.visual.quality.offsamples = 0  # as the bench's worlds: no multisampling, exact pixels
@@ -661,7 +661,7 @@ def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits()
     """Closed form, 30 boxes facing the camera, each overlapping the next in the image and
     partly hidden by it: more instances with overlapping windows than one pass's 24 bits,
     so a second pass runs. Each unoccluded area is its whole projected rectangle."""
-    from sim.render import BITS
+    from depotbench.sim.render import BITS
 
     width, height, fovy, n = 96, 72, 60.0, 30
     # all overlap; nearer ones further right
@@ -678,7 +678,7 @@ def test_unoccluded_areas_of_more_overlapping_instances_than_one_pass_has_bits()
 
 def test_bit_passes_give_overlapping_windows_different_bits():
     """Windows apart may share a bit; overlapping ones never do; past 24, a new pass."""
-    from sim.render import BITS, _bit_passes, _overlap
+    from depotbench.sim.render import BITS, _bit_passes, _overlap
 
     rng = np.random.default_rng(5)
     corners = rng.integers(0, 400, size=(80, 2))
@@ -703,7 +703,7 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
     whole image, one per pass, with the depth test; the OR-ed bit passes (every instance at
     once, no depth buffer) and the frame's areas (the instance pass's, where no other
     instance's window overlaps) must give the same areas and border flags."""
-    from sim.render import SOLO_GROUP, FrameRenderer
+    from depotbench.sim.render import SOLO_GROUP, FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=2))
     geom_instance = world.body_instance[world.model.geom_bodyid]
@@ -737,9 +737,9 @@ def test_instance_pass_shows_what_a_segmentation_pass_of_the_whole_scene_shows(s
     """MuJoCo's own segmentation of the whole scene (the world drawn too, with the depth
     test) is the reference: the instance pass, whose pixels count where its depth equals
     the colour pass's, must give each pixel the same instance geom, bit for bit."""
-    from scenes import library
-    from scenes.schema import to_scenario
-    from sim.render import FrameRenderer
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.render import FrameRenderer
 
     changes = {"frames": 12, "duration_s": None, "seed": seed}
     spec = (
@@ -769,7 +769,7 @@ def test_instance_pass_shows_what_a_segmentation_pass_of_the_whole_scene_shows(s
 def test_leaving_out_geoms_outside_the_view_changes_no_pixel():
     """Culling by bounding spheres leaves out many geoms yet gives the same RGB, depth, geom
     ids and unoccluded areas, bit for bit, along the default scenario's path."""
-    from sim.render import FrameRenderer
+    from depotbench.sim.render import FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=1))
     geom_instance = world.body_instance[world.model.geom_bodyid]
@@ -802,8 +802,8 @@ def test_rgb_matches_mujocos_own_renderer_but_for_texture_filtering():
     blends two (trilinear): faster on llvmpipe, and the images agree to within a grey level
     on average, and geometry, lighting and colours are the same. MuJoCo's is shown the
     pieces ours draws: far versions beyond FAR_M, the full ones nearer."""
-    from sim.mujoco_env import mujoco
-    from sim.render import HIDDEN_GROUP, FrameRenderer
+    from depotbench.sim.mujoco_env import mujoco
+    from depotbench.sim.render import HIDDEN_GROUP, FrameRenderer
 
     world = build_world(default_scenario(frames=12, seed=1))
     ours = FrameRenderer(world.model, 320, 240, world.body_instance[world.model.geom_bodyid])

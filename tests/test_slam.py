@@ -8,25 +8,24 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from detectors.detection import Detection, Prior
-from eval.cli import main
-from eval.harness import camera_of, run_sequence
-from eval.metrics import improvement_rate
-from scenes import library
-from scenes.schema import to_scenario
-from sim.sequence import Sequence
-from slam.config import RejectionConfig, SlamConfig
-from slam.features import FrameFeatures
-from slam.rejection import STRATEGIES, classify
-from slam.system import Slam
-from slam.types import REJECTION_CODES, Frame, Rejection, TrackingState
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.cli import main
+from depotbench.eval.harness import camera_of, run_sequence
+from depotbench.eval.metrics import improvement_rate
+from depotbench.scenes import library
+from depotbench.scenes.schema import to_scenario
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.config import RejectionConfig, SlamConfig
+from depotbench.slam.features import FrameFeatures
+from depotbench.slam.rejection import STRATEGIES, classify
+from depotbench.slam.system import Slam
+from depotbench.slam.types import REJECTION_CODES, Frame, Rejection, TrackingState
 
 pytestmark = pytest.mark.render
 
 
 def _generate(tmp_path_factory, name: str, frames: int) -> Path:
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     scenario = library.get(name).model_copy(update={"frames": frames, "duration_s": None})
     return generate(to_scenario(scenario), tmp_path_factory.mktemp(name) / name, progress=False)
@@ -234,9 +233,9 @@ def test_epipolar_rule_flags_points_off_their_epipolar_line():
 
 
 def test_pose_jacobian_matches_finite_differences():
-    from slam.geometry import exp_se3
-    from slam.optimize import _pose_jacobian, _residuals
-    from slam.types import PinholeCamera
+    from depotbench.slam.geometry import exp_se3
+    from depotbench.slam.optimize import _pose_jacobian, _residuals
+    from depotbench.slam.types import PinholeCamera
 
     camera = PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480)
     rng = np.random.default_rng(0)
@@ -258,7 +257,7 @@ def test_pose_jacobian_matches_finite_differences():
 
 
 def test_settings_are_named_typed_and_range_checked():
-    from slam.config import ConfigError
+    from depotbench.slam.config import ConfigError
 
     config = SlamConfig(strategy="prior_flow").with_settings(
         {"k": "2.5", "lk_window_px": "11", "n_features": "800"}
@@ -280,7 +279,7 @@ def test_settings_are_named_typed_and_range_checked():
 
 
 def test_rotation_consistency_keeps_the_dominant_angle_changes():
-    from slam.system import _consistent_rotation
+    from depotbench.slam.system import _consistent_rotation
 
     rng = np.random.default_rng(0)
     consistent = rng.normal(10.0, 2.0, 200)  # the image rotated by ~10 degrees
@@ -294,9 +293,8 @@ def test_rotation_consistency_keeps_the_dominant_angle_changes():
 def test_constant_velocity_chain_stays_a_rigid_motion():
     """Regression: the motion model's pose chain used to lose orthogonality by 1 + sqrt(2) per
     frame (``invert`` transposes), so tracking without per-frame RANSAC diverged at ~40 frames."""
+    from depotbench.slam.geometry import constant_velocity, invert
     from scipy.spatial.transform import Rotation
-
-    from slam.geometry import constant_velocity, invert
 
     step = np.eye(4)
     step[:3, :3] = Rotation.from_rotvec([0.002, -0.01, 0.004]).as_matrix()
@@ -333,9 +331,9 @@ def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: P
 def _window(seed: int):
     """A keyframe window seen by a moving RGB-D camera: true and perturbed poses and points,
     observations with pixel noise by pyramid level, keypoints without depth and outliers."""
-    from slam.bundle import BundleWindow
-    from slam.geometry import exp_se3, invert
-    from slam.types import PinholeCamera
+    from depotbench.slam.bundle import BundleWindow
+    from depotbench.slam.geometry import exp_se3, invert
+    from depotbench.slam.types import PinholeCamera
 
     rng = np.random.default_rng(seed)
     camera, bf = PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480), 40.0
@@ -372,9 +370,10 @@ def _window(seed: int):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_local_bundle_adjustment_reaches_gtsams_minimum(seed: int):
-    """slam.bundle against GTSAM's Levenberg-Marquardt on the same factors: the same cost,
+    """depotbench.slam.bundle against GTSAM's Levenberg-Marquardt on the same factors: the same cost,
     the same solution, fixed keyframes untouched, and poses brought towards the truth."""
-    from slam.bundle import _Problem, bundle_adjust
+    from depotbench.slam.bundle import _Problem, bundle_adjust
+
     from tests.gtsam_reference import gtsam_bundle_adjust
 
     window, true_poses = _window(seed)

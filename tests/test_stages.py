@@ -6,19 +6,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from eval.cache import StageCache
-from eval.harness import RunJob, track
-from scenes import library
-from scenes.schema import to_scenario
-from slam.rejection import STRATEGIES
+from depotbench.eval.cache import StageCache
+from depotbench.eval.harness import RunJob, track
+from depotbench.scenes import library
+from depotbench.scenes.schema import to_scenario
+from depotbench.slam.rejection import STRATEGIES
 
 pytestmark = pytest.mark.render
 
 
 @pytest.fixture(scope="module")
 def walking(tmp_path_factory) -> Path:
-    from sim.generate import generate
+    from depotbench.sim.generate import generate
 
     scenario = library.get("walking_static").model_copy(update={"frames": 30, "duration_s": None})
     return generate(to_scenario(scenario), tmp_path_factory.mktemp("walk") / "walking", progress=False)
@@ -75,10 +74,10 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
     """Jobs that keep the same keypoints in every frame are tracked once; their rows equal
     those of tracking each job (here l_thr2_px 50/60/70 decide alike: the flow's std is
     always below them)."""
-    from eval.record import DETERMINISTIC_FIELDS
-    from eval.store import ResultStore
-    from eval.sweep import expand, run_jobs
-    from eval.sweep_spec import load_sweep
+    from depotbench.eval.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep import expand, run_jobs
+    from depotbench.eval.sweep_spec import load_sweep
 
     spec_path = tmp_path / "s.yaml"
     spec_path.write_text(
@@ -107,9 +106,9 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
 def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tmp_path: Path):
     """Thresholds whose decisions agree for some frames and then part are tracked once up
     to there and forked; every configuration's run is bit for bit its run alone."""
-    from eval.detections import detect_sequence
-    from eval.harness import prepare, stages_for, track_tree
-    from eval.stages import decision_path
+    from depotbench.eval.detections import detect_sequence
+    from depotbench.eval.harness import prepare, stages_for, track_tree
+    from depotbench.eval.stages import decision_path
 
     cache = StageCache(tmp_path / "cache")
     jobs = [
@@ -138,7 +137,7 @@ def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Pat
     pytest.importorskip("optuna")
     import json
 
-    from eval.cli import main
+    from depotbench.eval.cli import main
 
     spec = tmp_path / "search.yaml"
     spec.write_text(
@@ -166,11 +165,11 @@ def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: P
     sweep's row for that job (deterministic fields; the sweep adds its signature)."""
     import json
 
-    from eval.harness import run_sequence
-    from eval.record import DETERMINISTIC_FIELDS
-    from eval.store import ResultStore
-    from eval.sweep import expand, run_jobs
-    from eval.sweep_spec import load_sweep
+    from depotbench.eval.harness import run_sequence
+    from depotbench.eval.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep import expand, run_jobs
+    from depotbench.eval.sweep_spec import load_sweep
 
     run_sequence(walking, tmp_path / "run", "box_rule", progress=False)
     record = json.loads((tmp_path / "run" / "record.json").read_text())

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from depotbench.eval.cli import main
+from depotbench.eval.record import DETERMINISTIC_FIELDS
+from depotbench.eval.store import ResultStore
+from depotbench.eval.sweep_spec import SweepSpec, load_sweep, variants
+from depotbench.scenes.schema import SpecError
 
-from eval.cli import main
-from eval.record import DETERMINISTIC_FIELDS
-from eval.store import ResultStore
-from eval.sweep_spec import SweepSpec, load_sweep, variants
-from scenes.schema import SpecError
 from tests.sequences import write_sequence
 
 REPO = Path(__file__).resolve().parents[1]
@@ -120,7 +120,7 @@ def _table(out: Path) -> list[dict]:
 
 
 def _command(spec: Path, out: Path) -> list[str]:
-    return [sys.executable, "-m", "eval.cli", "sweep", str(spec), "-o", str(out), "--workers", "2"]
+    return [sys.executable, "-m", "depotbench.eval.cli", "sweep", str(spec), "-o", str(out), "--workers", "2"]
 
 
 def test_a_sweep_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one(tmp_path: Path):
@@ -190,7 +190,7 @@ def _config(family: str, strategy: str, ate: float, ms: float, k: str = "2") -> 
 
 
 def test_best_and_pareto_on_a_closed_case():
-    from eval.sweep_report import best_per_family, pareto
+    from depotbench.eval.sweep_report import best_per_family, pareto
 
     configs = [
         _config("a", "x", 0.010, 30.0, "1"),  # fastest
@@ -206,7 +206,7 @@ def test_best_and_pareto_on_a_closed_case():
 
 
 def test_rho_is_taken_against_the_none_run_of_the_same_sequence_and_detector():
-    from eval.sweep_report import with_rho
+    from depotbench.eval.sweep_report import with_rho
 
     rows = [
         {
@@ -254,7 +254,7 @@ def test_spec_model_defaults():
 def test_ray_and_local_backends_give_identical_rows(tmp_path: Path):
     """A local Ray instance, started by the test (extra [ray])."""
     pytest.importorskip("ray")
-    from eval.sweep import expand, run_jobs
+    from depotbench.eval.sweep import expand, run_jobs
 
     spec = _sweep_setup(tmp_path)
     jobs = expand(load_sweep(spec), spec, [(tmp_path / "a", "test"), (tmp_path / "b", "test")])
@@ -274,8 +274,8 @@ def _table_of(database: Path) -> list[dict]:
 @pytest.mark.render
 def test_ray_and_local_generate_a_suite_byte_for_byte(tmp_path: Path):
     pytest.importorskip("ray")
-    from scenes.generation import run_suite
-    from scenes.suite import load_suite
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.suite import load_suite
 
     suite = tmp_path / "s.yaml"
     suite.write_text("suite: s\nbase: smoke\noverrides: {frames: 4}\nseeds: [1, 2]\n")
@@ -365,7 +365,7 @@ def test_a_grid_too_large_to_list_is_refused_before_it_is_built(tmp_path: Path, 
     def listed(spec):
         raise AssertionError("the grid was listed before it was counted")
 
-    monkeypatch.setattr("eval.sweep.variants", listed)
+    monkeypatch.setattr("depotbench.eval.sweep.variants", listed)
     write_sequence(tmp_path / "a", n=3, with_flow=False)
     axis = "{range: [0.01, 10.0, 0.01]}"
     spec = _spec(
@@ -400,7 +400,7 @@ def test_a_spec_part_that_would_be_skipped_silently_is_refused(
 def test_model_and_class_files_in_a_spec_are_found_beside_the_spec(tmp_path: Path, capsys):
     """Probe M5: `onnx:../models/m.onnx` was looked up from the working directory, after the
     output folder had been made, and the error named no field."""
-    from detectors.config import SHIPPED_MODEL
+    from depotbench.detectors.config import SHIPPED_MODEL
 
     write_sequence(tmp_path / "seq", n=2, with_flow=False)
     (tmp_path / "models").mkdir()

@@ -12,13 +12,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.frames import FrameSource, MaskSettings, box_mask
+from depotbench.eval.vocabulary import Vocabulary, build, kmajority, read_text
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.optimize import refine_pose
+from depotbench.slam.types import PinholeCamera
 
-from detectors.detection import Detection, Prior
-from eval.frames import FrameSource, MaskSettings, box_mask
-from eval.vocabulary import Vocabulary, build, kmajority, read_text
-from sim.sequence import Sequence
-from slam.optimize import refine_pose
-from slam.types import PinholeCamera
 from tests.sequences import write_sequence
 from tests.test_output import cli, one_error_line
 
@@ -247,7 +247,7 @@ PEOPLE = """actors:
 
 @pytest.mark.render
 def test_orbslam3_runs_end_to_end_with_and_without_mask(tmp_path: Path, capsys):
-    from eval.trackers.orbslam3 import available
+    from depotbench.eval.trackers.orbslam3 import available
 
     if not available():
         pytest.skip("the orbslam3 extra (pyorbslam3) is not installed")

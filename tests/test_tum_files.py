@@ -6,10 +6,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from eval.trajectory import Trajectory, read_tum, write_tum
-from sim.errors import SequenceFormatError
-from sim.tum_files import read_frame_list, read_pose_file
+from depotbench.core.errors import SequenceFormatError
+from depotbench.eval.trajectory import Trajectory, read_tum, write_tum
+from depotbench.sim.tum_files import read_frame_list, read_pose_file
 
 
 def test_separators_and_comments(tmp_path: Path):

@@ -11,14 +11,13 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
-
-from eval.frames import FrameSource
-from eval.trajectory import Trajectory
-from sim.errors import InputError
-from slam.types import FrameResult, TrackingState
+from depotbench.core.errors import InputError
+from depotbench.eval.frames import FrameSource
+from depotbench.eval.trajectory import Trajectory
+from depotbench.slam.types import FrameResult, TrackingState
 
 if TYPE_CHECKING:
-    from eval.trackers.protocol import KeypointDecisions
+    from depotbench.eval.trackers.protocol import KeypointDecisions
 
 
 class TrackerKind(StrEnum):

@@ -6,15 +6,14 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from depotbench.eval.frames import FrameSource
+from depotbench.eval.trackers.base import TrackerRun
+from depotbench.sim.sequence import Sequence
+from depotbench.slam.config import SlamConfig
+from depotbench.slam.rejection import box_classes, classify
+from depotbench.slam.system import Slam, seed_frame
+from depotbench.slam.types import Frame, FrameResult, PinholeCamera
 from tqdm import tqdm
-
-from eval.frames import FrameSource
-from eval.trackers.base import TrackerRun
-from sim.sequence import Sequence
-from slam.config import SlamConfig
-from slam.rejection import box_classes, classify
-from slam.system import Slam, seed_frame
-from slam.types import Frame, FrameResult, PinholeCamera
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
 
@@ -48,7 +47,7 @@ class BuiltinTracker:
     name = "builtin"
 
     def __init__(self, config: SlamConfig, stages: list | None = None) -> None:
-        """``stages``: per frame, cached features (and flow) from ``eval.stages``."""
+        """``stages``: per frame, cached features (and flow) from ``depotbench.eval.stages``."""
         self.config = config
         self.stages = stages
         self._blank: tuple[np.ndarray, np.ndarray] | None = None
@@ -105,7 +104,7 @@ class BuiltinTracker:
         """Runs of several configurations that keep the same keypoints up to some frame.
 
         ``paths[j]`` names, per frame, which keypoints configuration j keeps (a hash,
-        ``eval.stages.decision_path``). While configurations agree they are one run;
+        ``depotbench.eval.stages.decision_path``). While configurations agree they are one run;
         where they part, the system is forked (``Slam.fork``) and each branch goes
         on. Each run equals, bit for bit, the run of its configuration alone
         (``tests/test_sweep.py``): a shared frame is tracked once, and each

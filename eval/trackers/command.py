@@ -10,7 +10,7 @@ shell. Placeholders stand for whole words (arguments):
 ``{trajectory}``    where the program must write its TUM trajectory; without this
                     placeholder it is read from ``CameraTrajectory.txt`` in the
                     program's working folder (ORB-SLAM2's ``rgbd_tum`` writes there)
-``{detections}``    the run's boxes, faults applied (``eval.trackers.protocol``)
+``{detections}``    the run's boxes, faults applied (``depotbench.eval.trackers.protocol``)
 ``{keypoints}``     where the program may write its keypoint decisions, scored against
                     the exact ground truth like the built-in tracker's
 ``{parameters}``    a JSON file of the run's parameter values
@@ -40,7 +40,7 @@ program word with a slash (``./my_slam.sh``) is found from the folder depotbench
 started in, a bare name in ``PATH``. Other relative paths in the template are the
 program's to resolve, from the scratch folder. The program, whatever it started in
 its process group, and the scratch folder end with depotbench, SIGKILL included
-(``eval.trackers.reaper``).
+(``depotbench.eval.trackers.reaper``).
 """
 
 from __future__ import annotations
@@ -56,19 +56,18 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-
-from eval.frames import FrameSource
-from eval.record import typed
-from eval.trackers.base import TrackerError, TrackerRun
-from eval.trackers.external import poses_by_frame, run_child, write_settings
-from eval.trackers.protocol import read_keypoints, write_detections
-from eval.trackers.reaper import Scratch
-from eval.trajectory import read_tum
-from sim.camera import OrbSlamSettings, orbslam_yaml
-from sim.errors import InputError
-from sim.files import MAX_SPEC_BYTES, read_text
-from sim.sequence import Sequence, timestamp_name
-from slam.types import TrackingState
+from depotbench.core.errors import InputError
+from depotbench.core.files import MAX_SPEC_BYTES, read_text
+from depotbench.eval.frames import FrameSource
+from depotbench.eval.record import typed
+from depotbench.eval.trackers.base import TrackerError, TrackerRun
+from depotbench.eval.trackers.external import poses_by_frame, run_child, write_settings
+from depotbench.eval.trackers.protocol import read_keypoints, write_detections
+from depotbench.eval.trackers.reaper import Scratch
+from depotbench.eval.trajectory import read_tum
+from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
+from depotbench.sim.sequence import Sequence, timestamp_name
+from depotbench.slam.types import TrackingState
 
 PLACEHOLDERS = (
     "sequence",

@@ -12,12 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from depotbench.eval.trackers.base import TrackerError
+from depotbench.eval.trackers.watcher import kill_group
+from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
+from depotbench.sim.sequence import Sequence
 from tqdm import tqdm
-
-from eval.trackers.base import TrackerError
-from eval.trackers.watcher import kill_group
-from sim.camera import OrbSlamSettings, orbslam_yaml
-from sim.sequence import Sequence
 
 STDERR_TAIL_LINES = 20
 STDERR_LINE_CHARS = 500
@@ -61,7 +60,7 @@ def run_child(
     Lines of plain integers on its stderr advance a progress bar (frames done); the
     last other lines are kept for the error message, and the last ``LOG_BYTES`` of its
     stdout and of its stderr for the run folder. It runs in process group ``group``
-    (``eval.trackers.reaper``), or in a new one: past ``timeout_s``, on any exception
+    (``depotbench.eval.trackers.reaper``), or in a new one: past ``timeout_s``, on any exception
     and once it has exited, that group is killed, with whatever the program left in it.
     ``program`` names it in a "cannot start" error (default: ``argv[0]``). A failure
     raises ``TrackerError`` carrying the log.

@@ -13,14 +13,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from eval.frames import FrameSource
-from eval.trackers.base import TrackerError, TrackerRun
-from eval.trackers.external import run_child
-from eval.trackers.reaper import Scratch
-from sim.camera import OrbSlamSettings, orbslam_yaml
-from sim.errors import InputError
-from slam.types import TrackingState
+from depotbench.core.errors import InputError
+from depotbench.eval.frames import FrameSource
+from depotbench.eval.trackers.base import TrackerError, TrackerRun
+from depotbench.eval.trackers.external import run_child
+from depotbench.eval.trackers.reaper import Scratch
+from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
+from depotbench.slam.types import TrackingState
 
 STATES = {
     "OK": TrackingState.OK,
@@ -123,7 +122,12 @@ class Orbslam3Tracker:
             }
             (scratch / "request.json").write_text(json.dumps(request), encoding="utf-8")
             child = run_child(
-                [sys.executable, "-m", "eval.trackers.orbslam3_worker", str(scratch / "request.json")],
+                [
+                    sys.executable,
+                    "-m",
+                    "depotbench.eval.trackers.orbslam3_worker",
+                    str(scratch / "request.json"),
+                ],
                 what="orbslam3",
                 cwd=scratch,
                 timeout_s=self.timeout_s,

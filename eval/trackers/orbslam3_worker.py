@@ -1,4 +1,4 @@
-"""ORB-SLAM3 in a process of its own: ``python -m eval.trackers.orbslam3_worker REQUEST.json``.
+"""ORB-SLAM3 in a process of its own: ``python -m depotbench.eval.trackers.orbslam3_worker REQUEST.json``.
 
 ORB-SLAM3 (the ``pyorbslam3`` wheel) is GPL-3 and runs only here, never in the
 bench's own process. A fresh process per run also contains its faults: it calls
@@ -30,8 +30,8 @@ def _quiet_native_stdout(log: Path) -> None:
 
 
 def main(request_path: str) -> int:
-    from sim.processes import exit_with_parent
-    from sim.sequence import Sequence
+    from depotbench.core.processes import exit_with_parent
+    from depotbench.sim.sequence import Sequence
 
     exit_with_parent(os.getppid())
     request = json.loads(Path(request_path).read_text(encoding="utf-8"))

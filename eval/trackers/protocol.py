@@ -13,11 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from detectors.detection import Detection, Prior
-from sim.errors import FileError
-from sim.files import MIB, read_text
-from sim.sequence import Sequence, timestamp_name
+from depotbench.core.errors import FileError
+from depotbench.core.files import MIB, read_text
+from depotbench.detectors.detection import Detection, Prior
+from depotbench.sim.sequence import Sequence, timestamp_name
 
 DETECTIONS_HEADER = "# depotbench detections 1\n# timestamp x0 y0 x1 y1 prior confidence class\n"
 KEYPOINTS_HEADER = "# depotbench keypoints 1\n# timestamp x y kept [reason]\n"

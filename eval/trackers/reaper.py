@@ -26,7 +26,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from eval.trackers import watcher
+from depotbench.eval.trackers import watcher
 
 WATCHER = Path(watcher.__file__)
 

@@ -1,6 +1,6 @@
 """The watcher of one scratch folder and process group: a script, standard library only.
 
-``eval.trackers.reaper`` starts it (``python -I -S watcher.py PREFIX DIR``, ~40 ms) with
+``depotbench.eval.trackers.reaper`` starts it (``python -I -S watcher.py PREFIX DIR``, ~40 ms) with
 its stdin on the read end of a pipe whose write end only depotbench holds. It:
 
 1. makes the scratch folder (``mkdtemp(prefix=PREFIX, dir=DIR)``), so that no moment

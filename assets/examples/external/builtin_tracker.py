@@ -15,7 +15,7 @@ parameters, poses and per-keypoint decisions all cross it exactly.
 
 (in a spec beside this file: a program's path is relative to the spec; it runs on the
 ``python3`` first in ``PATH``, depotbench's own with its virtual environment active).
-The parameters are ``strategy`` (one of ``slam.rejection.STRATEGIES``; the bench's
+The parameters are ``strategy`` (one of ``depotbench.slam.rejection.STRATEGIES``; the bench's
 ``mask`` is its own strategy for any program) and any threshold by the name
 ``depotbench run --set NAME=VALUE`` takes.
 """
@@ -28,19 +28,18 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from eval.frames import FrameSource
-from eval.harness import slam_config
-from eval.sweep_spec import setting_text
-from eval.trackers.base import TrackerKind, TrackerRun
-from eval.trackers.builtin import BuiltinTracker, camera_of
-from eval.trackers.protocol import read_detections, write_keypoints
-from eval.trajectory import Trajectory
-from sim.errors import InputError
-from sim.sequence import Sequence, timestamp_name
-from slam.config import ConfigError, SlamConfig, check_pyramid
-from slam.rejection import STRATEGIES
-from slam.types import REJECTION_CODES, Rejection
+from depotbench.core.errors import InputError
+from depotbench.eval.frames import FrameSource
+from depotbench.eval.harness import slam_config
+from depotbench.eval.sweep_spec import setting_text
+from depotbench.eval.trackers.base import TrackerKind, TrackerRun
+from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
+from depotbench.eval.trackers.protocol import read_detections, write_keypoints
+from depotbench.eval.trajectory import Trajectory
+from depotbench.sim.sequence import Sequence, timestamp_name
+from depotbench.slam.config import ConfigError, SlamConfig, check_pyramid
+from depotbench.slam.rejection import STRATEGIES
+from depotbench.slam.types import REJECTION_CODES, Rejection
 
 KEPT = REJECTION_CODES[Rejection.KEPT]
 REASONS = {code: reason.value for reason, code in REJECTION_CODES.items()}

@@ -16,8 +16,8 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
 
-from sim.errors import InputError
-from sim.processes import children_block_sigint, exit_with_parent, release_sigint
+from depotbench.core.errors import InputError
+from depotbench.core.processes import children_block_sigint, exit_with_parent, release_sigint
 
 BACKENDS = ("local", "ray")
 KILL_WAIT_S = 5.0

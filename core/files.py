@@ -20,8 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from sim.errors import FileError
+from depotbench.core.errors import FileError
 
 DEFAULT_PNG_COMPRESSION = 1
 """zlib level (0-9) of the PNGs a sequence is written with. Level 1 makes a frame's files

@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-from sim.errors import InputError
+from depotbench.core.errors import InputError
 
 OFF = ("off", "0", "no", "false")
 ON = ("on", "1", "yes", "true", "")

@@ -42,7 +42,7 @@ from enum import StrEnum
 from pathlib import Path
 from types import TracebackType
 
-from sim.errors import InputError
+from depotbench.core.errors import InputError
 
 MARKER_NAME = ".depotbench.json"
 MARKER_MAX_BYTES = 64 * 1024
