@@ -37,7 +37,7 @@ from depotbench.core.errors import InputError
 from depotbench.core.output import OutputLock
 
 if TYPE_CHECKING:
-    from depotbench.eval.sweep_spec import SweepSpec
+    from depotbench.eval.sweep.spec import SweepSpec
     from depotbench.sim.spec import ScenarioSpec
 
 
@@ -117,9 +117,9 @@ def _fail_on(report) -> None:
 def depotbench_gates(request: pytest.FixtureRequest, depotbench_dir: Path) -> Callable[..., Any]:
     """Call with a gate file to run and check it (``check=False`` returns the report
     without failing). A test marked ``depotbench_gates(path)`` runs that file first."""
-    from depotbench.eval.cli_gates import run_gates
-    from depotbench.eval.gates import load_gates
-    from depotbench.eval.sweep import validate
+    from depotbench.eval.gates.budgets import load_gates
+    from depotbench.eval.gates.check import run_gates
+    from depotbench.eval.sweep.engine import validate
 
     workers = request.config.getoption("--depotbench-workers")
 
@@ -211,8 +211,8 @@ def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:
     sweep's own checks of trackers and detectors, and every job it will run checked
     against the tracker (the sweep skips those an external tracker cannot run, and then
     no row comes back)."""
-    from depotbench.eval.harness import slam_config
-    from depotbench.eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
+    from depotbench.eval.run.harness import slam_config
+    from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
 
     try:
         trackers = tracker_configs(spec, str(spec_path))
@@ -246,9 +246,9 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
     ``none`` run). ``budgets`` (and a ``depotbench_budgets`` marker) are checked.
     Everything is checked before any work: a configuration that cannot run is refused
     in one line, before a sequence is generated or a vocabulary built."""
-    from depotbench.eval.gates import Check, GateFile, derived_rows, evaluate
-    from depotbench.eval.sweep_run import execute_sweep
-    from depotbench.eval.sweep_spec import SweepSpec
+    from depotbench.eval.gates.budgets import Check, GateFile, derived_rows, evaluate
+    from depotbench.eval.sweep.execute import execute_sweep
+    from depotbench.eval.sweep.spec import SweepSpec
     from depotbench.scenes.schema import validate_model
 
     workers = request.config.getoption("--depotbench-workers")

@@ -39,7 +39,7 @@ def peak_rss_mb(args: list[str], timeout_s: float | None = None) -> tuple[int, s
             str(MEMORY_CAP_BYTES),
             sys.executable,
             "-m",
-            "depotbench.eval.cli",
+            "depotbench.eval.cli.main",
             *args,
         ],
         cwd=REPO,

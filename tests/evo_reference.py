@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 
 import numpy as np
-from depotbench.eval.trajectory import Trajectory
+from depotbench.eval.metrics.trajectory import Trajectory
 from evo.core import metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
 

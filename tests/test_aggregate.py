@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from depotbench.eval.aggregate import SuccessRule, paired_change, stats, summarize
-from depotbench.eval.sweep_report import best_per_family, configurations
+from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
+from depotbench.eval.sweep.summary import best_per_family, configurations
 from scipy import stats as sps
 
 ATES = [0.010, 0.014, 0.009, 0.030]
@@ -91,7 +91,7 @@ def test_a_paired_change_is_a_ratio_for_errors_and_a_difference_for_rates():
 def test_the_best_table_keeps_its_columns_for_long_family_names_and_labels():
     """A suite's family names reach 40 characters ('walkers actors.0.count=1'): the table ran
     them into the configuration column."""
-    from depotbench.eval.sweep_report import format_best
+    from depotbench.eval.sweep.summary import format_best
 
     family = "walkers actors.0.count=1 camera.motion=xyz"
     rows = [_row(seed, ate, family=family, settings='{"k": 2.5}') for seed, ate in enumerate(ATES)]

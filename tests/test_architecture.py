@@ -1,4 +1,11 @@
-"""The import graph points one way (design.md): eval -> slam, detectors, sim, scenes."""
+"""The import graph points one way, at every level.
+
+Between root folders: ``eval -> slam, detectors, scenes, sim -> core`` (slam takes only the
+plain detection type). Inside ``eval``: its subpackages in the order of the pipeline, each
+importing only those before it. Everywhere: no import cycle between modules (imports inside
+functions count: a deferred import is still a dependency), and nothing outside the command
+line imports it. The package's face (``depotbench/``) may import anything.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +13,10 @@ import ast
 import subprocess
 import sys
 from pathlib import Path
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from tests.conftest import REPO
 
@@ -18,10 +29,15 @@ ALLOWED: dict[str, set[str]] = {
     "slam": {"detectors.detection"},
     "eval": {"core", "sim", "scenes", "detectors", "slam"},
 }
-"""For each package, the other project modules it may import (a package allows its submodules)."""
+"""For each root folder, the other project modules it may import (a package allows its submodules)."""
 
 STANDALONE = {"detectors/detection.py"}
 """Modules that import nothing from the project (slam depends on them)."""
+
+EVAL_FLOORS = ("metrics", "trackers", "run", "detection", "sweep", "gates", "report", "pytest_plugin", "cli")
+"""eval's parts, bottom to top: each may import its own floor and those below."""
+
+CLI = "depotbench.eval.cli"
 
 
 def imported_modules(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:
@@ -39,24 +55,81 @@ def _within(module: str, allowed: set[str]) -> bool:
     return any(module == a or module.startswith(f"{a}.") for a in allowed)
 
 
-def violations(root: Path) -> list[str]:
-    problems = []
+def _modules(root: Path) -> dict[str, Path]:
+    """Every module of the root folders by its installed name (``depotbench.eval.run.harness``)."""
+    out = {}
     for package in PACKAGES:
         for path in sorted((root / package).rglob("*.py")):
-            rel = path.relative_to(root).as_posix()
-            allowed = set() if rel in STANDALONE else ALLOWED[package]
-            for line, full, names in imported_modules(path):
-                if not full.startswith("depotbench."):
-                    continue
-                module = full.removeprefix("depotbench.")
-                top = module.split(".")[0]
-                if top not in PACKAGES or top == package or _within(module, allowed):
-                    continue
-                # ``from depotbench.detectors import detection`` imports the allowed submodule.
-                if names and all(_within(f"{module}.{n}", allowed) for n in names):
-                    continue
-                problems.append(f"{rel}:{line}: {package} must not import {full}")
-    return sorted(problems)
+            parts = path.relative_to(root / package).with_suffix("").parts
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(("depotbench", package, *parts))] = path
+    return out
+
+
+def _targets(module: str, names: tuple[str, ...], known: dict[str, Path]) -> list[str]:
+    """The project modules an import statement loads: ``from a.b import c`` is a.b.c when c is
+    a module, else a.b."""
+    subs = [f"{module}.{n}" for n in names if f"{module}.{n}" in known]
+    if subs and len(subs) == len(names):
+        return subs
+    while module and module not in known:
+        module = module.rpartition(".")[0]
+    return [module, *subs] if module else subs
+
+
+def _floor(module: str) -> int | None:
+    parts = module.split(".")
+    if parts[:2] != ["depotbench", "eval"] or len(parts) < 3:
+        return None
+    return EVAL_FLOORS.index(parts[2]) if parts[2] in EVAL_FLOORS else None
+
+
+def violations(root: Path) -> list[str]:
+    known = _modules(root)
+    problems = []
+    edges: dict[str, set[str]] = {m: set() for m in known}
+    for name, path in known.items():
+        package = name.split(".")[1]
+        rel = path.relative_to(root).as_posix()
+        allowed = set() if rel in STANDALONE else ALLOWED[package]
+        for line, full, names in imported_modules(path):
+            if not full.startswith("depotbench."):
+                continue
+            module = full.removeprefix("depotbench.")
+            top = module.split(".")[0]
+            for target in _targets(full, names, known):
+                if target != name:
+                    edges[name].add(target)
+                if target.startswith(CLI) and not name.startswith(CLI):
+                    problems.append(f"{rel}:{line}: only the command line imports {target}")
+                mine, theirs = _floor(name), _floor(target)
+                if mine is not None and theirs is not None and theirs > mine:
+                    problems.append(
+                        f"{rel}:{line}: eval.{EVAL_FLOORS[mine]} must not import {target} (above it)"
+                    )
+            if top not in PACKAGES or top == package or _within(module, allowed):
+                continue
+            # ``from depotbench.detectors import detection`` imports the allowed submodule.
+            if names and all(_within(f"{module}.{n}", allowed) for n in names):
+                continue
+            problems.append(f"{rel}:{line}: {package} must not import {full}")
+    problems += [f"import cycle: {' <-> '.join(c)}" for c in cycles(edges)]
+    return sorted(set(problems))
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected groups of more than one module."""
+    names = sorted(edges)
+    index = {n: i for i, n in enumerate(names)}
+    pairs = [(index[a], index[b]) for a, targets in edges.items() for b in targets if b in index]
+    if not pairs:
+        return []
+    rows, cols = zip(*pairs, strict=True)
+    graph = csr_matrix((np.ones(len(pairs)), (rows, cols)), shape=(len(names), len(names)))
+    count, labels = connected_components(graph, directed=True, connection="strong")
+    groups = [[names[i] for i in np.flatnonzero(labels == k)] for k in range(count)]
+    return [g for g in groups if len(g) > 1]
 
 
 def test_import_graph_points_one_way():
@@ -75,9 +148,21 @@ def test_checker_catches_a_wrong_import(tmp_path: Path):
     (tmp_path / "sim" / "bad.py").write_text("import numpy\nfrom depotbench.scenes import library\n")
     (tmp_path / "detectors" / "detection.py").write_text("import depotbench.sim.camera\n")
     (tmp_path / "detectors" / "gt.py").write_text("from depotbench.sim.sequence import Sequence\n")
+    for floor in ("metrics", "sweep", "cli"):
+        (tmp_path / "eval" / floor).mkdir()
+        (tmp_path / "eval" / floor / "__init__.py").write_text("")
+    (tmp_path / "eval" / "metrics" / "up.py").write_text("from depotbench.eval.sweep import engine\n")
+    (tmp_path / "eval" / "sweep" / "engine.py").write_text(
+        "def f():\n    from depotbench.eval.metrics.up import x\n    from depotbench.eval.cli import args\n"
+    )
+    (tmp_path / "eval" / "cli" / "args.py").write_text("")
     found = violations(tmp_path)
     assert found == [
         "detectors/detection.py:1: detectors must not import depotbench.sim.camera",
+        "eval/metrics/up.py:1: eval.metrics must not import depotbench.eval.sweep.engine (above it)",
+        "eval/sweep/engine.py:3: eval.sweep must not import depotbench.eval.cli.args (above it)",
+        "eval/sweep/engine.py:3: only the command line imports depotbench.eval.cli.args",
+        "import cycle: depotbench.eval.metrics.up <-> depotbench.eval.sweep.engine",
         "sim/bad.py:2: sim must not import depotbench.scenes",
         "slam/bad.py:1: slam must not import depotbench.eval.metrics",
         "slam/bad.py:2: slam must not import depotbench.sim.camera",
@@ -86,7 +171,7 @@ def test_checker_catches_a_wrong_import(tmp_path: Path):
 
 def test_sequence_reader_imports_no_mujoco_or_opengl():
     code = (
-        "import sys, depotbench.sim.sequence, depotbench.eval.cli, depotbench.detectors.detection\n"
+        "import sys, depotbench.sim.sequence, depotbench.eval.cli.main, depotbench.detectors.detection\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('mujoco', 'OpenGL', 'pyrender')]\n"
         "print(bad); sys.exit(1 if bad else 0)"
     )

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from depotbench.core.cache_home import parse_bytes
 from depotbench.core.output import OutputError
-from depotbench.eval.cache import StageCache
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
+from depotbench.eval.run.cache import StageCache
 
 from tests.sequences import write_sequence
 
@@ -88,7 +88,7 @@ def test_a_full_cache_disk_costs_one_warning_and_not_the_run(
     def full(path: Path, data: bytes) -> None:
         raise OutputError(f"{path}: cannot write the output ({os.strerror(errno.ENOSPC)})")
 
-    monkeypatch.setattr("depotbench.eval.cache.write_bytes_atomic", full)
+    monkeypatch.setattr("depotbench.eval.run.cache.write_bytes_atomic", full)
     assert _run(sequence, tmp_path / "run") == 0
     assert "No space left on device" in _one_warning(capsys.readouterr().err)
     assert _metrics(tmp_path / "run") == reference

@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.trajectory import read_tum
+from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.trajectory import read_tum
 
 from tests.evo_reference import evo_ape, evo_rpe
 
@@ -32,7 +32,7 @@ def test_demo_generates_sweeps_gates_and_reports(capsys, tmp_path: Path):
 
 
 def test_report_table_and_rho():
-    from depotbench.eval.report import format_table, summarise
+    from depotbench.eval.report.table import format_table, summarise
 
     def metrics(ate, precision=None):
         return {
@@ -148,8 +148,8 @@ def _default_sigint() -> None:
 
 
 _STARTER = (
-    "import sys\nimport depotbench.eval.cli\nsys.stderr.write('started\\n')\nsys.stderr.flush()\n"
-    "sys.argv = ['depotbench', *sys.argv[1:]]\ndepotbench.eval.cli.entry()\n"
+    "import sys\nimport depotbench.eval.cli.main\nsys.stderr.write('started\\n')\nsys.stderr.flush()\n"
+    "sys.argv = ['depotbench', *sys.argv[1:]]\ndepotbench.eval.cli.main.entry()\n"
 )
 """The program as the console script starts it, saying when depotbench's module is loaded:
 from there on a Ctrl-C is depotbench's to report (before it, Python's own start-up is
@@ -186,6 +186,6 @@ def test_ctrl_c_while_the_command_line_starts_is_one_line(tmp_path: Path, delay_
 
 def test_the_command_line_names_the_png_level_it_defaults_to():
     from depotbench.core.files import DEFAULT_PNG_COMPRESSION
-    from depotbench.eval.cli import DEFAULT_PNG_COMPRESSION_LEVEL
+    from depotbench.eval.cli.main import DEFAULT_PNG_COMPRESSION_LEVEL
 
     assert DEFAULT_PNG_COMPRESSION_LEVEL == DEFAULT_PNG_COMPRESSION

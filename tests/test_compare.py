@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.compare import compare_rows
+from depotbench.eval.cli.main import main
+from depotbench.eval.gates.compare import compare_rows
 from scipy.stats import ttest_rel
 
 from tests.conftest import REPO

@@ -15,9 +15,9 @@ from depotbench.detectors.detection import Detection, Prior
 from depotbench.detectors.faults import Difficulty, Faults, inject, miss_probability
 from depotbench.detectors.onnx import OnnxDetector, OnnxModelError, class_wise_nms, recognise_layout
 from depotbench.detectors.priors import DEFAULT_PRIORS
-from depotbench.eval.cache import StageCache
-from depotbench.eval.detection_eval import TruthBox, average_precision, match
-from depotbench.eval.detections import detect_sequence
+from depotbench.eval.detection.evaluate import TruthBox, average_precision, match
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import detect_sequence
 
 from tests.sequences import write_sequence
 
@@ -405,7 +405,7 @@ def test_the_cache_evicts_least_recently_used_entries(tmp_path: Path):
 
 
 def test_export_writes_yolo_labels_and_coco_json_split_by_sequence(tmp_path: Path, capsys):
-    from depotbench.eval.cli import main
+    from depotbench.eval.cli.main import main
 
     for name, seed in (("a", 0), ("b", 1), ("c", 2)):
         write_sequence(tmp_path / name, n=3, seed=seed, with_flow=False)
@@ -464,7 +464,7 @@ def one_person(tmp_path_factory) -> Path:
 def test_the_shipped_model_finds_the_rendered_person(one_person: Path):
     from depotbench.detectors.config import SHIPPED_MODEL
     from depotbench.detectors.groundtruth import GroundTruthDetector, truncated
-    from depotbench.eval.detection_eval import iou_matrix
+    from depotbench.eval.detection.evaluate import iou_matrix
     from depotbench.sim.sequence import Sequence
 
     sequence = Sequence.open(one_person)
@@ -484,8 +484,8 @@ def test_the_shipped_model_finds_the_rendered_person(one_person: Path):
 
 @pytest.mark.render
 def test_run_with_the_onnx_detector_works_with_every_strategy(one_person: Path, tmp_path: Path, capsys):
-    from depotbench.eval.cli import main
-    from depotbench.eval.harness import STRATEGY_CHOICES
+    from depotbench.eval.cli.main import main
+    from depotbench.eval.run.harness import STRATEGY_CHOICES
 
     for strategy in STRATEGY_CHOICES:
         out = tmp_path / strategy
@@ -510,7 +510,7 @@ def animal_sightings(tmp_path_factory) -> dict[str, list[tuple[bool, bool]]]:
     edge) per sighting of >= 2000 visible px, found when a box of that class at
     confidence 0.3 overlaps the true visible box at IoU >= 0.5."""
     from depotbench.detectors.config import SHIPPED_MODEL
-    from depotbench.eval.detection_eval import iou_matrix
+    from depotbench.eval.detection.evaluate import iou_matrix
     from depotbench.scenes import library
     from depotbench.scenes.schema import to_scenario
     from depotbench.sim.generate import generate

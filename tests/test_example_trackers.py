@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from depotbench.detectors.config import DetectorConfig, parse_detector
 from depotbench.detectors.detection import Detection, Prior
-from depotbench.eval.cache import StageCache
-from depotbench.eval.comparison import ComparisonOptions, compare
-from depotbench.eval.detections import detect_sequence
-from depotbench.eval.harness import RunJob, Tracked, track
-from depotbench.eval.sweep_spec import setting_text
+from depotbench.eval.metrics.evaluate import ComparisonOptions, compare
+from depotbench.eval.metrics.trajectory import Trajectory, read_tum
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import detect_sequence
+from depotbench.eval.run.harness import RunJob, Tracked, track
+from depotbench.eval.sweep.spec import setting_text
 from depotbench.eval.trackers.builtin import true_moving_labels
 from depotbench.eval.trackers.protocol import (
     read_detections,
@@ -28,7 +29,6 @@ from depotbench.eval.trackers.protocol import (
     write_detections,
     write_keypoints,
 )
-from depotbench.eval.trajectory import Trajectory, read_tum
 from depotbench.scenes import library
 from depotbench.scenes.schema import Image, IntrinsicsSpec, to_scenario
 from depotbench.sim.sequence import Sequence
@@ -85,7 +85,7 @@ def last_count(stderr: str) -> int:
 
 def rejection_figures(kept: list[np.ndarray], labels: list[np.ndarray]) -> dict:
     """Rejection as a classification of keypoints against their true moving labels,
-    computed as depotbench.eval.harness._rejection computes it for the built-in run."""
+    computed as depotbench.eval.run.harness._rejection computes it for the built-in run."""
     rejected, moving = ~np.concatenate(kept), np.concatenate(labels)
     true_positive = int((rejected & moving).sum())
     return {

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 from tests.conftest import REPO
 from tests.sequences import write_sequence
@@ -119,7 +119,7 @@ def test_a_link_swapped_in_after_the_check_is_not_followed(seq: Path, tmp_path: 
     """The frame is opened component by component with O_NOFOLLOW: a link that appears between
     the resolve-and-check and the open (a file link, or a folder link above the file) is refused."""
     from depotbench.core.errors import FileError
-    from depotbench.eval import dataset
+    from depotbench.eval.detection import dataset
 
     a_png(tmp_path / "private" / "1.000000.png")
     if link == "rgb":
@@ -156,7 +156,7 @@ def test_export_refuses_a_frame_that_run_would_refuse(seq: Path, tmp_path: Path,
 
 _FULL_DISK = """
 import resource, signal, sys
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit then fails with EFBIG
 resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[1]), resource.RLIM_INFINITY))
 sys.exit(main(sys.argv[2:]))

@@ -195,7 +195,7 @@ def start_spawner(seq: Path, tmp_path: Path, tmp: Path, token: str) -> tuple[sub
         [
             sys.executable,
             "-m",
-            "depotbench.eval.cli",
+            "depotbench.eval.cli.main",
             "run",
             str(seq),
             "-o",
@@ -352,7 +352,15 @@ def test_a_really_full_tmpfs_as_tmpdir_is_one_line(seq: Path, tmp_path: Path):
     """The probe's own case: TMPDIR on a 32 KB tmpfs, mounted in a user namespace."""
     small = tmp_path / "small"
     small.mkdir()
-    depotbench = [sys.executable, "-m", "depotbench.eval.cli", "run", str(seq), "-o", str(tmp_path / "r")]
+    depotbench = [
+        sys.executable,
+        "-m",
+        "depotbench.eval.cli.main",
+        "run",
+        str(seq),
+        "-o",
+        str(tmp_path / "r"),
+    ]
     depotbench += ["--slam", "cmd", "--strategy", "mask", "--command", COPY_TRUTH]
     script = (
         f"mount -t tmpfs -o size=32k tmpfs {shlex.quote(str(small))} && "

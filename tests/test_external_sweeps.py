@@ -18,8 +18,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.sweep_report import settings_text
+from depotbench.eval.cli.main import main
+from depotbench.eval.sweep.summary import settings_text
 from depotbench.eval.trackers.builtin import true_moving_labels
 from depotbench.sim.sequence import Sequence
 
@@ -290,8 +290,8 @@ def test_an_external_sweep_is_the_same_with_ray_and_after_five_sigkills(tmp_path
     import time
 
     import numpy as np
-    from depotbench.eval.record import DETERMINISTIC_FIELDS
-    from depotbench.eval.store import ResultStore
+    from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.sweep.store import ResultStore
 
     pytest.importorskip("ray")
     (tmp_path / "walk.yaml").write_text(
@@ -312,7 +312,7 @@ def test_an_external_sweep_is_the_same_with_ray_and_after_five_sigkills(tmp_path
         return [
             sys.executable,
             "-m",
-            "depotbench.eval.cli",
+            "depotbench.eval.cli.main",
             "sweep",
             str(tmp_path / "spec.yaml"),
             "-o",
@@ -379,7 +379,7 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
     """What a 2-parameter sweep of ORB-SLAM3 showed (six parameters, two swept): labels
     cut to defaults, plots for unswept parameters with zigzag lines, and the page's best
     run drawn from another parameter setting."""
-    from depotbench.eval.sweep_report import configurations, threshold_figures
+    from depotbench.eval.sweep.summary import configurations, threshold_figures
 
     spec = _spec(
         sequences,
@@ -405,6 +405,6 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
 
 def _numbers(row: dict[str, str]) -> dict:
     """A CSV row's figures as numbers (empty as None), as the store gives them."""
-    from depotbench.eval.aggregate import METRICS
+    from depotbench.eval.metrics.statistics import METRICS
 
     return {c: float(row[c]) if row[c] else None for c in (*METRICS, "tracked_fraction") if c in row}

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 from tests.conftest import REPO
 

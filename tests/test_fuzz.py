@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 

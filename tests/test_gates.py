@@ -8,8 +8,8 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.gates import GateFile, evaluate, junit_xml, load_gates
+from depotbench.eval.cli.main import main
+from depotbench.eval.gates.budgets import GateFile, evaluate, junit_xml, load_gates
 from depotbench.scenes.schema import SpecError
 
 

@@ -21,7 +21,7 @@ from depotbench.core.errors import InputError
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import SHIPPED_MODEL, OnnxSettings
 from depotbench.detectors.onnx import OnnxDetector, OnnxModelError
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.sequences import write_sequence

@@ -19,10 +19,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from depotbench.eval.cache import StageCache
-from depotbench.eval.cli import main
-from depotbench.eval.detections import sequence_fingerprint
-from depotbench.eval.harness import RunJob, track
+from depotbench.eval.cli.main import main
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import sequence_fingerprint
+from depotbench.eval.run.harness import RunJob, track
 from depotbench.sim.sequence import Sequence
 
 SPEC = (
@@ -222,7 +222,7 @@ def _scale_position(line: str, factor: float) -> str:
 def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_bytes(tmp_path: Path):
     """A rebuilt program or another vocabulary under the same path is a new run, not a row
     to resume."""
-    from depotbench.eval.harness import TrackerConfig, tracker_identity
+    from depotbench.eval.run.harness import TrackerConfig, tracker_identity
     from depotbench.eval.trackers.base import TrackerKind
 
     program, vocabulary = tmp_path / "my_slam.sh", tmp_path / "voc.txt"

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from depotbench.core.errors import InputError
-from depotbench.eval.alignment import Alignment, AlignmentError
-from depotbench.eval.comparison import ComparisonOptions, compare
-from depotbench.eval.metrics import DeltaUnit, Statistics, ate, improvement_rate, rpe
-from depotbench.eval.trajectory import AssociationError, Trajectory, associate, read_tum
+from depotbench.eval.metrics.accuracy import DeltaUnit, Statistics, ate, improvement_rate, rpe
+from depotbench.eval.metrics.alignment import Alignment, AlignmentError
+from depotbench.eval.metrics.evaluate import ComparisonOptions, compare
+from depotbench.eval.metrics.trajectory import AssociationError, Trajectory, associate, read_tum
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation

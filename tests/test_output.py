@@ -28,7 +28,7 @@ from depotbench.core.output import (
     lock_path,
     read_marker,
 )
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 from tests.conftest import REPO
 from tests.sequences import write_sequence
@@ -631,7 +631,7 @@ def _no_run(monkeypatch) -> None:
     def refuse(*args, **kwargs):
         raise AssertionError("the matrix ran before the output was checked")
 
-    monkeypatch.setattr("depotbench.eval.cli_gates.run_gates", refuse)
+    monkeypatch.setattr("depotbench.eval.gates.check.run_gates", refuse)
 
 
 @pytest.mark.parametrize(
@@ -680,7 +680,7 @@ def test_a_vocabulary_that_cannot_be_written_is_refused_before_it_is_built(
     def refuse(*args, **kwargs):
         raise AssertionError("the vocabulary was built before its file was checked")
 
-    monkeypatch.setattr("depotbench.eval.vocabulary.build_file", refuse)
+    monkeypatch.setattr("depotbench.eval.trackers.vocabulary.build_file", refuse)
     (tmp_path / "afile").write_text("x")
     code, _, err = cli(capsys, "vocab", "-o", tmp_path / "afile" / "v.txt", "--scenes", "smoke")
     assert code == 2

@@ -111,6 +111,6 @@ def test_the_installed_wheel_generates_detects_and_runs_the_demo(installed: Path
         tmp_path,
         "python",
         "-c",
-        "import depotbench, depotbench.eval.cli; print(depotbench.__file__)",
+        "import depotbench, depotbench.eval.cli.main; print(depotbench.__file__)",
     )
     assert imported.returncode == 0 and str(REPO) not in imported.stdout

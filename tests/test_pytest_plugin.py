@@ -9,8 +9,8 @@ import textwrap
 
 # Imported here, before any pytester fixture: pytester drops the modules a test imported when
 # it ends, and numpy's C core cannot be loaded twice in one process.
-import depotbench.eval.sweep_run  # noqa: F401
-import depotbench.eval.vocabulary
+import depotbench.eval.sweep.execute  # noqa: F401
+import depotbench.eval.trackers.vocabulary
 import depotbench.scenes.generation  # noqa: F401
 import depotbench.sim.generate
 import pytest
@@ -135,7 +135,7 @@ def _refused(pytester, monkeypatch, call: str) -> pytest.RunResult:
         raise AssertionError("depotbench_run did work before refusing the configuration")
 
     monkeypatch.setattr(depotbench.sim.generate, "generate", tripwire)
-    monkeypatch.setattr(depotbench.eval.vocabulary, "default_vocabulary", tripwire)
+    monkeypatch.setattr(depotbench.eval.trackers.vocabulary, "default_vocabulary", tripwire)
     pytester.makepyfile(
         textwrap.dedent(
             f"""
@@ -268,7 +268,7 @@ def test_a_gate_file_is_found_beside_the_test_that_names_it(pytester):
         "gates: g\nrun:\n  sequences: [seq]\n  strategies: [none]\n"
         "checks:\n  - name: c\n    budgets: {lost_fraction: {max: 1}}\n"
     )
-    from depotbench.eval.cli import main
+    from depotbench.eval.cli.main import main
 
     assert main(["generate", "smoke", "-o", str(sub / "seq"), "--frames", "3"]) == 0
     (sub / "test_gate.py").write_text(

@@ -20,7 +20,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 from tests.capped import MAX_RSS_MB, peak_rss_mb
 from tests.conftest import REPO

@@ -13,8 +13,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.sweep_report import (
+from depotbench.eval.cli.main import main
+from depotbench.eval.sweep.summary import (
     FAILED_COLOUR,
     configurations,
     family_colours,
@@ -278,7 +278,7 @@ def test_the_difficulty_table_lists_each_sequences_knobs_and_seed(page: str):
 
 @pytest.mark.render
 def test_families_past_the_bound_are_named_in_the_notes(sweep: Path):
-    from depotbench.eval.html_report import Notes, sweep_page
+    from depotbench.eval.report.html import Notes, sweep_page
 
     notes = Notes()
     text = sweep_page(sweep, notes, featured=3)

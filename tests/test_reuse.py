@@ -12,15 +12,15 @@ from pathlib import Path
 
 # Imported here, before any pytester fixture: pytester drops the modules a test imported when
 # it ends, and numpy's C core cannot be loaded twice in one process.
-import depotbench.eval.sweep_run
+import depotbench.eval.sweep.execute
 import depotbench.scenes.generation
 import depotbench.sim.generate  # noqa: F401
 import pytest
 from depotbench.core.errors import InputError
 from depotbench.core.output import MARKER_NAME, OutputKind, OutputLock, StagedOutput, read_marker
-from depotbench.eval.cli import main
-from depotbench.eval.sweep import named_sequences, validate
-from depotbench.eval.sweep_spec import load_sweep
+from depotbench.eval.cli.main import main
+from depotbench.eval.sweep.engine import named_sequences, validate
+from depotbench.eval.sweep.spec import load_sweep
 from depotbench.scenes.store import DEFAULT_MAX_BYTES, SequenceStore
 from depotbench.scenes.suite import load_suite
 
@@ -103,7 +103,7 @@ def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_sui
     for spec_path in (by_suite, by_folder):
         spec = load_sweep(spec_path)
         validate(spec, spec_path)
-        outcome = depotbench.eval.sweep_run.execute_sweep(
+        outcome = depotbench.eval.sweep.execute.execute_sweep(
             spec, spec_path, tmp_path / spec_path.stem, 1, progress=False, announce=False
         )
         rows[spec_path.stem] = sorted((r["family"], r["knobs"], r["seed"]) for r in outcome.rows)

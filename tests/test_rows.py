@@ -11,7 +11,7 @@ import sqlite3
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 
 pytestmark = pytest.mark.render
 

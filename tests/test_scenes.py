@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from depotbench.eval.cli import main
+from depotbench.eval.cli.main import main
 from depotbench.scenes import library
 from depotbench.scenes.generation import run_suite
 from depotbench.scenes.schema import Scenario, parse_scenario, to_scenario
@@ -298,7 +298,7 @@ def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Pa
         [
             sys.executable,
             "-m",
-            "depotbench.eval.cli",
+            "depotbench.eval.cli.main",
             "generate",
             str(path),
             "-o",

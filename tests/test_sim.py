@@ -382,7 +382,15 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     )
     runs = {
         core: subprocess.Popen(
-            [sys.executable, "-m", "depotbench.eval.cli", "generate", str(spec), "-o", str(tmp_path / core)],
+            [
+                sys.executable,
+                "-m",
+                "depotbench.eval.cli.main",
+                "generate",
+                str(spec),
+                "-o",
+                str(tmp_path / core),
+            ],
             cwd=REPO,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
@@ -412,7 +420,7 @@ def test_the_robot_rig_ignores_position_and_target_as_validation_does(tmp_path: 
     """The robot drives its own loop, so validation does not check the camera's position
     and target for it; the rig must not use them either. Found by the fuzz test: a robot
     spec with position_m == target_m validated, then generate crashed in look_at."""
-    from depotbench.eval.cli import main
+    from depotbench.eval.cli.main import main
 
     spec = tmp_path / "robot.yaml"
     camera = "{motion: robot, position_m: [0, 0, 0], target_m: [0, 0, 0]}"
@@ -455,7 +463,7 @@ def test_missing_gl_gives_an_install_hint(tmp_path: Path):
         [
             sys.executable,
             "-m",
-            "depotbench.eval.cli",
+            "depotbench.eval.cli.main",
             "generate",
             "default",
             "-o",

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 from depotbench.detectors.detection import Detection, Prior
-from depotbench.eval.cli import main
-from depotbench.eval.harness import camera_of, run_sequence
-from depotbench.eval.metrics import improvement_rate
+from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.accuracy import improvement_rate
+from depotbench.eval.run.harness import camera_of, run_sequence
 from depotbench.scenes import library
 from depotbench.scenes.schema import to_scenario
 from depotbench.sim.sequence import Sequence

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from depotbench.eval.cache import StageCache
-from depotbench.eval.harness import RunJob, track
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.harness import RunJob, track
 from depotbench.scenes import library
 from depotbench.scenes.schema import to_scenario
 from depotbench.slam.rejection import STRATEGIES
@@ -74,10 +74,10 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
     """Jobs that keep the same keypoints in every frame are tracked once; their rows equal
     those of tracking each job (here l_thr2_px 50/60/70 decide alike: the flow's std is
     always below them)."""
-    from depotbench.eval.record import DETERMINISTIC_FIELDS
-    from depotbench.eval.store import ResultStore
-    from depotbench.eval.sweep import expand, run_jobs
-    from depotbench.eval.sweep_spec import load_sweep
+    from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.sweep.engine import expand, run_jobs
+    from depotbench.eval.sweep.spec import load_sweep
+    from depotbench.eval.sweep.store import ResultStore
 
     spec_path = tmp_path / "s.yaml"
     spec_path.write_text(
@@ -106,9 +106,9 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
 def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tmp_path: Path):
     """Thresholds whose decisions agree for some frames and then part are tracked once up
     to there and forked; every configuration's run is bit for bit its run alone."""
-    from depotbench.eval.detections import detect_sequence
-    from depotbench.eval.harness import prepare, stages_for, track_tree
-    from depotbench.eval.stages import decision_path
+    from depotbench.eval.run.detections import detect_sequence
+    from depotbench.eval.run.harness import prepare, stages_for, track_tree
+    from depotbench.eval.run.stages import decision_path
 
     cache = StageCache(tmp_path / "cache")
     jobs = [
@@ -137,7 +137,7 @@ def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Pat
     pytest.importorskip("optuna")
     import json
 
-    from depotbench.eval.cli import main
+    from depotbench.eval.cli.main import main
 
     spec = tmp_path / "search.yaml"
     spec.write_text(
@@ -165,11 +165,11 @@ def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: P
     sweep's row for that job (deterministic fields; the sweep adds its signature)."""
     import json
 
-    from depotbench.eval.harness import run_sequence
-    from depotbench.eval.record import DETERMINISTIC_FIELDS
-    from depotbench.eval.store import ResultStore
-    from depotbench.eval.sweep import expand, run_jobs
-    from depotbench.eval.sweep_spec import load_sweep
+    from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.run.harness import run_sequence
+    from depotbench.eval.sweep.engine import expand, run_jobs
+    from depotbench.eval.sweep.spec import load_sweep
+    from depotbench.eval.sweep.store import ResultStore
 
     run_sequence(walking, tmp_path / "run", "box_rule", progress=False)
     record = json.loads((tmp_path / "run" / "record.json").read_text())

@@ -11,9 +11,9 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.record import RunIdentity, RunRecord
-from depotbench.eval.store import ResultStore, StoreError
+from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.record import RunIdentity, RunRecord
+from depotbench.eval.sweep.store import ResultStore, StoreError
 
 from tests.sequences import write_sequence
 
@@ -74,7 +74,7 @@ def test_a_refused_database_is_left_byte_for_byte_as_it_was(swept: Path, tmp_pat
 
 def test_a_database_locked_by_another_program_is_one_line(swept: Path, tmp_path: Path, capsys, monkeypatch):
     """Probe C7: a traceback after 30 s (`sqlite3.OperationalError: database is locked`)."""
-    monkeypatch.setattr("depotbench.eval.store.LOCK_WAIT_S", 0.2)
+    monkeypatch.setattr("depotbench.eval.sweep.store.LOCK_WAIT_S", 0.2)
     shutil.copytree(swept / "sw", tmp_path / "sw")
     holder = sqlite3.connect(tmp_path / "sw" / "results.sqlite", isolation_level=None)
     holder.execute("BEGIN EXCLUSIVE")

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from depotbench.eval.cli import main
-from depotbench.eval.record import DETERMINISTIC_FIELDS
-from depotbench.eval.store import ResultStore
-from depotbench.eval.sweep_spec import SweepSpec, load_sweep, variants
+from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+from depotbench.eval.sweep.spec import SweepSpec, load_sweep, variants
+from depotbench.eval.sweep.store import ResultStore
 from depotbench.scenes.schema import SpecError
 
 from tests.sequences import write_sequence
@@ -120,7 +120,17 @@ def _table(out: Path) -> list[dict]:
 
 
 def _command(spec: Path, out: Path) -> list[str]:
-    return [sys.executable, "-m", "depotbench.eval.cli", "sweep", str(spec), "-o", str(out), "--workers", "2"]
+    return [
+        sys.executable,
+        "-m",
+        "depotbench.eval.cli.main",
+        "sweep",
+        str(spec),
+        "-o",
+        str(out),
+        "--workers",
+        "2",
+    ]
 
 
 def test_a_sweep_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one(tmp_path: Path):
@@ -190,7 +200,7 @@ def _config(family: str, strategy: str, ate: float, ms: float, k: str = "2") -> 
 
 
 def test_best_and_pareto_on_a_closed_case():
-    from depotbench.eval.sweep_report import best_per_family, pareto
+    from depotbench.eval.sweep.summary import best_per_family, pareto
 
     configs = [
         _config("a", "x", 0.010, 30.0, "1"),  # fastest
@@ -206,7 +216,7 @@ def test_best_and_pareto_on_a_closed_case():
 
 
 def test_rho_is_taken_against_the_none_run_of_the_same_sequence_and_detector():
-    from depotbench.eval.sweep_report import with_rho
+    from depotbench.eval.sweep.summary import with_rho
 
     rows = [
         {
@@ -254,7 +264,7 @@ def test_spec_model_defaults():
 def test_ray_and_local_backends_give_identical_rows(tmp_path: Path):
     """A local Ray instance, started by the test (extra [ray])."""
     pytest.importorskip("ray")
-    from depotbench.eval.sweep import expand, run_jobs
+    from depotbench.eval.sweep.engine import expand, run_jobs
 
     spec = _sweep_setup(tmp_path)
     jobs = expand(load_sweep(spec), spec, [(tmp_path / "a", "test"), (tmp_path / "b", "test")])
@@ -365,7 +375,7 @@ def test_a_grid_too_large_to_list_is_refused_before_it_is_built(tmp_path: Path, 
     def listed(spec):
         raise AssertionError("the grid was listed before it was counted")
 
-    monkeypatch.setattr("depotbench.eval.sweep.variants", listed)
+    monkeypatch.setattr("depotbench.eval.sweep.engine.variants", listed)
     write_sequence(tmp_path / "a", n=3, with_flow=False)
     axis = "{range: [0.01, 10.0, 0.01]}"
     spec = _spec(

@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 from depotbench.detectors.detection import Detection, Prior
-from depotbench.eval.frames import FrameSource, MaskSettings, box_mask
-from depotbench.eval.vocabulary import Vocabulary, build, kmajority, read_text
+from depotbench.eval.trackers.frames import FrameSource, MaskSettings, box_mask
+from depotbench.eval.trackers.vocabulary import Vocabulary, build, kmajority, read_text
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.optimize import refine_pose
 from depotbench.slam.types import PinholeCamera

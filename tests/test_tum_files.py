@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from depotbench.core.errors import SequenceFormatError
-from depotbench.eval.trajectory import Trajectory, read_tum, write_tum
+from depotbench.eval.metrics.trajectory import Trajectory, read_tum, write_tum
 from depotbench.sim.tum_files import read_frame_list, read_pose_file
 
 

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.frames import FrameSource
-from depotbench.eval.trajectory import Trajectory
+from depotbench.eval.metrics.trajectory import Trajectory
+from depotbench.eval.trackers.frames import FrameSource
 from depotbench.slam.types import FrameResult, TrackingState
 
 if TYPE_CHECKING:

@@ -6,8 +6,8 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from depotbench.eval.frames import FrameSource
 from depotbench.eval.trackers.base import TrackerRun
+from depotbench.eval.trackers.frames import FrameSource
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import SlamConfig
 from depotbench.slam.rejection import box_classes, classify
@@ -47,7 +47,7 @@ class BuiltinTracker:
     name = "builtin"
 
     def __init__(self, config: SlamConfig, stages: list | None = None) -> None:
-        """``stages``: per frame, cached features (and flow) from ``depotbench.eval.stages``."""
+        """``stages``: per frame, cached features (and flow) from ``depotbench.eval.run.stages``."""
         self.config = config
         self.stages = stages
         self._blank: tuple[np.ndarray, np.ndarray] | None = None
@@ -104,7 +104,7 @@ class BuiltinTracker:
         """Runs of several configurations that keep the same keypoints up to some frame.
 
         ``paths[j]`` names, per frame, which keypoints configuration j keeps (a hash,
-        ``depotbench.eval.stages.decision_path``). While configurations agree they are one run;
+        ``depotbench.eval.run.stages.decision_path``). While configurations agree they are one run;
         where they part, the system is forked (``Slam.fork``) and each branch goes
         on. Each run equals, bit for bit, the run of its configuration alone
         (``tests/test_sweep.py``): a shared frame is tracked once, and each

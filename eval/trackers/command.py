@@ -58,13 +58,13 @@ from pathlib import Path
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
-from depotbench.eval.frames import FrameSource
-from depotbench.eval.record import typed
+from depotbench.eval.metrics.record import typed
+from depotbench.eval.metrics.trajectory import read_tum
 from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.external import poses_by_frame, run_child, write_settings
+from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.protocol import read_keypoints, write_detections
 from depotbench.eval.trackers.reaper import Scratch
-from depotbench.eval.trajectory import read_tum
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence, timestamp_name
 from depotbench.slam.types import TrackingState

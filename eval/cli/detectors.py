@@ -91,8 +91,8 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
     from depotbench.core.files import dumps_json
     from depotbench.core.output import check_output_file, write_text_atomic
     from depotbench.detectors.config import DetectorKind
-    from depotbench.eval.cache import StageCache
-    from depotbench.eval.detection_eval import evaluate_detector, format_evaluation
+    from depotbench.eval.detection.evaluate import evaluate_detector, format_evaluation
+    from depotbench.eval.run.cache import StageCache
     from depotbench.sim.sequence import Sequence
 
     config = detector_config(args)
@@ -141,7 +141,7 @@ def add_export_dataset(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_export_dataset(args: argparse.Namespace) -> int:
     from depotbench.core.files import read_text
-    from depotbench.eval.dataset import ExportOptions, export_dataset
+    from depotbench.eval.detection.dataset import ExportOptions, export_dataset
 
     if not 0.0 <= args.val_fraction < 1.0:
         raise InputError(f"--val-fraction must lie in [0, 1), got {args.val_fraction}")

@@ -22,8 +22,8 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from depotbench.eval.cache import StageCache, content_hash
-from depotbench.eval.detections import sequence_fingerprint
+from depotbench.eval.run.cache import StageCache, content_hash
+from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import RejectionConfig, SlamConfig, TrackingConfig

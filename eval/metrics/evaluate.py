@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from depotbench.eval.alignment import Alignment
-from depotbench.eval.metrics import AteResult, DeltaUnit, RpeResult, ate, rpe
-from depotbench.eval.trajectory import DEFAULT_MAX_DIFF_S, Trajectory, associate
+from depotbench.eval.metrics.accuracy import AteResult, DeltaUnit, RpeResult, ate, rpe
+from depotbench.eval.metrics.alignment import Alignment
+from depotbench.eval.metrics.trajectory import DEFAULT_MAX_DIFF_S, Trajectory, associate
 
 
 @dataclass(frozen=True)

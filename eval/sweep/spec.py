@@ -40,7 +40,7 @@ from depotbench.detectors.config import (
     check_model_file,
     parse_detector,
 )
-from depotbench.eval.harness import (
+from depotbench.eval.run.harness import (
     EXTERNAL_STRATEGIES,
     STRATEGY_CHOICES,
     TrackerConfig,

@@ -46,7 +46,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     point (a full disk, probe C6) leaves neither half-written."""
     from depotbench.core.errors import InputError
     from depotbench.core.output import OutputKind, StagedOutput, write_text_atomic
-    from depotbench.eval.html_report import render_report, warn
+    from depotbench.eval.report.html import render_report, warn
 
     if not args.source.is_dir():
         raise InputError(f"{args.source}: no such folder")
@@ -57,7 +57,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         raise InputError(f"--rerun: {args.source} is not a run folder (metrics.json)")
     recording = contextlib.nullcontext()
     if args.rerun is not None:
-        from depotbench.eval.rerun import staged_recording
+        from depotbench.eval.report.rerun import staged_recording
 
         recording = staged_recording(rendered.run, args.rerun)
     # A folder of depotbench reports (or a new or empty one): never someone else's files.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from depotbench.eval.metrics import improvement_rate
+from depotbench.eval.metrics.accuracy import improvement_rate
 
 
 def summarise(runs: dict[str, dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:

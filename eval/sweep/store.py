@@ -21,7 +21,7 @@ from typing import Any
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
 from depotbench.core.output import write_text_atomic
-from depotbench.eval.record import FIELDS, RECORD_VERSION, RunRecord
+from depotbench.eval.metrics.record import FIELDS, RECORD_VERSION, RunRecord
 
 _KIND_OF_TYPE = {"str": str, "int": int, "float": float}
 _KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_fields(RunRecord)}

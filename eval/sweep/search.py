@@ -21,12 +21,11 @@ import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
 from depotbench.detectors.config import DetectorConfig
-from depotbench.eval.cache import content_hash
-from depotbench.eval.detections import sequence_fingerprint
-from depotbench.eval.harness import TrackerConfig, check_tracker, tracker_identity
-from depotbench.eval.store import SQLITE_HEADER, ResultStore
-from depotbench.eval.sweep import jobs_for, run_jobs, sequence_entries
-from depotbench.eval.sweep_spec import (
+from depotbench.eval.run.cache import content_hash
+from depotbench.eval.run.detections import sequence_fingerprint
+from depotbench.eval.run.harness import TrackerConfig, check_tracker, tracker_identity
+from depotbench.eval.sweep.engine import jobs_for, run_jobs, sequence_entries
+from depotbench.eval.sweep.spec import (
     Search,
     SweepSpec,
     Variant,
@@ -35,6 +34,7 @@ from depotbench.eval.sweep_spec import (
     setting_text,
     tracker_configs,
 )
+from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
 from depotbench.sim.sequence import Sequence
 
 STUDY = "optuna.sqlite"

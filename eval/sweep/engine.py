@@ -17,9 +17,10 @@ from depotbench.core.errors import InputError
 from depotbench.core.executors import make_pool
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig
-from depotbench.eval.cache import StageCache
-from depotbench.eval.detections import detect_sequence, sequence_fingerprint, stored_path
-from depotbench.eval.harness import (
+from depotbench.eval.metrics.record import RunIdentity, RunRecord
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import detect_sequence, sequence_fingerprint, stored_path
+from depotbench.eval.run.harness import (
     RunJob,
     TrackerConfig,
     branch_root,
@@ -36,10 +37,8 @@ from depotbench.eval.harness import (
     tracker_identity,
     uses_stages,
 )
-from depotbench.eval.record import RunIdentity, RunRecord
-from depotbench.eval.stages import decision_path, decision_signature, features_key, sequence_stages
-from depotbench.eval.store import ResultStore
-from depotbench.eval.sweep_spec import (
+from depotbench.eval.run.stages import decision_path, decision_signature, features_key, sequence_stages
+from depotbench.eval.sweep.spec import (
     MAX_JOBS,
     SweepSpec,
     Variant,
@@ -53,6 +52,7 @@ from depotbench.eval.sweep_spec import (
     variant_count,
     variants,
 )
+from depotbench.eval.sweep.store import ResultStore
 from depotbench.eval.trackers.base import TrackerError, TrackerKind
 from depotbench.scenes.schema import SpecError
 from depotbench.sim.sequence import Sequence

@@ -7,7 +7,7 @@ from enum import StrEnum
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.trajectory import Trajectory
+from depotbench.eval.metrics.trajectory import Trajectory
 
 
 class Alignment(StrEnum):

@@ -26,15 +26,15 @@ from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig, DetectorKind
-from depotbench.eval.cache import StageCache, content_hash
-from depotbench.eval.comparison import ComparisonOptions, compare
-from depotbench.eval.detections import SequenceDetections, detect_sequence, sequence_fingerprint
-from depotbench.eval.frames import FrameSource, MaskSettings
-from depotbench.eval.record import RECORD_VERSION, RunIdentity, RunRecord
-from depotbench.eval.stages import FrameStages, features_key, sequence_stages
+from depotbench.eval.metrics.evaluate import ComparisonOptions, compare
+from depotbench.eval.metrics.record import RECORD_VERSION, RunIdentity, RunRecord
+from depotbench.eval.metrics.trajectory import Trajectory, write_tum
+from depotbench.eval.run.cache import StageCache, content_hash
+from depotbench.eval.run.detections import SequenceDetections, detect_sequence, sequence_fingerprint
+from depotbench.eval.run.stages import FrameStages, features_key, sequence_stages
 from depotbench.eval.trackers.base import Tracker, TrackerKind, TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
-from depotbench.eval.trajectory import Trajectory, write_tum
+from depotbench.eval.trackers.frames import FrameSource, MaskSettings
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
 from depotbench.slam.rejection import STRATEGIES
@@ -76,7 +76,7 @@ class TrackerConfig:
 def make_tracker(
     tracker: TrackerConfig, config: SlamConfig, progress: bool, stages: list[FrameStages] | None = None
 ) -> Tracker:
-    from depotbench.eval.vocabulary import default_vocabulary
+    from depotbench.eval.trackers.vocabulary import default_vocabulary
 
     def vocabulary() -> Path:
         return tracker.vocabulary or default_vocabulary(progress)
@@ -242,7 +242,7 @@ def branch_root(job: RunJob, features: str, config: SlamConfig) -> str:
 
 def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCache) -> list[Tracked]:
     """Track jobs of one ``branch_root`` together: once while they keep the same keypoints
-    (``paths``: per job and frame, ``depotbench.eval.stages.decision_path``), forked where they part.
+    (``paths``: per job and frame, ``depotbench.eval.run.stages.decision_path``), forked where they part.
     Each result equals the job's own ``track``, timings aside."""
     sequence = Sequence.open(jobs[0].sequence)
     prepared = [prepare(job, sequence) for job in jobs]

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.html_report import (
+from depotbench.eval.report.html import (
     DECISION_COLOURS,
     MOVING_COLOUR,
     STATIC_COLOUR,

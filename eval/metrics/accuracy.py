@@ -1,6 +1,6 @@
 """ATE and RPE as evo computes them, and the improvement rate against a baseline.
 
-Functions take associated trajectories (see ``depotbench.eval.trajectory.associate``) and
+Functions take associated trajectories (see ``depotbench.eval.metrics.trajectory.associate``) and
 return frozen results; nothing is modified in place, so sweeps can reuse inputs.
 """
 
@@ -11,8 +11,8 @@ from enum import StrEnum
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.alignment import Alignment, Similarity, align
-from depotbench.eval.trajectory import Trajectory
+from depotbench.eval.metrics.alignment import Alignment, Similarity, align
+from depotbench.eval.metrics.trajectory import Trajectory
 from scipy.spatial.transform import Rotation
 
 RPE_REL_DELTA_TOL = 0.1

@@ -46,7 +46,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from depotbench.core.errors import InputError
     from depotbench.core.files import dumps_json
     from depotbench.core.output import check_output_file, write_text_atomic
-    from depotbench.eval.compare import compare_rows, format_comparisons, load_rows
+    from depotbench.eval.gates.compare import compare_rows, format_comparisons, load_rows
 
     if len(args.folders) < 2:
         raise InputError("compare needs two folders or more: the base, then what to compare with it")
@@ -77,9 +77,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _page(base: Path, results: dict) -> str:
     import html
 
-    from depotbench.eval.aggregate import RATIO_METRICS
-    from depotbench.eval.compare import change_text, value_text
-    from depotbench.eval.html_report import Notes, page, table
+    from depotbench.eval.gates.compare import change_text, value_text
+    from depotbench.eval.metrics.statistics import RATIO_METRICS
+    from depotbench.eval.report.html import Notes, page, table
 
     header = ["family", "configuration", "figure", "first", "this", "change", "95 % interval", "pairs"]
     header += ["p(worse)", ""]

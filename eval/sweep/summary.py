@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from depotbench.eval.aggregate import SuccessRule, summarize
-from depotbench.eval.metrics import improvement_rate
+from depotbench.eval.metrics.accuracy import improvement_rate
+from depotbench.eval.metrics.statistics import SuccessRule, summarize
 
 
 def _parameters(row: dict[str, Any]) -> str:

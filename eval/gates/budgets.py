@@ -2,7 +2,7 @@
 
 ```yaml
 gates: crowd-ci
-run:                                  # a sweep spec (eval/sweep_spec.py): what to run
+run:                                  # a sweep spec (eval/sweep/spec.py): what to run
   suite: ../../scenes/suites/demo.yaml
   strategies: [none, box_epipolar_flow]
   thresholds: {box_epipolar_flow: {epsilon_px: {grid: [1.0]}}}
@@ -37,9 +37,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from depotbench.eval.aggregate import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
-from depotbench.eval.sweep_report import settings_text, with_rho
-from depotbench.eval.sweep_spec import SweepSpec
+from depotbench.eval.metrics.statistics import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
+from depotbench.eval.sweep.spec import SweepSpec
+from depotbench.eval.sweep.summary import settings_text, with_rho
 from depotbench.scenes.schema import Strict, load_model
 from depotbench.sim.sequence import Sequence
 from pydantic import Field, model_validator

@@ -21,8 +21,8 @@ from depotbench.detectors.config import DetectorConfig
 from depotbench.detectors.detection import Detection, Prior
 from depotbench.detectors.faults import Difficulty
 from depotbench.detectors.groundtruth import GroundTruthDetector, is_truncated
-from depotbench.eval.cache import StageCache
-from depotbench.eval.detections import detect_sequence
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import detect_sequence
 from depotbench.sim.sequence import Sequence
 
 IOU_THRESHOLD = 0.5

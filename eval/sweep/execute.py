@@ -1,7 +1,7 @@
 """A whole sweep into a folder: sequences, rows, CSV, summary and plots.
 
 ``depotbench sweep``, ``depotbench check`` and ``depotbench demo`` all run their
-matrix through this one function (and so through ``depotbench.eval.sweep.run_jobs``).
+matrix through this one function (and so through ``depotbench.eval.sweep.engine.run_jobs``).
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ from typing import Any
 
 from depotbench.core.files import dumps_json
 from depotbench.core.output import write_text_atomic
-from depotbench.eval.aggregate import SuccessRule
-from depotbench.eval.sweep import expand, open_store, run_jobs, sequences_of
-from depotbench.eval.sweep_report import best_per_family, configurations, pareto, plot, unqualified, with_rho
-from depotbench.eval.sweep_spec import SweepSpec
+from depotbench.eval.metrics.statistics import SuccessRule
+from depotbench.eval.sweep.engine import expand, open_store, run_jobs, sequences_of
+from depotbench.eval.sweep.spec import SweepSpec
+from depotbench.eval.sweep.summary import best_per_family, configurations, pareto, plot, unqualified, with_rho
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ def execute_sweep(
 ) -> SweepOutcome:
     """Generate (or resume) the sequences, run the missing rows, write results.csv,
     summary.json and plots under ``out`` (a folder the caller owns)."""
-    from depotbench.eval.search import run_search
+    from depotbench.eval.sweep.search import run_search
 
     where = {"backend": backend, "address": address}
     sequences = sequences_of(spec, spec_path, out, workers, progress=progress, **where)

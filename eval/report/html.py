@@ -40,9 +40,10 @@ import cv2
 import numpy as np
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MIB, open_regular, read_text
-from depotbench.eval.aggregate import SuccessRule
-from depotbench.eval.alignment import Alignment, align
-from depotbench.eval.sweep_report import (
+from depotbench.eval.metrics.alignment import Alignment, align
+from depotbench.eval.metrics.statistics import SuccessRule
+from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
+from depotbench.eval.sweep.summary import (
     configuration_label,
     pareto_figure,
     pyplot,
@@ -52,7 +53,6 @@ from depotbench.eval.sweep_report import (
     with_rho,
 )
 from depotbench.eval.trackers.base import TrackerKind
-from depotbench.eval.trajectory import Trajectory, associate, read_tum
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.types import Rejection, TrackingState
 from pydantic import (
@@ -384,8 +384,8 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
 
 
 def view_of(title: str, tracked, sequence: Sequence) -> RunView:
-    """A run tracked in this process (``depotbench.eval.harness.Tracked``) on ``sequence``."""
-    from depotbench.eval.harness import diagnostics_arrays
+    """A run tracked in this process (``depotbench.eval.run.harness.Tracked``) on ``sequence``."""
+    from depotbench.eval.run.harness import diagnostics_arrays
 
     run = tracked.run
     return RunView(
@@ -728,7 +728,7 @@ Number = StrictFloat | StrictInt | None
 
 
 class _Stats(BaseModel):
-    """One figure over a configuration's runs (``depotbench.eval.aggregate.Stats``)."""
+    """One figure over a configuration's runs (``depotbench.eval.metrics.statistics.Stats``)."""
 
     model_config = ConfigDict(extra="allow")
     n: StrictInt
@@ -738,7 +738,7 @@ class _Stats(BaseModel):
 
 
 class _Configuration(BaseModel):
-    """A configuration as ``depotbench.eval.sweep_report.configurations`` writes it into summary.json.
+    """A configuration as ``depotbench.eval.sweep.summary.configurations`` writes it into summary.json.
     Its runs and statistics over seeds are optional: a sweep before them has none."""
 
     model_config = ConfigDict(extra="allow")
@@ -819,8 +819,8 @@ def read_summary(path: Path) -> dict[str, Any]:
 
 def stored_spec(path: Path):
     """The sweep spec kept in results.sqlite (meta ``spec``), or None for a sweep without one."""
-    from depotbench.eval.store import ResultStore
-    from depotbench.eval.sweep_spec import SweepSpec
+    from depotbench.eval.sweep.spec import SweepSpec
+    from depotbench.eval.sweep.store import ResultStore
 
     with ResultStore(path, readonly=True) as store:
         stored = store.meta("spec")
@@ -835,7 +835,7 @@ def stored_spec(path: Path):
 def stored_spec_path(path: Path) -> str | None:
     """Where the sweep's spec file was (meta ``spec_path``): its relative paths (a program,
     a model, a settings template) start there."""
-    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep.store import ResultStore
 
     with ResultStore(path, readonly=True) as store:
         return store.meta("spec_path")
@@ -904,8 +904,8 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
     """The job of a stored row outside the spec's grid (a search trial: its tracker's
     parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
     if its key is the row's."""
-    from depotbench.eval.harness import RunJob, identity_of, job_key, tracker_identity
-    from depotbench.eval.sweep import SweepJob
+    from depotbench.eval.run.harness import RunJob, identity_of, job_key, tracker_identity
+    from depotbench.eval.sweep.engine import SweepJob
 
     if fingerprint is None:
         return None
@@ -947,9 +947,9 @@ def _track_family(
 ) -> list[RunView]:
     """The featured run of a family (its best configuration's, or ``role``) and its none run,
     tracked again on ``sequence``."""
-    from depotbench.eval.cache import StageCache
-    from depotbench.eval.harness import track
-    from depotbench.eval.sweep import jobs_for
+    from depotbench.eval.run.cache import StageCache
+    from depotbench.eval.run.harness import track
+    from depotbench.eval.sweep.engine import jobs_for
 
     found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)], grid.anchor)
     jobs = {j.key: j for j in found}
@@ -998,7 +998,7 @@ def _featured_runs(
 ) -> dict[str, list[RunView]]:
     """Per family, the run of its featured configuration (``featured``: the configuration and
     what it is, ``best``), and its none run, tracked again from the cache."""
-    from depotbench.eval.sweep_spec import detector_configs, tracker_configs, tracker_variants, variants
+    from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
 
     if not featured:
         return {}
@@ -1161,7 +1161,7 @@ def _family_section(
 
 def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) -> str:
     """The sweep's page; ``featured``: how many families (sorted by name) get a section."""
-    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep.store import ResultStore
 
     summary = read_summary(folder / "summary.json")
     with ResultStore(folder / "results.sqlite", readonly=True) as store:

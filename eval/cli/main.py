@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
 import signal
 import sys
@@ -20,21 +19,23 @@ from typing import TYPE_CHECKING, NoReturn
 
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
-from depotbench.eval.cli_compare import add_compare
-from depotbench.eval.cli_detectors import (
+from depotbench.eval.cli.compare import add_compare
+from depotbench.eval.cli.detectors import (
     add_detect_eval,
     add_detector_options,
     add_export_dataset,
     detector_config,
     pairs,
 )
-from depotbench.eval.cli_gates import add_check
-from depotbench.eval.cli_report import add_report
-from depotbench.eval.cli_sweep import add_sweep
+from depotbench.eval.cli.gates import add_check
+from depotbench.eval.cli.report import add_report
+from depotbench.eval.cli.sweep import add_sweep
 
 if TYPE_CHECKING:
-    from depotbench.eval.comparison import Comparison
-    from depotbench.eval.metrics import Statistics
+    from depotbench.eval.metrics.accuracy import Statistics
+    from depotbench.eval.metrics.evaluate import Comparison
+
+from depotbench.eval.cli.args import finite_float, positive_float, workers
 
 EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
@@ -47,39 +48,10 @@ EXIT_TERMINATED = 128 + signal.SIGTERM
 EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = _finite_float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _workers(text: str) -> int:
-    """A worker count; argparse would name this function in its message ("invalid _workers
-    value"), so a word is refused here."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number of workers, got {text!r}") from None
-    if not 1 <= value <= 256:
-        raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
-    return value
-
-
 def _add_eval(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.alignment import Alignment
-    from depotbench.eval.metrics import DeltaUnit
-    from depotbench.eval.trajectory import DEFAULT_MAX_DIFF_S
+    from depotbench.eval.metrics.accuracy import DeltaUnit
+    from depotbench.eval.metrics.alignment import Alignment
+    from depotbench.eval.metrics.trajectory import DEFAULT_MAX_DIFF_S
 
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
@@ -92,14 +64,14 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-diff",
-        type=_finite_float,
+        type=finite_float,
         default=DEFAULT_MAX_DIFF_S,
         help="association window in seconds (default: 0.02, TUM's)",
     )
     p.add_argument(
-        "--t-offset", type=_finite_float, default=0.0, help="seconds added to the estimate's stamps"
+        "--t-offset", type=finite_float, default=0.0, help="seconds added to the estimate's stamps"
     )
-    p.add_argument("--rpe-delta", type=_positive_float, default=1.0, help="RPE delta (default: 1)")
+    p.add_argument("--rpe-delta", type=positive_float, default=1.0, help="RPE delta (default: 1)")
     p.add_argument(
         "--rpe-unit",
         choices=[u.value for u in DeltaUnit],
@@ -113,10 +85,10 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_eval(args: argparse.Namespace) -> int:
     from depotbench.core.files import dumps_json
-    from depotbench.eval.alignment import Alignment
-    from depotbench.eval.comparison import ComparisonOptions, compare
-    from depotbench.eval.metrics import DeltaUnit
-    from depotbench.eval.trajectory import read_tum
+    from depotbench.eval.metrics.accuracy import DeltaUnit
+    from depotbench.eval.metrics.alignment import Alignment
+    from depotbench.eval.metrics.evaluate import ComparisonOptions, compare
+    from depotbench.eval.metrics.trajectory import read_tum
 
     options = ComparisonOptions(
         alignment=Alignment(args.align),
@@ -135,7 +107,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def format_comparison(result: Comparison) -> str:
-    from depotbench.eval.alignment import Alignment
+    from depotbench.eval.metrics.alignment import Alignment
 
     o = result.options
     header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
@@ -167,20 +139,20 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         help="the main job in small: generate a suite, sweep every strategy, gate, write the HTML report",
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1))
+    p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1))
     p.set_defaults(handler=_cmd_demo)
 
 
-DEMO_GATES = Path(__file__).resolve().parent / "demo_gates.yaml"
+DEMO_GATES = Path(__file__).resolve().parent.parent / "demo_gates.yaml"
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     """The README's first command: the sweep, the gates and the report of eval/demo_gates.yaml."""
     from depotbench.core.output import OutputContainer, OutputKind, write_text_atomic
-    from depotbench.eval.gates import evaluate, format_report, junit_xml, load_gates
-    from depotbench.eval.html_report import write_report
-    from depotbench.eval.sweep_report import format_best
-    from depotbench.eval.sweep_run import execute_sweep
+    from depotbench.eval.gates.budgets import evaluate, format_report, junit_xml, load_gates
+    from depotbench.eval.report.html import write_report
+    from depotbench.eval.sweep.execute import execute_sweep
+    from depotbench.eval.sweep.summary import format_best
 
     gates = load_gates(DEMO_GATES)
     started = time.perf_counter()
@@ -225,7 +197,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--workers",
-        type=_workers,
+        type=workers,
         default=max(1, os.cpu_count() or 1),
         help="parallel worker processes for a suite (default: one per core)",
     )
@@ -348,7 +320,7 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.harness import STRATEGY_CHOICES
+    from depotbench.eval.run.harness import STRATEGY_CHOICES
     from depotbench.eval.trackers.base import TrackerKind
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
@@ -405,7 +377,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--timeout",
-        type=_positive_float,
+        type=positive_float,
         default=3600.0,
         help="--slam orbslam3|cmd: seconds before the program is stopped (default: 3600)",
     )
@@ -421,8 +393,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from depotbench.eval.cache import StageCache
-    from depotbench.eval.harness import TrackerConfig, check_tracker, run_sequence
+    from depotbench.eval.run.cache import StageCache
+    from depotbench.eval.run.harness import TrackerConfig, check_tracker, run_sequence
     from depotbench.eval.trackers.base import TrackerKind
 
     settings = pairs(args.set, "--set")
@@ -500,7 +472,7 @@ def format_run(metrics: dict) -> str:
 
 
 def _add_vocab(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.vocabulary import TRAINING_SCENES, VocabularySpec
+    from depotbench.eval.trackers.vocabulary import TRAINING_SCENES, VocabularySpec
 
     default = VocabularySpec()
     p = sub.add_parser(
@@ -529,7 +501,7 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_vocab(args: argparse.Namespace) -> int:
     from depotbench.core.output import check_output_file
-    from depotbench.eval.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
+    from depotbench.eval.trackers.vocabulary import VocabularySpec, build_file, default_vocabulary, read_text
     from depotbench.scenes import library
 
     for name in args.scenes:
@@ -558,7 +530,7 @@ def _add_preview(sub: argparse._SubParsersAction) -> None:
 def _cmd_preview(args: argparse.Namespace) -> int:
     import numpy as np
     from depotbench.core.output import check_output_file
-    from depotbench.eval.preview import preview, save_png
+    from depotbench.eval.report.preview import preview, save_png
     from depotbench.sim.sequence import Sequence
 
     if args.output.suffix.lower() != ".png":

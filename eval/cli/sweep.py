@@ -7,20 +7,17 @@ import os
 from pathlib import Path
 
 from depotbench.core.errors import InputError
+from depotbench.eval.cli.args import workers
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.cli import (
-        _workers,  # the CLI's own --workers type (depotbench.eval.cli imports this module)
-    )
-
     p = sub.add_parser(
         "sweep",
         help="run a threshold sweep (a YAML spec) into a resumable SQLite database, with CSV and plots",
     )
     p.add_argument("spec", type=Path, help="the sweep spec (see assets/sweeps/)")
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
-    p.add_argument("--workers", type=_workers, default=max(1, os.cpu_count() or 1), help="worker processes")
+    p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1), help="worker processes")
     p.add_argument(
         "--backend",
         choices=("local", "ray"),
@@ -39,10 +36,10 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from depotbench.core.output import OutputContainer, OutputKind
-    from depotbench.eval.sweep import spec_inputs, validate
-    from depotbench.eval.sweep_report import format_best
-    from depotbench.eval.sweep_run import execute_sweep
-    from depotbench.eval.sweep_spec import load_sweep
+    from depotbench.eval.sweep.engine import spec_inputs, validate
+    from depotbench.eval.sweep.execute import execute_sweep
+    from depotbench.eval.sweep.spec import load_sweep
+    from depotbench.eval.sweep.summary import format_best
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")

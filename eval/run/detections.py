@@ -2,7 +2,7 @@
 
 The detector itself (ground truth or a network) runs once per sequence and
 detector configuration; its boxes and per-frame latency are cached on disk
-(``depotbench.eval.cache``) keyed by a fingerprint of the sequence's files and the
+(``depotbench.eval.run.cache``) keyed by a fingerprint of the sequence's files and the
 detector's content key. Faults are applied on top, after the cache: they are
 cheap and seeded, so changing a fault setting never re-runs a network.
 """
@@ -24,7 +24,7 @@ from depotbench.detectors.config import DetectorConfig, DetectorKind, check_mode
 from depotbench.detectors.detection import Detection, Prior
 from depotbench.detectors.faults import inject
 from depotbench.detectors.groundtruth import GroundTruthDetector
-from depotbench.eval.cache import StageCache, content_hash
+from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.sim.sequence import Sequence
 from tqdm import tqdm
 

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
-from depotbench.eval.aggregate import HIGHER_IS_BETTER, RATIO_METRICS, Change, paired_change, stats
-from depotbench.eval.sweep_report import configuration_label, with_rho
+from depotbench.eval.metrics.statistics import HIGHER_IS_BETTER, RATIO_METRICS, Change, paired_change, stats
+from depotbench.eval.sweep.summary import configuration_label, with_rho
 
 FIGURES = (
     "ate_rmse_m",
@@ -86,7 +86,7 @@ class Comparison:
 def load_rows(folder: Path) -> list[dict[str, Any]]:
     """A sweep's or check's rows (results.sqlite), or a run folder's one row (record.json)."""
     from depotbench.core.files import read_text
-    from depotbench.eval.store import ResultStore
+    from depotbench.eval.sweep.store import ResultStore
 
     if (folder / "results.sqlite").is_file():
         with ResultStore(folder / "results.sqlite", readonly=True) as store:
