@@ -33,8 +33,8 @@ import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import DetectorConfigError, parse_detector
-from depotbench.eval.detection_eval import IOU_THRESHOLD, iou_matrix
-from depotbench.eval.detections import build_detector
+from depotbench.eval.detection.evaluate import IOU_THRESHOLD, iou_matrix
+from depotbench.eval.run.detections import build_detector
 from depotbench.sim.conventions import quat_wxyz
 from depotbench.sim.mujoco_env import mujoco
 from depotbench.sim.render import FrameRenderer

@@ -24,11 +24,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from depotbench.detectors.config import DetectorConfig, parse_detector  # noqa: E402
-from depotbench.eval.detections import build_detector, detect_sequence  # noqa: E402
-from depotbench.eval.frames import FrameSource  # noqa: E402
-from depotbench.eval.harness import run_sequence  # noqa: E402
-from depotbench.eval.metrics import improvement_rate  # noqa: E402
+from depotbench.eval.metrics.accuracy import improvement_rate  # noqa: E402
+from depotbench.eval.run.detections import build_detector, detect_sequence  # noqa: E402
+from depotbench.eval.run.harness import run_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import BuiltinTracker  # noqa: E402
+from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
 from depotbench.sim.sequence import Sequence  # noqa: E402
 from depotbench.slam.config import SlamConfig  # noqa: E402
 from depotbench.slam.rejection import STRATEGIES  # noqa: E402
@@ -72,7 +72,7 @@ def _throughput(sequence: Sequence, config: DetectorConfig) -> float:
 
 
 def _rho_table(roots: list[Path], out: Path) -> None:
-    from depotbench.eval.cache import StageCache
+    from depotbench.eval.run.cache import StageCache
 
     cache = StageCache(out / "cache")
     print(

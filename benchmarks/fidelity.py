@@ -45,7 +45,7 @@ def _worker_init() -> None:
 
 def _run(job: tuple[str, str, str, int, str, str | None]) -> tuple[str, str, str, int, dict]:
     sequence, tracker, strategy, repeat, out, vocabulary = job
-    from depotbench.eval.harness import TrackerConfig, run_sequence
+    from depotbench.eval.run.harness import TrackerConfig, run_sequence
     from depotbench.eval.trackers.base import TrackerKind
 
     config = TrackerConfig(TrackerKind(tracker), vocabulary=Path(vocabulary) if vocabulary else None)
@@ -73,7 +73,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from depotbench.eval.trackers.orbslam3 import available
-    from depotbench.eval.vocabulary import default_vocabulary
+    from depotbench.eval.trackers.vocabulary import default_vocabulary
     from depotbench.scenes.generation import run_suite
     from depotbench.scenes.suite import Suite
 

@@ -39,9 +39,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 from depotbench.detectors.config import parse_detector
-from depotbench.eval.cache import StageCache
-from depotbench.eval.detection_eval import IOU_THRESHOLD, iou_matrix
-from depotbench.eval.detections import detect_sequence
+from depotbench.eval.detection.evaluate import IOU_THRESHOLD, iou_matrix
+from depotbench.eval.run.cache import StageCache
+from depotbench.eval.run.detections import detect_sequence
 from depotbench.sim.sequence import Sequence
 from sheets import crop_around, fit, grid, write_png
 

@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/strategies.py SEQUENCE [SEQUENCE ...] [-o OUT] [--set name=value ...]
 Each sequence is tracked with every strategy (ground-truth boxes); results go to
-OUT/<sequence>/<strategy>/ and a table (depotbench.eval.report) is printed.
+OUT/<sequence>/<strategy>/ and a table (depotbench.eval.report.table) is printed.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from depotbench.eval.harness import run_sequence
-from depotbench.eval.report import format_table, summarise
+from depotbench.eval.report.table import format_table, summarise
+from depotbench.eval.run.harness import run_sequence
 from depotbench.slam.rejection import STRATEGIES
 
 

@@ -23,12 +23,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from depotbench.eval.detections import sequence_fingerprint
-from depotbench.eval.harness import job_key, tracker_identity
-from depotbench.eval.record import DETERMINISTIC_FIELDS
-from depotbench.eval.store import ResultStore
-from depotbench.eval.sweep import SweepJob, expand, run_jobs
-from depotbench.eval.sweep_spec import SweepSpec
+from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+from depotbench.eval.run.detections import sequence_fingerprint
+from depotbench.eval.run.harness import job_key, tracker_identity
+from depotbench.eval.sweep.engine import SweepJob, expand, run_jobs
+from depotbench.eval.sweep.spec import SweepSpec
+from depotbench.eval.sweep.store import ResultStore
 from depotbench.sim.sequence import Sequence
 
 GRID = {

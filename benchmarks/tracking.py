@@ -23,9 +23,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from depotbench.detectors.config import DetectorConfig  # noqa: E402
-from depotbench.eval.detections import detect_sequence  # noqa: E402
-from depotbench.eval.frames import FrameSource  # noqa: E402
+from depotbench.eval.run.detections import detect_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
+from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
 from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
 from depotbench.sim.generate import generate  # noqa: E402
@@ -73,7 +73,7 @@ def main() -> None:
         if not available():
             print("orbslam3: not installed (pip install 'depotbench[orbslam3]')")
             return
-        from depotbench.eval.vocabulary import default_vocabulary
+        from depotbench.eval.trackers.vocabulary import default_vocabulary
 
         vocabulary = args.vocabulary or default_vocabulary()
         run = Orbslam3Tracker(vocabulary).run(FrameSource(seq), progress=False)

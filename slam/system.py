@@ -81,7 +81,7 @@ def _consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
 
 def seed_frame(tracking: TrackingConfig, frame_index: int) -> None:
     """Seed OpenCV's RNG (the RANSACs of rejection and tracking) for a frame, before its
-    rejection: decisions computed apart from the tracker (``depotbench.eval.stages.decision_path``,
+    rejection: decisions computed apart from the tracker (``depotbench.eval.run.stages.decision_path``,
     the shared frames of a branching run) then match the tracker's own."""
     cv2.setRNGSeed(tracking.seed + frame_index)
 

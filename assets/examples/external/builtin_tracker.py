@@ -29,13 +29,13 @@ from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.frames import FrameSource
-from depotbench.eval.harness import slam_config
-from depotbench.eval.sweep_spec import setting_text
+from depotbench.eval.metrics.trajectory import Trajectory
+from depotbench.eval.run.harness import slam_config
+from depotbench.eval.sweep.spec import setting_text
 from depotbench.eval.trackers.base import TrackerKind, TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
+from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.protocol import read_detections, write_keypoints
-from depotbench.eval.trajectory import Trajectory
 from depotbench.sim.sequence import Sequence, timestamp_name
 from depotbench.slam.config import ConfigError, SlamConfig, check_pyramid
 from depotbench.slam.rejection import STRATEGIES
