@@ -51,7 +51,11 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if uv is None:
         pytest.fail("uv is needed to install the wheel (make installs it into the virtualenv)")
     root = tmp_path_factory.mktemp("wheel")
-    subprocess.run([uv, "build", "--wheel", "--out-dir", str(root / "dist"), str(REPO)], check=True,
+    # built from a copy: setuptools leaves build/ and *.egg-info in the folder it builds
+    source = root / "source"
+    skip = shutil.ignore_patterns(".git", ".venv", "build", "runs", "*.egg-info", "__pycache__", ".*_cache")
+    shutil.copytree(REPO, source, ignore=skip)
+    subprocess.run([uv, "build", "--wheel", "--out-dir", str(root / "dist"), str(source)], check=True,
                    capture_output=True)  # fmt: skip
     (wheel,) = (root / "dist").glob("depotbench-*.whl")
     venv = root / "venv"
