@@ -230,7 +230,9 @@ def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:
 
 def the_row(rows: list[dict[str, Any]], strategy: str, job: str) -> dict[str, Any]:
     """The row of ``strategy`` (for ``none``, the bare baseline) among a run's derived rows."""
-    found = [r for r in rows if r["strategy"] == strategy and (strategy != "none" or r["settings"] == "{}")]
+    from depotbench.eval.metrics.figures import is_baseline
+
+    found = [r for r in rows if r["strategy"] == strategy and (strategy != "none" or is_baseline(r))]
     if not found:
         raise InputError(
             f"{job}: the run matrix gave no row for strategy {strategy!r} "

@@ -405,6 +405,6 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
 
 def _numbers(row: dict[str, str]) -> dict:
     """A CSV row's figures as numbers (empty as None), as the store gives them."""
-    from depotbench.eval.metrics.statistics import METRICS
+    from depotbench.eval.metrics.figures import FIGURES
 
-    return {c: float(row[c]) if row[c] else None for c in (*METRICS, "tracked_fraction") if c in row}
+    return {f.name: float(row[f.name]) if row[f.name] else None for f in FIGURES if f.name in row}

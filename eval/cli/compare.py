@@ -78,7 +78,7 @@ def _page(base: Path, results: dict) -> str:
     import html
 
     from depotbench.eval.gates.compare import change_text, value_text
-    from depotbench.eval.metrics.statistics import RATIO_METRICS
+    from depotbench.eval.metrics.figures import RATIO
     from depotbench.eval.report.html import Notes, page, table
 
     header = ["family", "configuration", "figure", "first", "this", "change", "95 % interval", "pairs"]
@@ -87,7 +87,7 @@ def _page(base: Path, results: dict) -> str:
     for name, found in results.items():
         rows = []
         for c in found.comparisons:
-            ratio, ch = c.figure in RATIO_METRICS, c.change
+            ratio, ch = c.figure in RATIO, c.change
             rows.append(
                 [
                     c.family,

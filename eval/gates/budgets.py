@@ -37,26 +37,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from depotbench.eval.metrics.statistics import HIGHER_IS_BETTER, SuccessRule, paired_change, stats, summarize
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, with_derived
+from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
 from depotbench.eval.sweep.spec import SweepSpec
-from depotbench.eval.sweep.summary import settings_text, with_rho
+from depotbench.eval.sweep.summary import settings_text
 from depotbench.scenes.schema import Strict, load_model
 from depotbench.sim.sequence import Sequence
 from pydantic import Field, model_validator
 
-METRICS: dict[str, str] = {
-    "ate_rmse_m": "ATE RMSE (m)",
-    "ate_max_m": "largest ATE (m)",
-    "rpe_translation_rmse_m": "RPE translation RMSE (m)",
-    "rpe_rotation_rmse_deg": "RPE rotation RMSE (deg)",
-    "rho_percent": "ATE improvement over the none run (%)",
-    "rejection_recall": "rejection recall",
-    "rejection_precision": "rejection precision",
-    "lost_fraction": "fraction of frames not tracked",
-    "time_ratio": "tracking time per frame over the reference run's",
-    "track_ms_mean": "tracking time per frame (ms)",
-}
-"""What a budget may bound, with what the failure message calls it."""
+METRICS: dict[str, str] = {f.name: f.title for f in FIGURES}
+"""What a budget may bound (every figure), with what the failure message calls it."""
 AGGREGATES: dict[str, str] = {
     "mean": "mean over runs",
     "median": "median over runs",
@@ -307,10 +297,10 @@ def derived_rows(
         if r["strategy"] == reference and _same_settings(r, wanted):
             times[(r["sequence"], r["tracker"], r["detector"])] = r["track_ms_mean"]
     out = []
-    for r in with_rho(rows):
+    for r in with_derived(rows):
         base = times.get((r["sequence"], r["tracker"], r["detector"]))
         ratio = r["track_ms_mean"] / base if base and r["track_ms_mean"] is not None else None
-        out.append(r | {"lost_fraction": 1.0 - r["tracked_fraction"], "time_ratio": ratio})
+        out.append(r | {"time_ratio": ratio})
     return out
 
 

@@ -16,19 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
-from depotbench.eval.metrics.statistics import HIGHER_IS_BETTER, RATIO_METRICS, Change, paired_change, stats
-from depotbench.eval.sweep.summary import configuration_label, with_rho
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, TIME, with_derived
+from depotbench.eval.metrics.statistics import Change, paired_change, stats
+from depotbench.eval.sweep.summary import configuration_label
 
-FIGURES = (
-    "ate_rmse_m",
-    "rpe_translation_rmse_m",
-    "rho_percent",
-    "rejection_precision",
-    "rejection_recall",
-    "tracked_fraction",
-    "track_ms_median",
-)
-TIME_FIGURES = {"track_ms_median"}
+COMPARED = tuple(f.name for f in FIGURES if f.compared)
 ALPHA = 0.05
 
 
@@ -54,7 +46,7 @@ class Comparison:
 
     def text(self) -> str:
         """One line: where, what and how much."""
-        ratio = self.figure in RATIO_METRICS
+        ratio = self.figure in RATIO
         p = "-" if self.change.p_worse is None else f"{self.change.p_worse:.3g}"
         return (
             f"{self.family} · {self.other} {self.figure} {change_text(self.change.change, ratio)} "
@@ -122,7 +114,7 @@ def _label(key: tuple) -> str:
 def _groups(rows: list[dict[str, Any]]) -> dict[tuple, dict[str, dict[str, Any]]]:
     """Per configuration, its runs by sequence name (what pairs runs across sets)."""
     out: dict[tuple, dict[str, dict[str, Any]]] = {}
-    for row in with_rho(rows):
+    for row in with_derived(rows):
         out.setdefault(_config(row), {})[Path(row["sequence"]).name] = row
     return out
 
@@ -161,9 +153,7 @@ class SetComparison:
         """Real changes for the worse; time only when asked (``time``): two sweeps run at
         different moments differ in load, and the built-in tracker's median frame time moved
         by 54 % between two identical 4-sequence sweeps run one after the other."""
-        return [
-            c for c in self.comparisons if c.regression(tolerance) and (time or c.figure not in TIME_FIGURES)
-        ]
+        return [c for c in self.comparisons if c.regression(tolerance) and (time or c.figure not in TIME)]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -184,7 +174,7 @@ def compare_rows(base_rows: list[dict[str, Any]], other_rows: list[dict[str, Any
         if not shared:
             unshared.append(f"{key_a[0]}: {_label(key_a)}")
             continue
-        for figure in FIGURES:
+        for figure in COMPARED:
             if figure == "rho_percent" and key_a[4] == "none":
                 continue  # ρ is taken against the none run itself: 0 by definition
             a = [runs_a[name].get(figure) for name in shared]
@@ -228,7 +218,7 @@ def format_comparisons(name: str, result: SetComparison) -> str:
                 f"{'pairs':>5s} {'p(worse)':>9s}"
             )
         ch = c.change
-        ratio = c.figure in RATIO_METRICS
+        ratio = c.figure in RATIO
         interval = f"[{change_text(ch.ci_low, ratio)}, {change_text(ch.ci_high, ratio)}]"
         lines.append(
             f"  {c.figure:24s} {value_text(c.base_mean):>9s} {value_text(c.other_mean):>9s} "

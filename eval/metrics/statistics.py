@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO
 
 CONFIDENCE = 0.95
 RESAMPLES = 2000
@@ -23,32 +24,8 @@ its width between 2000-resample draws."""
 BOOTSTRAP_SEED = 20261125
 """The resampling is seeded: the same rows give the same interval, and a gate the same verdict."""
 
-HIGHER_IS_BETTER = {"rho_percent", "rejection_precision", "rejection_recall", "tracked_fraction"}
-"""Metrics whose worst seed is the lowest; for the others (errors, lost frames, time) it is the highest."""
-METRICS = (
-    "ate_rmse_m",
-    "ate_max_m",
-    "rpe_translation_rmse_m",
-    "rpe_rotation_rmse_deg",
-    "rho_percent",
-    "rejection_precision",
-    "rejection_recall",
-    "lost_fraction",
-    "track_ms_median",
-    "time_ratio",
-)
-"""The per-run figures aggregated over seeds (each where rows carry it)."""
-RATIO_METRICS = {
-    "ate_rmse_m",
-    "ate_max_m",
-    "rpe_translation_rmse_m",
-    "rpe_rotation_rmse_deg",
-    "track_ms_median",
-    "track_ms_mean",
-    "time_ratio",
-}
-"""Positive quantities compared as ratios (a 10 % worse ATE is 10 % worse at any scale);
-the others (rho, precision, recall, lost fraction) as differences."""
+METRICS = tuple(f.name for f in FIGURES)
+"""The per-run figures aggregated over seeds (each where rows carry it): every figure."""
 
 
 @dataclass(frozen=True)
@@ -178,7 +155,7 @@ def paired_change(metric: str, baseline: list[float], candidate: list[float]) ->
         for b, c in zip(baseline, candidate, strict=True)
         if b is not None and c is not None and math.isfinite(b) and math.isfinite(c)
     ]
-    ratio = metric in RATIO_METRICS
+    ratio = metric in RATIO
     if ratio:
         pairs = [(b, c) for b, c in pairs if b > 0 and c > 0]
     if not pairs:

@@ -41,6 +41,7 @@ import numpy as np
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MIB, open_regular, read_text
 from depotbench.eval.metrics.alignment import Alignment, align
+from depotbench.eval.metrics.figures import is_baseline
 from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
 from depotbench.eval.sweep.summary import (
@@ -959,7 +960,7 @@ def _track_family(
             r
             for r in rows
             if r["sequence"] == chosen["sequence"]
-            and r["strategy"] == "none"
+            and is_baseline(r)
             and r["detector"] == chosen["detector"]
             and r["tracker"] == chosen["tracker"]
             and (r.get("parameters") or "{}") == (chosen.get("parameters") or "{}")

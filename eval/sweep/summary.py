@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from depotbench.eval.metrics.accuracy import improvement_rate
+from depotbench.eval.metrics.figures import FIGURES, is_baseline, with_derived
 from depotbench.eval.metrics.statistics import SuccessRule, summarize
 
 
@@ -27,19 +27,8 @@ def _parameters(row: dict[str, Any]) -> str:
 
 
 def with_rho(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    baseline = {
-        (r["sequence"], r["tracker"], _parameters(r), r["detector"]): r["ate_rmse_m"]
-        for r in rows
-        if r["strategy"] == "none" and r["settings"] == "{}"
-    }
-    out = []
-    for r in rows:
-        base = baseline.get((r["sequence"], r["tracker"], _parameters(r), r["detector"]))
-        rho = None
-        if base is not None and r["ate_rmse_m"] is not None and base > 0:
-            rho = improvement_rate(base, r["ate_rmse_m"])
-        out.append({**r, "rho_percent": rho})
-    return out
+    """The rows with their derived figures (rho, lost fraction: ``figures.with_derived``)."""
+    return with_derived(rows)
 
 
 def _mean(values: list[float | None]) -> float | None:
@@ -53,8 +42,7 @@ def configurations(rows: list[dict[str, Any]], rule: SuccessRule | None = None) 
     std, worst, p90, 95 % interval), and the means at the top level, as plots read them."""
     rule = rule or SuccessRule()
     groups: dict[tuple, list[dict]] = defaultdict(list)
-    for r in with_rho(rows):
-        r = r | {"lost_fraction": 1.0 - r["tracked_fraction"]} if r.get("tracked_fraction") is not None else r
+    for r in with_derived(rows):
         groups[
             (r["family"], r["tracker"], _parameters(r), r["detector"], r["strategy"], r["settings"])
         ].append(r)
@@ -73,12 +61,7 @@ def configurations(rows: list[dict[str, Any]], rule: SuccessRule | None = None) 
                 "settings": json.loads(settings),
                 "sequences": len(members),
                 **summarize(members, rule),
-                "ate_rmse_m": _mean([m["ate_rmse_m"] for m in members]),
-                "rho_percent": _mean([m["rho_percent"] for m in members]),
-                "rejection_precision": _mean([m["rejection_precision"] for m in members]),
-                "rejection_recall": _mean([m["rejection_recall"] for m in members]),
-                "tracked_fraction": _mean([m["tracked_fraction"] for m in members]),
-                "track_ms_median": _mean([m["track_ms_median"] for m in members]),
+                **{f.name: _mean([m.get(f.name) for m in members]) for f in FIGURES},
             }
         )
     return out
@@ -205,9 +188,7 @@ def _none_baselines(configs: list[dict[str, Any]]) -> dict[tuple, dict[str, Any]
     """The ``none`` configuration of each (family, tracker with its parameters, detector):
     what a strategy's curve is compared with."""
     return {
-        (c["family"], c["tracker"], _parameters_key(c), c["detector"]): c
-        for c in configs
-        if c["strategy"] == "none" and not c.get("settings")
+        (c["family"], c["tracker"], _parameters_key(c), c["detector"]): c for c in configs if is_baseline(c)
     }
 
 
@@ -625,11 +606,7 @@ def strip_figures(
             successes = sum(rule.holds(r) for r in members)
             ax.text(1.01, y, f"{successes}/{len(members)}", transform=held_at, fontsize=7, va="center")
         ax.text(1.01, -0.75, "held", transform=held_at, fontsize=7, va="center", fontweight="bold")
-        nones = [
-            c
-            for c in mine
-            if c["strategy"] == "none" and not c.get("settings") and _finite(c.get("ate_rmse_m"))
-        ]
+        nones = [c for c in mine if is_baseline(c) and _finite(c.get("ate_rmse_m"))]
         if len(nones) == 1:
             ax.axvline(nones[0]["ate_rmse_m"], ls="--", lw=1.0, c=colour, zorder=1)
         ax.set_yticks(range(len(entries)), [label for _, label, _ in entries], fontsize=7.5)

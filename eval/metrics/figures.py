@@ -1,0 +1,94 @@
+"""The figures a run is judged by, in one table that the statistics over seeds, the gates'
+budgets, ``compare`` and the sweep summary read: a new metric is its entry here, its field on
+the run record (``record.py``) and the line of the run that computes it.
+
+Three figures are derived from rows rather than measured by one run: rho (the ATE
+improvement over the run without rejection on the same sequence, tracker and detector),
+the fraction of frames lost, and the gates' time ratio (which needs a reference run that
+a gate file names).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+BASELINE_STRATEGY = "none"
+"""The run every rho is taken against: the same sequence, tracker, parameters and detector,
+tracked with no rejection."""
+
+
+@dataclass(frozen=True)
+class Figure:
+    name: str
+    """The column (a run record's field, or a derived one)."""
+    title: str
+    """What a table, a plot axis or a failed budget calls it."""
+    higher_is_better: bool = False
+    """Its worst seed is the lowest (rates); else the highest (errors, time, lost frames)."""
+    ratio: bool = False
+    """Compared as a ratio: a positive quantity whose 10 % change means the same at any scale
+    (errors, time); the others as differences (rates, rho)."""
+    time: bool = False
+    """Measured in time on this machine: comparable only under the same load."""
+    derived: bool = False
+    """Computed from the rows (``with_derived``), not stored with one run."""
+    compared: bool = True
+    """``depotbench compare`` shows it (a derived time ratio needs a gate file's reference)."""
+
+
+FIGURES: tuple[Figure, ...] = (
+    Figure("ate_rmse_m", "ATE RMSE (m)", ratio=True),
+    Figure("ate_max_m", "largest ATE (m)", ratio=True),
+    Figure("rpe_translation_rmse_m", "RPE translation RMSE (m)", ratio=True),
+    Figure("rpe_rotation_rmse_deg", "RPE rotation RMSE (deg)", ratio=True),
+    Figure("rho_percent", "ATE improvement over the none run (%)", higher_is_better=True, derived=True),
+    Figure("rejection_precision", "rejection precision", higher_is_better=True),
+    Figure("rejection_recall", "rejection recall", higher_is_better=True),
+    Figure("tracked_fraction", "fraction of frames tracked", higher_is_better=True),
+    Figure("lost_fraction", "fraction of frames not tracked", derived=True, compared=False),
+    Figure("track_ms_mean", "tracking time per frame (ms)", ratio=True, time=True),
+    Figure("track_ms_median", "median tracking time per frame (ms)", ratio=True, time=True),
+    Figure(
+        "time_ratio",
+        "tracking time per frame over the reference run's",
+        ratio=True,
+        derived=True,
+        compared=False,
+    ),
+)
+BY_NAME = {f.name: f for f in FIGURES}
+HIGHER_IS_BETTER = frozenset(f.name for f in FIGURES if f.higher_is_better)
+RATIO = frozenset(f.name for f in FIGURES if f.ratio)
+TIME = frozenset(f.name for f in FIGURES if f.time)
+
+
+def is_baseline(row: dict[str, Any]) -> bool:
+    """The run rho is taken against: no rejection and no threshold (a none run with
+    settings would be some other experiment)."""
+    return row["strategy"] == BASELINE_STRATEGY and row["settings"] in ("{}", {}, None)
+
+
+def _parameters(row: dict[str, Any]) -> str:
+    return row.get("parameters") or "{}"
+
+
+def with_derived(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows with rho (against the baseline run of their sequence, tracker, parameters and
+    detector; None without one or without an ATE) and the fraction of frames lost."""
+    from depotbench.eval.metrics.accuracy import improvement_rate  # numpy and scipy: when used
+
+    baseline = {
+        (r["sequence"], r["tracker"], _parameters(r), r["detector"]): r["ate_rmse_m"]
+        for r in rows
+        if is_baseline(r)
+    }
+    out = []
+    for r in rows:
+        base = baseline.get((r["sequence"], r["tracker"], _parameters(r), r["detector"]))
+        rho = None
+        if base is not None and r["ate_rmse_m"] is not None and base > 0:
+            rho = improvement_rate(base, r["ate_rmse_m"])
+        tracked = r.get("tracked_fraction")
+        out.append({**r, "rho_percent": rho, "lost_fraction": None if tracked is None else 1.0 - tracked})
+    return out
