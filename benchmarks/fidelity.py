@@ -45,10 +45,10 @@ def _worker_init() -> None:
 
 def _run(job: tuple[str, str, str, int, str, str | None]) -> tuple[str, str, str, int, dict]:
     sequence, tracker, strategy, repeat, out, vocabulary = job
-    from depotbench.eval.run.harness import TrackerConfig, run_sequence
-    from depotbench.eval.trackers.base import TrackerKind
+    from depotbench.eval.run.harness import run_sequence
+    from depotbench.eval.trackers.registry import TrackerConfig
 
-    config = TrackerConfig(TrackerKind(tracker), vocabulary=Path(vocabulary) if vocabulary else None)
+    config = TrackerConfig(tracker, vocabulary=Path(vocabulary) if vocabulary else None)
     target = Path(out) / Path(sequence).name / f"{tracker}-{strategy}-{repeat}"
     metrics = run_sequence(Path(sequence), target, strategy, progress=False, overwrite=True, tracker=config)
     return Path(sequence).name, tracker, strategy, repeat, metrics

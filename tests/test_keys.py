@@ -222,14 +222,14 @@ def _scale_position(line: str, factor: float) -> str:
 def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_bytes(tmp_path: Path):
     """A rebuilt program or another vocabulary under the same path is a new run, not a row
     to resume."""
-    from depotbench.eval.run.harness import TrackerConfig, tracker_identity
-    from depotbench.eval.trackers.base import TrackerKind
+    from depotbench.eval.run.harness import tracker_identity
+    from depotbench.eval.trackers.registry import TrackerConfig
 
     program, vocabulary = tmp_path / "my_slam.sh", tmp_path / "voc.txt"
     program.write_text("#!/bin/sh\nexit 0\n")
     program.chmod(0o755)
     vocabulary.write_text("10 6 0 0\n")
-    tracker = TrackerConfig(TrackerKind.COMMAND, f"{program} {{sequence}}", vocabulary)
+    tracker = TrackerConfig("cmd", f"{program} {{sequence}}", vocabulary)
     first = tracker_identity(tracker)
     assert tracker_identity(tracker) == first
     program.write_text("#!/bin/sh\nexit 1\n")

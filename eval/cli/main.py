@@ -321,16 +321,16 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
     from depotbench.eval.run.harness import STRATEGY_CHOICES
-    from depotbench.eval.trackers.base import TrackerKind
+    from depotbench.eval.trackers.registry import TRACKERS
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
     p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
     p.add_argument(
         "--slam",
-        choices=[k.value for k in TrackerKind],
+        choices=list(TRACKERS),
         default="builtin",
-        help="the tracker: the built-in pipeline, ORB-SLAM3 (extra [orbslam3], GPL-3, run in a "
-        "subprocess) or any program through --command (default: builtin)",
+        help="the tracker (default: builtin): "
+        + "; ".join(f"{name}: {t.summary}" for name, t in TRACKERS.items()).replace("%", "%%"),
     )
     p.add_argument(
         "--strategy",
@@ -394,27 +394,31 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.eval.run.cache import StageCache
-    from depotbench.eval.run.harness import TrackerConfig, check_tracker, run_sequence
-    from depotbench.eval.trackers.base import TrackerKind
+    from depotbench.eval.run.harness import run_sequence
+    from depotbench.eval.trackers.registry import TRACKERS, TrackerConfig, default_parameters, tracker_type
+    from depotbench.eval.trackers.registry import check as check_tracker
 
     settings = pairs(args.set, "--set")
     detector = detector_config(args)
-    kind = TrackerKind(args.slam)
-    if args.command is not None and kind is not TrackerKind.COMMAND:
-        raise InputError("--command applies to --slam cmd only")
-    if args.vocabulary is not None and kind is TrackerKind.BUILTIN:
-        raise InputError("--vocabulary applies to --slam orbslam3 and cmd only")
-    if args.param and kind is TrackerKind.BUILTIN:
-        raise InputError("--param applies to --slam orbslam3 and cmd (the built-in tracker takes --set)")
-    if args.settings_template is not None and kind is not TrackerKind.COMMAND:
-        raise InputError("--settings-template applies to --slam cmd only")
-    parameters = pairs(args.param, "--param")
-    if kind is TrackerKind.ORBSLAM3:
-        from depotbench.eval.trackers.orbslam3 import default_parameters
+    kind = tracker_type(args.slam)
 
-        parameters = default_parameters() | parameters
+    def takers(flag: str) -> str:
+        return " and ".join(name for name, t in TRACKERS.items() if getattr(t, flag))
+
+    if args.command is not None and not kind.command:
+        raise InputError(f"--command applies to --slam {takers('command')} only")
+    if args.vocabulary is not None and not kind.vocabulary:
+        raise InputError(f"--vocabulary applies to --slam {takers('vocabulary')} only")
+    if args.param and not kind.parameters:
+        raise InputError(
+            f"--param applies to --slam {takers('parameters')} (the built-in tracker takes --set)"
+        )
+    if args.settings_template is not None and not kind.command:
+        raise InputError(f"--settings-template applies to --slam {takers('command')} only")
+    parameters = pairs(args.param, "--param")
+    parameters = default_parameters(kind.name) | parameters
     tracker = TrackerConfig(
-        kind,
+        kind.name,
         args.command,
         args.vocabulary,
         args.timeout,

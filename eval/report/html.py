@@ -53,7 +53,6 @@ from depotbench.eval.sweep.summary import (
     threshold_figures,
     with_rho,
 )
-from depotbench.eval.trackers.base import TrackerKind
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.types import Rejection, TrackingState
 from pydantic import (
@@ -984,7 +983,7 @@ def _track_family(
         seed = row.get("seed")
         if seed is not None:
             title += f" (seed {seed})"
-        if tracker.kind is not TrackerKind.BUILTIN:  # the built-in tracker repeats itself bit for bit
+        if tracker.type.external:  # the bench's own tracker repeats itself bit for bit
             title += " (run again for this page: an external program may not repeat its stored figures)"
         views.append(view_of(title, tracked, sequence))
     return views

@@ -32,9 +32,11 @@ from depotbench.eval.metrics.trajectory import Trajectory, write_tum
 from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.detections import SequenceDetections, detect_sequence, sequence_fingerprint
 from depotbench.eval.run.stages import FrameStages, features_key, sequence_stages
-from depotbench.eval.trackers.base import Tracker, TrackerKind, TrackerRun
+from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
 from depotbench.eval.trackers.frames import FrameSource, MaskSettings
+from depotbench.eval.trackers.registry import BUILTIN, TrackerConfig, tracker_type
+from depotbench.eval.trackers.registry import build as build_tracker
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
 from depotbench.slam.rejection import STRATEGIES
@@ -48,103 +50,20 @@ MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
 
 
-@dataclass(frozen=True)
-class TrackerConfig:
-    """Which tracker runs, and what an external one needs."""
-
-    kind: TrackerKind = TrackerKind.BUILTIN
-    command: str | None = None
-    """``cmd``: the command template (see ``depotbench.eval.trackers.command``)."""
-    vocabulary: Path | None = None
-    """``orbslam3`` and ``cmd``: a DBoW2 text vocabulary; the bench's default one if None."""
-    timeout_s: float = 3600.0
-    name: str = ""
-    """What rows, tables and gates call it: a sweep's name for it, else the kind."""
-    parameters: tuple[tuple[str, str], ...] = ()
-    """An external tracker's parameter values for this run, by name, sorted (the program's
-    own, or ORB-SLAM3's settings)."""
-    settings_template: Path | None = None
-    """``cmd``: a Jinja2 template rendered to ``{settings}`` (else ORB-SLAM settings)."""
-    env: tuple[tuple[str, str], ...] = ()
-    """``cmd``: variables added to the program's environment."""
-
-    @property
-    def label(self) -> str:
-        return self.name or self.kind.value
-
-
-def make_tracker(
-    tracker: TrackerConfig, config: SlamConfig, progress: bool, stages: list[FrameStages] | None = None
-) -> Tracker:
-    from depotbench.eval.trackers.vocabulary import default_vocabulary
-
-    def vocabulary() -> Path:
-        return tracker.vocabulary or default_vocabulary(progress)
-
-    if tracker.kind is TrackerKind.BUILTIN:
-        return BuiltinTracker(config, stages)
-    if tracker.kind is TrackerKind.ORBSLAM3:
-        from depotbench.eval.trackers.orbslam3 import INSTALL_HINT, Orbslam3Tracker, available
-
-        if not available():  # before a vocabulary is built for nothing
-            raise InputError(f"--slam orbslam3: ORB-SLAM3 is not installed: {INSTALL_HINT}")
-        return Orbslam3Tracker(vocabulary(), tracker.timeout_s, tracker.parameters)
-    return command_tracker(tracker, vocabulary)
-
-
-def command_tracker(tracker: TrackerConfig, vocabulary=None):
-    """The ``cmd`` tracker of a configuration: its template, parameter names and settings
-    template are checked here, so building one (``check_tracker``) refuses a bad one
-    before any run."""
-    from depotbench.eval.trackers.command import CommandTracker, SettingsTemplate
-
-    if not tracker.command:
-        raise InputError("--slam cmd needs --command TEMPLATE")
-    settings = SettingsTemplate.load(tracker.settings_template) if tracker.settings_template else None
-    return CommandTracker(
-        tracker.command,
-        vocabulary,
-        tracker.timeout_s,
-        label=tracker.label,
-        parameters=tracker.parameters,
-        settings=settings,
-        env=tracker.env,
-    )
-
-
-def check_tracker(tracker: TrackerConfig, camera_sequence: Sequence | None = None) -> None:
-    """Refuse, before any run, an external tracker that cannot run: an unknown placeholder
-    or parameter, a missing or non-executable program, a settings template that does not
-    parse or names what it is not given (rendered on ``camera_sequence``), an ORB-SLAM3
-    setting out of range."""
-    if tracker.kind is TrackerKind.ORBSLAM3:
-        from depotbench.eval.trackers.orbslam3 import orbslam_settings
-
-        orbslam_settings(30.0, tracker.parameters)
-    elif tracker.kind is TrackerKind.COMMAND:
-        from depotbench.eval.trackers.command import check_program
-
-        program = command_tracker(tracker)
-        check_program(program.words, Path.cwd())
-        if program.settings is not None and camera_sequence is not None:
-            program.settings.render(camera_sequence, dict(tracker.parameters))
-
-
-def slam_config(strategy: str, settings: dict[str, str], tracker: TrackerKind) -> SlamConfig:
-    """The strategy and ``--set`` values, checked against what the tracker can use."""
+def slam_config(strategy: str, settings: dict[str, str], tracker: str = BUILTIN) -> SlamConfig:
+    """The strategy and ``--set`` values, checked against what the tracker (a registry
+    name) can use."""
     if strategy not in STRATEGY_CHOICES:
         raise InputError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGY_CHOICES)}")
-    if tracker is not TrackerKind.BUILTIN:
+    if not tracker_type(tracker).per_keypoint:
         if strategy not in EXTERNAL_STRATEGIES:
             raise InputError(
                 f"--strategy {strategy} needs the built-in tracker (it decides per keypoint); "
-                f"--slam {tracker.value} takes {' or '.join(EXTERNAL_STRATEGIES)}"
+                f"--slam {tracker} takes {' or '.join(EXTERNAL_STRATEGIES)}"
             )
         extra = sorted(set(settings) - set(MASK_SETTINGS))
         if extra:
-            raise InputError(
-                f"--set {extra[0]}: --slam {tracker.value} takes only {', '.join(MASK_SETTINGS)}"
-            )
+            raise InputError(f"--set {extra[0]}: --slam {tracker} takes only {', '.join(MASK_SETTINGS)}")
     try:
         return SlamConfig(strategy="none" if strategy == MASK else strategy).with_settings(settings)
     except ConfigError as exc:
@@ -180,11 +99,12 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
     """Open and check everything before any work: the sequence (unless given, already
     open), settings, detector use."""
     config = slam_config(job.strategy, dict(job.settings), job.tracker.kind)
+    per_keypoint = job.tracker.type.per_keypoint
     if sequence is None or sequence.root != Path(job.sequence):
         sequence = Sequence.open(job.sequence)
     if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
-    if job.tracker.kind is TrackerKind.BUILTIN:
+    if per_keypoint:  # the bench's own front end: its pyramid must fit the image
         camera = camera_of(sequence)
         try:
             check_pyramid(config.tracking, camera.width, camera.height)
@@ -201,14 +121,14 @@ def _execute(
     boxes = detections.per_frame if detections is not None else None
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
     stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
-    run = make_tracker(job.tracker, config, progress, stages).run(frames, progress)
+    run = build_tracker(job.tracker, config, progress, stages).run(frames, progress)
     metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
     return Tracked(metrics, run, _header(job))
 
 
 def uses_stages(job: RunJob) -> bool:
     """Whether the run can take cached features and flow (the built-in tracker, not ``mask``)."""
-    return job.tracker.kind is TrackerKind.BUILTIN and job.strategy != MASK
+    return job.tracker.type.per_keypoint and job.strategy != MASK
 
 
 def stages_for(
@@ -273,7 +193,7 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
 
 
 def _header(job: RunJob) -> str:
-    return f"depotbench {job.tracker.kind.value}, strategy {job.strategy}, detector {job.detector.label}"
+    return f"depotbench {job.tracker.kind}, strategy {job.strategy}, detector {job.detector.label}"
 
 
 def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
@@ -281,8 +201,8 @@ def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
     the program it starts and of the vocabulary it is given (a rebuilt program or another
     vocabulary is a new run, not a row to resume). A sweep computes it once per tracker:
     ORB-SLAM's own vocabulary is 145 MB."""
-    identity: dict[str, Any] = {"kind": tracker.kind.value}
-    if tracker.kind is TrackerKind.BUILTIN:
+    identity: dict[str, Any] = {"kind": tracker.kind}
+    if not tracker.type.external:
         return tuple(identity.items())
     identity |= {
         "name": tracker.label,
@@ -448,13 +368,13 @@ def _metrics(
     stage = {name: _time_stats(values) for name, values in run.stage_ms.items()}
     stage.setdefault("tracking_total", _time_stats(run.track_ms))
     settings: dict[str, Any] = {"tracking": asdict(config.tracking), "rejection": asdict(config.rejection)}
-    if tracker.kind is not TrackerKind.BUILTIN:
+    if not tracker.type.per_keypoint:
         settings = {"mask": {k: getattr(config.rejection, k) for k in MASK_SETTINGS}}
         settings["command"] = tracker.command
     metrics: dict[str, Any] = {
         "sequence": str(sequence.root),
         "tracker": tracker.label,
-        "tracker_kind": tracker.kind.value,
+        "tracker_kind": tracker.kind,
         "parameters": dict(tracker.parameters),
         "strategy": strategy,
         "detector": detector.label,

@@ -21,10 +21,9 @@ from depotbench.eval.metrics.record import RunIdentity, RunRecord
 from depotbench.eval.run.cache import StageCache
 from depotbench.eval.run.detections import detect_sequence, sequence_fingerprint, stored_path
 from depotbench.eval.run.harness import (
+    EXTERNAL_STRATEGIES,
     RunJob,
-    TrackerConfig,
     branch_root,
-    check_tracker,
     family_of,
     identity_of,
     job_key,
@@ -53,7 +52,9 @@ from depotbench.eval.sweep.spec import (
     variants,
 )
 from depotbench.eval.sweep.store import ResultStore
-from depotbench.eval.trackers.base import TrackerError, TrackerKind
+from depotbench.eval.trackers.base import TrackerError
+from depotbench.eval.trackers.registry import TrackerConfig
+from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import TrackingConfig
@@ -120,7 +121,7 @@ def jobs_for(
         for tracker in trackers:
             for detector in detectors:
                 for v in found:
-                    if tracker.kind is not TrackerKind.BUILTIN and v.strategy not in ("none", "mask"):
+                    if not tracker.type.per_keypoint and v.strategy not in EXTERNAL_STRATEGIES:
                         continue
                     key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings)
                     run = RunJob(root, v.strategy, detector, v.settings, tracker)
@@ -354,7 +355,7 @@ def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
     try:
         tracked = track(job.job, StageCache.from_env())
     except TrackerError as exc:
-        if job.job.tracker.kind is TrackerKind.BUILTIN:
+        if not job.job.tracker.type.external:
             raise
         return [_failed(job, str(exc), time.perf_counter() - started, bench_version)]
     return [_record(job, tracked.metrics, bench_version, None)]

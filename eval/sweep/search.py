@@ -23,7 +23,7 @@ from depotbench.core.files import open_regular
 from depotbench.detectors.config import DetectorConfig
 from depotbench.eval.run.cache import content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
-from depotbench.eval.run.harness import TrackerConfig, check_tracker, tracker_identity
+from depotbench.eval.run.harness import tracker_identity
 from depotbench.eval.sweep.engine import jobs_for, run_jobs, sequence_entries
 from depotbench.eval.sweep.spec import (
     Search,
@@ -35,6 +35,8 @@ from depotbench.eval.sweep.spec import (
     tracker_configs,
 )
 from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
+from depotbench.eval.trackers.registry import TrackerConfig
+from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.sim.sequence import Sequence
 
 STUDY = "optuna.sqlite"

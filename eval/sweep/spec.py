@@ -40,14 +40,9 @@ from depotbench.detectors.config import (
     check_model_file,
     parse_detector,
 )
-from depotbench.eval.run.harness import (
-    EXTERNAL_STRATEGIES,
-    STRATEGY_CHOICES,
-    TrackerConfig,
-    check_tracker,
-    slam_config,
-)
-from depotbench.eval.trackers.base import TrackerKind
+from depotbench.eval.run.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, slam_config
+from depotbench.eval.trackers.registry import EXTERNAL, TRACKERS, TrackerConfig
+from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError, Strict, load_model
 from pydantic import Field, model_validator
 
@@ -150,7 +145,8 @@ class TrackerEntry(Strict):
     with its own parameters (docs/external-trackers.md)."""
 
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
-    kind: str = Field(default="cmd", pattern="^(cmd|orbslam3)$")
+    kind: str = "cmd"
+    """An external tracker kind of the registry (``registry.EXTERNAL``: cmd, orbslam3)."""
     command: str | None = None
     """``cmd``: the command template, run without a shell; a program with a slash is
     relative to the spec file."""
@@ -164,12 +160,17 @@ class TrackerEntry(Strict):
 
     @model_validator(mode="after")
     def _fits(self) -> TrackerEntry:
-        if self.name in ("builtin", "cmd", "orbslam3"):
+        if self.kind not in EXTERNAL:
+            raise ValueError(f"kind: {self.kind!r} is not one of {', '.join(EXTERNAL)}")
+        if self.name in TRACKERS:
             raise ValueError(f"name {self.name!r} is a tracker kind; give your tracker a name of its own")
-        if self.kind == "cmd" and not self.command:
-            raise ValueError("command: a cmd tracker needs its command template")
-        if self.kind == "orbslam3" and (self.command or self.settings):
-            raise ValueError("orbslam3 takes no command or settings template (its settings are parameters)")
+        takes_command = TRACKERS[self.kind].command
+        if takes_command and not self.command:
+            raise ValueError(f"command: a {self.kind} tracker needs its command template")
+        if not takes_command and (self.command or self.settings):
+            raise ValueError(
+                f"{self.kind} takes no command or settings template (its settings are parameters)"
+            )
         for name in self.env:
             if not name or "=" in name or "\0" in name:
                 raise ValueError(f"env: {name!r} is not an environment variable name")
@@ -343,25 +344,24 @@ def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
     out = []
     for i, entry in enumerate(spec.trackers):
         if isinstance(entry, str):
-            try:
-                kind = TrackerKind(entry)
-            except ValueError:
+            bare = [name for name, t in TRACKERS.items() if not t.command]
+            if entry not in TRACKERS:
                 raise SpecError(
-                    f"{source}: trackers.{i}: {entry!r} is not builtin or orbslam3 (an external program "
+                    f"{source}: trackers.{i}: {entry!r} is not {' or '.join(bare)} (an external program "
                     "is given as a mapping: name, command, parameters)"
-                ) from None
-            if kind is TrackerKind.COMMAND:
-                raise SpecError(
-                    f"{source}: trackers.{i}: a cmd tracker needs a name and a command (a mapping)"
                 )
-            out.append(TrackerConfig(kind))
+            if TRACKERS[entry].command:
+                raise SpecError(
+                    f"{source}: trackers.{i}: a {entry} tracker needs a name and a command (a mapping)"
+                )
+            out.append(TrackerConfig(entry))
             continue
         try:
             parameters = _parameter_defaults(entry)
         except InputError as exc:
             raise SpecError(f"{source}: trackers.{i} ({entry.name}): {exc}") from None
         config = TrackerConfig(
-            TrackerKind(entry.kind),
+            entry.kind,
             command=_program_beside(folder, entry.command) if entry.command else None,
             vocabulary=_beside(folder, entry.vocabulary) if entry.vocabulary else None,
             timeout_s=entry.timeout_s,
@@ -426,17 +426,17 @@ def tracker_variants(spec: SweepSpec, trackers: list[TrackerConfig], source: str
 
 def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[TrackerConfig], source: str) -> None:
     """Every value against the SLAM configuration and the trackers, before anything runs."""
-    builtin = any(t.kind is TrackerKind.BUILTIN for t in trackers)
+    builtin = any(t.type.per_keypoint for t in trackers)
     for strategy in spec.strategies:
         if not builtin and strategy not in EXTERNAL_STRATEGIES:
-            names = ", ".join(t.kind.value for t in trackers)
+            names = ", ".join(t.kind for t in trackers)
             raise SpecError(
                 f"{source}: strategies: {strategy} needs the built-in tracker (it decides per keypoint); "
                 f"trackers {names} take {' or '.join(EXTERNAL_STRATEGIES)}"
             )
     for variant in found:
         for tracker in trackers:
-            if tracker.kind is not TrackerKind.BUILTIN and variant.strategy not in ("none", "mask"):
+            if not tracker.type.per_keypoint and variant.strategy not in EXTERNAL_STRATEGIES:
                 continue  # external trackers only take none and mask: those jobs are skipped
             try:
                 slam_config(variant.strategy, dict(variant.settings), tracker.kind)
@@ -452,7 +452,7 @@ def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) ->
     if spec.search.tracker is not None:
         base = next(t for t in trackers if t.label == spec.search.tracker)
         for name, interval in sorted(spec.search.space.items()):
-            if base.kind is TrackerKind.COMMAND and name not in dict(base.parameters):
+            if base.type.command and name not in dict(base.parameters):
                 raise SpecError(f"{source}: search.space.{name}: not a parameter of {base.label}")
             for value in (interval.low, interval.high):
                 values = dict(base.parameters) | {name: setting_text(value)}

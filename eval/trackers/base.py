@@ -7,7 +7,6 @@ return a ``TrackerRun``; per-keypoint diagnostics come only from the built-in on
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -18,12 +17,6 @@ from depotbench.slam.types import FrameResult, TrackingState
 
 if TYPE_CHECKING:
     from depotbench.eval.trackers.protocol import KeypointDecisions
-
-
-class TrackerKind(StrEnum):
-    BUILTIN = "builtin"
-    ORBSLAM3 = "orbslam3"
-    COMMAND = "cmd"
 
 
 class TrackerError(InputError):

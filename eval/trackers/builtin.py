@@ -177,3 +177,13 @@ def _tracker_run(results: list, labels: list, keyframes: int, total_s: float) ->
         labels=labels or None,
         stage_ms=stage_ms,
     )
+
+
+def build(tracker, config: SlamConfig, progress: bool, stages: list | None = None) -> BuiltinTracker:
+    """The registry's entry point (``registry.build``): ``stages`` are the cached features
+    and flow of every frame, or None to compute them while tracking."""
+    return BuiltinTracker(config, stages)
+
+
+def check(tracker, camera_sequence: Sequence | None = None) -> None:
+    """Nothing to check before a run: its settings are checked with the strategy's."""

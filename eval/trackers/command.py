@@ -422,3 +422,32 @@ def _tracker_run(
         keyframes=None,
         total_s=total_s,
     )
+
+
+def build(tracker, config, progress: bool, stages: list | None = None) -> CommandTracker:
+    """The registry's entry point: its template, parameter names and settings template are
+    checked here, so ``check`` refuses a bad one before any run."""
+    from depotbench.eval.trackers.vocabulary import default_vocabulary
+
+    if not tracker.command:
+        raise InputError("--slam cmd needs --command TEMPLATE")
+    settings = SettingsTemplate.load(tracker.settings_template) if tracker.settings_template else None
+    return CommandTracker(
+        tracker.command,
+        (lambda: tracker.vocabulary or default_vocabulary(progress)),
+        tracker.timeout_s,
+        label=tracker.label,
+        parameters=tracker.parameters,
+        settings=settings,
+        env=tracker.env,
+    )
+
+
+def check(tracker, camera_sequence: Sequence | None = None) -> None:
+    """An unknown placeholder or parameter, a missing or non-executable program, a settings
+    template that does not parse or names what it is not given (rendered on
+    ``camera_sequence``)."""
+    program = build(tracker, None, False)
+    check_program(program.words, Path.cwd())
+    if program.settings is not None and camera_sequence is not None:
+        program.settings.render(camera_sequence, dict(tracker.parameters))

@@ -149,3 +149,19 @@ class Orbslam3Tracker:
             peak_memory_mb=child.peak_memory_mb,
             log=child.log,
         )
+
+
+def build(tracker, config, progress: bool, stages: list | None = None) -> Orbslam3Tracker:
+    """The registry's entry point: refused before a vocabulary is built for nothing when the
+    wheel is not installed."""
+    from depotbench.eval.trackers.vocabulary import default_vocabulary
+
+    if not available():
+        raise InputError(f"--slam orbslam3: ORB-SLAM3 is not installed: {INSTALL_HINT}")
+    vocabulary = tracker.vocabulary or default_vocabulary(progress)
+    return Orbslam3Tracker(vocabulary, tracker.timeout_s, tracker.parameters)
+
+
+def check(tracker, camera_sequence=None) -> None:
+    """Its settings in range before any run (at 30 frames/s: the rate changes no range)."""
+    orbslam_settings(30.0, tracker.parameters)

@@ -32,7 +32,7 @@ from depotbench.core.errors import InputError
 from depotbench.eval.metrics.trajectory import Trajectory
 from depotbench.eval.run.harness import slam_config
 from depotbench.eval.sweep.spec import setting_text
-from depotbench.eval.trackers.base import TrackerKind, TrackerRun
+from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.protocol import read_detections, write_keypoints
@@ -85,7 +85,7 @@ def read_config(path: Path, sequence: Sequence) -> SlamConfig:
     if strategy not in STRATEGIES:  # the bench's 'mask' blanks {sequence} before any program sees it
         raise InputError(f"{path}: strategy {strategy!r} is none of {', '.join(STRATEGIES)}")
     settings = {name: setting_value(name, value) for name, value in parameters.items()}
-    config = slam_config(strategy, settings, TrackerKind.BUILTIN)
+    config = slam_config(strategy, settings)
     camera = camera_of(sequence)
     try:  # as the bench's prepare() does, so a bad pyramid is one line, not a traceback
         check_pyramid(config.tracking, camera.width, camera.height)
