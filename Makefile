@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
 PACKAGE := -e '.[dev,viz,orbslam3]'
 
-.PHONY: demo test test-slow lint bench system-deps browser clean readme-images
+.PHONY: demo test test-slow lint docs bench system-deps browser clean readme-images
 
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
@@ -17,8 +17,13 @@ demo: $(VENV)/.installed
 # and holds MuJoCo, ONNX Runtime and sometimes Ray); a file's tests stay in one worker.
 SIDE_BY_SIDE := -n logical --maxprocesses 4 --dist loadfile
 
+# The documentation site (MkDocs with Material, mkdocs.yml): any warning, such as a broken
+# link or anchor, fails the build, and make test builds it too.
+DOCS := NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d build/site
+
 test: $(VENV)/.installed browser
 	$(BIN)/ruff check .
+	$(DOCS)
 	$(BIN)/python -m pytest -q $(SIDE_BY_SIDE)
 
 test-slow: $(VENV)/.installed
@@ -27,10 +32,15 @@ test-slow: $(VENV)/.installed
 lint: $(VENV)/.installed
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
+docs: $(VENV)/.installed
+	$(DOCS)
+	@echo "the site is in build/site (open build/site/index.html)"
+
 # The README's pictures, taken again whenever the generator's output changes: the default
 # scenario (seed 0, frames 5, 45 and 85: RGB | depth | instances with boxes, halved), the
 # cat alone at eight headings on seeds 1 and 2, labelled with YOLOX-nano's scores, and the
-# demo's sweep report (its first screen, and the full crowd's best run) in Chromium.
+# demo's sweep report (its first screen, and the full crowd's best run) in Chromium; the
+# documentation site shows the same pictures from docs/images.
 JPEG := $(BIN)/python -c "import sys, cv2; image = cv2.imread(sys.argv[1]); \
 	image = cv2.resize(image, None, fx=float(sys.argv[3]), fy=float(sys.argv[3]), interpolation=cv2.INTER_AREA); \
 	cv2.imwrite(sys.argv[2], image, [cv2.IMWRITE_JPEG_QUALITY, 85])"
@@ -45,6 +55,8 @@ readme-images: $(VENV)/.installed browser
 	$(BIN)/depotbench demo -o build/readme/demo
 	$(BIN)/python benchmarks/screenshots.py build/readme/demo/report/index.html \
 		--top assets/readme/report_sweep.png --run "actors.0.count=12: best" assets/readme/report_run.jpg
+	cp assets/readme/default_scenario.jpg assets/readme/cat_views.jpg assets/readme/report_sweep.png \
+		assets/readme/report_run.jpg docs/images/
 
 # MuJoCo renders off-screen through EGL (Mesa on CPU machines).
 system-deps:
