@@ -40,28 +40,17 @@ def add_check(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from depotbench.core.errors import InputError
-    from depotbench.core.output import OutputContainer, OutputKind, check_output_file, write_text_atomic
-    from depotbench.eval.gates.budgets import format_report, junit_xml, load_gates
-    from depotbench.eval.gates.check import load_baseline, run_gates
-    from depotbench.eval.sweep.engine import spec_inputs, validate
+    from depotbench.core.output import check_output_file, write_text_atomic
+    from depotbench.eval.gates.budgets import format_report, junit_xml
+    from depotbench.eval.gates.check import check_folder, open_gates
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
-    gates = load_gates(args.gates)
-    if args.baseline is None and any(b.endswith(".vs_baseline") for c in gates.checks for b in c.budgets):
-        raise InputError(
-            f"{args.gates}: its vs_baseline budgets need --baseline DIR (an earlier run's folder)"
-        )
-    validate(gates.run, args.gates)  # before any folder is made
-    inputs = spec_inputs(gates.run, args.gates)
-    baseline = load_baseline(args.baseline) if args.baseline is not None else None
+    gates = open_gates(args.gates, args.baseline)  # before any folder is made
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
-        check_output_file(args.junit, overwrite=args.overwrite, inputs=inputs, option="--junit")
-    out = args.output or Path("runs") / f"check-{gates.gates}"
-    with OutputContainer(out, OutputKind.SWEEP, inputs=inputs) as container:
-        report = run_gates(
-            gates, args.gates, container.path, args.workers, args.backend, args.address, baseline
-        )
+        check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
+    out = args.output or Path("runs") / f"check-{gates.gates.gates}"
+    report = check_folder(gates, out, args.workers, args.backend, args.address)
     print(format_report(report))
     if args.junit is not None:
         write_text_atomic(args.junit, junit_xml(report))

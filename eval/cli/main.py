@@ -226,25 +226,11 @@ def _png_level(text: str) -> int:
     return int(text)
 
 
-def _resolve_scenario(spec: str):
-    """A validated depotbench.scenes.schema.Scenario from a library name or a file."""
-    from depotbench.scenes import library
-    from depotbench.scenes.schema import load_scenario
-
-    path = Path(spec)
-    if path.suffix in (".yaml", ".yml", ".json") or path.exists():
-        return load_scenario(path)
-    return library.get(spec)
-
-
 def _cmd_generate(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from depotbench.scenes.generation import run_suite
-    from depotbench.scenes.schema import check_option, to_scenario
+    from depotbench.scenes.resolve import resolve
     from depotbench.scenes.suite import is_suite_file, load_suite
     from depotbench.sim.generate import generate
-    from depotbench.sim.spec import default_scenario
 
     path = Path(args.spec)
     if args.address and args.backend != "ray":
@@ -265,14 +251,11 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
         return 0
     changes = {
-        name: check_option(name, value, f"--{name}")
-        for name, value in (("frames", args.frames), ("seed", args.seed))
-        if value is not None
+        name: value for name, value in (("frames", args.frames), ("seed", args.seed)) if value is not None
     }
-    scenario = default_scenario() if args.spec == "default" else to_scenario(_resolve_scenario(args.spec))
     if args.flow:
         changes["flow"] = True
-    scenario = dataclasses.replace(scenario, **changes)
+    scenario = resolve(args.spec, changes)
     inputs = (path,) if path.exists() else ()
     out = generate(
         scenario, args.output, overwrite=args.overwrite, inputs=inputs, png_compression=args.png_compression
@@ -288,6 +271,7 @@ def _add_validate(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
+    from depotbench.scenes.resolve import scenario_model
     from depotbench.scenes.suite import is_suite_file, load_suite, variations
 
     path = Path(args.spec)
@@ -296,7 +280,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         frames = sum(sc.n_frames for _, _, sc in jobs)
         print(f"ok: suite with {len(jobs)} sequences, {frames} frames in all")
         return 0
-    scenario = _resolve_scenario(args.spec)
+    scenario = scenario_model(args.spec)
     print(
         f"ok: scenario '{scenario.name}', {scenario.n_frames} frames, "
         f"{sum(a.count for a in scenario.actors)} actors, camera {scenario.camera.motion}"

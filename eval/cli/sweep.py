@@ -35,26 +35,19 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from depotbench.core.output import OutputContainer, OutputKind
-    from depotbench.eval.sweep.engine import spec_inputs, validate
-    from depotbench.eval.sweep.execute import execute_sweep
-    from depotbench.eval.sweep.spec import load_sweep
+    from depotbench.eval.sweep.execute import sweep_folder
     from depotbench.eval.sweep.summary import format_best
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
-    spec = load_sweep(args.spec)
-    validate(spec, args.spec)  # before the output folder is made
-    with OutputContainer(args.output, OutputKind.SWEEP, inputs=spec_inputs(spec, args.spec)) as container:
-        outcome = execute_sweep(
-            spec,
-            args.spec,
-            container.path,
-            args.workers,
-            dedupe=not args.no_dedupe,
-            backend=args.backend,
-            address=args.address,
-        )
+    outcome = sweep_folder(
+        args.spec,
+        args.output,
+        args.workers,
+        dedupe=not args.no_dedupe,
+        backend=args.backend,
+        address=args.address,
+    )
     written, elapsed = outcome.written, outcome.seconds
     rate = f", {written / elapsed * 60:.1f} rows/min" if written and elapsed > 0 else ""
     shared = (

@@ -3,9 +3,47 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from depotbench.eval.gates.budgets import GateFile, GateReport
+
+
+@dataclass(frozen=True)
+class Gates:
+    """A gate file read and checked, with what it reads and the baseline's rows: all that
+    can be refused before any folder is made or any run starts."""
+
+    gates: GateFile
+    path: Path
+    inputs: tuple[Path, ...]
+    """The files the matrix reads (an output folder must not be one of them)."""
+    baseline: list[dict] | None
+
+
+def open_gates(path: Path, baseline: Path | None = None) -> Gates:
+    """The gate file at ``path`` with its matrix validated, and the rows of the earlier
+    run at ``baseline`` where its budgets compare against one (they need it)."""
+    from depotbench.core.errors import InputError
+    from depotbench.eval.gates.budgets import load_gates
+    from depotbench.eval.sweep.engine import spec_inputs, validate
+
+    gates = load_gates(path)
+    if baseline is None and any(b.endswith(".vs_baseline") for c in gates.checks for b in c.budgets):
+        raise InputError(f"{path}: its vs_baseline budgets need --baseline DIR (an earlier run's folder)")
+    validate(gates.run, path)
+    rows = load_baseline(baseline) if baseline is not None else None
+    return Gates(gates, path, spec_inputs(gates.run, path), rows)
+
+
+def check_folder(
+    gates: Gates, out: Path, workers: int, backend: str = "local", address: str | None = None
+) -> GateReport:
+    """``run_gates`` into the folder ``out`` (resumed if it is a depotbench run folder)."""
+    from depotbench.core.output import OutputContainer, OutputKind
+
+    with OutputContainer(out, OutputKind.SWEEP, inputs=gates.inputs) as container:
+        return run_gates(gates.gates, gates.path, container.path, workers, backend, address, gates.baseline)
 
 
 def run_gates(

@@ -197,6 +197,12 @@ class RunRecord:
     def to_row(self) -> dict[str, Any]:
         return asdict(self)
 
+    @classmethod
+    def from_row(cls, row: dict[str, Any]) -> RunRecord:
+        """A stored row as its record: its columns by name (columns a table derives, such
+        as rho, are not the record's and are left out)."""
+        return cls(**{name: row[name] for name in FIELDS if name in row})
+
 
 FIELDS = tuple(f.name for f in fields(RunRecord))
 TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")

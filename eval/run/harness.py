@@ -327,10 +327,34 @@ def run_sequence(
         tuple(sorted((settings or {}).items())),
         tracker or TrackerConfig(),
     )
+    return run_job(job, Path(out_dir), progress=progress, overwrite=overwrite, cache=cache).metrics
+
+
+@dataclass(frozen=True)
+class Finished:
+    """A run done: its metrics (the run folder's metrics.json) and its typed record."""
+
+    metrics: dict[str, Any]
+    record: RunRecord
+
+
+def run_job(
+    job: RunJob,
+    out_dir: Path | None,
+    *,
+    progress: bool = True,
+    overwrite: bool = False,
+    cache: StageCache | None = None,
+) -> Finished:
+    """Run ``job``; with ``out_dir``, leave the run folder there (trajectory, frames,
+    diagnostics, metrics and record, swapped into place whole), else write nothing."""
     sequence, config = prepare(job)
+    if out_dir is None:
+        tracked = _execute(job, sequence, config, cache, progress)
+        return Finished(tracked.metrics, record_of(job, sequence, tracked.metrics))
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
-    with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(Path(sequence_dir),)) as output:
+    with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(job.sequence,)) as output:
         tracked = _execute(job, sequence, config, cache, progress)
         run = tracked.run
         estimate = run.trajectory()
@@ -345,7 +369,7 @@ def run_sequence(
         record = record_of(job, sequence, tracked.metrics)
         (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
         output.commit()
-    return tracked.metrics
+    return Finished(tracked.metrics, record)
 
 
 def _time_stats(values_ms: np.ndarray) -> dict[str, float | None]:

@@ -12,10 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.files import dumps_json
-from depotbench.core.output import write_text_atomic
+from depotbench.core.output import OutputContainer, OutputKind, write_text_atomic
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
-from depotbench.eval.sweep.engine import expand, open_store, run_jobs, sequences_of
-from depotbench.eval.sweep.spec import SweepSpec
+from depotbench.eval.sweep.engine import expand, open_store, run_jobs, sequences_of, spec_inputs, validate
+from depotbench.eval.sweep.spec import SweepSpec, load_sweep
 from depotbench.eval.sweep.summary import best_per_family, configurations, pareto, plot, unqualified, with_rho
 
 
@@ -30,6 +31,11 @@ class SweepOutcome:
     seconds: float
     plots: list[Path]
     search: dict[str, Any] | None
+
+    @property
+    def records(self) -> list[RunRecord]:
+        """The rows as typed records (``sequence`` absolute, ``family`` this sweep's)."""
+        return [RunRecord.from_row(row) for row in self.rows]
 
 
 def execute_sweep(
@@ -94,3 +100,31 @@ def execute_sweep(
     write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
     plots = plot(configs, out / "plots", rows, rule)
     return SweepOutcome(rows, summary, len(jobs), written, tracked, elapsed, plots, search)
+
+
+def sweep_folder(
+    spec_path: Path,
+    out: Path,
+    workers: int,
+    *,
+    progress: bool = True,
+    dedupe: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> SweepOutcome:
+    """A sweep spec file run into the folder ``out``: the spec and every file it names are
+    checked before the folder is made, and an existing folder is resumed only if it is a
+    depotbench sweep folder (never someone else's files)."""
+    spec = load_sweep(spec_path)
+    validate(spec, spec_path)
+    with OutputContainer(out, OutputKind.SWEEP, inputs=spec_inputs(spec, spec_path)) as container:
+        return execute_sweep(
+            spec,
+            spec_path,
+            container.path,
+            workers,
+            progress=progress,
+            dedupe=dedupe,
+            backend=backend,
+            address=address,
+        )

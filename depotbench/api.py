@@ -1,0 +1,251 @@
+"""depotbench from Python: the command line's jobs as functions on typed values.
+
+Each function takes what its command takes, typed (paths, numbers, the configuration
+types of the parts), and returns a typed result instead of printing one:
+
+- ``scenario`` / ``generate`` / ``generate_suite``: scenarios and the sequences they render;
+- ``run``: one sequence through a detector and a tracker, as a ``RunRecord``;
+- ``sweep``: a sweep spec's matrix into a resumable folder, as a ``SweepResult``;
+- ``check``: a gate file's budgets, as a ``GateReport``;
+- ``compare``: sets of runs against a base, as ``SetComparison`` per set;
+- ``report``: the self-contained HTML page of a run or a sweep;
+- ``evaluate``: ATE and RPE of an estimate against a reference trajectory.
+
+Inputs are checked as the command line checks them (the same functions do it), and a bad
+one raises ``depotbench.core.errors.InputError`` with the one line the command would print.
+Nothing here prints except progress bars, which ``progress=False`` turns off.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the parts load when a function is called: ``import depotbench`` stays light
+    from depotbench.detectors.config import DetectorConfig
+    from depotbench.eval.gates.budgets import GateReport
+    from depotbench.eval.gates.compare import SetComparison
+    from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions
+    from depotbench.eval.metrics.record import RunRecord
+    from depotbench.eval.metrics.trajectory import Trajectory
+    from depotbench.eval.trackers.registry import TrackerConfig
+    from depotbench.sim.sequence import Sequence
+    from depotbench.sim.spec import ScenarioSpec
+
+Setting = int | float | str | bool
+"""A threshold's or parameter's value (``settings={"max_flow_px": 2.5}``)."""
+
+
+def scenario(spec: str | Path = "default", **changes: Any) -> ScenarioSpec:
+    """A scenario as the simulator takes it: a library name (``depotbench scenarios``), a YAML
+    file, or ``"default"``, with top-level fields changed (``seed=3, frames=40``), each checked
+    against the schema's limits."""
+    from depotbench.scenes.resolve import resolve
+
+    return resolve(spec, changes, option="")
+
+
+def generate(
+    spec: ScenarioSpec | str | Path,
+    out: str | Path,
+    *,
+    overwrite: bool = False,
+    progress: bool = False,
+    **changes: Any,
+) -> Sequence:
+    """Render a scenario (a ``scenario(...)`` or what ``scenario`` takes, with ``changes``) as
+    a sequence folder at ``out``, written whole or not at all; the opened sequence."""
+    import dataclasses
+
+    from depotbench.sim.generate import generate as write_sequence
+    from depotbench.sim.sequence import Sequence
+    from depotbench.sim.spec import ScenarioSpec
+
+    if isinstance(spec, ScenarioSpec):  # a typed spec: its own checks (__post_init__) hold
+        resolved, inputs = dataclasses.replace(spec, **changes), ()
+    else:
+        resolved = scenario(spec, **changes)
+        inputs = (Path(spec),) if Path(spec).exists() else ()  # the output must not replace it
+    folder = write_sequence(resolved, Path(out), overwrite=overwrite, progress=progress, inputs=inputs)
+    return Sequence.open(folder)
+
+
+def generate_suite(
+    suite: str | Path, out: str | Path, *, workers: int = 1, overwrite: bool = False, progress: bool = False
+) -> list[Sequence]:
+    """Every variation of a suite file (``scenes/suites/``) rendered under ``out`` (up-to-date
+    sequences are kept, held ones copied from the shared sequence store); the sequences in
+    the suite's order."""
+    from depotbench.scenes.generation import run_suite
+    from depotbench.scenes.suite import load_suite
+    from depotbench.sim.sequence import Sequence
+
+    path, out = Path(suite), Path(out)
+    index = run_suite(load_suite(path), path, out, workers, progress=progress, overwrite=overwrite)
+    return [Sequence.open(out / entry["name"]) for entry in index["sequences"]]
+
+
+def _detector(detector: DetectorConfig | str) -> DetectorConfig:
+    from depotbench.core.errors import InputError
+    from depotbench.detectors.config import DetectorConfig, DetectorConfigError, parse_detector
+
+    if isinstance(detector, DetectorConfig):
+        return detector
+    try:
+        return parse_detector(detector)
+    except DetectorConfigError as exc:
+        raise InputError(f"detector: {exc}") from None
+
+
+def _tracker(tracker: TrackerConfig | str, parameters: Mapping[str, Setting]) -> TrackerConfig:
+    from depotbench.core.errors import InputError
+    from depotbench.eval.trackers.registry import TrackerConfig, default_parameters, tracker_type
+    from depotbench.eval.trackers.registry import check as check_tracker
+
+    if isinstance(tracker, str):
+        kind = tracker_type(tracker)
+        if parameters and not kind.parameters:
+            raise InputError(f"parameters: tracker {kind.name} takes settings, not parameters")
+        given = {name: str(value) for name, value in parameters.items()}
+        tracker = TrackerConfig(
+            kind.name, parameters=tuple(sorted((default_parameters(kind.name) | given).items()))
+        )
+    elif parameters:
+        raise InputError("parameters: give them in the TrackerConfig")
+    check_tracker(tracker)
+    return tracker
+
+
+def run(
+    sequence: Sequence | str | Path,
+    out: str | Path | None = None,
+    *,
+    strategy: str = "none",
+    detector: DetectorConfig | str = "groundtruth",
+    settings: Mapping[str, Setting] | None = None,
+    tracker: TrackerConfig | str = "builtin",
+    parameters: Mapping[str, Setting] | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    cache: bool = True,
+) -> RunRecord:
+    """Track a sequence with a rejection ``strategy``, boxes from ``detector`` (a
+    ``DetectorConfig`` or its text, ``"onnx"``, ``"groundtruth+miss=0.3"``) and threshold
+    ``settings``; ``tracker``: a registry name (``builtin``, ``orbslam3``) or a whole
+    ``TrackerConfig`` (a ``cmd`` tracker needs its command). With ``out``, the run folder is
+    written there (trajectory, frames, metrics, record: what ``depotbench report`` reads);
+    without, nothing is written. ``cache``: reuse detections, features and flow from the
+    stage cache (``DEPOTBENCH_CACHE``), as the command line does."""
+    from depotbench.eval.run.cache import StageCache
+    from depotbench.eval.run.harness import RunJob, run_job
+    from depotbench.sim.sequence import Sequence
+
+    root = sequence.root if isinstance(sequence, Sequence) else Path(sequence)
+    job = RunJob(
+        root,
+        strategy,
+        _detector(detector),
+        tuple(sorted((name, str(value)) for name, value in (settings or {}).items())),
+        _tracker(tracker, parameters or {}),
+    )
+    stages = StageCache.from_env() if cache else None
+    finished = run_job(
+        job, None if out is None else Path(out), progress=progress, overwrite=overwrite, cache=stages
+    )
+    return finished.record
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """A sweep done (or resumed): its runs, what was best, and where its files are."""
+
+    folder: Path
+    records: list[RunRecord]
+    """Every run of the matrix, failed ones included (``failure`` says why)."""
+    best: dict[str, Any]
+    """The best configuration of each family (summary.json's ``best``)."""
+    summary: dict[str, Any]
+    """All of summary.json: every configuration's statistics over its seeds, the Pareto front."""
+    written: int
+    """Runs done now (the others were in the folder already)."""
+    plots: list[Path]
+
+
+def sweep(
+    spec: str | Path,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    progress: bool = False,
+    dedupe: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> SweepResult:
+    """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows):
+    results.sqlite, results.csv, summary.json and plots, as ``depotbench sweep`` leaves them."""
+    from depotbench.eval.sweep.execute import sweep_folder
+
+    out = Path(out)
+    outcome = sweep_folder(
+        Path(spec), out, workers, progress=progress, dedupe=dedupe, backend=backend, address=address
+    )
+    return SweepResult(
+        out, outcome.records, outcome.summary["best"], outcome.summary, outcome.written, outcome.plots
+    )
+
+
+def check(
+    gates: str | Path,
+    out: str | Path,
+    *,
+    baseline: str | Path | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
+) -> GateReport:
+    """A gate file's matrix run into ``out`` (resumed) and its budgets checked; ``baseline``:
+    an earlier check's or sweep's folder, for ``vs_baseline`` budgets. The report's ``passed``
+    and ``failures`` say what ``depotbench check`` would exit with and print."""
+    from depotbench.eval.gates.check import check_folder, open_gates
+
+    opened = open_gates(Path(gates), None if baseline is None else Path(baseline))
+    return check_folder(opened, Path(out), workers, backend, address)
+
+
+def compare(base: str | Path, *others: str | Path) -> dict[Path, SetComparison]:
+    """Each folder of ``others`` (a sweep's or a check's) against ``base``, run by run paired by
+    sequence: per figure the change, its 95 % interval and whether it is significant."""
+    from depotbench.core.errors import InputError
+    from depotbench.eval.gates.compare import compare_rows, load_rows
+
+    if not others:
+        raise InputError("compare needs two folders or more: the base, then what to compare with it")
+    rows = load_rows(Path(base))
+    return {Path(other): compare_rows(rows, load_rows(Path(other))) for other in others}
+
+
+def report(source: str | Path, out: str | Path) -> Path:
+    """The self-contained HTML page of a run folder or a sweep folder, written as
+    ``out``/index.html (a folder of depotbench reports, or a new or empty one); its path."""
+    from depotbench.eval.report.write import report_folder
+
+    return report_folder(Path(source), Path(out)).page
+
+
+def evaluate(
+    reference: Trajectory | str | Path,
+    estimate: Trajectory | str | Path,
+    options: ComparisonOptions | None = None,
+) -> Comparison:
+    """ATE and RPE of ``estimate`` against ``reference`` (TUM files or trajectories), associated
+    by time and aligned as ``options`` say (SE(3) by default): what ``depotbench eval`` prints."""
+    from depotbench.eval.metrics.evaluate import ComparisonOptions
+    from depotbench.eval.metrics.evaluate import compare as compare_trajectories
+    from depotbench.eval.metrics.trajectory import Trajectory, read_tum
+
+    def opened(value: Trajectory | str | Path) -> Trajectory:
+        return value if isinstance(value, Trajectory) else read_tum(value)
+
+    return compare_trajectories(opened(reference), opened(estimate), options or ComparisonOptions())
