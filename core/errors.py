@@ -25,7 +25,7 @@ class FileError(InputError):
 
 
 class SequenceFormatError(FileError):
-    """A folder or file breaks the sequence contract of design.md."""
+    """A folder or file breaks the sequence format (docs/format.md)."""
 
 
 class ScenarioError(InputError):

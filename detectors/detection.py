@@ -1,7 +1,7 @@
 """The plain detection type that crosses from detectors into SLAM.
 
 This module imports nothing from the project: ``slam`` may import it and nothing
-else outside its own package (design.md, import graph).
+else outside its own package (the import graph, tests/test_architecture.py).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from enum import StrEnum
 
 
 class Prior(StrEnum):
-    """How likely a class is to move (design.md, method 1)."""
+    """How likely a class is to move (docs/methods.md, method 1)."""
 
     DYNAMIC = "dynamic"
     POTENTIAL = "potential"

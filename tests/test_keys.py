@@ -102,7 +102,7 @@ EDITS: dict[str, Callable[[Path], None]] = {
     "gt/depth/*.png": _pixel,
     "gt/flow/*.npz": _flow,
 }
-"""One edit per file kind of the sequence format (design.md); each keeps the sequence valid."""
+"""One edit per file kind of the sequence format (docs/format.md); each keeps the sequence valid."""
 
 
 def _kind(relative: Path) -> str:

@@ -140,9 +140,9 @@ def resolve_sequence(recorded: str, base: Path) -> Path | None:
     """The folder a stored sequence path names, or None when there is none.
 
     Absolute: as is. Relative: against ``base`` (the sweep or run folder, where a writer
-    keeps a path that travels with it) first, then the working directory (0.3.15 stored
-    paths relative to where the sweep ran, ``specs/../seq``; probe D6). Resolved, so that
-    the sequence's fingerprint, which holds its folder, is the one the sweep computed.
+    keeps a path that travels with it) first, then the working directory (older sweeps
+    stored paths relative to where they ran, ``specs/../seq``). Resolved, so that the
+    sequence's fingerprint, which holds its folder, is the one the sweep computed.
     """
     path = Path(recorded)
     candidates = [path] if path.is_absolute() else [base / path, path]
@@ -151,7 +151,7 @@ def resolve_sequence(recorded: str, base: Path) -> Path | None:
 
 def open_sequence(recorded: Any, base: Path) -> tuple[Sequence | None, str | None]:
     """The sequence a run or row names, or None and why: not found, or damaged (a lost frame
-    file: probe M8). The reason is for the page and the warning line, never dropped."""
+    file). The reason is for the page and the warning line, never dropped."""
     if not isinstance(recorded, str) or not recorded:
         return None, "the run names no sequence (metrics.json has no sequence path)"
     root = resolve_sequence(recorded, base)
@@ -170,8 +170,8 @@ def _inside(path: Path, root: Path) -> bool:
 
 
 # -- reading a run folder, within bounds -------------------------------------------------
-# The bounded readers of sim/files.py (regular files only, size-checked before reading):
-# frames.csv -> /dev/zero or a 2 GB metrics.json were read until memory ran out (probe C4).
+# The bounded readers of core/files.py (regular files only, size-checked before reading):
+# a frames.csv linked to /dev/zero would otherwise be read until memory runs out.
 
 MAX_METRICS_BYTES = 1 * MIB
 """metrics.json holds statistics, not per-frame values: about 3 KB whatever the run's length."""
@@ -798,7 +798,7 @@ def _first_problem(source: str, exc: ValidationError) -> str:
 
 
 def read_summary(path: Path) -> dict[str, Any]:
-    """summary.json, each part of the kind the page reads (probe C10: ``{}`` was a KeyError)."""
+    """summary.json, each part of the kind the page reads (``{}`` is refused by name, not a KeyError)."""
     try:
         text = read_text(path, MAX_SUMMARY_BYTES, "sweep's summary.json")
     except FileNotFoundError:

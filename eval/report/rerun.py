@@ -4,9 +4,9 @@ Per frame: the RGB image with its keypoints coloured by decision, the same keypo
 coloured by true label, the camera's estimated and true positions so far, and the
 position error. Open the file with ``rerun FILE.rrd``.
 
-Rerun writes into a pipe and this module copies the pipe into the file. Rerun's own file
-writer, on a full disk, logged ERROR lines, then raised "File-writer thread shut down
-prematurely" or hung in ``flush`` (3 times in 5; probe C6); here a failed write is an
+Rerun writes into a pipe and this module copies the pipe into the file: on a full disk
+Rerun's own file writer logs ERROR lines and then raises "File-writer thread shut down
+prematurely" or hangs in ``flush`` (3 times in 5 tries); here a failed write is an
 ``OSError`` of ours, named in one line, and the partial file is removed.
 """
 

@@ -203,7 +203,7 @@ class ResultStore:
             if kind is float and isinstance(value, int):
                 row[name], good = float(value), True
             elif kind is int and isinstance(value, float) and value.is_integer():
-                row[name], good = int(value), True  # 0.3.15 kept some counts in REAL columns
+                row[name], good = int(value), True  # older stores kept some counts in REAL columns
             if not good:
                 raise StoreError(
                     f"{self.path}: row {str(row.get('key'))[:16]}: {name} is {value!r}, not "
