@@ -2,11 +2,14 @@
 
 A scenario file describes what a user wants (counts, speed ranges, a camera
 motion, a sensor); ``to_scenario`` turns it, with its seed, into the simulator's
-exact ``depotbench.sim.spec.ScenarioSpec``.
+exact ``depotbench.sim.spec.ScenarioSpec``. The choices (actor kinds, paths, camera
+motions, clothing) and the defaults are the simulator's, read from its spec and its
+table of actor kinds (``depotbench.sim.actor_registry``), not written here again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
@@ -15,6 +18,7 @@ import numpy as np
 import yaml
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
+from depotbench.sim import actor_registry
 from depotbench.sim import spec as sim_spec
 from depotbench.sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
 from pydantic import (
@@ -35,6 +39,14 @@ MAX_FRAMES = 100_000
 MAX_ACTORS = 40
 MAX_CHAIRS = 12
 MAX_IMAGE_SIDE = sim_spec.MAX_IMAGE_SIDE
+SCENARIO, LAYOUT, CAMERA, SENSOR = (
+    sim_spec.ScenarioSpec(),
+    sim_spec.LayoutSpec(),
+    sim_spec.CameraSpec(),
+    sim_spec.SensorSpec(),
+)
+"""The simulator's defaults, which a scenario file's are."""
+ACTOR_DEFAULTS = {f.name: f.default for f in dataclasses.fields(sim_spec.ActorSpec)}
 MIN_CHAIR_SPACING_M = 0.9
 """Chairs closer than this overlap (each is about 0.9 m across with its legs)."""
 MAX_YAML_NODES = 100_000
@@ -69,14 +81,14 @@ class Strict(BaseModel):
 
 
 class Image(Strict):
-    width: int = Field(640, ge=16, le=MAX_IMAGE_SIDE)
-    height: int = Field(480, ge=16, le=MAX_IMAGE_SIDE)
+    width: int = Field(SCENARIO.width, ge=sim_spec.MIN_IMAGE_SIDE, le=MAX_IMAGE_SIDE)
+    height: int = Field(SCENARIO.height, ge=sim_spec.MIN_IMAGE_SIDE, le=MAX_IMAGE_SIDE)
 
 
 class IntrinsicsSpec(Strict):
     """Pinhole intrinsics. MuJoCo cameras have square pixels and a centred principal point."""
 
-    fx: PositiveFloat = 525.0
+    fx: PositiveFloat = SCENARIO.focal_px
     fy: PositiveFloat | None = None
     cx: float | None = None
     cy: float | None = None
@@ -84,14 +96,13 @@ class IntrinsicsSpec(Strict):
 
 class Layout(Strict):
     size_m: tuple[Annotated[float, Field(ge=8, le=60)], Annotated[float, Field(ge=8, le=60)]] = (
-        14.0,
-        11.0,
+        LAYOUT.hall_size_m
     )
-    height_m: float = Field(4.5, ge=3.0, le=15.0)
-    rack_rows: int = Field(2, ge=0, le=4)
-    racks_per_row: int = Field(3, ge=0, le=8)
-    props: int = Field(10, ge=0, le=60)
-    desk: bool = True
+    height_m: float = Field(LAYOUT.hall_height_m, ge=3.0, le=15.0)
+    rack_rows: int = Field(LAYOUT.rack_rows, ge=0, le=4)
+    racks_per_row: int = Field(LAYOUT.racks_per_row, ge=0, le=8)
+    props: int = Field(LAYOUT.floor_props, ge=0, le=60)
+    desk: bool = LAYOUT.desk
     seed: int | None = Field(None, ge=0, description="fixes the layout across a suite's variations")
 
     def to_spec(self) -> sim_spec.LayoutSpec:
@@ -105,21 +116,42 @@ class Layout(Strict):
         )
 
 
+def _choices(values: tuple[str, ...]) -> str:
+    """'a', 'b' or 'c', as pydantic words a Literal's."""
+    quoted = [repr(v) for v in values]
+    return quoted[0] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
+
+
+def _kind_enum(schema: dict[str, Any]) -> None:
+    schema["enum"] = list(actor_registry.names())
+
+
 class Actor(Strict):
-    kind: Literal["person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird"]
+    kind: str = Field(json_schema_extra=_kind_enum, description="an actor kind (sim/actor_registry.py)")
+    """Read from the table of kinds when validated, so a kind registered later is accepted."""
     count: int = Field(1, ge=0, le=MAX_ACTORS)
-    speed_mps: NumberOrRange = 1.1
-    path: Literal["loop", "random_walk", "seated"] = "loop"
+    speed_mps: NumberOrRange = ACTOR_DEFAULTS["speed_mps"]
+    path: Literal[sim_spec.PATH_MODES] = ACTOR_DEFAULTS["path"]  # type: ignore[valid-type]
     waypoints: list[tuple[float, float]] | None = None
-    clothing: Literal["plain", "stripes", "plaid", "any"] = "any"
+    clothing: Literal[(*sim_spec.CLOTHING, "any")] = "any"  # type: ignore[valid-type]
     scale: NumberOrRange | None = None
+
+    @field_validator("kind")
+    @classmethod
+    def _kind(cls, value: str) -> str:
+        if value not in actor_registry.names():
+            raise ValueError(f"Input should be {_choices(actor_registry.names())}")
+        return value
 
     @field_validator("speed_mps")
     @classmethod
     def _speed(cls, value: float | tuple[float, float]) -> float | tuple[float, float]:
         low, high = (value, value) if isinstance(value, int | float) else value
-        if not (0.0 <= low <= high <= 5.0):
-            raise ValueError("speed must lie in [0, 5] m/s, as a number or a [low, high] range")
+        least, most = sim_spec.SPEED_RANGE_MPS
+        if not (least <= low <= high <= most):
+            raise ValueError(
+                f"speed must lie in [{least:g}, {most:g}] m/s, as a number or a [low, high] range"
+            )
         return value
 
     @field_validator("scale")
@@ -134,8 +166,11 @@ class Actor(Strict):
 
     @model_validator(mode="after")
     def _path_fits_kind(self) -> Actor:
-        if (self.kind == "sitting_person") != (self.path == "seated"):
-            raise ValueError("path 'seated' goes with kind 'sitting_person', and only with it")
+        paths = actor_registry.get(self.kind).place.paths
+        if self.path not in paths:
+            raise ValueError(
+                f"path {self.path!r} does not go with kind {self.kind!r}, which takes {_choices(paths)}"
+            )
         if self.waypoints is not None and len(self.waypoints) < 2:
             raise ValueError("waypoints need at least two [x, y] points")
         return self
@@ -147,27 +182,27 @@ class Chair(Strict):
 
 
 class Camera(Strict):
-    motion: Literal["static", "xyz", "rpy", "halfsphere", "robot"] = "static"
-    position_m: tuple[float, float, float] = (0.0, -3.2, 1.45)
-    target_m: tuple[float, float, float] = (0.0, 1.5, 0.9)
-    amplitude_m: float = Field(0.25, ge=0, le=3)
-    amplitude_deg: float = Field(12.0, ge=0, le=60)
-    period_s: float = Field(6.0, gt=0.2, le=600)
-    speed_mps: float = Field(0.6, ge=0, le=5)
+    motion: Literal[sim_spec.CAMERA_MOTIONS] = CAMERA.motion  # type: ignore[valid-type]
+    position_m: tuple[float, float, float] = CAMERA.position_m
+    target_m: tuple[float, float, float] = CAMERA.target_m
+    amplitude_m: float = Field(CAMERA.amplitude_m, ge=0, le=3)
+    amplitude_deg: float = Field(CAMERA.amplitude_deg, ge=0, le=60)
+    period_s: float = Field(CAMERA.period_s, gt=0.2, le=600)
+    speed_mps: float = Field(CAMERA.speed_mps, ge=0, le=5)
 
 
 class Lighting(Strict):
-    intensity: float = Field(0.9, gt=0, le=3)
+    intensity: float = Field(SCENARIO.light_intensity, gt=0, le=3)
 
 
 class Sensor(Strict):
-    depth_noise: bool = False
-    disparity_quantisation: bool = False
-    depth_range_m: tuple[float, float] = (0.0, 13.0)
-    edge_dropout: float = Field(0.0, ge=0, le=1)
-    rgb_noise_sigma: float = Field(0.0, ge=0, le=50)
-    motion_blur_exposure_s: float = Field(0.0, ge=0, le=0.1)
-    exposure_variation: float = Field(0.0, ge=0, le=1)
+    depth_noise: bool = SENSOR.depth_noise
+    disparity_quantisation: bool = SENSOR.disparity_quantisation
+    depth_range_m: tuple[float, float] = SENSOR.depth_range_m
+    edge_dropout: float = Field(SENSOR.edge_dropout, ge=0, le=1)
+    rgb_noise_sigma: float = Field(SENSOR.rgb_noise_sigma, ge=0, le=50)
+    motion_blur_exposure_s: float = Field(SENSOR.motion_blur_exposure_s, ge=0, le=0.1)
+    exposure_variation: float = Field(SENSOR.exposure_variation, ge=0, le=1)
 
     @field_validator("depth_range_m")
     @classmethod
@@ -193,10 +228,10 @@ class Scenario(Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
     description: str = ""
     tags: list[Annotated[str, Field(pattern=r"^[a-z0-9-]{1,32}$")]] = []
-    seed: int = Field(0, ge=0, le=2**32 - 1)
+    seed: int = Field(SCENARIO.seed, ge=0, le=2**32 - 1)
     duration_s: float | None = Field(None, gt=0, le=3600)
     frames: int | None = Field(None, ge=1, le=MAX_FRAMES)
-    fps: float = Field(30.0, ge=1, le=240)
+    fps: float = Field(SCENARIO.fps, ge=sim_spec.FPS_RANGE[0], le=sim_spec.FPS_RANGE[1])
     image: Image = Image()
     intrinsics: IntrinsicsSpec = IntrinsicsSpec()
     layout: Layout = Layout()
@@ -206,7 +241,7 @@ class Scenario(Strict):
     lighting: Lighting = Lighting()
     sensor: Sensor = Sensor()
     """``perfect``, ``kinect`` or a mapping of sensor settings."""
-    flow: bool = False
+    flow: bool = SCENARIO.flow
 
     @field_validator("sensor", mode="before")
     @classmethod
@@ -230,10 +265,13 @@ class Scenario(Strict):
         self._check_intrinsics()
         if sum(a.count for a in self.actors) > MAX_ACTORS:
             raise ValueError(f"actors: at most {MAX_ACTORS} actors in all")
-        if any(a.kind == "chair_pusher" and a.count for a in self.actors) and not self.chairs:
-            raise ValueError("chairs: a chair_pusher needs at least one chair")
-        if any(a.kind == "sitting_person" and a.count for a in self.actors) and not self.layout.desk:
-            raise ValueError("layout.desk: a sitting_person needs the desk (layout.desk: true)")
+        wanted = {a.kind: actor_registry.get(a.kind).place.needs for a in self.actors if a.count}
+        for kind, needs in wanted.items():
+            if needs == "chair" and not self.chairs:
+                raise ValueError(f"chairs: a {kind} needs at least one chair")
+        for kind, needs in wanted.items():
+            if needs == "desk" and not self.layout.desk:
+                raise ValueError(f"layout.desk: a {kind} needs the desk (layout.desk: true)")
         self._check_geometry()
         return self
 

@@ -24,6 +24,7 @@ from depotbench.sim.figures import (
     person_surfaces,
     quadruped_surfaces,
 )
+from depotbench.sim.kinds import QuadrupedBody
 from depotbench.sim.paths import Path
 from depotbench.sim.products import product
 
@@ -132,10 +133,9 @@ class Gait:
 
 
 class Actor:
-    """Base: an instance made of parts, posed as a function of time."""
+    """Base: an instance made of parts, posed as a function of time. Its class and prior
+    are its kind's (``actor_registry``), not the actor's: one body moves several kinds."""
 
-    class_name = "object"
-    prior = "dynamic"
     parts: list[Part]
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -212,8 +212,6 @@ def dressed(
 
 class Walker(Actor):
     """A person: pelvis, torso, head, arms, legs, feet; walks a path with swinging arms."""
-
-    class_name = "person"
 
     def __init__(
         self,
@@ -307,8 +305,6 @@ class Walker(Actor):
 class SittingPerson(Actor):
     """A person seated at the desk: small torso sway, head turns, typing hands."""
 
-    class_name = "person"
-
     def __init__(
         self,
         seat: tuple[float, float, float],
@@ -372,47 +368,21 @@ class SittingPerson(Actor):
         return np.array(positions), np.array(rotations)
 
 
-@dataclass(frozen=True)
-class QuadrupedBuild:
-    class_name: str
-    body_half: tuple[float, float, float]
-    leg_m: float
-    stride_m: float
-    coat: str
-    tail_m: float
-    """Tail length."""
-    tail_rise: float
-    """How high the tail is carried: its direction is back + this much up."""
-    head_rise: float = 0.0
-    """How high the neck carries the head above a pig's, in body half-widths."""
-
-
-QUADRUPEDS = {
-    # Legs about as long as the chest is deep and the head carried up on a neck: a
-    # dog's outline, not a horse's (long legs) or a table's (head at the back's height).
-    "dog": QuadrupedBuild("dog", (0.3, 0.12, 0.14), 0.34, 0.6, "fur_dog", 0.3, 0.8, 0.75),
-    # A cat's body is as deep as its legs are long, and broad: the slim build it had
-    # (0.075 x 0.085 m half-sections) was called dog, bird or horse from most sides.
-    "cat": QuadrupedBuild("cat", (0.21, 0.1, 0.11), 0.19, 0.35, "fur_cat", 0.3, 1.2, 0.5),
-    "pig": QuadrupedBuild("pig", (0.45, 0.22, 0.22), 0.34, 0.6, "fur_pig", 0.09, 0.8),
-}
-
-
 class Quadruped(Actor):
-    """Dog, cat or pig: body, head, snout, tail and four two-segment legs; walk or trot."""
+    """A four-legged animal (``QuadrupedBody``): body, head, snout, tail and four
+    two-segment legs; walk or trot."""
 
     def __init__(
         self,
-        build: QuadrupedBuild,
+        body: QuadrupedBody,
         path: Path,
         speed: float,
         start_s: float,
         look: AnimalLook | None = None,
         materials: dict[str, str] | None = None,
     ) -> None:
-        self.build = b = build
-        self.class_name = b.class_name
-        hx, hy, hz = b.body_half
+        self.animal = b = body
+        hx, hy, hz = b.half_m
         half_leg = b.leg_m / 2
         trot = speed > 0.9 * b.stride_m
         duty = 0.55 if trot else 0.7
@@ -432,7 +402,8 @@ class Quadruped(Actor):
         offset = duty / 2 * b.stride_m
         self.hip_z = min(0.95 * b.leg_m, math.sqrt(reach**2 - offset**2)) + self.paw_r
         self.gait = Gait(path, speed, b.stride_m, duty, 0.25 * b.leg_m, start_s)
-        coat = b.coat
+        # The primitives only collide (group HIDDEN_GROUP): they wear the animal's own coat.
+        coat = (materials or {}).get("coat", "coat")
         self.parts = [
             Part("body", "ellipsoid", (hx, hy, hz), coat),
             Part("head", "ellipsoid", (0.45 * hy + 0.04, 0.8 * hy, 0.75 * hz), coat),
@@ -450,13 +421,11 @@ class Quadruped(Actor):
         """Draw the parts as pieces of one furred body (figures.py)."""
         frames = self.part_frames(*self.bind())
         centre, rotation = frames["tail"]
-        half = rotation[:, 2] * self.build.tail_m / 2  # the tail's frame sits mid-tail, z along it
+        half = rotation[:, 2] * self.animal.tail_m / 2  # the tail's frame sits mid-tail, z along it
         drawn = quadruped_surfaces(
-            self.build.class_name,
-            self.build.body_half,
+            self.animal,
             frames,
             [np.array(leg.hip_body) for leg in self.legs],
-            self.build.leg_m,
             self.paw_r,
             (centre - half, centre + half),
             look,
@@ -467,7 +436,7 @@ class Quadruped(Actor):
         s = self.gait.arc(t)
         xy = self.gait.path.point(s)
         bob = 0.01 * math.cos(4 * math.pi * (s - self.gait.start_s) / self.gait.stride)
-        return np.array([xy[0], xy[1], self.hip_z + 0.5 * self.build.body_half[2] + bob]), yaw_matrix(
+        return np.array([xy[0], xy[1], self.hip_z + 0.5 * self.animal.half_m[2] + bob]), yaw_matrix(
             float(self.gait.path.heading(s))
         )
 
@@ -480,11 +449,11 @@ class Quadruped(Actor):
         self, centre: np.ndarray, body: np.ndarray, feet: list[np.ndarray]
     ) -> tuple[np.ndarray, np.ndarray]:
         """Every part's pose for the body at (centre, body) and the paws at ``feet``."""
-        hx, hy, hz = self.build.body_half
+        hx, hy, hz = self.animal.half_m
         fwd, up = body[:, 0], body[:, 2]
-        head = centre + product(body, np.array([hx + 0.3 * hy, 0.0, 0.9 * hz + self.build.head_rise * hy]))
+        head = centre + product(body, np.array([hx + 0.3 * hy, 0.0, 0.9 * hz + self.animal.head_rise * hy]))
         snout = head + fwd * (0.9 * hy)
-        tail_dir = -fwd + self.build.tail_rise * up
+        tail_dir = -fwd + self.animal.tail_rise * up
         tail_len = 2 * self.parts[3].size[1]
         tail = centre - fwd * hx + tail_dir / np.linalg.norm(tail_dir) * (tail_len / 2 + 0.02)
         positions = [centre, head, snout, tail]
@@ -511,7 +480,6 @@ class Bird(Actor):
     """A pigeon: hops along its path with its wings folded and now and then makes a
     short flight, wings spread and flapping."""
 
-    class_name = "bird"
     HOP_S, HOP_M, PAUSE_S = 0.3, 0.14, 0.2
     TUCK = math.radians(40.0)
     """A folded wing lies swept back along the body, its chord this far down the flank."""

@@ -23,8 +23,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from depotbench.sim import actor_registry
 from depotbench.sim.conventions import frame_along
 from depotbench.sim.draws import pick
+from depotbench.sim.kinds import QuadrupedBody
 from depotbench.sim.products import product
 from depotbench.sim.shapes import (
     Field,
@@ -40,7 +42,6 @@ from depotbench.sim.shapes import (
     smooth_union,
     union,
 )
-from depotbench.sim.textures import COAT_WIDTH_M, LAID_ON
 
 ARM_SPREAD_DEG = 14.0
 """Arms of the bind pose hang this far from the body, so they do not melt into it."""
@@ -112,8 +113,8 @@ class Bone:
     """How far beyond its flesh radius the part may reach (m): the meshing box."""
     box: tuple[np.ndarray, np.ndarray] | None = None
     """The meshing box (lower, upper corners), where the part's flesh does not lie along
-    the bone: a cat's curved tail fills a thin band of the box ``pad`` would give, which
-    then costs its 3.6 mm cells cubed (1.75 million points; a cat built in 4.0 s, now 0.85)."""
+    the bone: a curved tail fills a thin band of the box ``pad`` would give, and meshing
+    costs the box's volume in cells (a cat's tail box alone is 1.75 million 3.6 mm cells)."""
 
 
 def person_bind(s: float) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict[str, np.ndarray]]:
@@ -475,7 +476,7 @@ class AnimalLook:
     """Seeded variation of an animal's shape (its coat is a texture)."""
 
     ears: str
-    """'floppy' or 'erect' (dogs; cats' are erect, pigs' floppy)."""
+    """'floppy' or 'erect' (``QuadrupedBody.ears``, or drawn where it leaves them open)."""
     muzzle: float
     """Muzzle length factor."""
     build: float
@@ -483,7 +484,10 @@ class AnimalLook:
 
     @staticmethod
     def draw(rng: np.random.Generator, kind: str) -> AnimalLook:
-        ears = {"cat": "erect", "pig": "floppy"}.get(kind) or pick(rng, ("floppy", "erect"))
+        """The look of an animal of ``kind`` (a quadruped's name in ``actor_registry``)."""
+        body = actor_registry.get(kind).body
+        assert isinstance(body, QuadrupedBody), f"{kind} is not a four-legged animal"
+        ears = body.ears or pick(rng, ("floppy", "erect"))
         return AnimalLook(ears, float(rng.uniform(0.85, 1.2)), float(rng.uniform(0.9, 1.12)))
 
 
@@ -526,65 +530,61 @@ def wrapped(
 
 
 def quadruped_surfaces(
-    kind: str,
-    half: tuple[float, float, float],
+    animal: QuadrupedBody,
     frames: dict[str, tuple[np.ndarray, np.ndarray]],
     hips: list[np.ndarray],
-    leg_m: float,
     paw_r: float,
     tail: tuple[np.ndarray, np.ndarray],
     look: AnimalLook,
 ) -> dict[str, tuple[Surface, ...]]:
-    """A dog, cat or pig in its bind pose (standing, straight legs; frames from
-    ``Quadruped.bind``), cut into its 12 parts. Roles: coat, nose, hoof, eye."""
-    hx, hy, hz = half
+    """A four-legged animal of proportions ``animal`` in its bind pose (standing, straight
+    legs; frames from ``Quadruped.bind``), cut into its 12 parts. Roles: coat, nose, hoof,
+    eye (and iris)."""
+    hx, hy, hz = animal.half_m
+    leg_m = animal.leg_m
     b = look.build
-    pig, cat = kind == "pig", kind == "cat"
     head = frames["head"][0]
-    trunk = [
-        ellipsoid((0.35 * hx, 0.0, 0.05 * hz), (0.62 * hx, 0.95 * hy * b, 1.1 * hz * b)),
-        ellipsoid((-0.4 * hx, 0.0, 0.1 * hz), (0.62 * hx, 0.9 * hy * b, 0.92 * hz * b)),
-    ]
-    if pig:
+    if animal.barrel:
         trunk = [ellipsoid((0.0, 0.0, 0.0), (1.0 * hx, 0.95 * hy * b, 0.95 * hz * b))]
+    else:
+        trunk = [
+            ellipsoid((0.35 * hx, 0.0, 0.05 * hz), (0.62 * hx, 0.95 * hy * b, 1.1 * hz * b)),
+            ellipsoid((-0.4 * hx, 0.0, 0.1 * hz), (0.62 * hx, 0.9 * hy * b, 0.92 * hz * b)),
+        ]
     for sign in (1.0, -1.0):
         trunk += [
             ellipsoid((0.68 * hx, sign * 0.5 * hy, -0.3 * hz), (0.24 * hx, 0.42 * hy, 0.85 * hz)),
             ellipsoid((-0.68 * hx, sign * 0.48 * hy, -0.15 * hz), (0.3 * hx, 0.48 * hy, 0.9 * hz)),
         ]
-    # A cat's head is large for its body: this head (a tenth larger than it was) and the
-    # stockier body (actors.QUADRUPEDS) raised the cats YOLOX-nano finds in
-    # dog_and_cat_roaming from 0.52 to 0.63 (seeds 1-10; docs/recognition.md).
-    skull_r = (0.9 * hy, 0.78 * hy, 0.8 * hy) if not cat else (1.012 * hy, 1.045 * hy, 0.968 * hy)
-    if pig:
-        skull_r = (0.75 * hy, 0.62 * hy, 0.68 * hy)
-    muzzle_len = (0.25 if cat else 1.0 if pig else 1.25) * hy * look.muzzle  # a cat's face is flat
-    muzzle_r = (0.32 if cat else 0.45 if pig else 0.42) * hy
+    skull_r = tuple(k * hy for k in animal.skull)
+    muzzle_len = animal.muzzle * hy * look.muzzle
+    muzzle_r = animal.muzzle_radius * hy
     tip = head + np.array([0.45 * hy + muzzle_len, 0.0, -0.25 * hy])
     head_parts = [
         ellipsoid(head, skull_r),
         round_cone(head + np.array([0.35 * hy, 0.0, -0.12 * hy]), tip, muzzle_r * 1.2, muzzle_r),
         round_cone(head - np.array([0.7 * hy, 0.0, 0.5 * hy]), head, 0.55 * hy * b, 0.5 * hy),
     ]
-    if not pig:  # the neck rises from the chest to the raised head
+    if animal.head_rise > 0:  # the neck rises from the chest to the raised head
         neck_base = np.array([0.55 * hx, 0.0, 0.35 * hz])
         head_parts.append(round_cone(neck_base, head - [0.3 * hy, 0.0, 0.25 * hy], 0.75 * hy * b, 0.62 * hy))
-    nose_centre = tip + np.array([0.8 * muzzle_r, 0.0, 0.1 * muzzle_r])
-    nose_r = np.array([0.3, 0.55, 0.4]) * muzzle_r if not pig else np.array([0.2, 0.95, 0.85]) * muzzle_r
-    nose = ellipsoid(nose_centre if not pig else tip + [0.85 * muzzle_r, 0, 0], nose_r)
+    ahead, above = animal.nose_at
+    nose = ellipsoid(
+        tip + np.array([ahead * muzzle_r, 0.0, above * muzzle_r]), np.array(animal.nose) * muzzle_r
+    )
     for sign in (1.0, -1.0):
         if look.ears == "erect":
             base = head + np.array([-0.15 * skull_r[0], sign * 0.5 * skull_r[1], 0.7 * skull_r[2]])
-            ear_tip = base + np.array([-0.1, sign * 0.25, 1.0]) * (1.05 if cat else 0.75) * skull_r[2]
-            ear_r = (0.36 if cat else 0.3) * skull_r[1]
+            ear_tip = base + np.array([-0.1, sign * 0.25, 1.0]) * animal.ear_height * skull_r[2]
+            ear_r = animal.ear_width * skull_r[1]
             head_parts.append(round_cone(base, ear_tip, ear_r, 0.04 * skull_r[1]))
         else:
             ear = head + np.array([-0.1 * skull_r[0], sign * 0.9 * skull_r[1], 0.0])
-            axes = frame_along(np.array([0.25 if pig else 0.0, sign * 0.35, -1.0]), np.array([1.0, 0.0, 0.0]))
+            axes = frame_along(np.array([animal.ear_lean, sign * 0.35, -1.0]), np.array([1.0, 0.0, 0.0]))
             head_parts.append(
-                ellipsoid(ear, np.array([0.45, 0.12, 0.8]) * skull_r[1] * (1.5 if pig else 1.0), axes)
+                ellipsoid(ear, np.array([0.45, 0.12, 0.8]) * skull_r[1] * animal.ear_size, axes)
             )
-    if cat:  # round cheeks (whisker pads) under wide-set eyes: a cat's face is wider than tall
+    if animal.cheeks:  # round whisker pads under wide-set eyes: a face wider than tall
         for sign in (1.0, -1.0):
             head_parts.append(
                 ellipsoid(
@@ -593,13 +593,10 @@ def quadruped_surfaces(
                 )
             )
     tail_a, tail_b = tail
-    # A dog's tail is thick at the root and carried in a rising sweep (TAIL_BENDS): with
-    # the straight 0.2 hy stick it had, side-on dogs were called cow and back halves
-    # person (docs/recognition.md: 0.78 of dogs found on dog_and_cat_roaming seeds 1-40, now 0.81).
-    tail_r = (0.16 if cat else 0.12 if pig else 0.36) * hy
+    tail_r = animal.tail_radius * hy
     tail_pad, tail_box = 2 * tail_r, None
-    if kind in TAIL_BENDS:
-        curve = _tail_curve(tail_a, tail_b, TAIL_BENDS[kind])
+    if animal.tail_bends is not None:
+        curve = _tail_curve(tail_a, tail_b, animal.tail_bends)
         limbs = [
             round_cone(
                 a, b, tail_r * (1.0 - 0.35 * k / len(curve)), tail_r * (1.0 - 0.35 * (k + 1) / len(curve))
@@ -607,13 +604,13 @@ def quadruped_surfaces(
             for k, (a, b) in enumerate(zip(curve[:-1], curve[1:], strict=True))
         ]
         tail_pad = float(segment_distance(tail_a, tail_b, curve).max()) + 2 * tail_r
-        # the flesh lies along the curve, blended into the rump (smooth union 0.25 hy);
-        # 0.25 hy of margin cut the stocky cat's tail root by 5 mm (test), so 0.35
+        # The flesh lies along the curve, blended into the rump (smooth union 0.25 hy): the
+        # box reaches 0.35 hy past it, as a smaller margin cuts a stocky tail's root.
         reach = 2 * tail_r + 0.35 * hy
         tail_box = (curve.min(axis=0) - reach, curve.max(axis=0) + reach)
     else:
         limbs = [round_cone(tail_a, tail_b, tail_r, 0.6 * tail_r)]
-    leg_r = (0.42 if pig else 0.3 if cat else 0.34) * hy  # a dog's legs are slimmer than a pig's
+    leg_r = animal.leg_radius * hy
     bones = [
         Bone(
             "body",
@@ -657,23 +654,22 @@ def quadruped_surfaces(
     def pieces(part: str) -> list[tuple[str, Field | None, float]]:
         if part == "snout" or part == "head":
             return [("coat", lambda p: -nose(p), 0.0), ("nose", nose, 0.0)]
-        if pig and part.startswith("lower_leg"):
+        if animal.hooves and part.startswith("lower_leg"):
             cutoff = hips[0][2] - 0.82 * leg_m
             return [("coat", lambda p: cutoff - p[:, 2], 0.0), ("hoof", lambda p: p[:, 2] - cutoff, 0.0)]
         return [("coat", None, 0.0)]
 
     out = carve(body, bones + uppers + lowers, balls, frames, pieces, overlap=0.1 * hy)
-    if kind in LAID_ON:  # the coat is laid on round each part, its belly side down (legs: inwards)
+    width_m = animal.coat.laid_on_m
+    if width_m is not None:  # the coat is laid on round each part, its belly side down (legs: inwards)
         downs = [np.array([0.0, 0.0, -1.0])] * len(bones)
         downs += [np.array([0.0, -np.sign(bone.a[1]), 0.0]) for bone in uppers + lowers]
         for bone, down in zip(bones + uppers + lowers, downs, strict=True):
             out[bone.part] = [
-                wrapped(s, bone.a, bone.b, down, frames[bone.part], COAT_WIDTH_M[kind])
-                if s.material == "coat"
-                else s
+                wrapped(s, bone.a, bone.b, down, frames[bone.part], width_m) if s.material == "coat" else s
                 for s in out[bone.part]
             ]
-    out["head"] += _animal_eyes(head, skull_r, frames["head"], (0.15 if cat else 0.09) * hy, cat)
+    out["head"] += _animal_eyes(head, skull_r, frames["head"], animal.eye_radius * hy, animal.iris)
     return {part: tuple(surfaces) for part, surfaces in out.items()}
 
 
@@ -682,15 +678,14 @@ def _animal_eyes(
     skull_r: tuple[float, float, float],
     frame: tuple[np.ndarray, np.ndarray],
     eye_r: float,
-    cat: bool,
+    iris: bool,
 ) -> list[Surface]:
-    """Two eyes. A dog's or pig's dark eye sits just under the coat's surface, as it
-    always has (its recall was measured so); a cat's is a large amber iris set into the
-    skull's surface, with a dark pupil, so that its face shows."""
+    """Two eyes: small and dark just under the coat's surface, or (``iris``) a large amber
+    iris set into the skull's surface with a dark pupil, so that a cat's face shows."""
     origin, rotation = frame
     spheres = []
     for sign in (1.0, -1.0):
-        if not cat:
+        if not iris:
             spheres.append(("eye", head + np.array([0.72, sign * 0.45, 0.25]) * skull_r, eye_r))
             continue
         # A unit direction in the skull's own (ellipsoid) coordinates lands on its surface.
@@ -710,22 +705,11 @@ def _animal_eyes(
     ]
 
 
-TAIL_BENDS = {
-    # out behind the body, dipping a little, then curving up to an upright tip, as a
-    # walking cat carries it (a straight stick reads as a pole)
-    "cat": ((0.45, -0.1), (0.8, 0.25), (0.8, 0.65)),
-    # level out of the rump, then sweeping up behind it, as a dog walking at ease
-    # carries it
-    "dog": ((0.55, 0.05), (0.95, 0.35), (0.9, 0.75)),
-}
-"""A curved tail's Bézier controls after its root, in tail lengths (back, up)."""
-
-
 def _tail_curve(
     a: np.ndarray, b: np.ndarray, bends: tuple[tuple[float, float], ...], count: int = 8
 ) -> np.ndarray:
     """``count + 1`` points along a tail from its root ``a`` (``b`` gives its length):
-    a cubic Bézier whose other three control points are ``bends`` (``TAIL_BENDS``)."""
+    a cubic Bezier whose other three control points are ``bends`` (``QuadrupedBody.tail_bends``)."""
     length = float(np.linalg.norm(b - a))
     back, up = np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     controls = [a] + [a + length * (k_back * back + k_up * up) for k_back, k_up in bends]

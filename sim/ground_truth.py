@@ -1,7 +1,8 @@
 """Per-object ground truth of one frame, as stored in ``gt/objects.jsonl``.
 
 Priors are plain strings here (``dynamic``, ``potential``, ``static``) so that
-the bottom layer of the import graph needs no detector types.
+the bottom layer of the import graph needs no detector types; the list is the actor
+kinds' (``depotbench.sim.kinds.PRIORS``), whose classes and priors ground truth carries.
 """
 
 from __future__ import annotations
@@ -11,9 +12,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from depotbench.sim.kinds import PRIORS
 from scipy import ndimage
-
-PRIORS = ("dynamic", "potential", "static")
 
 
 @dataclass(frozen=True)

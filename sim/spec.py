@@ -12,13 +12,17 @@ import json
 from dataclasses import dataclass, field
 
 from depotbench.core.version import FORMAT_VERSION, generator_version
+from depotbench.sim import actor_registry
+from depotbench.sim.kinds import PATH_MODES
 
-ACTOR_KINDS = ("person", "sitting_person", "chair_pusher", "dog", "cat", "pig", "bird")
-PATH_MODES = ("loop", "random_walk", "seated")
 CAMERA_MOTIONS = ("static", "xyz", "rpy", "halfsphere", "robot")
 CLOTHING = ("plain", "stripes", "plaid")
 MAX_IMAGE_SIDE = 2048
 """Pixels a side: a 2048x1536 sequence takes about 640 MB to generate (measured)."""
+SPEED_RANGE_MPS = (0.0, 5.0)
+"""An actor's speed: a brisk run at most."""
+FPS_RANGE = (1.0, 240.0)
+MIN_IMAGE_SIDE = 16
 
 
 @dataclass(frozen=True)
@@ -33,7 +37,8 @@ class LayoutSpec:
 
 @dataclass(frozen=True)
 class ActorSpec:
-    """One actor. Empty ``waypoints`` means: generated from the seed, crossing the camera's view."""
+    """One actor. ``kind`` names an entry of ``actor_registry``. Empty ``waypoints`` means:
+    generated from the seed, crossing the camera's view."""
 
     kind: str
     speed_mps: float = 1.1
@@ -43,14 +48,14 @@ class ActorSpec:
     scale: float | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in ACTOR_KINDS:
-            raise ValueError(f"actor kind {self.kind!r} is not one of {ACTOR_KINDS}")
+        actor_registry.get(self.kind)
         if self.path not in PATH_MODES:
             raise ValueError(f"path {self.path!r} is not one of {PATH_MODES}")
         if self.clothing is not None and self.clothing not in CLOTHING:
             raise ValueError(f"clothing {self.clothing!r} is not one of {CLOTHING}")
-        if not 0.0 <= self.speed_mps <= 5.0:
-            raise ValueError(f"speed_mps must be in [0, 5], got {self.speed_mps}")
+        low, high = SPEED_RANGE_MPS
+        if not low <= self.speed_mps <= high:
+            raise ValueError(f"speed_mps must be in [{low:g}, {high:g}], got {self.speed_mps}")
 
 
 @dataclass(frozen=True)
@@ -118,9 +123,10 @@ class ScenarioSpec:
     def __post_init__(self) -> None:
         if self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
-        if not 1.0 <= self.fps <= 240.0:
-            raise ValueError(f"fps must be in [1, 240], got {self.fps}")
-        if not (16 <= self.width <= MAX_IMAGE_SIDE and 16 <= self.height <= MAX_IMAGE_SIDE):
+        if not FPS_RANGE[0] <= self.fps <= FPS_RANGE[1]:
+            raise ValueError(f"fps must be in [{FPS_RANGE[0]:g}, {FPS_RANGE[1]:g}], got {self.fps}")
+        sides = (MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
+        if not (sides[0] <= self.width <= sides[1] and sides[0] <= self.height <= sides[1]):
             raise ValueError(f"image size {self.width}x{self.height} is out of range")
 
 

@@ -15,6 +15,7 @@ import functools
 import cv2
 import numpy as np
 from depotbench.core.assets import asset
+from depotbench.sim import actor_registry
 from depotbench.sim.draws import picks
 from depotbench.sim.ipp import without_ipp
 
@@ -423,54 +424,6 @@ def plastic(rng: np.random.Generator, colour: Colour, size: int = 64) -> np.ndar
     return _finish(image)
 
 
-COATS: dict[str, tuple[tuple[Colour, str], ...]] = {
-    # No patched dogs: YOLOX-nano called a patched dog cow or bench (seed 4 of
-    # dog_and_cat_roaming: found in 2 of 40 frames patched, 19 of 40 plain). No pale
-    # ones: under the wide lamps a cream dog side-on was called sheep (seed 3: 16 of 40
-    # frames); a red one in its place raised dogs over seeds 1-5 from 125 to 146 of 188.
-    # The golden is a deep one: the light gold (200, 160, 95), first drawn on seed 23, was
-    # called sheep side-on (seed 23: 4 of 40 found); alone in front of the camera the deep
-    # gold is recognised in 285 of 360 views against 255 (actor_views, seeds 1-10 at
-    # 1.8 m, 1-5 at 2.6 m), and on the golden seeds 23, 32, 33, 38 in 119 of 154 sightings
-    # against 72 (recognition.py).
-    "dog": (
-        ((150, 105, 60), "plain"),
-        ((190, 125, 55), "plain"),
-        ((35, 30, 28), "plain"),
-        ((60, 45, 35), "saddle"),
-        ((165, 90, 50), "plain"),  # red (setter); white and cream dogs read as sheep
-        ((120, 75, 45), "plain"),
-    ),
-    # Cats a shade lighter than the real run of coats: a dark cat on the depot's dark
-    # floor is a shadow to a detector (and the black cat read as a dog). Tabbies are
-    # warm brown, as most tabbies are, not grey: MuJoCo's Filament renderer drew our grey
-    # tabby warm and YOLOX-nano found it in 9 of 30 frames against 1 classic-rendered;
-    # warm coats here raised cats from 10 to 19 of 200 (dog_and_cat_roaming, seeds 1-5).
-    # Every cat wears the photographed tabby fur in its coat's colour ("photo", laid on
-    # along the body: ``tabby``): drawn stripes and strands were called bird (22 of 200);
-    # the photograph raised cats to about half (docs/recognition.md). A white cat with patches is left
-    # out: the photograph is a tabby's, and recoloured white it read as bird (with it,
-    # 0.36 of sightings). The ginger is a pale one: a saturated orange (210, 135, 65) was
-    # called dog, in dog_and_cat_roaming's ginger seeds 5, 6, 9 and 10 0.41 of sightings
-    # found against 0.53, seeds 11-20 0.47 against 0.54 for all coats (cube-mapped).
-    "cat": (
-        ((155, 130, 90), "photo"),
-        ((210, 160, 110), "photo"),
-        ((165, 130, 95), "photo"),
-        ((125, 105, 75), "photo"),
-    ),
-    # Farm pigs: pink, muddy pink, ginger (Tamworth) and black (Berkshire). Clean pink
-    # alone, lit by the depot's wide lamps, reads as skin: YOLOX-nano called a pink pig
-    # seen head-on a person (pig_pen seed 2: 36 of 58 sightings).
-    "pig": (
-        ((230, 165, 150), "dirt"),
-        ((235, 175, 165), "plain"),
-        ((185, 105, 60), "plain"),
-        ((45, 40, 42), "plain"),
-    ),
-}
-
-
 FUR_PHOTO = asset("textures", "cat_fur.png")
 """A tabby's forehead fur, cropped from scikit-image's CC0 photograph of Chelsea the cat
 (``assets/textures/PROVENANCE.md``)."""
@@ -487,10 +440,11 @@ def _fur_photo() -> np.ndarray:
 
 
 def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
-    """An animal's coat: a colour of its kind with a pattern (mud, a dark saddle) and fur
-    strands over it, for a cube map; for cats, the photographed fur in the coat's colour
-    laid out round the body (``tabby``, twice ``size``)."""
-    colour, pattern = COATS[kind][int(rng.integers(len(COATS[kind])))]
+    """An animal's coat: one of its kind's colours (``QuadrupedBody.coat``) with a pattern
+    (mud, a dark saddle) and fur strands over it, for a cube map; for 'photo' coats, the
+    photographed fur in the coat's colour laid out round the body (``tabby``, twice ``size``)."""
+    colours = actor_registry.get(kind).body.coat.colours  # type: ignore[union-attr]
+    colour, pattern = colours[int(rng.integers(len(colours)))]
     if pattern == "photo":
         return tabby(colour, 2 * size)
     image = _base(rng, size, colour, grain=25)
@@ -511,19 +465,6 @@ def coat(rng: np.random.Generator, kind: str, size: int = 128) -> np.ndarray:
     return _finish(image)
 
 
-COAT_WIDTH_M = {"cat": 1.0}
-"""Metres of body one width of the coat's texture covers along a part (it repeats), for
-each animal whose coat is laid on along the body (texture coordinates round each part,
-``figures.wrapped``) rather than cube-mapped. For cats the photograph's stripes then fall
-a few centimetres apart, as a tabby's do: at 0.16 m a width they were fine streaks and
-a lone cat was recognised in 46 of 120 views (benchmarks/actor_views.py, seeds 1-5), at
-0.4 m in 83, 0.7 m in 111, 1.0 m in 116 (cube-mapped: 88). Dogs stay cube-mapped: their
-drawn coat laid on at 0.6 m and countershaded (back 0.15, cream 0.4) was recognised
-alone in 108 of 120 views against 99, but in dog_and_cat_roaming in 0.77 of sightings
-on seeds 1-10 against 0.84, and 0.74 against 0.78 on seeds 11-20."""
-LAID_ON = frozenset(COAT_WIDTH_M)
-
-
 def countershaded(image: np.ndarray, back: float, cream: float) -> np.ndarray:
     """A coat laid out round the body (rows from the belly over a flank to the back and
     down again) darkened along the back by up to ``back`` and blended towards cream
@@ -538,8 +479,9 @@ def countershaded(image: np.ndarray, back: float, cream: float) -> np.ndarray:
 def tabby(colour: Colour, size: int = 256) -> np.ndarray:
     """A cat's coat laid out round the body (``countershaded``'s rows; columns along a
     part): the photographed fur in the coat's colour, mirrored so that it repeats without
-    a seam, darker along the back and paling to cream underneath, as a cat is (a lone
-    cat recognised in 116 of 120 views against 111 in the fur alone; 88 cube-mapped)."""
+    a seam, darker along the back and paling to cream underneath, as a cat is: the
+    shading is what makes the fur a cat's body to a detector (a lone cat is recognised in
+    116 of 120 views, docs/recognition.md)."""
     photo = _fur_photo()
     tile = np.concatenate([photo, photo[:, ::-1]], axis=1)
     tile = np.concatenate([tile, tile[::-1]], axis=0)

@@ -11,18 +11,19 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from depotbench.sim import textures
-from depotbench.sim.actors import QUADRUPEDS, Actor, Bird, Quadruped, SittingPerson, Walker
+from depotbench.sim import actor_registry, textures
+from depotbench.sim.actors import Actor, Bird, Quadruped, SittingPerson, Walker
 from depotbench.sim.camera import Intrinsics
 from depotbench.sim.camera_rig import CameraRig
 from depotbench.sim.conventions import gl_from_cv_rotation, quat_wxyz
 from depotbench.sim.draws import pick
 from depotbench.sim.figures import AnimalLook, Look, Surface
+from depotbench.sim.kinds import ActorKind, BirdBody, PersonBody, Place, QuadrupedBody
 from depotbench.sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
 from depotbench.sim.mujoco_env import mujoco
 from depotbench.sim.paths import Path, plan_loop
 from depotbench.sim.render import FAR_SUFFIX, HIDDEN_GROUP
-from depotbench.sim.spec import ActorSpec, ChairSpec, ScenarioSpec
+from depotbench.sim.spec import CLOTHING, ActorSpec, ChairSpec, ScenarioSpec
 
 STATIC_BITS, CHAIR_BITS, ACTOR_BITS = (1, 1), (1, 3), (2, 0)
 """(contype, conaffinity): actors collide with chairs only; chairs with everything."""
@@ -69,7 +70,6 @@ class World:
         return {i.class_name: i.prior for i in self.instances}
 
 
-PERSON_KINDS = ("person", "sitting_person", "chair_pusher")
 PERSON_ROLES = ("skin", "hair", "hat", "top", "bib", "arms", "legs", "feet")
 """A person's materials, one each (named role + actor index)."""
 
@@ -85,9 +85,11 @@ TROUSERS: tuple[textures.Colour, ...] = (
 
 
 def _material_images(
-    rng: np.random.Generator, clothing: list[tuple[str, str]], looks: list[Look | AnimalLook | None]
+    rng: np.random.Generator, clothing: list[tuple[str, ActorKind]], looks: list[Look | AnimalLook | None]
 ) -> dict[str, tuple[str, np.ndarray]]:
-    """Every material's texture: ('2d' | 'cube', image)."""
+    """Every material's texture: ('2d' | 'cube' | 'uv', image). Each is drawn from ``rng``
+    in turn, so the list's order is part of every sequence's pixels: a material added
+    goes last, or every texture after it changes."""
     mats: dict[str, tuple[str, np.ndarray]] = {
         "floor": ("2d", textures.concrete(rng)),
         "ceiling": ("2d", textures.wall(rng, 256)),
@@ -105,6 +107,8 @@ def _material_images(
     mats["screen0"] = ("cube", textures.screen(rng))
     mats["screen1"] = ("cube", textures.screen(rng))
     mats["lamp"] = ("cube", np.full((16, 16, 3), 250, np.uint8))
+    # No geom wears these three (each animal wears its own coat{k}); they stay drawn
+    # because the textures after them in the stream would change without them.
     mats["fur_dog"] = ("cube", textures.fur(rng, (150, 105, 60), spots=True))
     mats["fur_cat"] = ("cube", textures.fur(rng, (110, 110, 105)))
     mats["fur_pig"] = ("cube", textures.fur(rng, (235, 170, 165)))
@@ -121,7 +125,8 @@ def _material_images(
             mats |= {f"{role}{k}": image for role, image in _person_images(rng, pattern, look).items()}
         elif isinstance(look, AnimalLook):
             # laid on along the body (figures.wrapped), or a cube map
-            mats[f"coat{k}"] = ("uv" if kind in textures.LAID_ON else "cube", textures.coat(rng, kind))
+            laid_on = isinstance(kind.body, QuadrupedBody) and kind.body.coat.laid_on_m is not None
+            mats[f"coat{k}"] = ("uv" if laid_on else "cube", textures.coat(rng, kind.name))
     return mats
 
 
@@ -223,17 +228,20 @@ def _make_actor(
     seat_index: int,
     look: Look | AnimalLook | None,
 ) -> Actor:
+    """The actor of ``spec``: where its kind goes (``Place``) and its body's family say
+    what moves it."""
+    kind = actor_registry.get(spec.kind)
     materials = {m: f"{m}{k}" for m in PERSON_ROLES}
     scale = spec.scale if spec.scale is not None else float(rng.uniform(0.9, 1.08))
     bounds = (-layout.size[0] / 2, -layout.size[1] / 2, layout.size[0] / 2, layout.size[1] / 2)
     person_look = look if isinstance(look, Look) else None
-    if spec.kind == "sitting_person":
+    if kind.place is Place.DESK:
         if not layout.seats:
-            raise ValueError("a sitting_person needs a desk (layout.desk: true)")
+            raise ValueError(f"a {kind.name} needs a desk (layout.desk: true)")
         return SittingPerson(layout.seats[seat_index % len(layout.seats)], scale, materials, rng, person_look)
-    if spec.kind == "chair_pusher":
+    if kind.place is Place.CHAIR:
         if not chairs:
-            raise ValueError("a chair_pusher needs at least one chair")
+            raise ValueError(f"a {kind.name} needs at least one chair")
         cx, cy = chairs[k % len(chairs)].position_m
         direction = np.array([1.0, 0.35]) / np.linalg.norm([1.0, 0.35])
         waypoints = np.array([[cx, cy] - 1.6 * direction, [cx, cy] + 1.4 * direction])
@@ -252,12 +260,13 @@ def _make_actor(
         waypoints = plan_loop(rng, region, obstacles, bounds, n_points)
     path = Path(waypoints)
     start = float(rng.uniform(0, path.length))
-    if spec.kind == "person":
+    body = kind.body
+    if isinstance(body, PersonBody):
         return Walker(path, spec.speed_mps, scale, materials, start, look=person_look)
-    if spec.kind == "bird":
+    if isinstance(body, BirdBody):
         return Bird(path, start, duration_s, rng)
     assert look is None or isinstance(look, AnimalLook)
-    return Quadruped(QUADRUPEDS[spec.kind], path, spec.speed_mps, start, look, {"coat": f"coat{k}"})
+    return Quadruped(body, path, spec.speed_mps, start, look, {"coat": f"coat{k}"})
 
 
 def _add_chair(spec: mujoco.MjSpec, chair: ChairSpec, k: int) -> mujoco.MjsBody:
@@ -337,22 +346,23 @@ def build_world(scenario: ScenarioSpec) -> World:
         layout_rng = np.random.default_rng(scenario.layout_seed)
     layout = plan_layout(scenario.layout, layout_rng, keep_out=chair_footprints(scenario.chairs))
     duration = scenario.frames / scenario.fps
-    seat_of = np.cumsum([a.kind == "sitting_person" for a in scenario.actors]) - 1
+    kinds = [actor_registry.get(a.kind) for a in scenario.actors]
+    seated = [kind.place is Place.DESK for kind in kinds]
+    seat_of = np.cumsum(seated) - 1
     looks: list[Look | AnimalLook | None] = [
         Look.draw(figure_rng)
-        if a.kind in PERSON_KINDS
-        else AnimalLook.draw(figure_rng, a.kind)
-        if a.kind in QUADRUPEDS
+        if isinstance(kind.body, PersonBody)
+        else AnimalLook.draw(figure_rng, kind.name)
+        if isinstance(kind.body, QuadrupedBody)
         else None
-        for a in scenario.actors
+        for kind in kinds
     ]
     actors = [
         _make_actor(a, k, layout, scenario.chairs, actor_rng, duration, int(seat_of[k]), looks[k])
         for k, a in enumerate(scenario.actors)
     ]
-    clothing = [
-        (a.clothing or pick(actor_rng, ("plain", "stripes", "plaid")), a.kind) for a in scenario.actors
-    ]
+    patterns = [a.clothing or pick(actor_rng, CLOTHING) for a in scenario.actors]
+    clothing = list(zip(patterns, kinds, strict=True))
 
     spec = mujoco.MjSpec()
     spec.modelname = f"depot_{scenario.name}"
@@ -379,15 +389,14 @@ def build_world(scenario: ScenarioSpec) -> World:
     world_body = spec.worldbody
     for piece in layout.world:
         _piece_geom(world_body, piece, STATIC_BITS)
-    n_seated = sum(a.kind == "sitting_person" for a in scenario.actors)
+    n_seated = sum(seated)
     for x, y, _ in layout.seats[:n_seated]:
         _piece_geom(world_body, Piece((x, y, 0.22), (0.2, 0.2, 0.22), "metal_grey"), STATIC_BITS)
     intensity = scenario.light_intensity
-    # High-bay lamps throw wide beams (LED fixtures: 90-120 degrees). MuJoCo's default spot
-    # (45 degree cutoff, exponent 10) lit pools on the floor and left the sides of people
-    # and animals in ambient grey, flat as cut-outs. Widened, YOLOX-nano finds seated
-    # people in 0.93 of sightings (was 0.83) and dogs in 0.69 (was 0.61), seeds 1-5
-    # (benchmarks/recognition.py; docs/recognition.md).
+    # High-bay lamps throw wide beams, as LED fixtures do (90-120 degrees), so that the
+    # sides of people and animals are lit, not left in ambient grey, flat as cut-outs
+    # (MuJoCo's default spot, 45 degrees, lights pools on the floor): with these, YOLOX-nano
+    # finds seated people in 0.93 of sightings (docs/recognition.md).
     for lx, ly, lz in layout.lights:
         world_body.add_light(
             pos=[lx, ly, lz],
@@ -461,8 +470,8 @@ def build_world(scenario: ScenarioSpec) -> World:
 
     for k, (obj, body) in enumerate(zip(layout.objects, object_bodies, strict=True)):
         register(obj.class_name, obj.prior, "object", k, [body.id])
-    for k, (actor, bodies) in enumerate(zip(actors, actor_bodies, strict=True)):
-        register(actor.class_name, actor.prior, "actor", k, [b.id for b in bodies])
+    for k, (kind, bodies) in enumerate(zip(kinds, actor_bodies, strict=True)):
+        register(kind.class_name, kind.prior, "actor", k, [b.id for b in bodies])
     for k, body in enumerate(chair_bodies):
         register("chair", "potential", "chair", k, [body.id])
     chair_ids = [int(b.id) for b in chair_bodies]

@@ -69,12 +69,13 @@ def test_looks_vary_with_the_seed_and_repeat_with_it():
 
 
 def _quadruped(kind: str, seed: int):
-    from depotbench.sim.actors import QUADRUPEDS, Quadruped
+    from depotbench.sim import actor_registry
+    from depotbench.sim.actors import Quadruped
     from depotbench.sim.paths import Path
 
     look = AnimalLook.draw(np.random.default_rng(seed), kind)
     path = Path(np.array([[-2.0, 0.0], [2.0, 0.0]]))
-    return Quadruped(QUADRUPEDS[kind], path, 0.8, 0.0, look, {"coat": "coat0"})
+    return Quadruped(actor_registry.get(kind).body, path, 0.8, 0.0, look, {"coat": "coat0"})
 
 
 @pytest.mark.parametrize("kind", ["dog", "cat", "pig"])
@@ -165,12 +166,14 @@ def test_a_union_remembers_the_box_only_of_points_that_cannot_change():
 
 
 def test_a_dogs_tail_leaves_the_rump_level_and_sweeps_up():
-    """The dog's tail (TAIL_BENDS) starts out nearly level behind the rump and ends
+    """The dog's tail (its ``tail_bends``) starts out nearly level behind the rump and ends
     steeply up, thick at the root: a straight stick at the tail's rise was called cow
     or person (docs/recognition.md); the curve's shape, not the bone's rise, carries that."""
-    from depotbench.sim.figures import TAIL_BENDS, _tail_curve
+    from depotbench.sim import actor_registry
+    from depotbench.sim.figures import _tail_curve
 
-    curve = _tail_curve(np.zeros(3), np.array([-0.3, 0.0, 0.0]), TAIL_BENDS["dog"])
+    bends = actor_registry.get("dog").body.tail_bends
+    curve = _tail_curve(np.zeros(3), np.array([-0.3, 0.0, 0.0]), bends)
     steps = np.diff(curve, axis=0)
     rise = np.degrees(np.arctan2(steps[:, 2], -steps[:, 0]))
     assert rise[0] < 15 and rise[-1] > 60 and (np.diff(rise) > 0).all()
@@ -190,7 +193,7 @@ def test_dogs_and_cats_carry_their_heads_above_the_back(kind, raised):
         vertices = np.concatenate([s.mesh.vertices for s in part.surfaces if s.mesh is not None])
         top[part.name] = float((vertices @ rotations[j].T + positions[j])[:, 2].max())
     margin = top["head"] - top["body"]
-    hy = animal.build.body_half[1]
+    hy = animal.animal.half_m[1]
     assert margin > 1.2 * hy if raised else margin < 0.9 * hy, margin
 
 
@@ -438,8 +441,11 @@ def test_cats_wear_the_photographed_fur_in_their_coat_colour():
     tile = np.concatenate([tile, tile[::-1]], axis=0)
     reference_rgb = np.tile(cv2.resize(tile, (128, 128), interpolation=cv2.INTER_AREA), (2, 2, 1))
     reference = reference_rgb.mean(axis=2)
-    colours = [np.array(c, float) for c, pattern in textures.COATS["cat"] if pattern == "photo"]
-    assert len(colours) == len(textures.COATS["cat"])
+    from depotbench.sim import actor_registry
+
+    coats = actor_registry.get("cat").body.coat.colours
+    colours = [np.array(c, float) for c, pattern in coats if pattern == "photo"]
+    assert len(colours) == len(coats)
     flank = slice(256 // 4 - 8, 256 // 4 + 8)  # where neither shade nor cream reaches
     # each channel scaled so that the photograph's mean is the coat colour (clipped at
     # 255: the ginger's brightest strands); on the flank, within 5 levels of that (the
