@@ -165,7 +165,7 @@ def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: P
     sweep's row for that job (deterministic fields; the sweep adds its signature)."""
     import json
 
-    from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+    from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS, RECORD_VERSION
     from depotbench.eval.run.harness import run_sequence
     from depotbench.eval.sweep.engine import expand, run_jobs
     from depotbench.eval.sweep.spec import load_sweep
@@ -181,4 +181,4 @@ def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: P
         row = next(r for r in store.rows() if r["strategy"] == "box_rule")
     fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
     assert {k: record[k] for k in fields} == {k: row[k] for k in fields}
-    assert record["key"] == row["key"] and record["record_version"] == 4
+    assert record["key"] == row["key"] and record["record_version"] == RECORD_VERSION

@@ -39,6 +39,7 @@ class Figure:
 
 FIGURES: tuple[Figure, ...] = (
     Figure("ate_rmse_m", "ATE RMSE (m)", ratio=True),
+    Figure("ate_median_m", "median ATE (m)", ratio=True),
     Figure("ate_max_m", "largest ATE (m)", ratio=True),
     Figure("rpe_translation_rmse_m", "RPE translation RMSE (m)", ratio=True),
     Figure("rpe_rotation_rmse_deg", "RPE rotation RMSE (deg)", ratio=True),

@@ -14,10 +14,11 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-RECORD_VERSION = 4
+RECORD_VERSION = 5
 """2: the sequence fingerprint and relocalised frames; 3: an external tracker's parameters,
 a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
-configuration, settings and parameters as typed JSON, sequences relative to the sweep."""
+configuration, settings and parameters as typed JSON, sequences relative to the sweep;
+5: the median ATE."""
 
 
 def typed(text: str) -> int | float | str:
@@ -91,6 +92,7 @@ class RunRecord:
     keyframes: int | None
     ate_rmse_m: float | None
     ate_mean_m: float | None
+    ate_median_m: float | None
     ate_max_m: float | None
     rpe_translation_rmse_m: float | None
     rpe_rotation_rmse_deg: float | None
@@ -150,6 +152,7 @@ class RunRecord:
             keyframes=metrics["keyframes"],
             ate_rmse_m=ate.get("rmse"),
             ate_mean_m=ate.get("mean"),
+            ate_median_m=ate.get("median"),
             ate_max_m=ate.get("max"),
             rpe_translation_rmse_m=rpe_t.get("rmse"),
             rpe_rotation_rmse_deg=rpe_r.get("rmse"),
@@ -180,6 +183,7 @@ class RunRecord:
             keyframes=None,
             ate_rmse_m=None,
             ate_mean_m=None,
+            ate_median_m=None,
             ate_max_m=None,
             rpe_translation_rmse_m=None,
             rpe_rotation_rmse_deg=None,
