@@ -30,7 +30,7 @@ def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="inject a detector fault, e.g. --fault miss=0.3 --fault latency=2 (see README: "
+        help="inject a detector fault, e.g. --fault miss=0.3 --fault latency=2 (docs/detectors.md: "
         "miss, miss_small, miss_occluded, miss_blurred, jitter, scale, false_positives, "
         "confusion, latency, confidence_noise, drop, every, seed)",
     )
