@@ -30,8 +30,9 @@ DOG = ActorKind(
         coat=Coat(
             # Plain, dark to mid coats only: a patched dog reads as a cow or a bench, a
             # pale or cream one side-on as a sheep; the golden is a deep one for that
-            # reason (recognised alone in 285 of 360 views). The coat stays cube-mapped:
-            # laid on along the body it was found in fewer sightings (0.77 against 0.84).
+            # reason (recognised alone in 285 of 360 views). Cube-mapped, not laid on
+            # along the body: among other animals a dog is found in more sightings so
+            # (0.84 of them).
             colours=(
                 ((150, 105, 60), "plain"),
                 ((190, 125, 55), "plain"),
