@@ -1,0 +1,222 @@
+"""Tracking: the per-frame state machine of ORB-SLAM's Tracking for RGB-D.
+
+Holds the state carried from frame to frame (state, last pose, constant-velocity motion
+model, the last frame's map points, the reference keyframe) and the order of the steps: the
+first frame with at least ``MIN_INIT_POINTS`` (50) usable keypoints with depth initialises
+the map; then each frame is tracked with the motion model against the last frame's points
+(at least ``MOTION_MODEL_MIN_MATCHES`` (20) matches, the search widened once), then against
+the local map, and a frame that fails, or follows a lost one, is relocalised. It decides
+keyframes through local mapping. Matching, pose solving, mapping and relocalisation live in
+the modules below it; this one only calls them in ORB-SLAM's order.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import cv2
+import numpy as np
+from depotbench.slam.config import TrackingConfig
+from depotbench.slam.features import FrameFeatures
+from depotbench.slam.geometry import constant_velocity, invert, orthonormalize
+from depotbench.slam.local_mapping import LocalMapping
+from depotbench.slam.map import Map
+from depotbench.slam.matcher import Matcher, octave_window
+from depotbench.slam.optimize import refine_pose
+from depotbench.slam.pose import MIN_MATCHES, Tracked, observations, solve_pose
+from depotbench.slam.relocalisation import relocalise
+from depotbench.slam.types import PinholeCamera, TrackingState
+
+MIN_INIT_POINTS = 50
+MOTION_MODEL_MIN_MATCHES = 20
+"""ORB-SLAM's TrackWithMotionModel widens its search below 20 matches and gives up below 20 again."""
+
+
+def seed_frame(tracking: TrackingConfig, frame_index: int) -> None:
+    """Seed OpenCV's RNG (the RANSACs of rejection and tracking) for a frame, before its
+    rejection: decisions computed apart from the tracker (``depotbench.eval.run.stages.decision_path``,
+    the shared frames of a branching run) then match the tracker's own."""
+    cv2.setRNGSeed(tracking.seed + frame_index)
+
+
+class Tracking:
+    """The tracking state of one system and its map; ``Slam`` drives it frame by frame."""
+
+    def __init__(self, tc: TrackingConfig, camera: PinholeCamera) -> None:
+        self.tc = tc
+        self.camera = camera
+        self.matcher = Matcher(tc, camera)
+        self.mapping = LocalMapping(tc, camera)
+        self.map = Map()
+        self.state = TrackingState.NOT_INITIALIZED
+        self.frame_index = 0
+        self.previous: FrameFeatures | None = None
+        self._last_pose: np.ndarray | None = None
+        self._velocity = np.eye(4)
+        self._last_point_ids = np.zeros(0, int)
+        self._last_angles = np.zeros(0)
+        self._last_octaves = np.zeros(0, int)
+        self._reference_keyframe = 0
+
+    def fork(self) -> Tracking:
+        """An independent copy (the map too); matcher, mapper and features are shared: they
+        hold no state, or nothing changes them."""
+        twin = copy.copy(self)
+        twin.map = self.map.copy()
+        for name in ("_last_pose", "_velocity", "_last_point_ids", "_last_angles", "_last_octaves"):
+            value = getattr(self, name)
+            setattr(twin, name, None if value is None else value.copy())
+        return twin
+
+    # -- the steps of one frame, in the order Slam.process calls them -----------------
+
+    def track(self, features: FrameFeatures, usable: np.ndarray) -> tuple[Tracked | None, TrackingState]:
+        """The frame's pose and matches (None when it has none) and its state: initialise,
+        else track (after OK or RELOCALIZED) and relocalise when that fails."""
+        if self.state == TrackingState.NOT_INITIALIZED:
+            tracked = self._initialize(features, usable)
+            return tracked, TrackingState.OK if tracked else TrackingState.NOT_INITIALIZED
+        tracked = None
+        state = TrackingState.LOST
+        if self.state in (TrackingState.OK, TrackingState.RELOCALIZED):
+            tracked = self._track(features, usable)
+            state = TrackingState.OK if tracked else TrackingState.LOST
+        if tracked is None:
+            tracked = relocalise(self.map, self.matcher, self.tc, self.camera, features, usable)
+            if tracked is not None:
+                state = TrackingState.RELOCALIZED
+        return tracked, state
+
+    def keyframe(
+        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked | None
+    ) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
+        """Whether the tracked frame is a keyframe (inserting it when due) and the map points
+        it added (keypoints, ids), which the next frame searches too."""
+        if tracked is None:
+            return False, None
+        if self.state == TrackingState.NOT_INITIALIZED:
+            return True, None  # the initial keyframe, inserted by _initialize
+        if self.mapping.need_keyframe(self.map, features, usable, tracked, self._reference_keyframe):
+            return True, self._insert_keyframe(features, usable, tracked)
+        return False, None
+
+    def advance(
+        self,
+        features: FrameFeatures,
+        tracked: Tracked | None,
+        state: TrackingState,
+        new_points: tuple[np.ndarray, np.ndarray] | None,
+    ) -> None:
+        """Make this frame the last one. Its map points are the pose inliers and, on a
+        keyframe, the points just made from it: ORB-SLAM puts those into the frame, so the
+        next frame searches them too (people close to the camera among them)."""
+        if tracked is not None:
+            if self._last_pose is not None and state == TrackingState.OK:
+                self._velocity = constant_velocity(self._last_pose, tracked.world_from_camera)
+            else:
+                self._velocity = np.eye(4)
+            self._last_pose = orthonormalize(tracked.world_from_camera)
+            keypoints, point_ids = tracked.keypoints, tracked.point_ids
+            if new_points is not None:
+                keypoints, point_ids = np.r_[keypoints, new_points[0]], np.r_[point_ids, new_points[1]]
+            self._last_point_ids = point_ids
+            self._last_angles = features.angles_deg[keypoints]
+            self._last_octaves = features.octaves[keypoints]
+        self.state = state
+        self.previous = features
+        self.frame_index += 1
+
+    # -- inside ------------------------------------------------------------------------
+
+    def _insert_keyframe(
+        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked
+    ) -> tuple[np.ndarray, np.ndarray]:
+        made = self.mapping.insert_keyframe(self.map, features, usable, tracked, self.frame_index)
+        self._reference_keyframe = len(self.map.keyframes) - 1
+        return made
+
+    def _initialize(self, features: FrameFeatures, usable: np.ndarray) -> Tracked | None:
+        candidates = usable & (features.depth_m > 0)
+        if candidates.sum() < MIN_INIT_POINTS:
+            return None
+        tracked = Tracked(np.eye(4), np.zeros(0, int), np.zeros(0, int), int(candidates.sum()))
+        self._insert_keyframe(features, usable, tracked)
+        keyframe = self.map.keyframes[-1]
+        with_point = np.flatnonzero(keyframe.point_ids >= 0)
+        return Tracked(np.eye(4), with_point, keyframe.point_ids[with_point], len(with_point))
+
+    def _track(self, features: FrameFeatures, usable: np.ndarray) -> Tracked | None:
+        """Track with the motion model against the last frame's points, then against the
+        local map (ORB-SLAM's TrackWithMotionModel and TrackLocalMap)."""
+        assert self._last_pose is not None
+        predicted_cw = invert(self._last_pose @ self._velocity)
+        has_point = self._last_point_ids >= 0
+        last_ids, last_angles = self._last_point_ids[has_point], self._last_angles[has_point]
+        octaves = self._last_octaves[has_point]
+        radius = self.tc.match_radius_px * self.tc.scale_factor**octaves
+        window = octave_window(
+            octaves, self._velocity[2, 3], self.tc.baseline_fx / self.camera.fx, self.tc.n_levels
+        )
+        for widen in (1, 2):  # ORB-SLAM searches again at twice the radius below 20 matches
+            kp, pid, _ = self.matcher.search_by_projection(
+                self.map,
+                last_ids,
+                predicted_cw,
+                features,
+                usable,
+                widen * radius,
+                reference_angles=last_angles,
+                octave_window=window,
+            )
+            if len(kp) >= MOTION_MODEL_MIN_MATCHES:
+                break
+        if len(kp) < MOTION_MODEL_MIN_MATCHES:
+            return None
+        solved = solve_pose(self.tc, self.camera, features, kp, self.map.positions[pid], predicted_cw)
+        if solved is None:
+            return None
+        pose_cw, inl = solved
+        kp, pid = kp[inl], pid[inl]
+        self.map.visible[pid] += 1  # seen in this frame, as the local map's points below
+        # Local map: points of the keyframes that see the tracked points.
+        local_ids = self._local_points(pid)
+        matched = np.zeros(len(features), bool)
+        matched[kp] = True
+        new_kp, new_pid, projected = self.matcher.search_by_projection(
+            self.map,
+            np.setdiff1d(local_ids, pid),
+            pose_cw,
+            features,
+            usable,
+            self.tc.local_radius_px,
+            exclude=matched,
+        )
+        self.map.visible[projected] += 1
+        kp, pid = np.r_[kp, new_kp], np.r_[pid, new_pid]
+        if len(kp) < MIN_MATCHES:
+            return None
+        uv, ur, weight = observations(self.tc, features, kp)
+        pose_cw, inl = refine_pose(
+            pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.tc.baseline_fx
+        )
+        kp, pid = kp[inl], pid[inl]
+        self.map.found[pid] += 1
+        if len(kp) < self.tc.min_inliers:
+            return None
+        return Tracked(invert(pose_cw), kp, pid, len(kp))
+
+    def _local_points(self, point_ids: np.ndarray) -> np.ndarray:
+        """Points of the keyframes that see the frame's points, most shared first; the keyframe
+        sharing the most becomes the reference (ORB-SLAM's UpdateLocalKeyFrames)."""
+        counts: dict[int, int] = {}
+        for point in point_ids:
+            for kf_id in self.map.observations.get(int(point), {}):
+                counts[kf_id] = counts.get(kf_id, 0) + 1
+        local = sorted(counts, key=lambda k: (-counts[k], -k))[: self.tc.local_keyframes]
+        if local:
+            self._reference_keyframe = local[0]
+        ids = [kf.point_ids[kf.point_ids >= 0] for kf in (self.map.keyframe(k) for k in local)]
+        if not ids:
+            return np.zeros(0, int)
+        ids_all = np.unique(np.concatenate(ids))
+        return ids_all[self.map.alive[ids_all]]
