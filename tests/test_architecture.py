@@ -39,6 +39,17 @@ EVAL_FLOORS = ("metrics", "trackers", "run", "detection", "sweep", "gates", "rep
 
 CLI = "depotbench.eval.cli"
 
+SLAM_FLOORS = (
+    ("types", "config", "geometry", "features"),
+    ("map", "matcher", "optimize", "bundle", "pose", "rejection"),
+    ("local_mapping", "relocalisation"),
+    ("tracking",),
+    ("system",),
+)
+"""slam's modules, bottom to top, as ORB-SLAM layers them: each may import its own floor and
+those below (plain types and features; matching, the map and the optimisers; local mapping
+and relocalisation; the tracking state machine; the system's face)."""
+
 
 def imported_modules(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:
     """(line, module, names) of each absolute import; names are empty for ``import m``."""
@@ -177,3 +188,55 @@ def test_sequence_reader_imports_no_mujoco_or_opengl():
     )
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _slam_floor(module: str) -> int | None:
+    parts = module.split(".")
+    if parts[:2] != ["depotbench", "slam"] or len(parts) != 3:
+        return None
+    return next((i for i, floor in enumerate(SLAM_FLOORS) if parts[2] in floor), None)
+
+
+def slam_floor_violations(root: Path) -> list[str]:
+    """slam modules that import a module on a floor above their own, and slam modules on no
+    floor (a new module must be given one)."""
+    known = _modules(root)
+    problems = []
+    for name, path in known.items():
+        if not name.startswith("depotbench.slam."):
+            continue
+        rel = path.relative_to(root).as_posix()
+        mine = _slam_floor(name)
+        if mine is None:
+            problems.append(f"{rel}: on no floor of SLAM_FLOORS")
+            continue
+        short = name.removeprefix("depotbench.")
+        for line, full, names in imported_modules(path):
+            for target in _targets(full, names, known):
+                theirs = _slam_floor(target)
+                if theirs is not None and theirs > mine:
+                    problems.append(f"{rel}:{line}: {short} must not import {target} (above it)")
+    return sorted(set(problems))
+
+
+def test_slam_modules_import_only_their_floor_and_below():
+    assert slam_floor_violations(REPO) == []
+
+
+def test_slam_floor_checker_catches_an_import_from_above(tmp_path: Path):
+    for package in PACKAGES:
+        (tmp_path / package).mkdir()
+    (tmp_path / "slam" / "__init__.py").write_text("")
+    (tmp_path / "slam" / "matcher.py").write_text("from depotbench.slam.tracking import Tracking\n")
+    (tmp_path / "slam" / "tracking.py").write_text(
+        "from depotbench.slam import matcher, system\nfrom depotbench.slam.map import Map\n"
+    )
+    (tmp_path / "slam" / "map.py").write_text("def f():\n    from depotbench.slam.optimize import x\n")
+    (tmp_path / "slam" / "optimize.py").write_text("")
+    (tmp_path / "slam" / "system.py").write_text("")
+    (tmp_path / "slam" / "loose.py").write_text("")
+    assert slam_floor_violations(tmp_path) == [
+        "slam/loose.py: on no floor of SLAM_FLOORS",
+        "slam/matcher.py:1: slam.matcher must not import depotbench.slam.tracking (above it)",
+        "slam/tracking.py:1: slam.tracking must not import depotbench.slam.system (above it)",
+    ]
