@@ -1,4 +1,4 @@
-"""Pinhole intrinsics, the TUM defaults, and the ORB-SLAM2/3 settings file.
+"""The TUM cameras' intrinsics, and the ORB-SLAM2/3 settings file.
 
 The settings file is written so that ORB-SLAM2's and ORB-SLAM3's ``rgbd_tum``
 binaries run on a generated sequence as they run on a real TUM one.
@@ -12,6 +12,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.core.errors import FileError, SequenceFormatError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
 
@@ -26,59 +27,6 @@ PLAUSIBLE = {
     "Camera.fps": (0.1, 10_000.0),
 }
 """Ranges outside which a settings file's number is a mistake (they keep the arithmetic finite)."""
-TUM_DEPTH_SCALE = 5000.0
-"""Depth PNG units per metre (TUM RGB-D)."""
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """Pinhole camera in the OpenCV convention (pixel centres at integers).
-
-    ``distortion`` holds OpenCV's (k1, k2, p1, p2, k3); generated sequences have
-    none, real TUM fr1/fr2 sequences do.
-    """
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    depth_scale: float = TUM_DEPTH_SCALE
-
-    def __post_init__(self) -> None:
-        for name in ("fx", "fy", "cx", "cy", "depth_scale"):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f"intrinsics {name} must be finite, got {value}")
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        if self.depth_scale <= 0:
-            raise ValueError(f"depth_scale must be positive, got {self.depth_scale}")
-        if len(self.distortion) != 5:
-            raise ValueError("distortion must hold (k1, k2, p1, p2, k3)")
-        if not all(math.isfinite(k) for k in self.distortion):
-            raise ValueError(f"distortion coefficients must be finite, got {self.distortion}")
-
-    @property
-    def matrix(self) -> np.ndarray:
-        """The 3x3 camera matrix K."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64)
-
-    @classmethod
-    def from_fovy(cls, fovy_deg: float, width: int, height: int) -> Intrinsics:
-        """Intrinsics of a MuJoCo camera: square pixels, centre at ((W-1)/2, (H-1)/2)."""
-        f = (height / 2.0) / math.tan(math.radians(fovy_deg) / 2.0)
-        return cls(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
-
-    def fovy_deg(self) -> float:
-        """Vertical field of view that a MuJoCo camera needs to reproduce ``fy``."""
-        return math.degrees(2.0 * math.atan((self.height / 2.0) / self.fy))
-
-
 TUM_DEFAULT = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 """The ROS/Kinect default intrinsics used by TUM's tools and by generated sequences."""
 

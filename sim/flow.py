@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from depotbench.sim.camera import Intrinsics
+from depotbench.core.camera import Intrinsics
 from depotbench.sim.products import product, rigid_inverse
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.core.errors import FileError, SequenceFormatError
 from depotbench.core.files import (
     DEFAULT_PNG_COMPRESSION,
@@ -32,7 +33,6 @@ from depotbench.core.files import (
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.version import FORMAT_VERSION, SUPPORTED_FORMAT_VERSIONS, generator_version
 from depotbench.sim.camera import (
-    Intrinsics,
     OrbSlamSettings,
     orbslam_yaml,
     read_orbslam_yaml,

@@ -11,9 +11,9 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.sim import actor_registry, textures
 from depotbench.sim.actors import Actor, Bird, Quadruped, SittingPerson, Walker
-from depotbench.sim.camera import Intrinsics
 from depotbench.sim.camera_rig import CameraRig
 from depotbench.sim.conventions import gl_from_cv_rotation, quat_wxyz
 from depotbench.sim.draws import pick

@@ -22,9 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.geometry import exp_se3
 from depotbench.slam.optimize import is_inlier
-from depotbench.slam.types import PinholeCamera
 from scipy import sparse
 
 HUBER_K = float(np.sqrt(7.815))
@@ -53,7 +53,7 @@ class BundleWindow:
     uv: np.ndarray
     ur: np.ndarray
     weight: np.ndarray
-    camera: PinholeCamera
+    camera: Intrinsics
     bf: float
 
 

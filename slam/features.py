@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
-from depotbench.slam.types import PinholeCamera
 
 CANDIDATE_FACTOR = 5
 """OpenCV keeps this many times the budget of FAST candidates (best by score, per level) before
@@ -61,7 +61,7 @@ class FeatureExtractor:
         share = inverse ** np.arange(config.n_levels)
         self._per_level = np.round(config.n_features * share / share.sum()).astype(int)
 
-    def extract(self, rgb: np.ndarray, depth_m: np.ndarray, camera: PinholeCamera) -> FrameFeatures:
+    def extract(self, rgb: np.ndarray, depth_m: np.ndarray, camera: Intrinsics) -> FrameFeatures:
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
         keypoints = self._spread(self._orb.detect(grey, None))
         keypoints, descriptors = self._orb.compute(grey, keypoints)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from depotbench.slam.types import PinholeCamera
+from depotbench.core.camera import Intrinsics
 
 POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
 
@@ -52,7 +52,7 @@ def transform(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ pose[:3, :3].T + pose[:3, 3]
 
 
-def project(camera: PinholeCamera, points_c: np.ndarray) -> np.ndarray:
+def project(camera: Intrinsics, points_c: np.ndarray) -> np.ndarray:
     """Pixel coordinates (N, 2) of camera-frame points (z > 0 assumed)."""
     z = points_c[:, 2]
     return np.stack(
@@ -61,7 +61,7 @@ def project(camera: PinholeCamera, points_c: np.ndarray) -> np.ndarray:
     )
 
 
-def backproject(camera: PinholeCamera, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+def backproject(camera: Intrinsics, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
     return np.stack(
         [(uv[:, 0] - camera.cx) / camera.fx * z, (uv[:, 1] - camera.cy) / camera.fy * z, z], axis=1
     )

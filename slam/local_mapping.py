@@ -10,20 +10,20 @@ take the map as an argument and keep no state of their own, so a forked system s
 from __future__ import annotations
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.bundle import BundleWindow, bundle_adjust
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import backproject, invert, transform
 from depotbench.slam.map import KeyFrame, Map
 from depotbench.slam.pose import MIN_MATCHES, Tracked, observations
-from depotbench.slam.types import PinholeCamera
 
 CLOSE_DEPTH_FACTOR = 40.0
 """ORB-SLAM's ThDepth: points closer than 40 baselines are 'close'."""
 
 
 class LocalMapping:
-    def __init__(self, tc: TrackingConfig, camera: PinholeCamera) -> None:
+    def __init__(self, tc: TrackingConfig, camera: Intrinsics) -> None:
         self.tc = tc
         self.camera = camera
         self.close_depth_m = CLOSE_DEPTH_FACTOR * tc.baseline_fx / camera.fx

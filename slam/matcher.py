@@ -11,11 +11,11 @@ Tracking, relocalisation and local mapping all match through here, so they agree
 from __future__ import annotations
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import hamming, hamming_matrix, project, transform
 from depotbench.slam.map import Map
-from depotbench.slam.types import PinholeCamera
 from scipy.spatial import cKDTree
 
 ROTATION_BINS = 30
@@ -53,7 +53,7 @@ def octave_window(
 class Matcher:
     """Search by projection into one camera with one set of tracking settings; stateless."""
 
-    def __init__(self, tc: TrackingConfig, camera: PinholeCamera) -> None:
+    def __init__(self, tc: TrackingConfig, camera: Intrinsics) -> None:
         self.tc = tc
         self.camera = camera
 

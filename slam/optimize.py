@@ -11,8 +11,8 @@ Local BA (``depotbench.slam.bundle``) minimises the same edges over a keyframe w
 from __future__ import annotations
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.geometry import exp_se3
-from depotbench.slam.types import PinholeCamera
 
 CHI2_STEREO = 7.815
 """95 % quantile of chi-square with 3 dof (ORB-SLAM's RGB-D outlier threshold)."""
@@ -26,7 +26,7 @@ def _residuals(
     uv: np.ndarray,
     ur: np.ndarray,
     weight: np.ndarray,
-    camera: PinholeCamera,
+    camera: Intrinsics,
     bf: float,
 ) -> np.ndarray:
     z = points_c[:, 2]
@@ -45,7 +45,7 @@ def is_inlier(
     uv: np.ndarray,
     ur: np.ndarray,
     weight: np.ndarray,
-    camera: PinholeCamera,
+    camera: Intrinsics,
     bf: float,
 ) -> np.ndarray:
     errors = np.sum(_residuals(points_c, uv, ur, weight, camera, bf) ** 2, axis=1)
@@ -53,9 +53,7 @@ def is_inlier(
     return (errors < threshold) & (points_c[:, 2] > 0)
 
 
-def _pose_jacobian(
-    points_c: np.ndarray, camera: PinholeCamera, bf: float, has_depth: np.ndarray
-) -> np.ndarray:
+def _pose_jacobian(points_c: np.ndarray, camera: Intrinsics, bf: float, has_depth: np.ndarray) -> np.ndarray:
     """d(residual)/d(delta) (N, 3, 6) for a left perturbation exp(delta) of camera_from_world.
 
     delta = (rotation vector, translation); residual = observation - prediction. Written
@@ -88,7 +86,7 @@ def refine_pose(
     uv: np.ndarray,
     ur: np.ndarray,
     weight: np.ndarray,
-    camera: PinholeCamera,
+    camera: Intrinsics,
     bf: float,
     rounds: int = 4,
     iterations: int = 10,

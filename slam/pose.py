@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.optimize import refine_pose
-from depotbench.slam.types import PinholeCamera
 
 MIN_MATCHES = 15
 
@@ -45,7 +45,7 @@ def observations(
 
 def solve_pose(
     tc: TrackingConfig,
-    camera: PinholeCamera,
+    camera: Intrinsics,
     features: FrameFeatures,
     keypoints: np.ndarray,
     points_w: np.ndarray,

@@ -9,13 +9,13 @@ query; each is matched by descriptor, and the first whose pose (PnP RANSAC, refi
 from __future__ import annotations
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import invert
 from depotbench.slam.map import Map
 from depotbench.slam.matcher import Matcher
 from depotbench.slam.pose import MIN_MATCHES, Tracked, solve_pose
-from depotbench.slam.types import PinholeCamera
 
 RATIO_TEST = 0.8
 """Relocalisation's nearest/second-nearest test. It compares against every point of a keyframe
@@ -28,7 +28,7 @@ def relocalise(
     map_: Map,
     matcher: Matcher,
     tc: TrackingConfig,
-    camera: PinholeCamera,
+    camera: Intrinsics,
     features: FrameFeatures,
     usable: np.ndarray,
 ) -> Tracked | None:

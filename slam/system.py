@@ -16,6 +16,7 @@ import copy
 import time
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import SlamConfig, check_pyramid
 from depotbench.slam.features import FeatureExtractor, FrameFeatures
 from depotbench.slam.map import Map
@@ -27,7 +28,6 @@ from depotbench.slam.types import (
     Frame,
     FrameDiagnostics,
     FrameResult,
-    PinholeCamera,
     Rejection,
     TrackingState,
 )
@@ -37,7 +37,7 @@ __all__ = ["Slam", "_consistent_rotation", "seed_frame"]
 
 
 class Slam:
-    def __init__(self, config: SlamConfig, camera: PinholeCamera) -> None:
+    def __init__(self, config: SlamConfig, camera: Intrinsics) -> None:
         check_pyramid(config.tracking, camera.width, camera.height)
         self.config = config
         self.tc = config.tracking

@@ -16,6 +16,7 @@ import copy
 
 import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import constant_velocity, invert, orthonormalize
@@ -25,7 +26,7 @@ from depotbench.slam.matcher import Matcher, octave_window
 from depotbench.slam.optimize import refine_pose
 from depotbench.slam.pose import MIN_MATCHES, Tracked, observations, solve_pose
 from depotbench.slam.relocalisation import relocalise
-from depotbench.slam.types import PinholeCamera, TrackingState
+from depotbench.slam.types import TrackingState
 
 MIN_INIT_POINTS = 50
 MOTION_MODEL_MIN_MATCHES = 20
@@ -42,7 +43,7 @@ def seed_frame(tracking: TrackingConfig, frame_index: int) -> None:
 class Tracking:
     """The tracking state of one system and its map; ``Slam`` drives it frame by frame."""
 
-    def __init__(self, tc: TrackingConfig, camera: PinholeCamera) -> None:
+    def __init__(self, tc: TrackingConfig, camera: Intrinsics) -> None:
         self.tc = tc
         self.camera = camera
         self.matcher = Matcher(tc, camera)

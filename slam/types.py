@@ -5,49 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-import cv2
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.detectors.detection import Detection
-
-UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
-"""OpenCV's default 5 iterations leave ~0.5 px at the corners of a TUM fr1 image; 30 leave < 0.01."""
-
-
-@dataclass(frozen=True)
-class PinholeCamera:
-    """Pinhole intrinsics plus OpenCV's (k1, k2, p1, p2, k3) lens distortion (TUM fr1/fr2 have it)."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
-    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-
-    @property
-    def matrix(self) -> np.ndarray:
-        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
-
-    @property
-    def distorted(self) -> bool:
-        return any(self.distortion)
-
-    def undistort(self, points_px: np.ndarray) -> np.ndarray:
-        """Where image points (N, 2) would lie through a distortion-free lens (ORB-SLAM's mvKeysUn)."""
-        if not self.distorted or len(points_px) == 0:
-            return np.asarray(points_px, dtype=np.float64)
-        points = np.asarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
-        distortion = np.array(self.distortion)
-        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4; 5 took the criteria into undistortPoints
-            undistorted = cv2.undistortPointsIter(
-                points, self.matrix, distortion, None, self.matrix, UNDISTORT_CRITERIA
-            )
-        else:
-            undistorted = cv2.undistortPoints(
-                points, self.matrix, distortion, R=None, P=self.matrix, criteria=UNDISTORT_CRITERIA
-            )
-        return undistorted.reshape(-1, 2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +17,7 @@ class Frame:
     timestamp_s: float
     rgb: np.ndarray
     depth_m: np.ndarray
-    camera: PinholeCamera
+    camera: Intrinsics
     detections: tuple[Detection, ...] = ()
 
     def __post_init__(self) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from depotbench.sim.camera import Intrinsics
+from depotbench.core.camera import Intrinsics
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import SequenceWriter
 from scipy.spatial.transform import Rotation

@@ -1,10 +1,13 @@
 """The import graph points one way, at every level.
 
 Between root folders: ``eval -> slam, detectors, scenes, sim -> core`` (slam takes only the
-plain detection type). Inside ``eval``: its subpackages in the order of the pipeline, each
-importing only those before it. Everywhere: no import cycle between modules (imports inside
-functions count: a deferred import is still a dependency), and nothing outside the command
-line imports it. The package's face (``depotbench/``) may import anything.
+plain detection type and the camera). Inside ``eval``: its subpackages in the order of the
+pipeline, each importing only those before it; inside ``slam``: ORB-SLAM's parts in floors,
+tracking above local mapping and relocalisation above the matcher and the optimiser.
+Everywhere: no import cycle between modules (imports inside functions count: a deferred
+import is still a dependency), and nothing outside the command line imports it. The package's
+face (``depotbench/``: ``import depotbench`` and its API) may import anything, and no part
+imports it.
 """
 
 from __future__ import annotations
@@ -26,12 +29,12 @@ ALLOWED: dict[str, set[str]] = {
     "sim": {"core"},
     "scenes": {"core", "sim"},
     "detectors": {"core", "sim"},
-    "slam": {"detectors.detection"},
+    "slam": {"detectors.detection", "core.camera"},
     "eval": {"core", "sim", "scenes", "detectors", "slam"},
 }
 """For each root folder, the other project modules it may import (a package allows its submodules)."""
 
-STANDALONE = {"detectors/detection.py"}
+STANDALONE = {"detectors/detection.py", "core/camera.py"}
 """Modules that import nothing from the project (slam depends on them)."""
 
 EVAL_FLOORS = ("metrics", "trackers", "run", "detection", "sweep", "gates", "report", "pytest_plugin", "cli")
@@ -105,10 +108,12 @@ def violations(root: Path) -> list[str]:
         rel = path.relative_to(root).as_posix()
         allowed = set() if rel in STANDALONE else ALLOWED[package]
         for line, full, names in imported_modules(path):
-            if not full.startswith("depotbench."):
+            if not full.startswith("depotbench.") and full != "depotbench":
                 continue
             module = full.removeprefix("depotbench.")
             top = module.split(".")[0]
+            if full == "depotbench" or top == "api":
+                problems.append(f"{rel}:{line}: {package} must not import the package's face ({full})")
             for target in _targets(full, names, known):
                 if target != name:
                     edges[name].add(target)
@@ -119,7 +124,7 @@ def violations(root: Path) -> list[str]:
                     problems.append(
                         f"{rel}:{line}: eval.{EVAL_FLOORS[mine]} must not import {target} (above it)"
                     )
-            if top not in PACKAGES or top == package or _within(module, allowed):
+            if top not in PACKAGES or (top == package and rel not in STANDALONE) or _within(module, allowed):
                 continue
             # ``from depotbench.detectors import detection`` imports the allowed submodule.
             if names and all(_within(f"{module}.{n}", allowed) for n in names):
@@ -167,9 +172,17 @@ def test_checker_catches_a_wrong_import(tmp_path: Path):
         "def f():\n    from depotbench.eval.metrics.up import x\n    from depotbench.eval.cli import args\n"
     )
     (tmp_path / "eval" / "cli" / "args.py").write_text("")
+    (tmp_path / "eval" / "metrics" / "face.py").write_text(
+        "import depotbench\nfrom depotbench.api import run\n"
+    )
+    (tmp_path / "core" / "camera.py").write_text("from depotbench.core.errors import InputError\n")
+    (tmp_path / "slam" / "camera.py").write_text("from depotbench.core.camera import Intrinsics\n")
     found = violations(tmp_path)
     assert found == [
+        "core/camera.py:1: core must not import depotbench.core.errors",
         "detectors/detection.py:1: detectors must not import depotbench.sim.camera",
+        "eval/metrics/face.py:1: eval must not import the package's face (depotbench)",
+        "eval/metrics/face.py:2: eval must not import the package's face (depotbench.api)",
         "eval/metrics/up.py:1: eval.metrics must not import depotbench.eval.sweep.engine (above it)",
         "eval/sweep/engine.py:3: eval.sweep must not import depotbench.eval.cli.args (above it)",
         "eval/sweep/engine.py:3: only the command line imports depotbench.eval.cli.args",

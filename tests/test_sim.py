@@ -517,18 +517,18 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
     because people carry features; featureless people would make rejection moot. Keypoint
     density (per pixel) on people must be at least 0.4x that on the static world (measured
     0.49 on walking_static; the earlier smooth clothing gave 0.13)."""
+    from depotbench.core.camera import Intrinsics
     from depotbench.scenes import library
     from depotbench.scenes.schema import to_scenario
     from depotbench.sim.generate import generate
     from depotbench.slam.config import TrackingConfig
     from depotbench.slam.features import FeatureExtractor
-    from depotbench.slam.types import PinholeCamera
 
     scenario = library.get("walking_static").model_copy(update={"frames": 40, "duration_s": None})
     seq = Sequence.open(generate(to_scenario(scenario), tmp_path / "seq", progress=False))
     extractor = FeatureExtractor(TrackingConfig())
     k = seq.intrinsics
-    camera = PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+    camera = Intrinsics(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
     objects = seq.objects()
     ratios = []
     for i in range(0, len(seq), 4):

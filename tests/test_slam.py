@@ -233,11 +233,11 @@ def test_epipolar_rule_flags_points_off_their_epipolar_line():
 
 
 def test_pose_jacobian_matches_finite_differences():
+    from depotbench.core.camera import Intrinsics
     from depotbench.slam.geometry import exp_se3
     from depotbench.slam.optimize import _pose_jacobian, _residuals
-    from depotbench.slam.types import PinholeCamera
 
-    camera = PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480)
+    camera = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)
     rng = np.random.default_rng(0)
     points = rng.normal(0, 1, (6, 3)) + [0, 0, 4]
     uv = rng.normal(300, 50, (6, 2))
@@ -331,12 +331,12 @@ def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: P
 def _window(seed: int):
     """A keyframe window seen by a moving RGB-D camera: true and perturbed poses and points,
     observations with pixel noise by pyramid level, keypoints without depth and outliers."""
+    from depotbench.core.camera import Intrinsics
     from depotbench.slam.bundle import BundleWindow
     from depotbench.slam.geometry import exp_se3, invert
-    from depotbench.slam.types import PinholeCamera
 
     rng = np.random.default_rng(seed)
-    camera, bf = PinholeCamera(525.0, 525.0, 319.5, 239.5, 640, 480), 40.0
+    camera, bf = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480), 40.0
     world_from_camera = [
         exp_se3(np.r_[rng.normal(0, 0.03, 3), 0.15 * k, rng.normal(0, 0.02, 2)]) for k in range(6)
     ]

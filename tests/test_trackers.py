@@ -12,12 +12,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.core.camera import Intrinsics
 from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.trackers.builtin import camera_of
 from depotbench.eval.trackers.frames import FrameSource, MaskSettings, box_mask
 from depotbench.eval.trackers.vocabulary import Vocabulary, build, kmajority, read_text
+from depotbench.sim.camera import tum_intrinsics_for
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.optimize import refine_pose
-from depotbench.slam.types import PinholeCamera
 
 from tests.sequences import write_sequence
 from tests.test_output import cli, one_error_line
@@ -195,7 +197,16 @@ def test_command_failures_are_one_line(tmp_path: Path, fake_slam: Path, capsys):
 
 # -- undistortion (TUM fr1/fr2 lenses) ---------------------------------------------------------------
 
-FR1 = PinholeCamera(517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633))
+FR1 = tum_intrinsics_for(Path("rgbd_dataset_freiburg1_xyz"))
+"""The camera a real fr1 folder is read with: the same object the tracker undistorts with
+(one camera type, ``depotbench.core.camera``)."""
+
+
+def test_a_tum_folder_s_camera_reaches_the_tracker_with_its_lens(tmp_path: Path):
+    assert Intrinsics(517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)) == FR1
+    write_sequence(tmp_path / "seq", n=2)
+    sequence = Sequence.open(tmp_path / "seq")
+    assert camera_of(sequence) is sequence.intrinsics
 
 
 def test_undistorted_keypoints_are_the_pinhole_projections():

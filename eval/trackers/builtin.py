@@ -6,21 +6,22 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from depotbench.core.camera import Intrinsics
 from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import SlamConfig
 from depotbench.slam.rejection import box_classes, classify
 from depotbench.slam.system import Slam, seed_frame
-from depotbench.slam.types import Frame, FrameResult, PinholeCamera
+from depotbench.slam.types import Frame, FrameResult
 from tqdm import tqdm
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
 
 
-def camera_of(sequence: Sequence) -> PinholeCamera:
-    k = sequence.intrinsics
-    return PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height, k.distortion)
+def camera_of(sequence: Sequence) -> Intrinsics:
+    """The camera the tracker projects with: the sequence's own, distortion and all."""
+    return sequence.intrinsics
 
 
 def true_moving_labels(

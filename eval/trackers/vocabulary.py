@@ -198,7 +198,6 @@ def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarra
     from depotbench.sim.sequence import Sequence
     from depotbench.slam.config import TrackingConfig
     from depotbench.slam.features import FeatureExtractor
-    from depotbench.slam.types import PinholeCamera
 
     extractor = FeatureExtractor(TrackingConfig())
     images = []
@@ -208,8 +207,7 @@ def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarra
                 update={"frames": spec.frames, "duration_s": None, "seed": spec.seed}
             )
             sequence = Sequence.open(generate(to_scenario(scenario), Path(scratch) / name, progress=progress))
-            k = sequence.intrinsics
-            camera = PinholeCamera(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
+            camera = sequence.intrinsics
             for i in tqdm(
                 range(len(sequence)),
                 desc=f"ORB {name}",
