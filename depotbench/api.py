@@ -118,6 +118,22 @@ def _tracker(tracker: TrackerConfig | str, parameters: Mapping[str, Setting]) ->
     return tracker
 
 
+def _settings(settings: Mapping[str, Setting]) -> tuple[tuple[str, int | float | bool], ...]:
+    """Threshold values checked against their fields; text (``"2.5"``) is parsed as ``--set`` parses it."""
+    from depotbench.core.errors import InputError
+    from depotbench.slam.config import ConfigError, parse_setting, setting_value
+
+    try:
+        return tuple(
+            sorted(
+                (name, parse_setting(name, value) if isinstance(value, str) else setting_value(name, value))
+                for name, value in settings.items()
+            )
+        )
+    except ConfigError as exc:
+        raise InputError(f"settings: {exc}") from None
+
+
 def run(
     sequence: Sequence | str | Path,
     out: str | Path | None = None,
@@ -147,7 +163,7 @@ def run(
         root,
         strategy,
         _detector(detector),
-        tuple(sorted((name, str(value)) for name, value in (settings or {}).items())),
+        _settings(settings or {}),
         _tracker(tracker, parameters or {}),
     )
     stages = StageCache.from_env() if cache else None

@@ -483,7 +483,8 @@ def read_yaml(path: Path) -> Any:
 def check_option(field: str, value: Any, option: str) -> Any:
     """A command-line value checked against the limits the schema sets for ``field``."""
     info = Scenario.model_fields[field]
-    adapter = TypeAdapter(Annotated[info.annotation, *info.metadata])  # type: ignore[valid-type]
+    kind = Annotated[info.annotation, *info.metadata] if info.metadata else info.annotation  # type: ignore[valid-type]
+    adapter = TypeAdapter(kind)
     try:
         return adapter.validate_python(value)
     except ValidationError as exc:

@@ -6,6 +6,7 @@ Rejection thresholds cite their source; sweeps vary them by name (``--set k=2.5`
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -19,20 +20,6 @@ def _check(obj: Any, limits: dict[str, tuple[float, float]]) -> None:
         value = getattr(obj, name)
         if not low <= value <= high:
             raise ConfigError(f"{name} = {value} is out of range [{low}, {high}]")
-
-
-_BOOLEANS = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False}
-
-
-def _parse(name: str, text: str, kind: Any) -> int | float | bool:
-    if kind in ("bool", bool):
-        if text.lower() not in _BOOLEANS:
-            raise ConfigError(f"setting {name}={text!r} is not true or false")
-        return _BOOLEANS[text.lower()]
-    try:
-        return int(text) if kind in ("int", int) else float(text)
-    except ValueError:
-        raise ConfigError(f"setting {name}={text!r} is not a number") from None
 
 
 @dataclass(frozen=True)
@@ -192,20 +179,63 @@ class SlamConfig:
     tracking: TrackingConfig = TrackingConfig()
     rejection: RejectionConfig = RejectionConfig()
 
-    def with_settings(self, settings: dict[str, str]) -> SlamConfig:
-        """Apply ``name=value`` overrides; a name is looked up in rejection, then tracking."""
+    def with_settings(self, settings: Mapping[str, Setting]) -> SlamConfig:
+        """Apply overrides by name (typed values: ``setting_value`` checks each against its
+        field); a name is looked up in rejection, then tracking."""
         rejection, tracking = {}, {}
-        rej_names = {f.name: f.type for f in fields(RejectionConfig)}
-        trk_names = {f.name: f.type for f in fields(TrackingConfig)}
-        for name, text in settings.items():
-            target, types = (rejection, rej_names) if name in rej_names else (tracking, trk_names)
-            if name not in types:
-                raise ConfigError(
-                    f"unknown setting {name!r}; known: {', '.join(sorted(rej_names | trk_names))}"
-                )
-            target[name] = _parse(name, text, types[name])
+        rej_names = {f.name for f in fields(RejectionConfig)}
+        for name, value in settings.items():
+            (rejection if name in rej_names else tracking)[name] = setting_value(name, value)
         return dataclasses.replace(
             self,
             rejection=dataclasses.replace(self.rejection, **rejection),
             tracking=dataclasses.replace(self.tracking, **tracking),
         )
+
+
+_BOOLEANS = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False}
+
+Setting = int | float | bool
+"""A threshold's value, typed as its field is: text is parsed once, where it comes in
+(``parse_setting``: ``--set``), and every stage after that passes the value."""
+
+
+def _kind(name: str) -> str:
+    """The type of setting ``name``: 'int', 'float' or 'bool' (its field's annotation)."""
+    kinds = {f.name: str(f.type) for c in (RejectionConfig, TrackingConfig) for f in fields(c)}
+    if name not in kinds:
+        raise ConfigError(f"unknown setting {name!r}; known: {', '.join(sorted(kinds))}")
+    return kinds[name]
+
+
+def parse_setting(name: str, text: str) -> Setting:
+    """A setting given as text (``--set name=text``) as the value its field holds."""
+    kind = _kind(name)
+    if kind == "bool":
+        if text.strip().lower() not in _BOOLEANS:
+            raise ConfigError(f"setting {name}={text!r} is not true or false")
+        return _BOOLEANS[text.strip().lower()]
+    try:
+        return int(text) if kind == "int" else float(text)
+    except ValueError:
+        raise ConfigError(f"setting {name}={text!r} is not a number") from None
+
+
+def setting_value(name: str, value: Setting) -> Setting:
+    """A typed value checked against its field: a whole-number field takes 8 and 8.0 (a YAML
+    grid's numbers are floats) but not 8.5, a number field takes 2 as 2.0, a switch takes only
+    True or False. Text is refused: it is parsed at the edge (``parse_setting``)."""
+    kind = _kind(name)
+    if isinstance(value, str):
+        raise ConfigError(f"setting {name}={value!r}: give a value, not text")
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"setting {name}={value!r} is not true or false")
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"setting {name}={value!r} is not a number")
+    if kind == "int":
+        if not float(value).is_integer():
+            raise ConfigError(f"setting {name}={value!r} must be a whole number")
+        return int(value)
+    return float(value)

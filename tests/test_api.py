@@ -122,6 +122,12 @@ def test_evaluate_is_evo():
     assert result.ate.statistics.rmse == pytest.approx(expected["rmse"], rel=1e-6)
 
 
+def test_changes_are_checked_as_the_schema_checks_them():
+    spec = depotbench.scenario("walking_static", seed=3, frames=12, flow=True)
+    assert (spec.seed, spec.frames, spec.flow) == (3, 12, True)  # flow: a field with no limits
+    assert depotbench.scenario("default", frames=5).frames == 5
+
+
 def test_bad_input_is_one_line_naming_the_field(tmp_path: Path):
     with pytest.raises(InputError, match=r"^seed -1: .*the scenario's seed\)$"):
         depotbench.scenario("walking_static", seed=-1)
@@ -131,6 +137,10 @@ def test_bad_input_is_one_line_naming_the_field(tmp_path: Path):
         depotbench.scenario("walking_static", colour="red")
     with pytest.raises(InputError, match="unknown strategy 'fast'"):
         depotbench.run(tmp_path, strategy="fast")
+    with pytest.raises(InputError, match="settings: unknown setting 'kk'"):
+        depotbench.run(tmp_path, settings={"kk": 1})
+    with pytest.raises(InputError, match="settings: setting n_features=800.5 must be a whole number"):
+        depotbench.run(tmp_path, settings={"n_features": 800.5})
     with pytest.raises(InputError, match="detector"):
         depotbench.run(tmp_path, detector="yolo9000")
     with pytest.raises(InputError, match="compare needs two folders"):

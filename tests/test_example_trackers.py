@@ -21,7 +21,7 @@ from depotbench.eval.metrics.trajectory import Trajectory, read_tum
 from depotbench.eval.run.cache import StageCache
 from depotbench.eval.run.detections import detect_sequence
 from depotbench.eval.run.harness import RunJob, Tracked, track
-from depotbench.eval.sweep.spec import setting_text
+from depotbench.eval.sweep.spec import threshold_value
 from depotbench.eval.trackers.builtin import true_moving_labels
 from depotbench.eval.trackers.protocol import (
     read_detections,
@@ -137,7 +137,7 @@ def test_the_wrapped_builtin_tracker_gives_the_builtin_run_exactly(
         [str(EXAMPLES / "builtin_tracker.py"), "--sequence", str(root)]
         + [arg for name, path in files.items() for arg in (f"--{name}", str(path))]
     )
-    settings = tuple(sorted((name, setting_text(value)) for name, value in parameters.items()))
+    settings = tuple(sorted((name, threshold_value(name, value)) for name, value in parameters.items()))
     # The bench's run, on cached stages as its sweeps use them (tests/test_stages.py: bit
     # for bit the live run).
     builtin = track(RunJob(root, strategy, detector, settings), StageCache(tmp_path / "cache"))

@@ -257,10 +257,10 @@ def test_pose_jacobian_matches_finite_differences():
 
 
 def test_settings_are_named_typed_and_range_checked():
-    from depotbench.slam.config import ConfigError
+    from depotbench.slam.config import ConfigError, parse_setting
 
     config = SlamConfig(strategy="prior_flow").with_settings(
-        {"k": "2.5", "lk_window_px": "11", "n_features": "800"}
+        {"k": 2.5, "lk_window_px": 11, "n_features": 800}
     )
     assert (
         config.rejection.k == 2.5
@@ -268,14 +268,26 @@ def test_settings_are_named_typed_and_range_checked():
         and config.tracking.n_features == 800
     )
     with pytest.raises(ConfigError, match="k = -1.0 is out of range"):
-        SlamConfig().with_settings({"k": "-1"})
+        SlamConfig().with_settings({"k": -1})
     with pytest.raises(ConfigError, match="unknown setting 'kk'"):
-        SlamConfig().with_settings({"kk": "1"})
+        SlamConfig().with_settings({"kk": 1})
+    # Text is parsed once, at the edge (--set), into the field's type.
+    assert parse_setting("k", "2.5") == 2.5 and parse_setting("n_features", "800") == 800
+    assert parse_setting("motion_model_ransac", "True") is True
     with pytest.raises(ConfigError, match="is not a number"):
-        SlamConfig().with_settings({"epsilon_px": "wide"})
-    assert SlamConfig().with_settings({"motion_model_ransac": "True"}).tracking.motion_model_ransac is True
+        parse_setting("epsilon_px", "wide")
     with pytest.raises(ConfigError, match="motion_model_ransac='maybe' is not true or false"):
-        SlamConfig().with_settings({"motion_model_ransac": "maybe"})
+        parse_setting("motion_model_ransac", "maybe")
+    with pytest.raises(ConfigError, match="unknown setting 'kk'"):
+        parse_setting("kk", "1")
+    # After the edge only values pass: text, a fraction for a whole number, a number for a switch are refused.
+    with pytest.raises(ConfigError, match="give a value, not text"):
+        SlamConfig().with_settings({"k": "2.5"})
+    with pytest.raises(ConfigError, match="must be a whole number"):
+        SlamConfig().with_settings({"n_features": 800.5})
+    assert SlamConfig().with_settings({"n_features": 800.0}).tracking.n_features == 800
+    with pytest.raises(ConfigError, match="is not true or false"):
+        SlamConfig().with_settings({"motion_model_ransac": 1})
 
 
 def test_rotation_consistency_keeps_the_dominant_angle_changes():
@@ -320,9 +332,9 @@ def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: P
     """ORB-SLAM2's motion-model tracking (no RANSAC unless it fails) stays on the static scene."""
     metrics = {
         mode: run_sequence(
-            static_seq, tmp_path / mode, "none", settings={"motion_model_ransac": mode}, progress=False
+            static_seq, tmp_path / str(mode), "none", settings={"motion_model_ransac": mode}, progress=False
         )
-        for mode in ("false", "true")
+        for mode in (False, True)
     }
     for mode in metrics.values():
         assert mode["lost_frames"] == 0 and mode["ate_m"]["rmse"] <= 0.005

@@ -33,7 +33,7 @@ def _fingerprint(tracked) -> tuple:
 
 @pytest.mark.parametrize("strategy", STRATEGIES)
 def test_a_run_on_cached_stages_is_bit_identical_to_a_live_one(walking: Path, tmp_path: Path, strategy: str):
-    settings = (("k", "2.5"),) if strategy == "prior_flow" else ()
+    settings = (("k", 2.5),) if strategy == "prior_flow" else ()
     job = RunJob(walking, strategy, settings=settings)
     live = track(job)  # no cache: extracts and runs LK itself
     cache = StageCache(tmp_path / "cache")
@@ -58,15 +58,15 @@ def test_one_flow_stage_serves_every_flow_strategy_and_threshold(walking: Path, 
     entries = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*") if p.is_file()}
     misses = cache.misses
     for job in (
-        RunJob(walking, "prior_flow", settings=(("k", "1.5"),)),
-        RunJob(walking, "prior_flow", settings=(("k", "3.5"),)),
-        RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", "0.5"),)),
+        RunJob(walking, "prior_flow", settings=(("k", 1.5),)),
+        RunJob(walking, "prior_flow", settings=(("k", 3.5),)),
+        RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", 0.5),)),
     ):
         track(job, cache)
     assert cache.misses == misses  # every stage came from the cache
     assert {p for p in (tmp_path / "cache").rglob("*") if p.is_file()} == set(entries)
     # A tracking setting changes the features: a new entry.
-    track(RunJob(walking, "none", settings=(("n_features", "800"),)), cache)
+    track(RunJob(walking, "none", settings=(("n_features", 800),)), cache)
     assert len([p for p in (tmp_path / "cache" / "features").iterdir()]) == 2
 
 
@@ -113,7 +113,7 @@ def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tm
     cache = StageCache(tmp_path / "cache")
     jobs = [
         RunJob(walking, "box_epipolar_flow", settings=(("epsilon_px", eps),))
-        for eps in ("0.25", "1.0", "2.0", "8.0", "16.0")
+        for eps in (0.25, 1.0, 2.0, 8.0, 16.0)
     ]
     paths = []
     for job in jobs:

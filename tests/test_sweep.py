@@ -45,14 +45,37 @@ def test_thresholds_expand_into_grids_ranges_and_seeded_draws(tmp_path: Path):
     found = variants(spec)
     assert found[0].strategy == "none" and found[0].settings == ()
     draws = np.random.default_rng(7).uniform(1.0, 4.0, 3)
-    assert [dict(v.settings)["k"] for v in found if v.strategy == "prior_flow"] == [
-        repr(float(d)) for d in draws
-    ]
+    assert [dict(v.settings)["k"] for v in found if v.strategy == "prior_flow"] == [float(d) for d in draws]
     epipolar = [dict(v.settings) for v in found if v.strategy == "box_epipolar_flow"]
     assert epipolar == [
-        {"epsilon_px": e, "l_thr1_px": t} for e in ("0.5", "2") for t in ("0.5", "1", "1.5")
-    ]  # integers are written without a point: integer settings refuse "2.0"
+        {"epsilon_px": e, "l_thr1_px": t} for e in (0.5, 2.0) for t in (0.5, 1.0, 1.5)
+    ]  # values typed as their fields: the text of a value is parsed once, where it came in
+    assert all(type(v) is float for variant in found for _, v in variant.settings)
     assert variants(spec) == found  # seeded
+
+
+def test_one_threshold_value_is_one_job_however_it_was_written(tmp_path: Path):
+    """``--set k=2.0`` and a spec's ``grid: [2]`` are one configuration: one job key (the CLI's
+    text and the spec's number were two different texts, so the same run was keyed twice)."""
+    from depotbench.detectors.config import DetectorConfig
+    from depotbench.eval.run.harness import job_key
+    from depotbench.slam.config import parse_setting
+
+    spec = load_sweep(
+        _spec(
+            tmp_path,
+            "sweep: s\nsequences: [x]\nstrategies: [prior_flow, box_rule]\n"
+            "thresholds: {prior_flow: {k: {grid: [2]}}, box_rule: {box_dilation_px: {grid: [8]}}}\n",
+        )
+    )
+    found = {v.strategy: v.settings for v in variants(spec)}
+
+    def key(settings) -> str:
+        return job_key("fingerprint", (("kind", "builtin"),), DetectorConfig(), "prior_flow", settings)
+
+    for text in ("2", "2.0", "2.00"):
+        assert key((("k", parse_setting("k", text)),)) == key(found["prior_flow"])
+    assert key((("box_dilation_px", parse_setting("box_dilation_px", "8")),)) == key(found["box_rule"])
 
 
 @pytest.mark.parametrize(

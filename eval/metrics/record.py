@@ -33,8 +33,21 @@ def typed(text: str) -> int | float | str:
 
 
 def typed_json(pairs) -> str:
-    """Name-value pairs (texts) as sorted JSON of typed values."""
+    """An external tracker's parameters (texts) as sorted JSON of typed values."""
     return json.dumps({name: typed(str(value)) for name, value in dict(pairs).items()}, sort_keys=True)
+
+
+def settings_json(settings) -> str:
+    """Threshold values (typed) as a row's sorted JSON: a whole number is written without a
+    point (a float field's 3.0 reads as 3, as the spec wrote it), so SQLite's json_type and
+    the CSV show it as the number it was given."""
+
+    def plain(value):
+        if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+            return int(value)
+        return value
+
+    return json.dumps({name: plain(value) for name, value in dict(settings).items()}, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -50,8 +63,10 @@ class RunIdentity:
     tracker: str
     detector: str
     strategy: str
-    settings: tuple[tuple[str, str], ...] = ()
+    settings: tuple[tuple[str, int | float | bool], ...] = ()
+    """Threshold values, typed (``depotbench.slam.config.Setting``)."""
     parameters: tuple[tuple[str, str], ...] = ()
+    """An external tracker's parameters: text, as the program takes them."""
     detector_config: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
     knobs: dict[str, Any] = field(default_factory=dict)
@@ -128,7 +143,7 @@ class RunRecord:
             "detector": run.detector,
             "detector_config": json.dumps(run.detector_config, sort_keys=True, default=str),
             "strategy": run.strategy,
-            "settings": typed_json(run.settings),
+            "settings": settings_json(run.settings),
             "computed_by": run.key,
         }
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import re
 import shlex
 import shutil
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from depotbench.eval.trackers.frames import FrameSource, MaskSettings
 from depotbench.eval.trackers.registry import BUILTIN, TrackerConfig, tracker_type
 from depotbench.eval.trackers.registry import build as build_tracker
 from depotbench.sim.sequence import Sequence
-from depotbench.slam.config import ConfigError, SlamConfig, TrackingConfig, check_pyramid
+from depotbench.slam.config import ConfigError, Setting, SlamConfig, TrackingConfig, check_pyramid
 from depotbench.slam.rejection import STRATEGIES
 from depotbench.slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
@@ -50,9 +51,9 @@ MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
 
 
-def slam_config(strategy: str, settings: dict[str, str], tracker: str = BUILTIN) -> SlamConfig:
-    """The strategy and ``--set`` values, checked against what the tracker (a registry
-    name) can use."""
+def slam_config(strategy: str, settings: Mapping[str, Setting], tracker: str = BUILTIN) -> SlamConfig:
+    """The strategy and its settings (typed: ``--set`` text is parsed where it comes in),
+    checked against what the tracker (a registry name) can use."""
     if strategy not in STRATEGY_CHOICES:
         raise InputError(f"unknown strategy {strategy!r}; choose one of {', '.join(STRATEGY_CHOICES)}")
     if not tracker_type(tracker).per_keypoint:
@@ -81,8 +82,8 @@ class RunJob:
     sequence: Path
     strategy: str
     detector: DetectorConfig = field(default_factory=DetectorConfig)
-    settings: tuple[tuple[str, str], ...] = ()
-    """Threshold overrides by name (``--set``), sorted."""
+    settings: tuple[tuple[str, Setting], ...] = ()
+    """Threshold overrides by name (``--set``), typed, sorted."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
 
@@ -309,7 +310,7 @@ def run_sequence(
     out_dir: Path,
     strategy: str,
     detector: DetectorConfig | None = None,
-    settings: dict[str, str] | None = None,
+    settings: Mapping[str, Setting] | None = None,
     progress: bool = True,
     overwrite: bool = False,
     tracker: TrackerConfig | None = None,

@@ -32,6 +32,7 @@ from depotbench.eval.sweep.spec import (
     check_variants,
     detector_configs,
     setting_text,
+    threshold_value,
     tracker_configs,
 )
 from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
@@ -124,14 +125,15 @@ def _trial_jobs(
     check the values first (a new trial; an earlier one was checked when it ran)."""
     search = spec.search
     assert search is not None
-    settings = tuple((n, setting_text(v)) for n, v in sorted(values.items()))
     if search.tracker is None:
+        settings = tuple((n, threshold_value(n, v)) for n, v in sorted(values.items()))
         variant = Variant(search.strategy, settings)
         if source is not None:
             check_variants(spec, [variant], trackers, source)
         return jobs_for([variant], trackers, detectors, sequences, anchor)
     base = next(t for t in trackers if t.label == search.tracker)
-    tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | dict(settings)).items())))
+    settings = {n: setting_text(v) for n, v in values.items()}  # a program's parameters are text
+    tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | settings).items())))
     if source is not None:
         try:
             check_tracker(tracker)

@@ -44,6 +44,7 @@ from depotbench.eval.run.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, s
 from depotbench.eval.trackers.registry import EXTERNAL, TRACKERS, TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError, Strict, load_model
+from depotbench.slam.config import ConfigError, Setting, setting_value
 from pydantic import Field, model_validator
 
 MAX_JOBS = 100_000
@@ -243,13 +244,25 @@ class Variant:
     """One strategy with one set of threshold values."""
 
     strategy: str
-    settings: tuple[tuple[str, str], ...]
+    settings: tuple[tuple[str, Setting], ...]
+    """Threshold values by name, typed as their fields are (``threshold_value``)."""
 
 
 def setting_text(value: float) -> str:
-    """A value as ``--set`` takes it: integers without a point (integer fields refuse '2.0')."""
+    """A number as an external tracker's parameter text: integers without a point (a
+    program's integer field refuses '2.0')."""
     v = float(value)
     return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
+
+
+def threshold_value(name: str, value: float) -> Setting:
+    """A spec's number for threshold ``name`` as its field holds it (8.0 for a whole-number
+    field is 8). A name or value the field refuses stays as given: ``check_variants`` names
+    it with its place in the spec."""
+    try:
+        return setting_value(name, value)
+    except ConfigError:
+        return value
 
 
 def variants(spec: SweepSpec) -> list[Variant]:
@@ -263,7 +276,9 @@ def variants(spec: SweepSpec) -> list[Variant]:
         values = [_values(axes[n]) for n in names]
         for combo in itertools.product(*values) if names else [()]:
             out.append(
-                Variant(strategy, tuple((n, setting_text(v)) for n, v in zip(names, combo, strict=True)))
+                Variant(
+                    strategy, tuple((n, threshold_value(n, v)) for n, v in zip(names, combo, strict=True))
+                )
             )
     return out
 
@@ -466,7 +481,7 @@ def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) ->
         for value in (interval.low, interval.high):
             for kind in kinds:
                 try:
-                    slam_config(spec.search.strategy, {name: setting_text(value)}, kind)
+                    slam_config(spec.search.strategy, {name: threshold_value(name, value)}, kind)
                 except InputError as exc:
                     reason = str(exc).removeprefix("--set: ")
                     raise SpecError(f"{source}: search.space.{name}: {reason}") from None

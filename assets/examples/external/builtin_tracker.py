@@ -31,13 +31,12 @@ import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.eval.metrics.trajectory import Trajectory
 from depotbench.eval.run.harness import slam_config
-from depotbench.eval.sweep.spec import setting_text
 from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.protocol import read_detections, write_keypoints
 from depotbench.sim.sequence import Sequence, timestamp_name
-from depotbench.slam.config import ConfigError, SlamConfig, check_pyramid
+from depotbench.slam.config import ConfigError, Setting, SlamConfig, check_pyramid, parse_setting
 from depotbench.slam.rejection import STRATEGIES
 from depotbench.slam.types import REJECTION_CODES, Rejection
 
@@ -58,17 +57,15 @@ class ProgressFrames(FrameSource):
         return super().images(index)
 
 
-def setting_value(name: str, value: object) -> str:
-    """A JSON value as ``--set`` gives it: integers exactly, other numbers as a sweep writes
-    them (whole numbers without a point, which integer settings need), booleans as
-    true/false."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return setting_text(value)
+def setting_of(name: str, value: object) -> Setting:
+    """A JSON value as the setting it names: numbers and booleans as they are (the bench checks
+    them against their fields), text parsed as ``--set`` parses it."""
     if isinstance(value, str):
+        try:
+            return parse_setting(name, value)
+        except ConfigError as exc:
+            raise InputError(f"parameter {name}: {exc}") from None
+    if isinstance(value, bool | int | float):
         return value
     raise InputError(f"parameter {name}: {value!r} is not a number, a boolean or a string")
 
@@ -84,7 +81,7 @@ def read_config(path: Path, sequence: Sequence) -> SlamConfig:
     strategy = parameters.pop("strategy")
     if strategy not in STRATEGIES:  # the bench's 'mask' blanks {sequence} before any program sees it
         raise InputError(f"{path}: strategy {strategy!r} is none of {', '.join(STRATEGIES)}")
-    settings = {name: setting_value(name, value) for name, value in parameters.items()}
+    settings = {name: setting_of(name, value) for name, value in parameters.items()}
     config = slam_config(strategy, settings)
     camera = camera_of(sequence)
     try:  # as the bench's prepare() does, so a bad pyramid is one line, not a traceback
