@@ -28,6 +28,7 @@ if TYPE_CHECKING:  # the parts load when a function is called: ``import depotben
     from depotbench.eval.gates.budgets import GateReport
     from depotbench.eval.gates.compare import SetComparison
     from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions
+    from depotbench.eval.metrics.figures import ScoredRun
     from depotbench.eval.metrics.record import RunRecord
     from depotbench.eval.metrics.trajectory import Trajectory
     from depotbench.eval.trackers.registry import TrackerConfig
@@ -180,6 +181,8 @@ class SweepResult:
     folder: Path
     records: list[RunRecord]
     """Every run of the matrix, failed ones included (``failure`` says why)."""
+    runs: list[ScoredRun]
+    """The same runs with rho against their none run and the fraction of frames lost."""
     best: dict[str, Any]
     """The best configuration of each family (summary.json's ``best``)."""
     summary: dict[str, Any]
@@ -201,14 +204,22 @@ def sweep(
 ) -> SweepResult:
     """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows):
     results.sqlite, results.csv, summary.json and plots, as ``depotbench sweep`` leaves them."""
+    from depotbench.eval.metrics.figures import ScoredRun, with_derived
     from depotbench.eval.sweep.execute import sweep_folder
 
     out = Path(out)
     outcome = sweep_folder(
         Path(spec), out, workers, progress=progress, dedupe=dedupe, backend=backend, address=address
     )
+    scored = [ScoredRun.of_row(row) for row in with_derived(outcome.rows)]
     return SweepResult(
-        out, outcome.records, outcome.summary["best"], outcome.summary, outcome.written, outcome.plots
+        out,
+        outcome.records,
+        scored,
+        outcome.summary["best"],
+        outcome.summary,
+        outcome.written,
+        outcome.plots,
     )
 
 

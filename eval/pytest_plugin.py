@@ -8,7 +8,7 @@ def test_crowd_gates(depotbench_gates):
 def test_crowd(depotbench_run):
     run = depotbench_run("crowd", strategy="box_epipolar_flow", frames=60, seed=3,
                          budgets={"ate_rmse_m": {"max": 0.05}, "rejection_recall": {"min": 0.8}})
-    assert run["rho_percent"] > 20
+    assert run.rho_percent > 20  # a ScoredRun: its record and the derived figures
 
 @pytest.mark.depotbench_budgets(ate_rmse_m={"max": 0.05})
 def test_walking(depotbench_run):
@@ -37,6 +37,7 @@ from depotbench.core.errors import InputError
 from depotbench.core.output import OutputLock
 
 if TYPE_CHECKING:
+    from depotbench.eval.metrics.figures import ScoredRun
     from depotbench.eval.sweep.spec import SweepSpec
     from depotbench.sim.spec import ScenarioSpec
 
@@ -242,13 +243,15 @@ def the_row(rows: list[dict[str, Any]], strategy: str, job: str) -> dict[str, An
 
 
 @pytest.fixture
-def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Callable[..., dict[str, Any]]:
-    """Call with a scenario (library name or file) and a configuration; returns the run's
-    row (ATE, RPE, rho, rejection precision/recall, lost fraction, time ratio to the
-    ``none`` run). ``budgets`` (and a ``depotbench_budgets`` marker) are checked.
+def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Callable[..., ScoredRun]:
+    """Call with a scenario (library name or file) and a configuration; returns the run as a
+    ``ScoredRun``: its record (ATE, RPE, rejection precision/recall, ...) with rho, the
+    lost fraction and the time ratio to the ``none`` run (``run.rho_percent`` or
+    ``run["rho_percent"]``). ``budgets`` (and a ``depotbench_budgets`` marker) are checked.
     Everything is checked before any work: a configuration that cannot run is refused
     in one line, before a sequence is generated or a vocabulary built."""
     from depotbench.eval.gates.budgets import Check, GateFile, derived_rows, evaluate
+    from depotbench.eval.metrics.figures import ScoredRun
     from depotbench.eval.sweep.execute import execute_sweep
     from depotbench.eval.sweep.spec import SweepSpec
     from depotbench.scenes.schema import validate_model
@@ -268,7 +271,7 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
         settings: dict[str, float] | None = None,
         parameters: dict[str, float | str] | None = None,
         budgets: dict[str, dict[str, float]] | None = None,
-    ) -> dict[str, Any]:
+    ) -> ScoredRun:
         """``tracker``: builtin, orbslam3, or an external tracker as a sweep spec gives one
         (a mapping: name, command, parameters, settings, timeout_s, env; paths relative to
         the test's file); ``parameters``: its parameter values for this run."""
@@ -310,6 +313,6 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
             outcome = execute_sweep(spec, spec_path, out, workers, progress=False, announce=False)
         if gates is not None:
             _fail_on(evaluate(gates, outcome.rows))
-        return the_row(derived_rows(outcome.rows, "none"), strategy, job)
+        return ScoredRun.of_row(the_row(derived_rows(outcome.rows, "none"), strategy, job))
 
     return run

@@ -91,6 +91,15 @@ def test_a_sweep_returns_the_rows_it_stored(session):
         assert row["strategy"] == record.strategy and row["settings"] == record.settings
     summary = json.loads((work / "sweep" / "summary.json").read_text())
     assert result.best == summary["best"]
+    # The scored runs carry rho against the none run of their sequence, as results.csv does.
+    assert [run.record for run in result.runs] == result.records
+    for run in result.runs:
+        shown = stored[run.key]["rho_percent"]
+        if shown == "":
+            assert run.rho_percent is None
+        else:
+            assert float(shown) == pytest.approx(run.rho_percent, rel=1e-9)
+    assert all(run.rho_percent is not None for run in result.runs)  # every sequence has its none run
 
 
 def test_check_agrees_with_the_command_lines_exit(session, tmp_path: Path):

@@ -284,3 +284,31 @@ def test_a_gate_file_is_found_beside_the_test_that_names_it(pytester):
             "no:cacheprovider",
         )
         result.assert_outcomes(passed=1)
+
+
+@pytest.mark.render
+def test_a_run_is_its_record_with_the_figures_derived_from_the_runs_beside_it(pytester):
+    """depotbench_run returns a ScoredRun: the typed record the sweep stored, and rho taken
+    against the none run of the same sequence (read back from the results database)."""
+    pytester.makepyfile(
+        """
+        import sqlite3
+
+        import pytest
+        from depotbench.eval.metrics.record import RunRecord
+
+        def test_typed(depotbench_run, depotbench_dir):
+            run = depotbench_run("smoke", strategy="box_rule", frames=6, seed=2)
+            assert isinstance(run.record, RunRecord) and run.strategy == "box_rule"
+            assert run.ate_rmse_m == run["ate_rmse_m"] == run.record.ate_rmse_m
+            assert run.lost_fraction == pytest.approx(1.0 - run.tracked_fraction)
+            (database,) = (depotbench_dir / "runs").glob("*/results.sqlite")
+            with sqlite3.connect(database) as db:
+                ate = dict(db.execute("SELECT strategy, ate_rmse_m FROM runs"))
+            assert run.rho_percent == pytest.approx(100 * (ate["none"] - ate["box_rule"]) / ate["none"])
+            with pytest.raises(KeyError):
+                run["no_such_figure"]
+        """
+    )
+    result = pytester.runpytest_subprocess("--depotbench-workers=1", "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1)

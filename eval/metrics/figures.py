@@ -13,6 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from depotbench.eval.metrics.record import FIELDS as RECORD_FIELDS
+from depotbench.eval.metrics.record import RunRecord
+
 BASELINE_STRATEGY = "none"
 """The run every rho is taken against: the same sequence, tracker, parameters and detector,
 tracked with no rejection."""
@@ -93,3 +96,40 @@ def with_derived(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         tracked = r.get("tracked_fraction")
         out.append({**r, "rho_percent": rho, "lost_fraction": None if tracked is None else 1.0 - tracked})
     return out
+
+
+@dataclass(frozen=True)
+class ScoredRun:
+    """One run as it is judged: its record, and the figures derived from the runs beside it
+    (rho against its none run, the fraction of frames lost, the time ratio to a reference).
+
+    Fields read through: ``run.ate_rmse_m`` is the record's, ``run.rho_percent`` derived;
+    ``run["name"]`` reads any figure or column by name (how budgets and tables name them).
+    """
+
+    record: RunRecord
+    rho_percent: float | None = None
+    lost_fraction: float | None = None
+    time_ratio: float | None = None
+
+    @classmethod
+    def of_row(cls, row: dict[str, Any]) -> ScoredRun:
+        """A derived row (``with_derived``, the gates' ``derived_rows``) as its typed run."""
+        return cls(
+            RunRecord.from_row(row),
+            row.get("rho_percent"),
+            row.get("lost_fraction"),
+            row.get("time_ratio"),
+        )
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):  # copy and pickle probe dunders before fields exist
+            raise AttributeError(name)
+        return getattr(self.record, name)
+
+    def __getitem__(self, name: str) -> Any:
+        if name in ("rho_percent", "lost_fraction", "time_ratio"):
+            return getattr(self, name)
+        if name not in RECORD_FIELDS:
+            raise KeyError(name)
+        return getattr(self.record, name)
