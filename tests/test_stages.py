@@ -158,6 +158,36 @@ def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Pat
     assert main(["sweep", str(spec), "-o", str(out), "--workers", "1"]) == 0  # resumed: nothing left
     assert "wrote 0 rows" in capsys.readouterr().out
     assert json.loads((out / "summary.json").read_text())["search"]["trials"] == 4
+    _the_report_rebuilds_each_trials_job(spec, out, walking)
+
+
+def _the_report_rebuilds_each_trials_job(spec_path: Path, out: Path, walking: Path) -> None:
+    """The report tracks a featured trial again from its row alone (its settings read back
+    from the row's JSON): the job it rebuilds must have the row's key, or it is not shown."""
+    from depotbench.eval.report.html import _Grid, _job_of_row
+    from depotbench.eval.run.detections import sequence_fingerprint
+    from depotbench.eval.sweep.spec import (
+        detector_configs,
+        load_sweep,
+        tracker_configs,
+        tracker_variants,
+        variants,
+    )
+    from depotbench.eval.sweep.store import ResultStore
+    from depotbench.sim.sequence import Sequence
+
+    spec, source = load_sweep(spec_path), str(spec_path)
+    trackers = tracker_configs(spec, source)
+    grid = _Grid(
+        tracker_variants(spec, trackers, source), detector_configs(spec, source), variants(spec), out
+    )
+    sequence = Sequence.open(walking)
+    with ResultStore(out / "results.sqlite", readonly=True) as store:
+        trials = [r for r in store.rows() if r["strategy"] == "prior_flow"]
+    assert len(trials) == 4
+    for row in trials:
+        job = _job_of_row(row, grid, sequence, sequence_fingerprint(sequence))
+        assert job is not None and job.key == row["key"]
 
 
 def test_a_run_folder_carries_the_row_a_sweep_stores_for_the_same_job(walking: Path, tmp_path: Path):

@@ -906,6 +906,7 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
     if its key is the row's."""
     from depotbench.eval.run.harness import RunJob, identity_of, job_key, tracker_identity
     from depotbench.eval.sweep.engine import SweepJob
+    from depotbench.eval.sweep.spec import threshold_value
 
     if fingerprint is None:
         return None
@@ -915,7 +916,7 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
         return None
     parameters = tuple(sorted((k, str(v)) for k, v in json.loads(row.get("parameters") or "{}").items()))
     tracker = replace(trackers[0], parameters=parameters) if parameters else trackers[0]
-    settings = tuple(sorted((k, str(v)) for k, v in json.loads(row["settings"]).items()))
+    settings = tuple(sorted((k, threshold_value(k, v)) for k, v in json.loads(row["settings"]).items()))
     for detector in detectors:
         key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings)
         if key == row["key"]:
