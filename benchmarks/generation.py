@@ -48,9 +48,8 @@ import numpy as np
 
 def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[float, float]:
     """(seconds to build the world, seconds to generate, world building included), both
-    of one ``generate`` call: the build is timed inside it. (Until 0.3.15 a separate
-    build was timed before it and subtracted; that guess of the build's time was off by
-    its own drift, and on a tiny run under load it gave negative rates.)"""
+    of one ``generate`` call: the build is timed inside it, since a build timed apart and
+    subtracted is off by its own drift (on a tiny run under load, a negative rate)."""
     frames, width, height, seed, out, one_thread, png_compression, scene = args
     if one_thread:
         from depotbench.core.executors import single_threaded
