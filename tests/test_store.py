@@ -144,3 +144,33 @@ def test_counts_a_0_3_15_database_kept_as_reals_are_read_as_integers(tmp_path: P
     store._db.commit()
     with pytest.raises(StoreError, match="frames is 4.5, not an integer"):
         store.rows()
+
+
+def _version_4_store(path: Path) -> None:
+    """A results database as record version 4 wrote it: no ate_median_m column."""
+    store = ResultStore(path)
+    store.add(_record("old"))
+    store.close()
+    with sqlite3.connect(path) as db:
+        db.execute("ALTER TABLE runs DROP COLUMN ate_median_m")
+        db.execute("UPDATE runs SET record_version = 4")
+
+
+def test_an_earlier_versions_store_is_read_and_resumed_with_the_new_column_empty(tmp_path: Path):
+    """A baseline kept from before the median ATE (record version 4) still serves compare and
+    check --baseline, and a sweep folder of it resumes: the column is added, its rows keep
+    it empty. A store of columns no version had is still refused."""
+    database = tmp_path / "v4.sqlite"
+    _version_4_store(database)
+    with ResultStore(database, readonly=True) as store:
+        (row,) = store.rows()
+    assert row["key"] == "old" and row["ate_median_m"] is None and row["ate_rmse_m"] == 0.01
+    with ResultStore(database) as store:
+        store.add(replace(_record("new"), ate_median_m=0.008))
+        assert {r["key"]: r["ate_median_m"] for r in store.rows()} == {"old": None, "new": 0.008}
+    with ResultStore(database, readonly=True) as store:  # the added column's order is its own
+        assert len(store.rows()) == 2
+    with sqlite3.connect(database) as db:
+        db.execute("ALTER TABLE runs ADD COLUMN colour TEXT")
+    with pytest.raises(StoreError, match="other columns than record version"):
+        ResultStore(database, readonly=True)

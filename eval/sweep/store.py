@@ -35,6 +35,11 @@ def _column(name: str) -> str:
     return f"{name} {_SQL[_KINDS[name]]}{' PRIMARY KEY' if name == 'key' else ''}"
 
 
+ADDED_COLUMNS = {"ate_median_m": 5}
+"""Columns a later record version added, with that version: a store written before them is
+read with them empty, and a resumed one gains them (its old rows keep them empty), so a
+baseline or a sweep folder of an earlier version still serves ``compare`` and ``check``."""
+
 SQLITE_HEADER = b"SQLite format 3\x00"
 LOCK_WAIT_S = 30.0
 """How long a write waits for another program's lock on the file (a viewer, a backup)."""
@@ -68,6 +73,8 @@ class ResultStore:
     def __init__(self, path: Path, readonly: bool = False) -> None:
         self.path = path
         self.readonly = readonly
+        self._missing: tuple[str, ...] = ()
+        """Columns of ``ADDED_COLUMNS`` an earlier version's store lacks (read as empty)."""
         existing = path.exists()
         if existing or readonly:
             self._check_existing()  # read-only: a refused file is left byte for byte as it was
@@ -78,6 +85,9 @@ class ResultStore:
                 self._db = sqlite3.connect(path, timeout=LOCK_WAIT_S)
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute(f"CREATE TABLE IF NOT EXISTS runs ({', '.join(_column(f) for f in FIELDS)})")
+                for name in self._missing:  # an earlier version's store, resumed: its rows keep NULL
+                    self._db.execute(f"ALTER TABLE runs ADD COLUMN {_column(name)}")
+                self._missing = ()
                 self._db.execute("CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value TEXT)")
                 self._db.commit()
         except sqlite3.Error as exc:
@@ -125,7 +135,11 @@ class ResultStore:
             raise store_error(path, exc) from None
         if not tables:
             return
-        if "runs" not in tables or tuple(columns) != FIELDS:
+        missing = tuple(f for f in FIELDS if f not in columns)
+        if "runs" in tables and set(columns) <= set(FIELDS) and set(missing) <= set(ADDED_COLUMNS):
+            self._missing = missing
+            return
+        if "runs" not in tables or set(columns) != set(FIELDS):
             raise StoreError(
                 f"{path}: its runs table has other columns than record version {RECORD_VERSION}; "
                 "give a new output folder"
@@ -171,7 +185,7 @@ class ResultStore:
     def by_signature(self, signature: str) -> RunRecord | None:
         """A tracked row with this decision signature, if the store has one."""
         found = self._read(
-            f"SELECT {', '.join(FIELDS)} FROM runs WHERE signature = ? AND computed_by = key LIMIT 1",
+            f"SELECT {self._columns()} FROM runs WHERE signature = ? AND computed_by = key LIMIT 1",
             (signature,),
         )
         return RunRecord(**self._typed(found[0])) if found else None
@@ -187,8 +201,12 @@ class ResultStore:
         """Every row, ordered by key (a stable order for comparisons and exports), each value
         of its column's type."""
         return [
-            self._typed(values) for values in self._read(f"SELECT {', '.join(FIELDS)} FROM runs ORDER BY key")
+            self._typed(values) for values in self._read(f"SELECT {self._columns()} FROM runs ORDER BY key")
         ]
+
+    def _columns(self) -> str:
+        """Every record column by name; those an earlier version's store lacks, as NULL."""
+        return ", ".join(f"NULL AS {f}" if f in self._missing else f for f in FIELDS)
 
     def _typed(self, values: tuple) -> dict[str, Any]:
         """A row whose every value has its column's type: SQLite keeps what it is given, so a
