@@ -204,14 +204,14 @@ def sweep(
 ) -> SweepResult:
     """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows):
     results.sqlite, results.csv, summary.json and plots, as ``depotbench sweep`` leaves them."""
-    from depotbench.eval.metrics.figures import ScoredRun, with_derived
+    from depotbench.eval.metrics.figures import with_derived
     from depotbench.eval.sweep.execute import sweep_folder
 
     out = Path(out)
     outcome = sweep_folder(
         Path(spec), out, workers, progress=progress, dedupe=dedupe, backend=backend, address=address
     )
-    scored = [ScoredRun.of_row(row) for row in with_derived(outcome.rows)]
+    scored = with_derived(outcome.records)
     return SweepResult(
         out,
         outcome.records,

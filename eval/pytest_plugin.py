@@ -229,8 +229,8 @@ def _check_configuration(spec: SweepSpec, spec_path: Path, job: str) -> None:
                 raise InputError(f"{job}: {exc}") from None
 
 
-def the_row(rows: list[dict[str, Any]], strategy: str, job: str) -> dict[str, Any]:
-    """The row of ``strategy`` (for ``none``, the bare baseline) among a run's derived rows."""
+def the_row(rows: list[ScoredRun], strategy: str, job: str) -> ScoredRun:
+    """The run of ``strategy`` (for ``none``, the bare baseline) among a matrix's scored runs."""
     from depotbench.eval.metrics.figures import is_baseline
 
     found = [r for r in rows if r["strategy"] == strategy and (strategy != "none" or is_baseline(r))]
@@ -251,7 +251,6 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
     Everything is checked before any work: a configuration that cannot run is refused
     in one line, before a sequence is generated or a vocabulary built."""
     from depotbench.eval.gates.budgets import Check, GateFile, derived_rows, evaluate
-    from depotbench.eval.metrics.figures import ScoredRun
     from depotbench.eval.sweep.execute import execute_sweep
     from depotbench.eval.sweep.spec import SweepSpec
     from depotbench.scenes.schema import validate_model
@@ -312,7 +311,7 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
         with _claim(out):  # two processes with one spec share its results database
             outcome = execute_sweep(spec, spec_path, out, workers, progress=False, announce=False)
         if gates is not None:
-            _fail_on(evaluate(gates, outcome.rows))
-        return ScoredRun.of_row(the_row(derived_rows(outcome.rows, "none"), strategy, job))
+            _fail_on(evaluate(gates, outcome.records))
+        return the_row(derived_rows(outcome.records, "none"), strategy, job)
 
     return run

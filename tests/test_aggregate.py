@@ -3,16 +3,23 @@ case, failures are counted, and the best configuration is one that held on every
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
 from depotbench.eval.sweep.summary import best_per_family, configurations
 from scipy import stats as sps
 
+from tests.records import record
+
 ATES = [0.010, 0.014, 0.009, 0.030]
 
 
-def _row(seed: int, ate: float | None, tracked: float = 1.0, failure: str | None = None, **extra) -> dict:
+def _row(
+    seed: int, ate: float | None, tracked: float = 1.0, failure: str | None = None, **extra
+) -> RunRecord:
     row = {
         "key": f"k{seed}-{extra.get('settings', '{}')}",
         "family": "walk",
@@ -32,7 +39,7 @@ def _row(seed: int, ate: float | None, tracked: float = 1.0, failure: str | None
         "tracked_fraction": tracked,
         "track_ms_median": 20.0 + seed,
     }
-    return row | extra
+    return record(**(row | extra))
 
 
 def test_statistics_over_seeds_equal_numpy_and_scipy_on_a_closed_case():
@@ -67,7 +74,7 @@ def test_a_failed_or_mostly_lost_run_is_counted_as_a_failure_never_dropped():
 def test_a_configuration_that_lost_track_on_one_seed_of_four_is_not_the_best():
     steady = [_row(seed, ate + 0.002, settings='{"k": 2}') for seed, ate in enumerate(ATES)]
     lost_once = [_row(seed, ate, settings='{"k": 3}') for seed, ate in enumerate(ATES)]
-    lost_once[2]["tracked_fraction"] = 0.5
+    lost_once[2] = replace(lost_once[2], tracked_fraction=0.5)
     configs = configurations(steady + lost_once)
     rates = {c["settings"]["k"]: c["success_rate"] for c in configs}
     assert rates == {2: 1.0, 3: 0.75}

@@ -7,15 +7,18 @@ import json
 import math
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from depotbench.eval.cli.main import main
 from depotbench.eval.gates.compare import compare_rows
+from depotbench.eval.metrics.record import RunRecord
 from scipy.stats import ttest_rel
 
 from tests.conftest import REPO
+from tests.records import record
 
 ORACLE = REPO / "tests" / "programs" / "oracle_slam.py"
 COMMAND = (
@@ -25,22 +28,24 @@ COMMAND = (
 ATE = [0.010, 0.020, 0.040, 0.015]
 
 
-def _rows(strategy: str, settings: dict, ates: list[float], tracked: float = 1.0) -> list[dict]:
+def _rows(strategy: str, settings: dict, ates: list[float], tracked: float = 1.0) -> list[RunRecord]:
     return [
-        {
-            "key": f"{strategy}-{json.dumps(settings)}-{seed}",
-            "family": "walk",
-            "sequence": f"/suite/walk-{seed:04d}",
-            "tracker": "builtin",
-            "parameters": "{}",
-            "detector": "groundtruth",
-            "strategy": strategy,
-            "settings": json.dumps(settings),
-            "ate_rmse_m": ate,
-            "rpe_translation_rmse_m": 0.001,
-            "tracked_fraction": tracked,
-            "track_ms_median": 20.0,
-        }
+        record(
+            **{
+                "key": f"{strategy}-{json.dumps(settings)}-{seed}",
+                "family": "walk",
+                "sequence": f"/suite/walk-{seed:04d}",
+                "tracker": "builtin",
+                "parameters": "{}",
+                "detector": "groundtruth",
+                "strategy": strategy,
+                "settings": json.dumps(settings),
+                "ate_rmse_m": ate,
+                "rpe_translation_rmse_m": 0.001,
+                "tracked_fraction": tracked,
+                "track_ms_median": 20.0,
+            }
+        )
         for seed, ate in enumerate(ates)
     ]
 
@@ -79,7 +84,7 @@ def test_slower_time_is_a_regression_only_when_asked():
     """Two sweeps run at different moments differ in load: time fails a comparison only with
     ``time=True`` (``--time``)."""
     first = _rows("none", {}, ATE)
-    second = [row | {"track_ms_median": 40.0 + i} for i, row in enumerate(_rows("none", {}, ATE))]
+    second = [replace(row, track_ms_median=40.0 + i) for i, row in enumerate(_rows("none", {}, ATE))]
     result = compare_rows(first, second)
     assert result.regressions(0.05) == []
     (slower,) = result.regressions(0.05, time=True)

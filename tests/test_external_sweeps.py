@@ -379,6 +379,7 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
     """What a 2-parameter sweep of ORB-SLAM3 showed (six parameters, two swept): labels
     cut to defaults, plots for unswept parameters with zigzag lines, and the page's best
     run drawn from another parameter setting."""
+    from depotbench.eval.sweep.store import ResultStore
     from depotbench.eval.sweep.summary import configurations, threshold_figures
 
     spec = _spec(
@@ -388,8 +389,8 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
         strategies="[none]",
     )
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
-    rows = _rows(tmp_path / "sw")
-    configs = configurations([r | {"failure": r["failure"] or None} | _numbers(r) for r in rows])
+    with ResultStore(tmp_path / "sw" / "results.sqlite", readonly=True) as store:
+        configs = configurations(store.records())
     labels = {c["label"] for c in configs if c["tracker"] == "oracle"}
     assert labels == {f"oracle margin_px={m} noise_m={n} · none" for m in (0, 8) for n in (0, 0.05)}
     names = [name for name, _ in threshold_figures(configs)]
@@ -401,10 +402,3 @@ def test_tables_and_plots_name_the_parameters_a_sweep_varies_and_the_report_dril
     page = (tmp_path / "rep" / "index.html").read_text()
     wanted = settings_text({k: best["parameters"][k] for k in sorted(best["parameters"])})
     assert f"smoke: best — oracle {wanted}" in page
-
-
-def _numbers(row: dict[str, str]) -> dict:
-    """A CSV row's figures as numbers (empty as None), as the store gives them."""
-    from depotbench.eval.metrics.figures import FIGURES
-
-    return {f.name: float(row[f.name]) if row[f.name] else None for f in FIGURES if f.name in row}

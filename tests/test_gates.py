@@ -10,10 +10,13 @@ from xml.etree import ElementTree as ET
 import pytest
 from depotbench.eval.cli.main import main
 from depotbench.eval.gates.budgets import GateFile, evaluate, junit_xml, load_gates
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.scenes.schema import SpecError
 
+from tests.records import record
 
-def _row(sequence: str, strategy: str, ate: float, ms: float, **extra) -> dict:
+
+def _row(sequence: str, strategy: str, ate: float, ms: float, **extra) -> RunRecord:
     row = {
         "key": f"{sequence}-{strategy}",
         "family": "walk",
@@ -32,7 +35,7 @@ def _row(sequence: str, strategy: str, ate: float, ms: float, **extra) -> dict:
         "track_ms_mean": ms,
         "wall_time_s": 1.0,
     }
-    return row | extra
+    return record(**(row | extra))
 
 
 def _gates(checks: str) -> GateFile:

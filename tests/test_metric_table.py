@@ -7,8 +7,10 @@ import pytest
 from depotbench.eval.gates.budgets import METRICS as BUDGETS
 from depotbench.eval.gates.compare import COMPARED
 from depotbench.eval.metrics.figures import FIGURES, is_baseline, with_derived
-from depotbench.eval.metrics.record import FIELDS
+from depotbench.eval.metrics.record import FIELDS, RunRecord
 from depotbench.eval.metrics.statistics import METRICS, SuccessRule, summarize
+
+from tests.records import record
 
 
 def test_every_measured_figure_is_a_field_of_the_run_record():
@@ -21,17 +23,19 @@ def test_statistics_gates_and_compare_read_the_table():
     assert set(COMPARED) == {f.name for f in FIGURES if f.compared}
 
 
-def _row(sequence: str, strategy: str, ate: float | None, settings: str = "{}") -> dict:
-    return {
-        "sequence": sequence,
-        "tracker": "builtin",
-        "parameters": "{}",
-        "detector": "groundtruth",
-        "strategy": strategy,
-        "settings": settings,
-        "ate_rmse_m": ate,
-        "tracked_fraction": 0.75,
-    }
+def _row(sequence: str, strategy: str, ate: float | None, settings: str = "{}") -> RunRecord:
+    return record(
+        **{
+            "sequence": sequence,
+            "tracker": "builtin",
+            "parameters": "{}",
+            "detector": "groundtruth",
+            "strategy": strategy,
+            "settings": settings,
+            "ate_rmse_m": ate,
+            "tracked_fraction": 0.75,
+        }
+    )
 
 
 def test_rho_is_taken_against_the_bare_none_run_of_the_same_sequence():
@@ -48,7 +52,7 @@ def test_rho_is_taken_against_the_bare_none_run_of_the_same_sequence():
 
 
 def test_a_figure_added_to_the_table_is_summarised_over_seeds():
-    rows = [dict(_row(s, "none", 0.1), failure=None) for s in "abc"]
+    rows = [_row(s, "none", 0.1) for s in "abc"]
     summary = summarize(with_derived(rows), SuccessRule(0.5))
     assert summary["stats"]["lost_fraction"]["mean"] == pytest.approx(0.25)
     assert summary["stats"]["ate_rmse_m"]["n"] == 3

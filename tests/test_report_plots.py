@@ -10,10 +10,12 @@ from __future__ import annotations
 import json
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.sweep.summary import (
     FAILED_COLOUR,
     configurations,
@@ -29,6 +31,8 @@ from depotbench.eval.sweep.summary import (
 from matplotlib.collections import PathCollection, PolyCollection
 from matplotlib.colors import to_rgba
 
+from tests.records import record
+
 FAMILIES = ("fam a", "fam b", "fam c")
 """fam c ran one seed: its curves have no interval."""
 SPREAD = {1: 0.003, 2: 0.0005, 3: 0.0071}
@@ -36,28 +40,33 @@ SPREAD = {1: 0.003, 2: 0.0005, 3: 0.0071}
 spaced values is degenerate)."""
 
 
-def _row(family: str, seed: int, strategy: str, settings: dict, ate: float | None, **extra) -> dict:
-    return {
-        "key": f"{family}-{seed}-{strategy}-{json.dumps(settings)}",
-        "family": family,
-        "sequence": f"seq-{family}-{seed}",
-        "seed": seed,
-        "knobs": json.dumps({"seed": seed}),
-        "tracker": "builtin",
-        "parameters": "{}",
-        "detector": "groundtruth",
-        "strategy": strategy,
-        "settings": json.dumps(settings),
-        "failure": None,
-        "ate_rmse_m": ate,
-        "rejection_precision": None if strategy == "none" else 0.4 + 0.01 * seed,
-        "rejection_recall": None if strategy == "none" else 0.9,
-        "tracked_fraction": 1.0,
-        "track_ms_median": 5.0 + (0 if strategy == "none" else 1.0) + 0.1 * seed,
-    } | extra
+def _row(family: str, seed: int, strategy: str, settings: dict, ate: float | None, **extra) -> RunRecord:
+    return record(
+        **(
+            {
+                "key": f"{family}-{seed}-{strategy}-{json.dumps(settings)}",
+                "family": family,
+                "sequence": f"seq-{family}-{seed}",
+                "seed": seed,
+                "knobs": json.dumps({"seed": seed}),
+                "tracker": "builtin",
+                "parameters": "{}",
+                "detector": "groundtruth",
+                "strategy": strategy,
+                "settings": json.dumps(settings),
+                "failure": None,
+                "ate_rmse_m": ate,
+                "rejection_precision": None if strategy == "none" else 0.4 + 0.01 * seed,
+                "rejection_recall": None if strategy == "none" else 0.9,
+                "tracked_fraction": 1.0,
+                "track_ms_median": 5.0 + (0 if strategy == "none" else 1.0) + 0.1 * seed,
+            }
+            | extra
+        )
+    )
 
 
-def _rows() -> list[dict]:
+def _rows() -> list[RunRecord]:
     rows = []
     for f, family in enumerate(FAMILIES):
         seeds = (1,) if family == "fam c" else (1, 2, 3)
@@ -71,17 +80,17 @@ def _rows() -> list[dict]:
                     _row(family, seed, "box_epipolar_flow", {"epsilon_px": eps}, base * (1 + eps / 10))
                 )
     # fam b: one seed of one setting failed (an external program's exit), one lost track.
-    for r in rows:
-        if r["family"] == "fam b" and r["strategy"] == "box_epipolar_flow" and r["seed"] == 2:
-            if json.loads(r["settings"]) == {"epsilon_px": 0.5}:
-                r |= {"failure": "exit 3", "ate_rmse_m": None}
+    for i, r in enumerate(rows):
+        if r.family == "fam b" and r.strategy == "box_epipolar_flow" and r.seed == 2:
+            if json.loads(r.settings) == {"epsilon_px": 0.5}:
+                rows[i] = replace(r, failure="exit 3", ate_rmse_m=None)
             else:
-                r |= {"tracked_fraction": 0.5}
+                rows[i] = replace(r, tracked_fraction=0.5)
     return rows
 
 
 @pytest.fixture(scope="module")
-def rows() -> list[dict]:
+def rows() -> list[RunRecord]:
     return _rows()
 
 

@@ -106,7 +106,7 @@ def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_sui
         outcome = depotbench.eval.sweep.execute.execute_sweep(
             spec, spec_path, tmp_path / spec_path.stem, 1, progress=False, announce=False
         )
-        rows[spec_path.stem] = sorted((r["family"], r["knobs"], r["seed"]) for r in outcome.rows)
+        rows[spec_path.stem] = sorted((r.family, r.knobs, r.seed) for r in outcome.records)
     assert renders.frames == 6  # the suite: sweep copied from the store, the other used the folder
     assert "2 from the store and 0 to generate" in capsys.readouterr().out
     assert rows["by-folder"] == rows["by-suite"]

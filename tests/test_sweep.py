@@ -19,6 +19,7 @@ from depotbench.eval.sweep.spec import SweepSpec, load_sweep, variants
 from depotbench.eval.sweep.store import ResultStore
 from depotbench.scenes.schema import SpecError
 
+from tests.records import record
 from tests.sequences import write_sequence
 
 REPO = Path(__file__).resolve().parents[1]
@@ -242,30 +243,9 @@ def test_rho_is_taken_against_the_none_run_of_the_same_sequence_and_detector():
     from depotbench.eval.sweep.summary import with_rho
 
     rows = [
-        {
-            "sequence": "s",
-            "tracker": "builtin",
-            "detector": "d",
-            "strategy": "none",
-            "settings": "{}",
-            "ate_rmse_m": 0.4,
-        },
-        {
-            "sequence": "s",
-            "tracker": "builtin",
-            "detector": "d",
-            "strategy": "x",
-            "settings": "{}",
-            "ate_rmse_m": 0.1,
-        },
-        {
-            "sequence": "s",
-            "tracker": "builtin",
-            "detector": "e",
-            "strategy": "x",
-            "settings": "{}",
-            "ate_rmse_m": 0.1,
-        },
+        record(sequence="s", detector="d", strategy="none", ate_rmse_m=0.4),
+        record(sequence="s", detector="d", strategy="x", ate_rmse_m=0.1),
+        record(sequence="s", detector="e", strategy="x", ate_rmse_m=0.1),
     ]
     assert [r["rho_percent"] for r in with_rho(rows)] == [0.0, pytest.approx(75.0), None]
 

@@ -162,7 +162,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         outcome = execute_sweep(gates.run, DEMO_GATES, out, args.workers)
         print(f"2/4 best configuration per family (of {outcome.jobs} runs; rho: ATE improvement over none)")
         print(format_best(outcome.summary["best"], outcome.summary["unqualified"]))
-        report = evaluate(gates, outcome.rows)
+        report = evaluate(gates, outcome.records)
         print("3/4 gates")
         print(format_report(report))
         write_text_atomic(out / "gates.xml", junit_xml(report))

@@ -33,11 +33,12 @@ import fnmatch
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, with_derived
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, ScoredRun, with_derived
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
 from depotbench.eval.sweep.spec import SweepSpec
 from depotbench.eval.sweep.summary import settings_text
@@ -232,7 +233,7 @@ class GateReport:
         return not self.failures
 
 
-def _row_name(row: dict[str, Any]) -> str:
+def _row_name(row: ScoredRun) -> str:
     settings = json.loads(row["settings"])
     shown = settings_text(dict(sorted(settings.items())))
     parameters = settings_text(dict(sorted(json.loads(row.get("parameters") or "{}").items())))
@@ -251,7 +252,7 @@ def _tags(sequence: str, cache: dict[str, set[str]]) -> set[str]:
     return cache[sequence]
 
 
-def _selects(check: Check, row: dict[str, Any], tags: dict[str, set[str]]) -> bool:
+def _selects(check: Check, row: ScoredRun, tags: dict[str, set[str]]) -> bool:
     if check.families and not any(fnmatch.fnmatchcase(row["family"], g) for g in check.families):
         return False
     if check.tags and not set(check.tags) & _tags(row["sequence"], tags):
@@ -278,7 +279,7 @@ def _same_value(stored: str, wanted: float | str) -> bool:
         return False
 
 
-def _same_settings(row: dict[str, Any], wanted: dict[str, float]) -> bool:
+def _same_settings(row: RunRecord, wanted: dict[str, float]) -> bool:
     settings = json.loads(row["settings"])
     return set(settings) == set(wanted) and all(
         math.isclose(float(settings[k]), v, rel_tol=1e-9, abs_tol=1e-12) for k, v in wanted.items()
@@ -286,21 +287,21 @@ def _same_settings(row: dict[str, Any], wanted: dict[str, float]) -> bool:
 
 
 def derived_rows(
-    rows: list[dict[str, Any]], reference: str, reference_settings: dict[str, float] | None = None
-) -> list[dict[str, Any]]:
-    """Rows with rho, the fraction of frames not tracked and the time ratio: a row's time over
-    the one run of the ``reference`` strategy with exactly ``reference_settings`` on the same
-    sequence, tracker and detector."""
+    records: list[RunRecord], reference: str, reference_settings: dict[str, float] | None = None
+) -> list[ScoredRun]:
+    """The runs with rho, the fraction of frames not tracked and the time ratio: a run's time
+    over the one run of the ``reference`` strategy with exactly ``reference_settings`` on the
+    same sequence, tracker and detector."""
     wanted = reference_settings or {}
     times: dict[tuple[str, str, str], float | None] = {}
-    for r in rows:
-        if r["strategy"] == reference and _same_settings(r, wanted):
-            times[(r["sequence"], r["tracker"], r["detector"])] = r["track_ms_mean"]
+    for r in records:
+        if r.strategy == reference and _same_settings(r, wanted):
+            times[(r.sequence, r.tracker, r.detector)] = r.track_ms_mean
     out = []
-    for r in with_derived(rows):
-        base = times.get((r["sequence"], r["tracker"], r["detector"]))
-        ratio = r["track_ms_mean"] / base if base and r["track_ms_mean"] is not None else None
-        out.append(r | {"time_ratio": ratio})
+    for run in with_derived(records):
+        base = times.get((run.sequence, run.tracker, run.detector))
+        ratio = run.track_ms_mean / base if base and run.track_ms_mean is not None else None
+        out.append(replace(run, time_ratio=ratio))
     return out
 
 
@@ -311,13 +312,13 @@ def _within(value: float | None, bound: Bound) -> bool:
 
 
 def evaluate(
-    gates: GateFile, rows: list[dict[str, Any]], baseline: list[dict[str, Any]] | None = None
+    gates: GateFile, records: list[RunRecord], baseline: list[RunRecord] | None = None
 ) -> GateReport:
     """Check every row each check selects against its per-run budgets, and each of its
     configurations (the runs of one family with one tracker, detector, strategy and
     settings: the seeds) against its aggregate budgets; ``vs_baseline`` budgets pair the
     configuration's runs with ``baseline``'s on the same sequences."""
-    rows = derived_rows(rows, gates.reference, gates.reference_settings)
+    rows = derived_rows(records, gates.reference, gates.reference_settings)
     base = derived_rows(baseline, gates.reference, gates.reference_settings) if baseline is not None else None
     rule = SuccessRule(gates.run.statistics.min_tracked_fraction)
     reference = gates.reference_label()
@@ -350,7 +351,7 @@ def evaluate(
     return GateReport(gates.gates, tuple(results), tuple(empty))
 
 
-def _configuration_key(row: dict[str, Any]) -> tuple:
+def _configuration_key(row: ScoredRun) -> tuple:
     return (
         row["family"],
         row["tracker"],
@@ -361,14 +362,14 @@ def _configuration_key(row: dict[str, Any]) -> tuple:
     )
 
 
-def _configurations(rows: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
-    groups: dict[tuple, list[dict[str, Any]]] = {}
+def _configurations(rows: list[ScoredRun]) -> list[list[ScoredRun]]:
+    groups: dict[tuple, list[ScoredRun]] = {}
     for row in rows:
         groups.setdefault(_configuration_key(row), []).append(row)
     return [groups[key] for key in sorted(groups)]
 
 
-def _group_name(members: list[dict[str, Any]]) -> str:
+def _group_name(members: list[ScoredRun]) -> str:
     first = members[0]
     parameters = settings_text(dict(sorted(json.loads(first.get("parameters") or "{}").items())))
     settings = settings_text(dict(sorted(json.loads(first["settings"]).items())))
@@ -376,7 +377,7 @@ def _group_name(members: list[dict[str, Any]]) -> str:
     return " ".join(p for p in parts if p) + f" over {len(members)} runs"
 
 
-def _pairing(row: dict[str, Any]) -> str:
+def _pairing(row: ScoredRun) -> str:
     """What pairs a run with the baseline's: its sequence folder's name (a suite's numbered
     variations keep their names wherever the suite is generated)."""
     return Path(row["sequence"]).name
@@ -384,10 +385,10 @@ def _pairing(row: dict[str, Any]) -> str:
 
 def _group_result(
     check_name: str,
-    members: list[dict[str, Any]],
+    members: list[ScoredRun],
     budgets: dict[str, Bound],
     rule: SuccessRule,
-    baseline: list[dict[str, Any]] | None,
+    baseline: list[ScoredRun] | None,
 ) -> CheckResult:
     name = _group_name(members)
     summary = summarize(members, rule)
@@ -415,7 +416,7 @@ def _group_result(
 
 
 def _versus_baseline(
-    metric: str, bound: Bound, members: list[dict[str, Any]], baseline: list[dict[str, Any]] | None
+    metric: str, bound: Bound, members: list[ScoredRun], baseline: list[ScoredRun] | None
 ) -> tuple[float | None, bool, str]:
     """The paired change of ``metric`` from the baseline's runs of this configuration, and
     whether it holds: a change past the bound fails only when it is real (the paired test's
@@ -438,7 +439,7 @@ def _versus_baseline(
     return change.change, not (outside and real), note
 
 
-def _note(row: dict[str, Any], metric: str, reference: str) -> str:
+def _note(row: ScoredRun, metric: str, reference: str) -> str:
     if row.get("failure"):
         return f"(the run failed: {row['failure']})"
     return f"against {reference}" if metric == "time_ratio" else ""

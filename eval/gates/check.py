@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from depotbench.eval.gates.budgets import GateFile, GateReport
+from depotbench.eval.metrics.record import RunRecord
 
 
 @dataclass(frozen=True)
@@ -18,7 +19,7 @@ class Gates:
     path: Path
     inputs: tuple[Path, ...]
     """The files the matrix reads (an output folder must not be one of them)."""
-    baseline: list[dict] | None
+    baseline: list[RunRecord] | None
 
 
 def open_gates(path: Path, baseline: Path | None = None) -> Gates:
@@ -53,7 +54,7 @@ def run_gates(
     workers: int,
     backend: str = "local",
     address: str | None = None,
-    baseline: list[dict] | None = None,
+    baseline: list[RunRecord] | None = None,
 ) -> GateReport:
     """The gate file's matrix through the sweep engine (cache and stored rows reused), checked
     (``baseline``: an earlier run's rows, for ``vs_baseline`` budgets)."""
@@ -61,10 +62,10 @@ def run_gates(
     from depotbench.eval.sweep.execute import execute_sweep
 
     outcome = execute_sweep(gates.run, gates_path, out, workers, backend=backend, address=address)
-    return evaluate(gates, outcome.rows, baseline)
+    return evaluate(gates, outcome.records, baseline)
 
 
-def load_baseline(folder: Path) -> list[dict]:
+def load_baseline(folder: Path) -> list[RunRecord]:
     """An earlier check's or sweep's rows (read only), as the gates compare against them."""
     from depotbench.core.errors import InputError
     from depotbench.eval.sweep.store import ResultStore
@@ -75,4 +76,4 @@ def load_baseline(folder: Path) -> list[dict]:
             f"--baseline {folder}: no results.sqlite there (give an earlier check's or sweep's -o folder)"
         )
     with ResultStore(database, readonly=True) as store:
-        return store.rows()
+        return store.records()

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
-from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, TIME, with_derived
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, TIME, ScoredRun, with_derived
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import Change, paired_change, stats
 from depotbench.eval.sweep.summary import configuration_label
 
@@ -75,14 +76,14 @@ class Comparison:
         }
 
 
-def load_rows(folder: Path) -> list[dict[str, Any]]:
-    """A sweep's or check's rows (results.sqlite), or a run folder's one row (record.json)."""
+def load_rows(folder: Path) -> list[RunRecord]:
+    """A sweep's or check's runs (results.sqlite), or a run folder's one run (record.json)."""
     from depotbench.core.files import read_text
     from depotbench.eval.sweep.store import ResultStore
 
     if (folder / "results.sqlite").is_file():
         with ResultStore(folder / "results.sqlite", readonly=True) as store:
-            return store.rows()
+            return store.records()
     if (folder / "record.json").is_file():
         try:
             row = json.loads(read_text(folder / "record.json", 1 << 20, "run record"))
@@ -90,11 +91,14 @@ def load_rows(folder: Path) -> list[dict[str, Any]]:
             raise InputError(f"{folder / 'record.json'}: not valid JSON ({exc})") from None
         if not isinstance(row, dict) or "key" not in row:
             raise InputError(f"{folder / 'record.json'}: not a run record")
-        return [row]
+        try:
+            return [RunRecord.from_row(row)]
+        except KeyError as exc:
+            raise InputError(f"{folder / 'record.json'}: not a run record (no {exc.args[0]})") from None
     raise InputError(f"{folder}: neither a sweep folder (results.sqlite) nor a run folder (record.json)")
 
 
-def _config(row: dict[str, Any]) -> tuple:
+def _config(row: ScoredRun) -> tuple:
     return (
         row["family"],
         row["tracker"],
@@ -111,10 +115,10 @@ def _label(key: tuple) -> str:
     return f"{label} ({detector})"
 
 
-def _groups(rows: list[dict[str, Any]]) -> dict[tuple, dict[str, dict[str, Any]]]:
+def _groups(records: list[RunRecord]) -> dict[tuple, dict[str, ScoredRun]]:
     """Per configuration, its runs by sequence name (what pairs runs across sets)."""
-    out: dict[tuple, dict[str, dict[str, Any]]] = {}
-    for row in with_derived(rows):
+    out: dict[tuple, dict[str, ScoredRun]] = {}
+    for row in with_derived(records):
         out.setdefault(_config(row), {})[Path(row["sequence"]).name] = row
     return out
 
@@ -164,8 +168,8 @@ class SetComparison:
         }
 
 
-def compare_rows(base_rows: list[dict[str, Any]], other_rows: list[dict[str, Any]]) -> SetComparison:
-    base, other = _groups(base_rows), _groups(other_rows)
+def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) -> SetComparison:
+    base, other = _groups(base_records), _groups(other_records)
     pairs = _pairs(base, other)
     out, unshared = [], []
     for key_a, key_b in pairs:

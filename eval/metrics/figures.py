@@ -10,10 +10,10 @@ a gate file names).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from depotbench.eval.metrics.record import FIELDS as RECORD_FIELDS
 from depotbench.eval.metrics.record import RunRecord
 
 BASELINE_STRATEGY = "none"
@@ -77,27 +77,6 @@ def _parameters(row: dict[str, Any]) -> str:
     return row.get("parameters") or "{}"
 
 
-def with_derived(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The rows with rho (against the baseline run of their sequence, tracker, parameters and
-    detector; None without one or without an ATE) and the fraction of frames lost."""
-    from depotbench.eval.metrics.accuracy import improvement_rate  # numpy and scipy: when used
-
-    baseline = {
-        (r["sequence"], r["tracker"], _parameters(r), r["detector"]): r["ate_rmse_m"]
-        for r in rows
-        if is_baseline(r)
-    }
-    out = []
-    for r in rows:
-        base = baseline.get((r["sequence"], r["tracker"], _parameters(r), r["detector"]))
-        rho = None
-        if base is not None and r["ate_rmse_m"] is not None and base > 0:
-            rho = improvement_rate(base, r["ate_rmse_m"])
-        tracked = r.get("tracked_fraction")
-        out.append({**r, "rho_percent": rho, "lost_fraction": None if tracked is None else 1.0 - tracked})
-    return out
-
-
 @dataclass(frozen=True)
 class ScoredRun:
     """One run as it is judged: its record, and the figures derived from the runs beside it
@@ -114,7 +93,7 @@ class ScoredRun:
 
     @classmethod
     def of_row(cls, row: dict[str, Any]) -> ScoredRun:
-        """A derived row (``with_derived``, the gates' ``derived_rows``) as its typed run."""
+        """A row with its derived columns (an exported table's) as its typed run."""
         return cls(
             RunRecord.from_row(row),
             row.get("rho_percent"),
@@ -128,8 +107,41 @@ class ScoredRun:
         return getattr(self.record, name)
 
     def __getitem__(self, name: str) -> Any:
-        if name in ("rho_percent", "lost_fraction", "time_ratio"):
+        if name in DERIVED_COLUMNS:
             return getattr(self, name)
-        if name not in RECORD_FIELDS:
-            raise KeyError(name)
-        return getattr(self.record, name)
+        return self.record[name]
+
+    def get(self, name: str, default: Any = None) -> Any:
+        """A figure or column by name, or ``default`` for a name that is neither."""
+        return getattr(self, name) if name in DERIVED_COLUMNS else self.record.get(name, default)
+
+    def __contains__(self, name: object) -> bool:
+        return name in DERIVED_COLUMNS or name in self.record
+
+    def to_row(self) -> dict[str, Any]:
+        """The record's columns and rho and the lost fraction: a row of results.csv."""
+        return self.record.to_row() | {"rho_percent": self.rho_percent, "lost_fraction": self.lost_fraction}
+
+
+DERIVED_COLUMNS = ("rho_percent", "lost_fraction", "time_ratio")
+"""The figures ``ScoredRun`` adds to a record."""
+
+
+def with_derived(records: Iterable[RunRecord]) -> list[ScoredRun]:
+    """The runs with rho (against the baseline run of their sequence, tracker, parameters and
+    detector; None without one or without an ATE) and the fraction of frames lost."""
+    from depotbench.eval.metrics.accuracy import improvement_rate  # numpy and scipy: when used
+
+    records = list(records)
+    baseline = {
+        (r.sequence, r.tracker, _parameters(r), r.detector): r.ate_rmse_m for r in records if is_baseline(r)
+    }
+    out = []
+    for r in records:
+        base = baseline.get((r.sequence, r.tracker, _parameters(r), r.detector))
+        rho = None
+        if base is not None and r.ate_rmse_m is not None and base > 0:
+            rho = improvement_rate(base, r.ate_rmse_m)
+        lost = None if r.tracked_fraction is None else 1.0 - r.tracked_fraction
+        out.append(ScoredRun(r, rho, lost))
+    return out

@@ -219,10 +219,32 @@ class RunRecord:
     @classmethod
     def from_row(cls, row: dict[str, Any]) -> RunRecord:
         """A stored row as its record: its columns by name (columns a table derives, such
-        as rho, are not the record's and are left out)."""
-        return cls(**{name: row[name] for name in FIELDS if name in row})
+        as rho, are not the record's and are left out; those a later version added,
+        ``ADDED_FIELDS``, are empty in a row written before them). KeyError names a
+        column the row lacks."""
+        missing = [name for name in FIELDS if name not in row and name not in ADDED_FIELDS]
+        if missing:
+            raise KeyError(missing[0])
+        return cls(**{name: row.get(name) for name in FIELDS if name in row or name in ADDED_FIELDS})
+
+    def __getitem__(self, name: str) -> Any:
+        """A column by the name tables, budgets and gate files use (``run["ate_rmse_m"]``)."""
+        if name not in _FIELD_SET:
+            raise KeyError(name)
+        return getattr(self, name)
+
+    def get(self, name: str, default: Any = None) -> Any:
+        """A column by name, or ``default`` for a name that is not a column."""
+        return getattr(self, name) if name in _FIELD_SET else default
+
+    def __contains__(self, name: object) -> bool:
+        return name in _FIELD_SET
 
 
 FIELDS = tuple(f.name for f in fields(RunRecord))
+_FIELD_SET = frozenset(FIELDS)
+ADDED_FIELDS = {"ate_median_m": 5}
+"""Columns a later record version added, with that version: rows and stores written before
+them read with them empty (a baseline kept from version 4 still serves compare and check)."""
 TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")
 DETERMINISTIC_FIELDS = tuple(f for f in FIELDS if f not in TIMING_FIELDS)

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO
+from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, ScoredRun
 
 CONFIDENCE = 0.95
 RESAMPLES = 2000
@@ -112,7 +112,7 @@ def confidence_interval(values: np.ndarray) -> tuple[float | None, float | None]
     return None, None
 
 
-def summarize(rows: list[dict[str, Any]], rule: SuccessRule) -> dict[str, Any]:
+def summarize(rows: list[ScoredRun], rule: SuccessRule) -> dict[str, Any]:
     """The runs of one configuration in one family (its seeds): counts and every figure's
     statistics."""
     successes = sum(rule.holds(r) for r in rows)

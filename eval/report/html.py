@@ -41,7 +41,8 @@ import numpy as np
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MIB, open_regular, read_text
 from depotbench.eval.metrics.alignment import Alignment, align
-from depotbench.eval.metrics.figures import is_baseline
+from depotbench.eval.metrics.figures import ScoredRun, is_baseline
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
 from depotbench.eval.sweep.summary import (
@@ -871,7 +872,7 @@ class SweepSequences:
         )
 
 
-def _row_of(rows: list[dict[str, Any]], family: str, config: dict[str, Any]) -> dict[str, Any] | None:
+def _row_of(rows: list[ScoredRun], family: str, config: dict[str, Any]) -> ScoredRun | None:
     """A stored row of ``config`` in ``family`` (settings compared as sorted JSON): one that
     did not fail and has an ATE where there is one (a configuration shown for a family where
     none held may have failed on some seeds)."""
@@ -900,7 +901,7 @@ class _Grid:
     """The sweep folder: rows name the sequences inside it relative to it."""
 
 
-def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprint: str | None):
+def _job_of_row(row: ScoredRun | RunRecord, grid: _Grid, sequence: Sequence, fingerprint: str | None):
     """The job of a stored row outside the spec's grid (a search trial: its tracker's
     parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
     if its key is the row's."""
@@ -926,7 +927,7 @@ def _job_of_row(row: dict[str, Any], grid: _Grid, sequence: Sequence, fingerprin
     return None
 
 
-def _missing_job(row: dict[str, Any], fingerprint: str | None) -> str:
+def _missing_job(row: ScoredRun, fingerprint: str | None) -> str:
     """Why a stored row has no job in the spec's grid on the sequence as it is now."""
     if fingerprint is not None and row.get("sequence_fingerprint") not in (None, fingerprint):
         return (
@@ -939,8 +940,8 @@ def _missing_job(row: dict[str, Any], fingerprint: str | None) -> str:
 def _track_family(
     family: str,
     config: dict,
-    chosen: dict,
-    rows: list[dict],
+    chosen: ScoredRun,
+    rows: list[ScoredRun],
     sequence: Sequence,
     grid: _Grid,
     notes: Notes,
@@ -992,7 +993,7 @@ def _track_family(
 
 def _featured_runs(
     folder: Path,
-    rows: list[dict[str, Any]],
+    rows: list[ScoredRun],
     featured: dict[str, tuple[dict, str]],
     sequences: SweepSequences,
     notes: Notes,
@@ -1166,7 +1167,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) 
 
     summary = read_summary(folder / "summary.json")
     with ResultStore(folder / "results.sqlite", readonly=True) as store:
-        rows = with_rho(store.rows())
+        rows = with_rho(store.records())
     sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]
@@ -1282,7 +1283,7 @@ def _knobs(row: dict[str, Any]) -> str:
     return settings_text({k: v for k, v in sorted(knobs.items()) if k != "seed"})
 
 
-def _difficulty_rows(rows: list[dict[str, Any]], sequences: SweepSequences) -> str:
+def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> str:
     """Per sequence, its seed and suite knobs (from the rows) and its scenario's difficulty
     (from its meta.json; ``–`` where the sequence is gone or none was recorded)."""
     found: list[tuple[str, Any, str, dict | None]] = []

@@ -7,7 +7,7 @@ matrix through this one function (and so through ``depotbench.eval.sweep.engine.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +22,8 @@ from depotbench.eval.sweep.summary import best_per_family, configurations, paret
 
 @dataclass(frozen=True)
 class SweepOutcome:
-    rows: list[dict[str, Any]]
-    """This sweep's rows (with this sweep's families), as stored."""
+    records: list[RunRecord]
+    """This sweep's runs (with this sweep's families; sequences named absolutely)."""
     summary: dict[str, Any]
     jobs: int
     written: int
@@ -31,11 +31,6 @@ class SweepOutcome:
     seconds: float
     plots: list[Path]
     search: dict[str, Any] | None
-
-    @property
-    def records(self) -> list[RunRecord]:
-        """The rows as typed records (``sequence`` absolute, ``family`` this sweep's)."""
-        return [RunRecord.from_row(row) for row in self.rows]
 
 
 def execute_sweep(
@@ -73,18 +68,16 @@ def execute_sweep(
         if spec.search is not None:
             search = run_search(spec, spec_path, sequences, store, out, workers, **where)
             family |= search.pop("families")
-        rows = [r | {"family": family[r["key"]]} for r in store.rows() if r["key"] in family]
-        store.export_csv(out / "results.csv", with_rho(rows))
+        records = [replace(r, family=family[r.key]) for r in store.records() if r.key in family]
+        store.export_csv(out / "results.csv", [run.to_row() for run in with_rho(records)])
         # Rows name a sequence inside the sweep folder relative to it (a moved sweep keeps its
         # figures); those handed on (gates, the plugin) name it absolutely.
-        rows = [
-            r | {"sequence": str(out.resolve() / r["sequence"])}
-            if not Path(r["sequence"]).is_absolute()
-            else r
-            for r in rows
+        records = [
+            replace(r, sequence=str(out.resolve() / r.sequence)) if not Path(r.sequence).is_absolute() else r
+            for r in records
         ]
     rule = SuccessRule(spec.statistics.min_tracked_fraction)
-    configs = configurations(rows, rule)
+    configs = configurations(records, rule)
     best = best_per_family(configs, spec.statistics.best_min_success_rate)
     summary = {
         "best": best,
@@ -98,8 +91,8 @@ def execute_sweep(
         "search": search,
     }
     write_text_atomic(out / "summary.json", dumps_json(summary) + "\n")
-    plots = plot(configs, out / "plots", rows, rule)
-    return SweepOutcome(rows, summary, len(jobs), written, tracked, elapsed, plots, search)
+    plots = plot(configs, out / "plots", records, rule)
+    return SweepOutcome(records, summary, len(jobs), written, tracked, elapsed, plots, search)
 
 
 def sweep_folder(

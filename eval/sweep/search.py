@@ -21,6 +21,7 @@ import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
 from depotbench.detectors.config import DetectorConfig
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.run.cache import content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.run.harness import tracker_identity
@@ -52,13 +53,13 @@ def _optuna():
     return optuna
 
 
-def objective(rows: list[dict[str, Any]], search: Search) -> float:
-    ates = [r["ate_rmse_m"] for r in rows]
-    if not rows or any(a is None or not np.isfinite(a) for a in ates):
+def objective(records: list[RunRecord], search: Search) -> float:
+    ates = [r.ate_rmse_m for r in records]
+    if not records or any(a is None or not np.isfinite(a) for a in ates):
         return float("inf")  # a run without a trajectory is the worst outcome
     value = float(np.mean(ates))
     if search.objective == "ate_time":
-        times = [r["track_ms_median"] for r in rows if r["track_ms_median"] is not None]
+        times = [r.track_ms_median for r in records if r.track_ms_median is not None]
         value += search.time_weight * float(np.mean(times)) if times else 0.0
     return value
 
@@ -178,8 +179,7 @@ def run_search(
         families |= {j.key: j.family for j in jobs}
         run_jobs(jobs, store, workers, progress=False, backend=backend, address=address)
         keys = {j.key for j in jobs}
-        rows = [r for r in store.rows() if r["key"] in keys]
-        value = objective(rows, search)
+        value = objective([r for r in store.records() if r.key in keys], search)
         study.tell(trial, value)
         if progress:
             shown = {n: setting_text(v) for n, v in sorted(values.items())}

@@ -21,7 +21,7 @@ from typing import Any
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
 from depotbench.core.output import write_text_atomic
-from depotbench.eval.metrics.record import FIELDS, RECORD_VERSION, RunRecord
+from depotbench.eval.metrics.record import ADDED_FIELDS, FIELDS, RECORD_VERSION, RunRecord
 
 _KIND_OF_TYPE = {"str": str, "int": int, "float": float}
 _KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_fields(RunRecord)}
@@ -34,11 +34,6 @@ _KIND_NAMES = {str: "text", int: "an integer", float: "a number"}
 def _column(name: str) -> str:
     return f"{name} {_SQL[_KINDS[name]]}{' PRIMARY KEY' if name == 'key' else ''}"
 
-
-ADDED_COLUMNS = {"ate_median_m": 5}
-"""Columns a later record version added, with that version: a store written before them is
-read with them empty, and a resumed one gains them (its old rows keep them empty), so a
-baseline or a sweep folder of an earlier version still serves ``compare`` and ``check``."""
 
 SQLITE_HEADER = b"SQLite format 3\x00"
 LOCK_WAIT_S = 30.0
@@ -74,7 +69,8 @@ class ResultStore:
         self.path = path
         self.readonly = readonly
         self._missing: tuple[str, ...] = ()
-        """Columns of ``ADDED_COLUMNS`` an earlier version's store lacks (read as empty)."""
+        """Columns of ``ADDED_FIELDS`` an earlier version's store lacks: read as empty, and a
+        resumed store gains them (its old rows keep them empty)."""
         existing = path.exists()
         if existing or readonly:
             self._check_existing()  # read-only: a refused file is left byte for byte as it was
@@ -136,7 +132,7 @@ class ResultStore:
         if not tables:
             return
         missing = tuple(f for f in FIELDS if f not in columns)
-        if "runs" in tables and set(columns) <= set(FIELDS) and set(missing) <= set(ADDED_COLUMNS):
+        if "runs" in tables and set(columns) <= set(FIELDS) and set(missing) <= set(ADDED_FIELDS):
             self._missing = missing
             return
         if "runs" not in tables or set(columns) != set(FIELDS):
@@ -203,6 +199,10 @@ class ResultStore:
         return [
             self._typed(values) for values in self._read(f"SELECT {self._columns()} FROM runs ORDER BY key")
         ]
+
+    def records(self) -> list[RunRecord]:
+        """Every run, typed, ordered by key."""
+        return [RunRecord(**row) for row in self.rows()]
 
     def _columns(self) -> str:
         """Every record column by name; those an earlier version's store lacks, as NULL."""

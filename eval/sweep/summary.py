@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from depotbench.eval.metrics.figures import FIGURES, is_baseline, with_derived
+from depotbench.eval.metrics.figures import FIGURES, ScoredRun, is_baseline, with_derived
+from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule, summarize
 
 
@@ -26,9 +27,9 @@ def _parameters(row: dict[str, Any]) -> str:
     return row.get("parameters") or "{}"
 
 
-def with_rho(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The rows with their derived figures (rho, lost fraction: ``figures.with_derived``)."""
-    return with_derived(rows)
+def with_rho(records: list[RunRecord]) -> list[ScoredRun]:
+    """The runs with their derived figures (rho, lost fraction: ``figures.with_derived``)."""
+    return with_derived(records)
 
 
 def _mean(values: list[float | None]) -> float | None:
@@ -36,7 +37,7 @@ def _mean(values: list[float | None]) -> float | None:
     return float(np.mean(finite)) if finite else None
 
 
-def configurations(rows: list[dict[str, Any]], rule: SuccessRule | None = None) -> list[dict[str, Any]]:
+def configurations(rows: list[RunRecord], rule: SuccessRule | None = None) -> list[dict[str, Any]]:
     """Per family and configuration: its runs (the family's sequences, its seeds), how many
     succeeded (``rule``), every figure's statistics over them (``stats``: n, mean, median,
     std, worst, p90, 95 % interval), and the means at the top level, as plots read them."""
@@ -67,7 +68,7 @@ def configurations(rows: list[dict[str, Any]], rule: SuccessRule | None = None) 
     return out
 
 
-def _varied_parameters(rows: list[dict[str, Any]]) -> dict[str, set[str]]:
+def _varied_parameters(rows: list[RunRecord]) -> dict[str, set[str]]:
     """Per tracker, the parameters that take more than one value in these rows: the ones a
     label needs (ORB-SLAM3 has six, and a sweep varies two)."""
     values: dict[str, dict[str, set]] = defaultdict(lambda: defaultdict(set))
@@ -466,7 +467,7 @@ def _loads(text: Any) -> Any:
 
 
 def runs_of_configurations(
-    configs: list[dict[str, Any]], rows: list[dict[str, Any]]
+    configs: list[dict[str, Any]], rows: list[RunRecord]
 ) -> dict[str, list[dict[str, Any]]]:
     """Each configuration's rows (by ``_config_key``), rows of no configuration left out."""
     wanted = {
@@ -498,7 +499,7 @@ def figure_name(prefix: str, text: str) -> str:
 
 def strip_figures(
     configs: list[dict[str, Any]],
-    rows: list[dict[str, Any]],
+    rows: list[RunRecord],
     rule: SuccessRule | None = None,
     only: set[str] | None = None,
 ) -> list[tuple[str, str, Any]]:
@@ -673,7 +674,7 @@ def _finite(value: Any) -> bool:
 def plot(
     configs: list[dict[str, Any]],
     out: Path,
-    rows: list[dict[str, Any]] | None = None,
+    rows: list[RunRecord] | None = None,
     rule: SuccessRule | None = None,
 ) -> list[Path]:
     """The threshold curves, the Pareto picture and, given the rows, each family's runs
