@@ -118,3 +118,12 @@ def test_the_installed_wheel_generates_detects_and_runs_the_demo(installed: Path
         "import depotbench, depotbench.eval.cli.main; print(depotbench.__file__)",
     )
     assert imported.returncode == 0 and str(REPO) not in imported.stdout
+    # The Python API from the wheel, on the sequence generated above (the README's lines).
+    api = (
+        "import depotbench\n"
+        "record = depotbench.run('cats', strategy='box_rule', settings={'box_dilation_px': 8})\n"
+        "print(type(record).__name__, record.strategy, record.frames)\n"
+    )
+    ran = _run(installed, tmp_path, "python", "-c", api)
+    assert ran.returncode == 0, ran.stderr[-2000:]
+    assert ran.stdout.split() == ["RunRecord", "box_rule", "3"]
