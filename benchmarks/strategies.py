@@ -13,6 +13,7 @@ from pathlib import Path
 
 from depotbench.eval.report.table import format_table, summarise
 from depotbench.eval.run.harness import run_sequence
+from depotbench.slam.config import ConfigError, parse_settings
 from depotbench.slam.rejection import STRATEGIES
 
 
@@ -22,7 +23,10 @@ def main() -> None:
     parser.add_argument("-o", "--output", type=Path, help="keep the runs here (default: a temporary folder)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a SLAM setting")
     args = parser.parse_args()
-    settings = dict(item.split("=", 1) for item in args.set)
+    try:
+        settings = parse_settings(args.set)
+    except ConfigError as exc:
+        parser.error(f"--set: {exc}")
     with tempfile.TemporaryDirectory() as tmp:
         out = args.output or Path(tmp)
         runs = {

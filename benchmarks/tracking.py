@@ -30,7 +30,7 @@ from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
 from depotbench.sim.generate import generate  # noqa: E402
 from depotbench.sim.sequence import Sequence  # noqa: E402
-from depotbench.slam.config import SlamConfig, parse_setting  # noqa: E402
+from depotbench.slam.config import ConfigError, SlamConfig, parse_settings  # noqa: E402
 from depotbench.slam.rejection import STRATEGIES  # noqa: E402
 
 
@@ -46,7 +46,10 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a SLAM setting")
     parser.add_argument("--vocabulary", type=Path, help="ORB-SLAM3's vocabulary (default: the bench's)")
     args = parser.parse_args()
-    settings = {n: parse_setting(n, t) for n, t in (item.split("=", 1) for item in args.set)}
+    try:
+        settings = parse_settings(args.set)
+    except ConfigError as exc:
+        parser.error(f"--set: {exc}")
     cv2.setNumThreads(1)
     every_core = os.sched_getaffinity(0)
     with tempfile.TemporaryDirectory() as tmp:

@@ -6,7 +6,7 @@ Rejection thresholds cite their source; sweeps vary them by name (``--set k=2.5`
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -219,6 +219,17 @@ def parse_setting(name: str, text: str) -> Setting:
         return int(text) if kind == "int" else float(text)
     except ValueError:
         raise ConfigError(f"setting {name}={text!r} is not a number") from None
+
+
+def parse_settings(items: Iterable[str]) -> dict[str, Setting]:
+    """``NAME=VALUE`` texts (``--set``) as settings by name; the last of a repeated name wins."""
+    out = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError(f"{item!r}: expected NAME=VALUE")
+        out[name.strip()] = parse_setting(name.strip(), text.strip())
+    return out
 
 
 def setting_value(name: str, value: Setting) -> Setting:

@@ -103,3 +103,17 @@ def test_recognition_counts_what_a_tiny_run_sees():
     for group in ("standing, whole", "standing, cut by the edge", "seated", "dog", "cat"):
         assert re.search(rf"^recall {re.escape(group)}\s", result.stdout, re.M), group
     assert re.search(r"^pig called person\s", result.stdout, re.M)
+
+
+def test_the_strategies_table_takes_settings_as_the_command_line_does(tmp_path):
+    """benchmarks/strategies.py --set k=2.5: its text is parsed into the setting's value (it
+    handed the text on, and tracking refused it), and a bad one is one line."""
+    from tests.sequences import write_sequence
+
+    write_sequence(tmp_path / "seq", n=5)
+    result = _run(str(BENCHMARKS / "strategies.py"), str(tmp_path / "seq"), "--set", "k=2.5")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "prior_flow" in result.stdout and "box_epipolar_flow" in result.stdout
+    bad = _run(str(BENCHMARKS / "strategies.py"), str(tmp_path / "seq"), "--set", "k=wide")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].endswith("--set: setting k='wide' is not a number")

@@ -381,10 +381,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.eval.run.harness import run_sequence
     from depotbench.eval.trackers.registry import TRACKERS, TrackerConfig, default_parameters, tracker_type
     from depotbench.eval.trackers.registry import check as check_tracker
-    from depotbench.slam.config import ConfigError, parse_setting
+    from depotbench.slam.config import ConfigError, parse_settings
 
     try:  # the one place --set's text becomes values
-        settings = {name: parse_setting(name, text) for name, text in pairs(args.set, "--set").items()}
+        settings = parse_settings(args.set)
     except ConfigError as exc:
         raise InputError(f"--set: {exc}") from None
     detector = detector_config(args)
