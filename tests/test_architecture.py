@@ -45,7 +45,7 @@ CLI = "depotbench.eval.cli"
 SLAM_FLOORS = (
     ("types", "config", "geometry", "features"),
     ("map", "matcher", "optimize", "bundle", "pose", "rejection"),
-    ("local_mapping", "relocalisation"),
+    ("local_mapping", "relocalisation", "dense_map"),
     ("tracking",),
     ("system",),
 )
