@@ -50,8 +50,9 @@ SLAM_FLOORS = (
     ("system",),
 )
 """slam's modules, bottom to top, as ORB-SLAM layers them: each may import its own floor and
-those below (plain types and features; matching, the map and the optimisers; local mapping
-and relocalisation; the tracking state machine; the system's face)."""
+those below (plain types and features; matching, the map and the optimisers; local mapping,
+relocalisation and the dense map (it reads the rejection's decisions); the tracking state
+machine; the system's face)."""
 
 
 def imported_modules(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:
