@@ -147,6 +147,7 @@ def run(
     overwrite: bool = False,
     progress: bool = False,
     cache: bool = True,
+    dense_map: bool = False,
 ) -> RunRecord:
     """Track a sequence with a rejection ``strategy``, boxes from ``detector`` (a
     ``DetectorConfig`` or its text, ``"onnx"``, ``"groundtruth+miss=0.3"``) and threshold
@@ -154,7 +155,8 @@ def run(
     ``TrackerConfig`` (a ``cmd`` tracker needs its command). With ``out``, the run folder is
     written there (trajectory, frames, metrics, record: what ``depotbench report`` reads);
     without, nothing is written. ``cache``: reuse detections, features and flow from the
-    stage cache (``DEPOTBENCH_CACHE``), as the command line does."""
+    stage cache (``DEPOTBENCH_CACHE``), as the command line does. ``dense_map``: also build
+    the run's dense map (map.ply in ``out``) and score it: metrics.json's ``map``."""
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import RunJob, run_job
     from depotbench.sim.sequence import Sequence
@@ -166,6 +168,7 @@ def run(
         _detector(detector),
         _settings(settings or {}),
         _tracker(tracker, parameters or {}),
+        dense_map,
     )
     stages = StageCache.from_env() if cache else None
     finished = run_job(

@@ -366,6 +366,13 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help="--slam orbslam3|cmd: seconds before the program is stopped (default: 3600)",
     )
     p.add_argument(
+        "--map",
+        action="store_true",
+        help="also build the dense map from the keyframes, leaving out what the strategy rejected "
+        "(map.ply), and score it against the exact static world: accuracy, completeness, F-score "
+        "and the ghosts moving things left (built-in tracker)",
+    )
+    p.add_argument(
         "-o",
         "--output",
         type=Path,
@@ -423,6 +430,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         tracker=tracker,
         cache=StageCache.from_env(),
+        dense_map=args.map,
     )
     print(format_run(metrics))
     return 0
@@ -450,6 +458,17 @@ def format_run(metrics: dict) -> str:
             f"({rejection['moving_keypoints']} of {rejection['keypoints']} keypoints on moving objects; "
             f"{rejection['moving_inliers']} ended as inliers)"
         )
+    dense = metrics.get("map")
+    if dense is not None:
+        line = f"dense map: {dense['points']} points from {dense['keyframes']} keyframes"
+        if "f_score" in dense:
+            ghosts = ", ".join(f"{who} {n}" for who, n in dense["ghosts"].items() if n) or "none"
+            line += (
+                f"; at {dense['threshold_m'] * 100:g} cm: F-score {dense['f_score']:.3f} (accuracy "
+                f"{dense['accuracy']:.3f}, completeness {dense['completeness']:.3f}), ghost fraction "
+                f"{dense['ghost_fraction']:.3f} ({ghosts})"
+            )
+        lines.append(line)
     t = metrics["stage_time"]
     if t["tracking_total"]["mean_ms"] is None:
         lines.append(f"{metrics['wall_time_s']:.1f} s in all (the tracker reports no per-frame time)")

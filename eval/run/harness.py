@@ -27,10 +27,11 @@ from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig, DetectorKind
-from depotbench.eval.metrics.evaluate import ComparisonOptions, compare
+from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions, compare
 from depotbench.eval.metrics.record import RECORD_VERSION, RunIdentity, RunRecord
 from depotbench.eval.metrics.trajectory import Trajectory, write_tum
 from depotbench.eval.run.cache import StageCache, content_hash
+from depotbench.eval.run.dense import RunMap, run_map
 from depotbench.eval.run.detections import SequenceDetections, detect_sequence, sequence_fingerprint
 from depotbench.eval.run.stages import FrameStages, features_key, sequence_stages
 from depotbench.eval.trackers.base import TrackerRun
@@ -40,6 +41,7 @@ from depotbench.eval.trackers.registry import BUILTIN, TrackerConfig, tracker_ty
 from depotbench.eval.trackers.registry import build as build_tracker
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import ConfigError, Setting, SlamConfig, TrackingConfig, check_pyramid
+from depotbench.slam.dense_map import write_ply
 from depotbench.slam.rejection import STRATEGIES
 from depotbench.slam.types import REJECTION_CODES, FrameResult, Rejection, TrackingState
 
@@ -85,6 +87,8 @@ class RunJob:
     settings: tuple[tuple[str, Setting], ...] = ()
     """Threshold overrides by name (``--set``), typed, sorted."""
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    dense_map: bool = False
+    """Also build the run's dense map from its keyframes and score it (``eval/run/dense.py``)."""
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,7 @@ class Tracked:
     metrics: dict[str, Any]
     run: TrackerRun
     header: str
+    map: RunMap | None = None
 
 
 def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, SlamConfig]:
@@ -105,6 +110,11 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
         sequence = Sequence.open(job.sequence)
     if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
+    if job.dense_map and not per_keypoint:
+        raise InputError(
+            f"--map needs the built-in tracker (the map is built from its keyframes and keypoint "
+            f"decisions); --slam {job.tracker.kind} gives neither"
+        )
     if per_keypoint:  # the bench's own front end: its pyramid must fit the image
         camera = camera_of(sequence)
         try:
@@ -123,8 +133,12 @@ def _execute(
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
     stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
     run = build_tracker(job.tracker, config, progress, stages).run(frames, progress)
-    metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker)
-    return Tracked(metrics, run, _header(job))
+    truth = _against_truth(sequence, run)
+    metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker, truth)
+    dense = run_map(frames, run, config, job.strategy) if job.dense_map else None
+    if dense is not None:
+        metrics["map"] = dense.figures()
+    return Tracked(metrics, run, _header(job), dense)
 
 
 def uses_stages(job: RunJob) -> bool:
@@ -185,7 +199,16 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
     runs = BuiltinTracker(first, stages_for(sequence, first, cache)).run_tree(frames, configs, paths)
     return [
         Tracked(
-            _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker),
+            _metrics(
+                sequence,
+                run,
+                config,
+                job.strategy,
+                job.detector,
+                detections,
+                job.tracker,
+                _against_truth(sequence, run),
+            ),
             run,
             _header(job),
         )
@@ -241,6 +264,7 @@ def job_key(
     detector: DetectorConfig,
     strategy: str,
     settings,
+    dense_map: bool = False,
 ) -> str:
     """A run's identity: its inputs' content (the sequence fingerprint), the tracker (with
     its program and vocabulary), detector with faults, strategy, settings and the bench's
@@ -254,6 +278,7 @@ def job_key(
         detector.faults.to_dict(),
         strategy,
         list(settings),
+        *(["dense_map"] if dense_map else []),  # a run with its map is another run's record
     )
 
 
@@ -299,7 +324,9 @@ def identity_of(
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
     fingerprint = sequence_fingerprint(sequence)
-    key = job_key(fingerprint, tracker_identity(job.tracker), job.detector, job.strategy, job.settings)
+    key = job_key(
+        fingerprint, tracker_identity(job.tracker), job.detector, job.strategy, job.settings, job.dense_map
+    )
     stored = str(sequence.root.resolve())
     run = identity_of(job, key, family_of(sequence), stored, fingerprint, seed_of(sequence))
     return RunRecord.of_run(run, metrics, generator_version())
@@ -315,8 +342,9 @@ def run_sequence(
     overwrite: bool = False,
     tracker: TrackerConfig | None = None,
     cache: StageCache | None = None,
+    dense_map: bool = False,
 ) -> dict[str, Any]:
-    """Track a sequence; return (and write) its metrics.
+    """Track a sequence; return (and write) its metrics (``dense_map``: and its map, map.ply).
 
     ``detector`` defaults to the ground-truth boxes; ``cache`` holds detections
     between runs (``StageCache.from_env()`` is the default on the command line).
@@ -327,6 +355,7 @@ def run_sequence(
         detector or DetectorConfig(),
         tuple(sorted((settings or {}).items())),
         tracker or TrackerConfig(),
+        dense_map,
     )
     return run_job(job, Path(out_dir), progress=progress, overwrite=overwrite, cache=cache).metrics
 
@@ -366,6 +395,8 @@ def run_job(
             (output.path / "program.log").write_text(run.log, encoding="utf-8")
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
+        if tracked.map is not None:
+            write_ply(output.path / "map.ply", tracked.map.map.points(), tracked.map.map.colours())
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
         record = record_of(job, sequence, tracked.metrics)
         (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
@@ -388,6 +419,7 @@ def _metrics(
     detector: DetectorConfig,
     detections: SequenceDetections | None,
     tracker: TrackerConfig,
+    truth: Comparison | None,
 ) -> dict[str, Any]:
     states = run.states
     stage = {name: _time_stats(values) for name, values in run.stage_ms.items()}
@@ -416,17 +448,25 @@ def _metrics(
     }
     if detections is not None:
         metrics["detector_time"] = _time_stats(detections.latency_ms) | {"cached": detections.from_cache}
-    estimate = run.trajectory()
-    if sequence.groundtruth is not None and estimate is not None and len(estimate) >= 3:
-        gt = sequence.groundtruth
-        reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
-        comparison = compare(reference, estimate, ComparisonOptions()).to_dict()
+    if truth is not None:
+        comparison = truth.to_dict()
         for key in ("ate_m", "rpe_translation_m", "rpe_rotation_deg"):
             metrics[key] = comparison[key]
     decisions = frame_decisions(sequence, run)
     if decisions is not None:
         metrics["rejection"] = _rejection(*decisions, run.results)
     return metrics
+
+
+def _against_truth(sequence: Sequence, run: TrackerRun) -> Comparison | None:
+    """The run's trajectory against the sequence's ground truth (ATE aligned in SE(3), RPE per
+    frame), or None without either or with fewer than 3 tracked frames."""
+    estimate = run.trajectory()
+    if sequence.groundtruth is None or estimate is None or len(estimate) < 3:
+        return None
+    gt = sequence.groundtruth
+    reference = Trajectory.from_quaternions(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, "groundtruth")
+    return compare(reference, estimate, ComparisonOptions())
 
 
 def frame_decisions(sequence: Sequence, run: TrackerRun) -> tuple[list[np.ndarray], list[np.ndarray]] | None:

@@ -55,6 +55,9 @@ class TrackerRun:
     """The peak resident memory of an external program and what it waited for."""
     log: str = ""
     """The end of an external program's standard output and error (for the run folder)."""
+    keyframe_poses: dict[int, np.ndarray] | None = None
+    """world_from_camera of each keyframe by frame index, as the run left it (after local
+    bundle adjustment): what a dense map is stitched with. The built-in tracker's only."""
 
     def __post_init__(self) -> None:
         n = len(self.timestamps_s)

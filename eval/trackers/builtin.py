@@ -83,7 +83,7 @@ class BuiltinTracker:
                 if objects is not None:
                     moving = {o.instance_id for o in objects[i] if o.moving}
                     labels.append(true_moving_labels(sequence, i, result.diagnostics.keypoints_px, moving))
-        return _tracker_run(results, labels, len(slam.map.keyframes), time.perf_counter() - started)
+        return _tracker_run(results, labels, slam, time.perf_counter() - started)
 
     def _step(self, slam: Slam, frames: FrameSource, i: int):
         """Track frame ``i`` from its cached stages (no image is read)."""
@@ -143,7 +143,7 @@ class BuiltinTracker:
                             memo = memos.setdefault(k, {})
                             result = _member_frame(result, configs[m], self.stages, frames, k, memo)
                         own.append(result)
-                    runs[m] = _tracker_run(own, labels, len(slam.map.keyframes), elapsed)
+                    runs[m] = _tracker_run(own, labels, slam, elapsed)
                 continue
             for group in reversed(list(groups.values())):
                 pending.append((slam.fork(configs[group[0]]), i, group, list(results), elapsed))
@@ -165,18 +165,20 @@ def _member_frame(
     return replace(result, diagnostics=replace(result.diagnostics, rejection=codes, keypoint_classes=classes))
 
 
-def _tracker_run(results: list, labels: list, keyframes: int, total_s: float) -> TrackerRun:
+def _tracker_run(results: list, labels: list, slam: Slam, total_s: float) -> TrackerRun:
     stage_ms = {s: np.array([r.diagnostics.stage_ms[s] for r in results]) for s in STAGES}
+    keyframes = slam.map.keyframes
     return TrackerRun(
         timestamps_s=np.array([r.timestamp_s for r in results]),
         states=tuple(r.state for r in results),
         poses=tuple(r.world_from_camera for r in results),
         track_ms=stage_ms["tracking_total"],
-        keyframes=keyframes,
+        keyframes=len(keyframes),
         total_s=total_s,
         results=results,
         labels=labels or None,
         stage_ms=stage_ms,
+        keyframe_poses={kf.frame_index: kf.world_from_camera.copy() for kf in keyframes},
     )
 
 
