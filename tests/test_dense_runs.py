@@ -97,3 +97,42 @@ def test_the_map_is_placed_by_its_first_keyframe(walking: Path):
     for i in indices:
         centre = placed.scale * placed.rotation @ estimated[i][:3, 3] + placed.translation
         np.testing.assert_allclose(centre, sequence.world_from_camera(i)[:3, 3], atol=1e-9)
+
+
+def test_a_sweep_with_dense_maps_gives_each_row_the_figures_of_its_run_alone(walking: Path, tmp_path: Path):
+    """Rows of a dense_map sweep (tracked once while their decisions agree, then forked; rows
+    with the same decisions and reasons shared) carry the map figures the same job gives run
+    alone, and gates bound them."""
+    from depotbench.eval.sweep.store import ResultStore
+
+    import depotbench
+
+    spec = tmp_path / "maps.yaml"
+    spec.write_text(
+        f"sweep: maps\nsequences: [{walking}]\ndense_map: true\n"
+        "strategies: [none, box_rule, box_epipolar_flow]\n"
+        "thresholds: {box_epipolar_flow: {epsilon_px: {grid: [0.5, 1.0, 2.0]}}}\n"
+    )
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
+    with ResultStore(tmp_path / "sw" / "results.sqlite", readonly=True) as store:
+        rows = store.records()
+    assert len(rows) == 5 and all(r.map_f_score is not None and r.ghost_fraction is not None for r in rows)
+    for row in rows:
+        settings = json.loads(row.settings)
+        alone = depotbench.run(walking, strategy=row.strategy, settings=settings, dense_map=True)
+        assert alone.key == row.key
+        for name in ("map_f_score", "map_accuracy", "map_completeness", "ghost_fraction", "ate_rmse_m"):
+            assert getattr(alone, name) == pytest.approx(getattr(row, name), rel=1e-12, abs=1e-15), name
+    by_strategy = {r.strategy: r for r in rows}
+    assert by_strategy["none"].ghost_fraction > 0.05 > by_strategy["box_epipolar_flow"].ghost_fraction
+    gates = tmp_path / "gates.yaml"
+    gates.write_text(
+        f"gates: maps\nrun:\n  sequences: [{walking}]\n  dense_map: true\n"
+        "  strategies: [none, box_rule, box_epipolar_flow]\n"
+        "  thresholds: {box_epipolar_flow: {epsilon_px: {grid: [0.5, 1.0, 2.0]}}}\n"
+        "checks:\n"
+        "  - {name: clean, strategies: [box_epipolar_flow], budgets: {ghost_fraction: {max: 0.02}}}\n"
+        "  - {name: haunted, strategies: [none], budgets: {ghost_fraction: {max: 0.02}}}\n"
+    )
+    report = depotbench.check(gates, tmp_path / "sw")
+    assert [line.split(" [")[0] for line in report.failures] == ["haunted"]

@@ -50,6 +50,8 @@ FIGURES: tuple[Figure, ...] = (
     Figure("rejection_precision", "rejection precision", higher_is_better=True),
     Figure("rejection_recall", "rejection recall", higher_is_better=True),
     Figure("tracked_fraction", "fraction of frames tracked", higher_is_better=True),
+    Figure("map_f_score", "dense map F-score at 5 cm", higher_is_better=True),
+    Figure("ghost_fraction", "share of the dense map that is ghost, at 5 cm"),
     Figure("lost_fraction", "fraction of frames not tracked", derived=True, compared=False),
     Figure("track_ms_mean", "tracking time per frame (ms)", ratio=True, time=True),
     Figure("track_ms_median", "median tracking time per frame (ms)", ratio=True, time=True),

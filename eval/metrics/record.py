@@ -14,11 +14,11 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-RECORD_VERSION = 5
+RECORD_VERSION = 6
 """2: the sequence fingerprint and relocalised frames; 3: an external tracker's parameters,
 a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
 configuration, settings and parameters as typed JSON, sequences relative to the sweep;
-5: the median ATE."""
+5: the median ATE; 6: the dense map's figures."""
 
 
 def typed(text: str) -> int | float | str:
@@ -117,6 +117,12 @@ class RunRecord:
     track_ms_mean: float | None
     track_ms_median: float | None
     detector_ms_mean: float | None
+    map_f_score: float | None
+    """The run's dense map (``dense_map`` runs) against the exact static world, at 5 cm:
+    F-score, accuracy, completeness, and the share of its points that are ghosts."""
+    map_accuracy: float | None
+    map_completeness: float | None
+    ghost_fraction: float | None
     wall_time_s: float
     peak_memory_mb: float | None
     """An external program's peak resident memory (with what it waited for)."""
@@ -157,6 +163,7 @@ class RunRecord:
         rejection = metrics.get("rejection") or {}
         total = metrics["stage_time"]["tracking_total"]
         detector_time = metrics.get("detector_time") or {}
+        dense = metrics.get("map") or {}
         return cls(
             **cls.identity_columns(run),
             failure=None,
@@ -177,6 +184,10 @@ class RunRecord:
             track_ms_mean=total.get("mean_ms"),
             track_ms_median=total.get("median_ms"),
             detector_ms_mean=detector_time.get("mean_ms"),
+            map_f_score=dense.get("f_score"),
+            map_accuracy=dense.get("accuracy"),
+            map_completeness=dense.get("completeness"),
+            ghost_fraction=dense.get("ghost_fraction"),
             wall_time_s=metrics["wall_time_s"],
             peak_memory_mb=metrics.get("peak_memory_mb"),
             bench_version=bench_version,
@@ -208,6 +219,10 @@ class RunRecord:
             track_ms_mean=None,
             track_ms_median=None,
             detector_ms_mean=None,
+            map_f_score=None,
+            map_accuracy=None,
+            map_completeness=None,
+            ghost_fraction=None,
             wall_time_s=wall_time_s,
             peak_memory_mb=None,
             bench_version=bench_version,
@@ -243,7 +258,13 @@ class RunRecord:
 
 FIELDS = tuple(f.name for f in fields(RunRecord))
 _FIELD_SET = frozenset(FIELDS)
-ADDED_FIELDS = {"ate_median_m": 5}
+ADDED_FIELDS = {
+    "ate_median_m": 5,
+    "map_f_score": 6,
+    "map_accuracy": 6,
+    "map_completeness": 6,
+    "ghost_fraction": 6,
+}
 """Columns a later record version added, with that version: rows and stores written before
 them read with them empty (a baseline kept from version 4 still serves compare and check)."""
 TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")

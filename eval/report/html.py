@@ -899,6 +899,8 @@ class _Grid:
     variants: list
     anchor: Path
     """The sweep folder: rows name the sequences inside it relative to it."""
+    dense_map: bool = False
+    """The sweep's runs built dense maps (their keys say so)."""
 
 
 def _job_of_row(row: ScoredRun | RunRecord, grid: _Grid, sequence: Sequence, fingerprint: str | None):
@@ -918,10 +920,11 @@ def _job_of_row(row: ScoredRun | RunRecord, grid: _Grid, sequence: Sequence, fin
     parameters = tuple(sorted((k, str(v)) for k, v in json.loads(row.get("parameters") or "{}").items()))
     tracker = replace(trackers[0], parameters=parameters) if parameters else trackers[0]
     settings = tuple(sorted((k, threshold_value(k, v)) for k, v in json.loads(row["settings"]).items()))
+    mapped = grid.dense_map and tracker.type.per_keypoint
     for detector in detectors:
-        key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings)
+        key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings, mapped)
         if key == row["key"]:
-            run = RunJob(sequence.root, row["strategy"], detector, settings, tracker)
+            run = RunJob(sequence.root, row["strategy"], detector, settings, tracker, mapped)
             identity = identity_of(run, key, row["family"], row["sequence"], fingerprint, row.get("seed"))
             return SweepJob(key, row["family"], run, fingerprint, identity)
     return None
@@ -953,7 +956,9 @@ def _track_family(
     from depotbench.eval.run.harness import track
     from depotbench.eval.sweep.engine import jobs_for
 
-    found = jobs_for(grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)], grid.anchor)
+    found = jobs_for(
+        grid.variants, grid.trackers, grid.detectors, [(sequence.root, family)], grid.anchor, grid.dense_map
+    )
     jobs = {j.key: j for j in found}
     fingerprint = found[0].fingerprint if found else None
     baseline = next(
@@ -1014,7 +1019,11 @@ def _featured_runs(
     try:
         trackers = tracker_configs(spec, source)
         grid = _Grid(
-            tracker_variants(spec, trackers, source), detector_configs(spec, source), variants(spec), folder
+            tracker_variants(spec, trackers, source),
+            detector_configs(spec, source),
+            variants(spec),
+            folder,
+            spec.dense_map,
         )
     except InputError as exc:
         # A spec names its files relative to the spec file, which the sweep folder does not

@@ -13,12 +13,14 @@ turned by it scored an F-score of 0 where the anchored one scores like the traje
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from depotbench.eval.metrics.alignment import Similarity
-from depotbench.eval.metrics.map import DEFAULT_THRESHOLDS_M, map_metrics, reference_clouds
+from depotbench.eval.metrics.map import DEFAULT_THRESHOLDS_M, ReferenceClouds, map_metrics, reference_clouds
+from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.slam.config import SlamConfig
@@ -27,6 +29,24 @@ from depotbench.slam.dense_map import DenseMap, exclusion_mask
 SCORED_AT_M = 0.05
 """The threshold a run's headline map figures are given at (the middle of 2, 5 and 10 cm: a
 Kinect-like sensor's noise keeps a perfect map at about 0.9 accuracy there, at 0.7 at 2 cm)."""
+
+
+REFERENCES_KEPT = 2
+"""Reference clouds a process keeps (a 90-frame hall is about 1M points, 50 MB with its trees):
+a sweep's jobs come sequence by sequence, so the runs of one sequence build it once."""
+_references: OrderedDict[tuple[str, str], ReferenceClouds] = OrderedDict()
+
+
+def reference_of(sequence) -> ReferenceClouds:
+    """``reference_clouds`` of a sequence, kept for the next run on it (keyed by its files)."""
+    key = (str(sequence.root), sequence_fingerprint(sequence))
+    if key in _references:
+        _references.move_to_end(key)
+        return _references[key]
+    found = _references[key] = reference_clouds(sequence)
+    while len(_references) > REFERENCES_KEPT:
+        _references.popitem(last=False)
+    return found
 
 
 @dataclass(frozen=True)
@@ -80,7 +100,7 @@ def score_map(frames: FrameSource, dense: DenseMap, run: TrackerRun) -> dict[str
     sequence = frames.sequence
     if not sequence.is_generated or len(dense) == 0:
         return None
-    reference = reference_clouds(sequence)
+    reference = reference_of(sequence)
     scores = map_metrics(dense.points(), reference, DEFAULT_THRESHOLDS_M, transform=anchor(sequence, run))
     headline = scores.at(SCORED_AT_M)
     return scores.to_json() | {

@@ -133,6 +133,18 @@ def _execute(
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
     stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
     run = build_tracker(job.tracker, config, progress, stages).run(frames, progress)
+    return _tracked(job, sequence, frames, run, config, detections)
+
+
+def _tracked(
+    job: RunJob,
+    sequence: Sequence,
+    frames: FrameSource,
+    run: TrackerRun,
+    config: SlamConfig,
+    detections: SequenceDetections | None,
+) -> Tracked:
+    """A finished run's metrics, with its dense map and the map's scores where the job asks."""
     truth = _against_truth(sequence, run)
     metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker, truth)
     dense = run_map(frames, run, config, job.strategy) if job.dense_map else None
@@ -198,20 +210,7 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
     frames = FrameSource(sequence, detections.per_frame if detections is not None else None)
     runs = BuiltinTracker(first, stages_for(sequence, first, cache)).run_tree(frames, configs, paths)
     return [
-        Tracked(
-            _metrics(
-                sequence,
-                run,
-                config,
-                job.strategy,
-                job.detector,
-                detections,
-                job.tracker,
-                _against_truth(sequence, run),
-            ),
-            run,
-            _header(job),
-        )
+        _tracked(job, sequence, frames, run, config, detections)
         for job, config, run in zip(jobs, configs, runs, strict=True)
     ]
 

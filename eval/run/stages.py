@@ -162,8 +162,10 @@ def decision_path(
     detections: list[tuple] | None,
     config: SlamConfig,
     memos: list[dict] | None = None,
+    reasons: bool = False,
 ) -> tuple[str, ...]:
-    """Per frame, a hash of which keypoints the strategy keeps, computed without tracking.
+    """Per frame, a hash of which keypoints the strategy keeps, computed without tracking
+    (``reasons``: and why it rejects the others, which a dense map's exclusion follows).
 
     Rejection depends on the frame, the previous frame, the boxes and the flow, never on
     the tracker's state; tracking sees only the kept keypoints. So two threshold settings
@@ -180,13 +182,14 @@ def decision_path(
         boxes = detections[i] if detections is not None else ()
         memo = memos[i] if memos is not None else None
         codes = classify(config.strategy, stage.features, previous, boxes, config.rejection, stage.flow, memo)
-        digest = hashlib.sha256(np.packbits(codes == kept).tobytes())
+        digest = hashlib.sha256(codes.tobytes() if reasons else np.packbits(codes == kept).tobytes())
         digest.update(len(codes).to_bytes(4, "little"))
         path.append(digest.hexdigest()[:16])
         previous = stage.features
     return tuple(path)
 
 
-def decision_signature(path: tuple[str, ...], features: str, strategy: str) -> str:
-    """One hash of a whole decision path: jobs with equal signatures are one run."""
-    return content_hash(STAGE_FORMAT, features, strategy, list(path))
+def decision_signature(path: tuple[str, ...], features: str, strategy: str, dense_map: bool = False) -> str:
+    """One hash of a whole decision path: jobs with equal signatures are one run (a run with
+    its dense map is not one without)."""
+    return content_hash(STAGE_FORMAT, features, strategy, list(path), *(["dense_map"] if dense_map else []))

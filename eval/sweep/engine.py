@@ -100,7 +100,8 @@ def expand(spec: SweepSpec, spec_path: Path, sequences: list, anchor: Path | Non
         raise SpecError(f"{source}: {total} jobs exceed the limit of {MAX_JOBS}")
     found = variants(spec)
     check_variants(spec, found, trackers, source)
-    return jobs_for(found, tracker_variants(spec, trackers, source), detectors, sequences, anchor)
+    trackers = tracker_variants(spec, trackers, source)
+    return jobs_for(found, trackers, detectors, sequences, anchor, spec.dense_map)
 
 
 def jobs_for(
@@ -109,8 +110,10 @@ def jobs_for(
     detectors: list[DetectorConfig],
     sequences: list,
     anchor: Path | None = None,
+    dense_map: bool = False,
 ) -> list[SweepJob]:
-    """Sequences x trackers x detectors x variants, in this order (external trackers: none/mask)."""
+    """Sequences x trackers x detectors x variants, in this order (external trackers: none/mask);
+    ``dense_map``: the built-in tracker's runs also build and score their dense maps."""
     jobs = []
     identities = {tracker: tracker_identity(tracker) for tracker in trackers}
     for entry in sequence_entries(sequences):
@@ -119,12 +122,13 @@ def jobs_for(
         fingerprint = sequence_fingerprint(opened, anchor)
         stored, seed = stored_path(root, anchor), seed_of(opened)
         for tracker in trackers:
+            mapped = dense_map and tracker.type.per_keypoint  # a map needs the built-in keyframes
             for detector in detectors:
                 for v in found:
                     if not tracker.type.per_keypoint and v.strategy not in EXTERNAL_STRATEGIES:
                         continue
-                    key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings)
-                    run = RunJob(root, v.strategy, detector, v.settings, tracker)
+                    key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings, mapped)
+                    run = RunJob(root, v.strategy, detector, v.settings, tracker, mapped)
                     identity = identity_of(run, key, family, stored, fingerprint, seed, dict(entry.knobs))
                     jobs.append(SweepJob(key, family, run, fingerprint, identity))
     return jobs
@@ -341,8 +345,8 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
             stages = stages_for(sequence, config, cache)
             loaded = {root: (stages, boxes, [{} for _ in stages])}  # one at a time
         stages, boxes, memos = loaded[root]
-        path = decision_path(stages, boxes, config, memos)
-        signature = decision_signature(path, features[at], run.strategy)
+        path = decision_path(stages, boxes, config, memos, reasons=run.dense_map)
+        signature = decision_signature(path, features[at], run.strategy, run.dense_map)
         decisions.append(Decision(job.key, signature, root, path))
     return decisions
 

@@ -131,7 +131,7 @@ def _trial_jobs(
         variant = Variant(search.strategy, settings)
         if source is not None:
             check_variants(spec, [variant], trackers, source)
-        return jobs_for([variant], trackers, detectors, sequences, anchor)
+        return jobs_for([variant], trackers, detectors, sequences, anchor, spec.dense_map)
     base = next(t for t in trackers if t.label == search.tracker)
     settings = {n: setting_text(v) for n, v in values.items()}  # a program's parameters are text
     tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | settings).items())))
@@ -140,7 +140,7 @@ def _trial_jobs(
             check_tracker(tracker)
         except InputError as exc:
             raise InputError(f"{source}: search.space: {exc}") from None
-    return jobs_for([Variant(search.strategy, ())], [tracker], detectors, sequences, anchor)
+    return jobs_for([Variant(search.strategy, ())], [tracker], detectors, sequences, anchor, spec.dense_map)
 
 
 def run_search(

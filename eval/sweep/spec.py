@@ -207,6 +207,10 @@ class SweepSpec(Strict):
     """By tracker name: values of that external tracker's parameters to sweep."""
     search: Search | None = None
     statistics: Statistics = Field(default_factory=Statistics)
+    dense_map: bool = False
+    """Also build each built-in run's dense map and score it against the exact static world
+    (``eval/run/dense.py``): rows then carry map_f_score, map_accuracy, map_completeness and
+    ghost_fraction, and gates may bound them."""
 
     @model_validator(mode="after")
     def _something_to_run(self) -> SweepSpec:
