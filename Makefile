@@ -39,8 +39,9 @@ docs: $(VENV)/.installed
 # The README's pictures, taken again whenever the generator's output changes: the default
 # scenario (seed 0, frames 5, 45 and 85: RGB | depth | instances with boxes, halved), the
 # cat alone at eight headings on seeds 1 and 2, labelled with YOLOX-nano's scores, and the
-# demo's sweep report (its first screen, and the full crowd's best run) in Chromium; the
-# documentation site shows the same pictures from docs/images.
+# demo's sweep report (its first screen, and the full crowd's best run) in Chromium, and the
+# dense maps of walking_xyz seed 21 without and with rejection, their ghosts in red; the
+# documentation site shows the same files (docs/images links to assets/readme).
 JPEG := $(BIN)/python -c "import sys, cv2; image = cv2.imread(sys.argv[1]); \
 	image = cv2.resize(image, None, fx=float(sys.argv[3]), fy=float(sys.argv[3]), interpolation=cv2.INTER_AREA); \
 	cv2.imwrite(sys.argv[2], image, [cv2.IMWRITE_JPEG_QUALITY, 85])"
@@ -55,8 +56,9 @@ readme-images: $(VENV)/.installed browser
 	$(BIN)/depotbench demo -o build/readme/demo
 	$(BIN)/python benchmarks/screenshots.py build/readme/demo/report/index.html \
 		--top assets/readme/report_sweep.png --run "actors.0.count=12: best" assets/readme/report_run.jpg
-	cp assets/readme/default_scenario.jpg assets/readme/cat_views.jpg assets/readme/report_sweep.png \
-		assets/readme/report_run.jpg docs/images/
+	$(BIN)/python benchmarks/ghost_pictures.py --scenario walking_xyz --seed 21 --frames 90 \
+		--strategies none box_epipolar_flow -o build/readme/ghosts.png
+	$(JPEG) build/readme/ghosts.png assets/readme/ghosts.jpg 1
 
 # MuJoCo renders off-screen through EGL (Mesa on CPU machines).
 system-deps:

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import trimesh
 from depotbench.eval.cli.main import main
+from depotbench.eval.metrics.map import reference_clouds
+from depotbench.eval.report.maps import GHOST, GHOST_RGB, STATIC, placed_map, top_views
 from depotbench.eval.run.dense import anchor
 from depotbench.eval.trackers.base import TrackerRun
 from depotbench.sim.sequence import Sequence
@@ -47,6 +49,15 @@ def test_the_map_is_written_with_the_run_and_the_walkers_ghosts_are_rejected(wal
     for scores in (bare["scores"], rejected["scores"]):
         for s in scores:
             assert s["accuracy"] + s["ghost_fraction"] + s["neither_fraction"] == pytest.approx(1.0)
+    # The picture's classes are the figures' (the same placement, threshold and reference).
+    reference = reference_clouds(Sequence.open(walking))
+    placed = placed_map(tmp_path / "none", reference, "none")
+    assert (placed.kinds == GHOST).sum() == sum(bare["ghosts"].values())
+    assert (placed.kinds == STATIC).mean() == pytest.approx(bare["accuracy"])
+    fig = top_views([placed, placed_map(tmp_path / "bef", reference, "box_epipolar_flow")])
+    drawn = [ax.collections[0].get_facecolors()[:, :3] for ax in fig.axes]
+    red = [int(np.all(np.isclose(c, GHOST_RGB), axis=1).sum()) for c in drawn]
+    assert red == [sum(bare["ghosts"].values()), sum(rejected["ghosts"].values())]
 
 
 def test_a_static_scene_maps_without_ghosts_and_close_to_the_truth(tmp_path: Path):

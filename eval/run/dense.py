@@ -103,7 +103,11 @@ def score_map(frames: FrameSource, dense: DenseMap, run: TrackerRun) -> dict[str
     reference = reference_of(sequence)
     scores = map_metrics(dense.points(), reference, DEFAULT_THRESHOLDS_M, transform=anchor(sequence, run))
     headline = scores.at(SCORED_AT_M)
+    placed = anchor(sequence, run)
+    to_truth = np.eye(4)
+    to_truth[:3, :3], to_truth[:3, 3] = placed.rotation, placed.translation
     return scores.to_json() | {
+        "to_groundtruth": to_truth.tolist(),
         "threshold_m": SCORED_AT_M,
         "f_score": headline.f_score,
         "accuracy": headline.accuracy,

@@ -1,0 +1,78 @@
+"""Dense maps seen from above: each map point in its colour where it is static world, in red
+where it is a ghost (a moving instance's surface and no static one within the threshold), in
+grey where it is neither, with the map's figures under it: method 2's two pictures of the
+"residual shadows", with numbers."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from depotbench.eval.metrics.alignment import Similarity
+from depotbench.eval.metrics.map import ReferenceClouds, map_distances
+
+STATIC, GHOST, NEITHER = 0, 1, 2
+GHOST_RGB = (0.85, 0.05, 0.05)
+NEITHER_RGB = (0.6, 0.6, 0.6)
+
+
+@dataclass(frozen=True)
+class PlacedMap:
+    """A run's map in the ground-truth frame, each point's kind, and the run's map figures."""
+
+    title: str
+    points_m: np.ndarray
+    colours: np.ndarray
+    kinds: np.ndarray
+    figures: dict
+
+
+def placed_map(run_folder: Path, reference: ReferenceClouds, title: str) -> PlacedMap:
+    """A run folder's map.ply placed by metrics.json's ``map.to_groundtruth`` and classified at
+    the threshold its figures are given at."""
+    figures = json.loads((run_folder / "metrics.json").read_text())["map"]
+    cloud = trimesh.load(run_folder / "map.ply")
+    moved = np.asarray(figures["to_groundtruth"])
+    placed = Similarity(moved[:3, :3], moved[:3, 3], 1.0)
+    points = np.asarray(cloud.vertices, dtype=np.float64)
+    distances = map_distances(points, reference, placed)
+    threshold = figures["threshold_m"]
+    near_moving = (distances.to_moving_m <= threshold).any(axis=1) if distances.to_moving_m.size else False
+    kinds = np.where(
+        distances.to_static_m <= threshold, STATIC, np.where(near_moving, GHOST, NEITHER)
+    ).astype(np.uint8)
+    world = points @ placed.rotation.T + placed.translation
+    return PlacedMap(title, world, np.asarray(cloud.colors)[:, :3] / 255.0, kinds, figures)
+
+
+def top_views(maps: list[PlacedMap]):
+    """One panel per map, side by side on shared axes, seen from above (the world's z is up),
+    ghosts drawn last so that none hides under the floor."""
+    from depotbench.eval.sweep.summary import pyplot
+
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(maps), figsize=(5.2 * len(maps), 5.6), sharex=True, sharey=True)
+    axes = np.atleast_1d(axes)
+    for ax, placed in zip(axes, maps, strict=True):
+        colours = placed.colours.copy()
+        colours[placed.kinds == GHOST] = GHOST_RGB
+        colours[placed.kinds == NEITHER] = NEITHER_RGB
+        order = np.argsort(placed.kinds == GHOST, kind="stable")  # ghosts on top
+        ax.scatter(
+            placed.points_m[order, 0], placed.points_m[order, 1], s=0.4, c=colours[order], linewidths=0
+        )
+        f = placed.figures
+        ghosts = sum(f["ghosts"].values())
+        ax.set_title(placed.title)
+        ax.set_xlabel(
+            f"ghost fraction {f['ghost_fraction']:.3f} ({ghosts:,} points)\n"
+            f"F-score {f['f_score']:.3f} at {f['threshold_m'] * 100:g} cm "
+            f"(accuracy {f['accuracy']:.3f}, completeness {f['completeness']:.3f})"
+        )
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    return fig
