@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
+import secrets
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -305,7 +305,10 @@ def write_ply(path: str | Path, points: np.ndarray, colours: np.ndarray, overwri
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists (pass overwrite=True to replace it)")
     data = trimesh.PointCloud(points, colors=colours).export(file_type="ply", encoding="binary")
-    fd, aside = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    # Opened as any new file is (0666 less the umask: readable as the run's other files), not
+    # as mkstemp's private 0600; the random name keeps two writers apart.
+    aside = str(path.parent / f".{path.name}.{secrets.token_hex(6)}.part")
+    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)

@@ -37,6 +37,10 @@ def _map_run(sequence: Path, out: Path, strategy: str) -> dict:
 def test_the_map_is_written_with_the_run_and_the_walkers_ghosts_are_rejected(walking: Path, tmp_path: Path):
     bare = _map_run(walking, tmp_path / "none", "none")
     cloud = trimesh.load(tmp_path / "none" / "map.ply")
+    # readable as the run's other files are (it was written 0600, as a private temporary file)
+    assert (tmp_path / "none" / "map.ply").stat().st_mode == (
+        tmp_path / "none" / "metrics.json"
+    ).stat().st_mode
     assert len(cloud.vertices) == bare["points"] > 10_000 and len(cloud.colors) == bare["points"]
     assert bare["threshold_m"] == 0.05 and len(bare["scores"]) == 3
     # Without rejection the walkers stand in the map, and their ghosts are theirs (persons).
@@ -147,3 +151,18 @@ def test_a_sweep_with_dense_maps_gives_each_row_the_figures_of_its_run_alone(wal
     )
     report = depotbench.check(gates, tmp_path / "sw")
     assert [line.split(" [")[0] for line in report.failures] == ["haunted"]
+
+
+def test_the_run_page_shows_the_map_and_names_a_damaged_one(walking: Path, tmp_path: Path, capsys):
+    run = tmp_path / "run"
+    _map_run(walking, run, "box_rule")
+    assert main(["report", str(run), "-o", str(tmp_path / "page")]) == 0
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert "<h3>Dense map</h3>" in page and 'alt="dense map from above"' in page
+    assert page.count("<td>5 cm</td>") == 1
+    capsys.readouterr()
+    (run / "map.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 9\n")  # cut short
+    assert main(["report", str(run), "-o", str(tmp_path / "page2")]) == 0
+    page = (tmp_path / "page2" / "index.html").read_text()
+    assert "<h3>Dense map</h3>" not in page and "map.ply: cannot be read" in page
+    assert "map.ply: cannot be read" in capsys.readouterr().err

@@ -99,6 +99,8 @@ class RunView:
     diagnostics: dict[str, np.ndarray] | None
     sequence_problem: str | None = None
     """Why ``sequence`` is None (not found, damaged): shown where its frames would be."""
+    folder: Path | None = None
+    """The run folder (its map.ply), where the run was read from one."""
 
 
 @dataclass
@@ -381,6 +383,7 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
         sequence=sequence,
         diagnostics=diagnostics,
         sequence_problem=problem,
+        folder=folder,
     )
 
 
@@ -687,8 +690,45 @@ def run_section(view: RunView, heading: str, notes: Notes) -> str:
         f"<section><h2>{html.escape(heading)}</h2><p>{html.escape(view.title)} on "
         f"<code>{html.escape(str(where))}</code></p>"
         f"{summary}<div class='plots'>{''.join(plots)}</div><h3>Frames</h3>{strip_html}"
-        f"<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
+        f"{_map_html(view, notes)}<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
     )
+
+
+MAX_MAP_BYTES = 256 * MIB
+"""map.ply: 15 bytes a point (binary xyz and rgb), so 17M points, far above a 2 cm map of a hall."""
+
+
+def _map_html(view: RunView, notes: Notes) -> str:
+    """The run's dense map from above, its ghosts in red, with its figures (``--map`` runs on a
+    generated sequence); a map that cannot be read or placed is named in the notes."""
+    figures = view.metrics.get("map")
+    if view.folder is None or not isinstance(figures, dict) or "to_groundtruth" not in figures:
+        return ""
+    path = view.folder / "map.ply"
+    if view.sequence is None or not view.sequence.is_generated:
+        notes.add(f"{path}: left out: the dense map (no generated sequence to place it against)")
+        return ""
+    from depotbench.eval.metrics.map import reference_clouds
+    from depotbench.eval.report.maps import placed_map, top_views
+
+    try:
+        os.close(open_regular(path, MAX_MAP_BYTES, "run's map.ply"))
+        placed = placed_map(view.folder, reference_clouds(view.sequence), view.metrics.get("strategy", "map"))
+        rows = [
+            [
+                f"{s['threshold_m'] * 100:g} cm",
+                s["accuracy"],
+                s["completeness"],
+                s["f_score"],
+                s["ghost_fraction"],
+            ]
+            for s in figures.get("scores", [])
+        ]
+    except (OSError, ValueError, KeyError, TypeError, FileError) as exc:
+        notes.add(f"{path}: cannot be read ({exc}); left out: the dense map")
+        return ""
+    scores = table(["within", "accuracy", "completeness", "F-score", "ghost fraction"], rows)
+    return f"<h3>Dense map</h3>{scores}{_img(figure_png(top_views([placed])), 'dense map from above')}"
 
 
 def page(title: str, subtitle: str, sections: list[str], notes: Notes) -> str:

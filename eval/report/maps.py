@@ -30,10 +30,47 @@ class PlacedMap:
     figures: dict
 
 
+MAP_PROPERTIES = (
+    ("float", "x"),
+    ("float", "y"),
+    ("float", "z"),
+    ("uchar", "red"),
+    ("uchar", "green"),
+    ("uchar", "blue"),
+    ("uchar", "alpha"),
+)
+"""A map.ply's vertex, as ``slam.dense_map.write_ply`` writes it: 16 bytes."""
+
+
+def check_map_ply(path: Path) -> None:
+    """Refuse (ValueError, naming what is wrong) a map.ply that is not the binary PLY a run
+    writes, whole: its header read within 4 KiB, its body exactly its vertices' bytes. A file
+    cut short or edited would otherwise reach the PLY reader, which fails on it unpredictably."""
+    with path.open("rb") as handle:
+        head = handle.read(4096)
+    end = head.find(b"end_header\n")
+    if not head.startswith(b"ply\n") or end < 0:
+        raise ValueError("not a binary PLY with a header (no ply ... end_header)")
+    lines = [line.split() for line in head[:end].decode("ascii", "replace").splitlines()[1:]]
+    if ["format", "binary_little_endian", "1.0"] not in lines:
+        raise ValueError("not binary little-endian PLY")
+    vertices = [line for line in lines if line[:2] == ["element", "vertex"]]
+    properties = [tuple(line[1:]) for line in lines if line[:1] == ["property"]]
+    if len(vertices) != 1 or len(vertices[0]) != 3 or not vertices[0][2].isdigit():
+        raise ValueError("no vertex count")
+    if tuple(properties) != MAP_PROPERTIES:
+        raise ValueError(f"vertex properties {properties}, not a map's x, y, z and colour")
+    count, size = int(vertices[0][2]), path.stat().st_size
+    expected = end + len(b"end_header\n") + 16 * count
+    if size != expected:
+        raise ValueError(f"{size} bytes where {count} vertices take {expected}")
+
+
 def placed_map(run_folder: Path, reference: ReferenceClouds, title: str) -> PlacedMap:
     """A run folder's map.ply placed by metrics.json's ``map.to_groundtruth`` and classified at
     the threshold its figures are given at."""
     figures = json.loads((run_folder / "metrics.json").read_text())["map"]
+    check_map_ply(run_folder / "map.ply")
     cloud = trimesh.load(run_folder / "map.ply")
     moved = np.asarray(figures["to_groundtruth"])
     placed = Similarity(moved[:3, :3], moved[:3, 3], 1.0)

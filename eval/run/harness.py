@@ -394,7 +394,7 @@ def run_job(
             (output.path / "program.log").write_text(run.log, encoding="utf-8")
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
-        if tracked.map is not None:
+        if tracked.map is not None and len(tracked.map.map):  # no keyframe point: no file
             write_ply(output.path / "map.ply", tracked.map.map.points(), tracked.map.map.colours())
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
         record = record_of(job, sequence, tracked.metrics)
