@@ -166,3 +166,15 @@ def test_the_run_page_shows_the_map_and_names_a_damaged_one(walking: Path, tmp_p
     page = (tmp_path / "page2" / "index.html").read_text()
     assert "<h3>Dense map</h3>" not in page and "map.ply: cannot be read" in page
     assert "map.ply: cannot be read" in capsys.readouterr().err
+
+
+def test_the_rerun_recording_holds_the_map_as_a_point_cloud(walking: Path, tmp_path: Path):
+    pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    run = tmp_path / "run"
+    _map_run(walking, run, "none")
+    path = tmp_path / "run.rrd"
+    assert main(["report", str(run), "-o", str(tmp_path / "page"), "--rerun", str(path)]) == 0
+    entities = {str(chunk.entity_path) for chunk in RrdReader(str(path)).stream()}
+    assert "/world/map" in entities and "/world/estimate" in entities
