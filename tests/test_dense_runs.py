@@ -178,3 +178,29 @@ def test_the_rerun_recording_holds_the_map_as_a_point_cloud(walking: Path, tmp_p
     assert main(["report", str(run), "-o", str(tmp_path / "page"), "--rerun", str(path)]) == 0
     entities = {str(chunk.entity_path) for chunk in RrdReader(str(path)).stream()}
     assert "/world/map" in entities and "/world/estimate" in entities
+
+
+def test_a_programs_own_map_is_placed_and_scored_like_the_built_in_one(walking: Path, tmp_path: Path):
+    """A program that writes {map} (tests/programs/map_slam.py: the first frame's depth in its own
+    world, the first camera) is scored like the built-in map: exact depth, exact poses, so every
+    point is the static world's or a walker's ghost."""
+    import shlex
+    import sys
+
+    program = Path(__file__).parent / "programs" / "map_slam.py"
+    command = f"{shlex.quote(sys.executable)} {program} {{sequence}} {{trajectory}} {{map}}"
+    out = tmp_path / "run"
+    assert main(["run", str(walking), "-o", str(out), "--slam", "cmd", "--command", command, "--map"]) == 0
+    found = json.loads((out / "metrics.json").read_text())["map"]
+    assert found["keyframes"] is None and found["points"] > 10_000
+    at_2cm = found["scores"][0]
+    assert at_2cm["threshold_m"] == 0.02
+    assert at_2cm["accuracy"] + at_2cm["ghost_fraction"] == pytest.approx(1.0, abs=1e-3)
+    assert found["ghost_fraction"] > 0 and all(who.startswith("person") for who in found["ghosts"])
+    assert len(trimesh.load(out / "map.ply").vertices) == found["points"]
+    # A map the program wrote damaged is its failure, named in one line.
+    bad = 'sh -c \'echo ply > "$1"; cp "$2/groundtruth.txt" "$3"\' sh {map} {sequence} {trajectory}'
+    code = main(
+        ["run", str(walking), "-o", str(tmp_path / "bad"), "--slam", "cmd", "--command", bad, "--map"]
+    )
+    assert code != 0 and not (tmp_path / "bad").exists()

@@ -370,7 +370,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also build the dense map from the keyframes, leaving out what the strategy rejected "
         "(map.ply), and score it against the exact static world: accuracy, completeness, F-score "
-        "and the ghosts moving things left (built-in tracker)",
+        "and the ghosts moving things left (built-in tracker; --slam cmd: the map it writes at {map})",
     )
     p.add_argument(
         "-o",

@@ -947,7 +947,7 @@ def _job_of_row(row: ScoredRun | RunRecord, grid: _Grid, sequence: Sequence, fin
     """The job of a stored row outside the spec's grid (a search trial: its tracker's
     parameters or its strategy's settings were drawn), rebuilt from the row and trusted only
     if its key is the row's."""
-    from depotbench.eval.run.harness import RunJob, identity_of, job_key, tracker_identity
+    from depotbench.eval.run.harness import RunJob, identity_of, job_key, maps_itself, tracker_identity
     from depotbench.eval.sweep.engine import SweepJob
     from depotbench.eval.sweep.spec import threshold_value
 
@@ -960,7 +960,7 @@ def _job_of_row(row: ScoredRun | RunRecord, grid: _Grid, sequence: Sequence, fin
     parameters = tuple(sorted((k, str(v)) for k, v in json.loads(row.get("parameters") or "{}").items()))
     tracker = replace(trackers[0], parameters=parameters) if parameters else trackers[0]
     settings = tuple(sorted((k, threshold_value(k, v)) for k, v in json.loads(row["settings"]).items()))
-    mapped = grid.dense_map and tracker.type.per_keypoint
+    mapped = grid.dense_map and maps_itself(tracker)
     for detector in detectors:
         key = job_key(fingerprint, tracker_identity(tracker), detector, row["strategy"], settings, mapped)
         if key == row["key"]:

@@ -51,16 +51,20 @@ def reference_of(sequence) -> ReferenceClouds:
 
 @dataclass(frozen=True)
 class RunMap:
-    """A run's dense map and, on a generated sequence, its scores."""
+    """A run's map (the built-in tracker's dense map, or what an external program wrote at
+    ``{map}``), in the run's world frame, and on a generated sequence its scores."""
 
-    map: DenseMap
+    points: np.ndarray
+    colours: np.ndarray
+    keyframes: int | None
+    """The keyframes the built-in map was stitched from; None for a program's own map."""
     scores: dict[str, Any] | None
     """``MapMetrics.to_json()`` with the threshold of the headline figures; None without a
     ground truth to score against (a real TUM folder)."""
 
     def figures(self) -> dict[str, Any]:
         """What metrics.json keeps of the map."""
-        out: dict[str, Any] = {"points": len(self.map), "keyframes": self.map.keyframes}
+        out: dict[str, Any] = {"points": len(self.points), "keyframes": self.keyframes}
         if self.scores is not None:
             out |= self.scores
         return out
@@ -88,20 +92,26 @@ def build_map(frames: FrameSource, run: TrackerRun, config: SlamConfig, strategy
 
 def anchor(sequence, run: TrackerRun) -> Similarity:
     """The rigid motion taking the run's world into the ground truth's: the first keyframe's
-    true pose times its estimated pose's inverse."""
-    first = min(run.keyframe_poses)
-    moved = sequence.world_from_camera(first) @ np.linalg.inv(run.keyframe_poses[first])
+    (a program's map: the first tracked frame's) true pose times its estimated pose's inverse."""
+    if run.keyframe_poses:
+        first = min(run.keyframe_poses)
+        estimated = run.keyframe_poses[first]
+    else:
+        first = next(i for i, pose in enumerate(run.poses) if pose is not None and run.tracked[i])
+        estimated = run.poses[first]
+    moved = sequence.world_from_camera(first) @ np.linalg.inv(estimated)
     return Similarity(moved[:3, :3], moved[:3, 3], 1.0)
 
 
-def score_map(frames: FrameSource, dense: DenseMap, run: TrackerRun) -> dict[str, Any] | None:
+def score_map(frames: FrameSource, points: np.ndarray, run: TrackerRun) -> dict[str, Any] | None:
     """The map against the sequence's exact static world and moving instances, at 2, 5 and 10 cm,
-    placed by its first keyframe; None without a ground truth (a real TUM folder)."""
+    placed by its first keyframe; None without a ground truth (a real TUM folder) or without a
+    tracked frame to place it by."""
     sequence = frames.sequence
-    if not sequence.is_generated or len(dense) == 0:
+    if not sequence.is_generated or len(points) == 0 or (not run.keyframe_poses and not run.tracked.any()):
         return None
     reference = reference_of(sequence)
-    scores = map_metrics(dense.points(), reference, DEFAULT_THRESHOLDS_M, transform=anchor(sequence, run))
+    scores = map_metrics(points, reference, DEFAULT_THRESHOLDS_M, transform=anchor(sequence, run))
     headline = scores.at(SCORED_AT_M)
     placed = anchor(sequence, run)
     to_truth = np.eye(4)
@@ -118,8 +128,13 @@ def score_map(frames: FrameSource, dense: DenseMap, run: TrackerRun) -> dict[str
 
 
 def run_map(frames: FrameSource, run: TrackerRun, config: SlamConfig, strategy: str) -> RunMap | None:
-    """The run's dense map and its scores (``build_map``, ``score_map``)."""
-    dense = build_map(frames, run, config, strategy)
-    if dense is None:
-        return None
-    return RunMap(dense, score_map(frames, dense, run))
+    """The run's map and its scores: the built-in tracker's dense map (``build_map``), or the
+    map an external program wrote; None where the run has neither."""
+    if run.map_points is not None:
+        points, colours, keyframes = run.map_points, run.map_colours, None
+    else:
+        dense = build_map(frames, run, config, strategy)
+        if dense is None:
+            return None
+        points, colours, keyframes = dense.points(), dense.colours(), dense.keyframes
+    return RunMap(points, colours, keyframes, score_map(frames, points, run))

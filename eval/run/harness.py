@@ -53,6 +53,12 @@ MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
 
 
+def maps_itself(tracker: TrackerConfig) -> bool:
+    """Whether a run of ``tracker`` has a map to score: the built-in tracker builds one from its
+    keyframes, a command program may write one at ``{map}``."""
+    return tracker.type.per_keypoint or (tracker.type.command and "{map}" in (tracker.command or ""))
+
+
 def slam_config(strategy: str, settings: Mapping[str, Setting], tracker: str = BUILTIN) -> SlamConfig:
     """The strategy and its settings (typed: ``--set`` text is parsed where it comes in),
     checked against what the tracker (a registry name) can use."""
@@ -110,10 +116,10 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
         sequence = Sequence.open(job.sequence)
     if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
-    if job.dense_map and not per_keypoint:
+    if job.dense_map and not maps_itself(job.tracker):
         raise InputError(
             f"--map needs the built-in tracker (the map is built from its keyframes and keypoint "
-            f"decisions); --slam {job.tracker.kind} gives neither"
+            f"decisions) or a --command that writes {{map}}; --slam {job.tracker.kind} gives neither"
         )
     if per_keypoint:  # the bench's own front end: its pyramid must fit the image
         camera = camera_of(sequence)
@@ -394,8 +400,8 @@ def run_job(
             (output.path / "program.log").write_text(run.log, encoding="utf-8")
         if run.results is not None:
             _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
-        if tracked.map is not None and len(tracked.map.map):  # no keyframe point: no file
-            write_ply(output.path / "map.ply", tracked.map.map.points(), tracked.map.map.colours())
+        if tracked.map is not None and len(tracked.map.points):  # no keyframe point: no file
+            write_ply(output.path / "map.ply", tracked.map.points, tracked.map.colours)
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
         record = record_of(job, sequence, tracked.metrics)
         (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")

@@ -27,6 +27,7 @@ from depotbench.eval.run.harness import (
     family_of,
     identity_of,
     job_key,
+    maps_itself,
     prepare,
     seed_of,
     slam_config,
@@ -122,7 +123,7 @@ def jobs_for(
         fingerprint = sequence_fingerprint(opened, anchor)
         stored, seed = stored_path(root, anchor), seed_of(opened)
         for tracker in trackers:
-            mapped = dense_map and tracker.type.per_keypoint  # a map needs the built-in keyframes
+            mapped = dense_map and maps_itself(tracker)  # built-in keyframes, or a program's {map}
             for detector in detectors:
                 for v in found:
                     if not tracker.type.per_keypoint and v.strategy not in EXTERNAL_STRATEGIES:

@@ -55,6 +55,9 @@ class TrackerRun:
     """The peak resident memory of an external program and what it waited for."""
     log: str = ""
     """The end of an external program's standard output and error (for the run folder)."""
+    map_points: np.ndarray | None = None
+    """An external program's map (``{map}``): points (N, 3) in the frame of its trajectory."""
+    map_colours: np.ndarray | None = None
     keyframe_poses: dict[int, np.ndarray] | None = None
     """world_from_camera of each keyframe by frame index, as the run left it (after local
     bundle adjustment): what a dense map is stitched with. The built-in tracker's only."""

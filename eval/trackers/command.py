@@ -13,6 +13,8 @@ shell. Placeholders stand for whole words (arguments):
 ``{detections}``    the run's boxes, faults applied (``depotbench.eval.trackers.protocol``)
 ``{keypoints}``     where the program may write its keypoint decisions, scored against
                     the exact ground truth like the built-in tracker's
+``{map}``           where the program may write its map, a PLY point cloud in the frame
+                    of its trajectory, scored like the built-in dense map (``--map``)
 ``{parameters}``    a JSON file of the run's parameter values
 ``{NAME}``          the value of parameter NAME
 
@@ -63,7 +65,7 @@ from depotbench.eval.metrics.trajectory import read_tum
 from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.external import poses_by_frame, run_child, write_settings
 from depotbench.eval.trackers.frames import FrameSource
-from depotbench.eval.trackers.protocol import read_keypoints, write_detections
+from depotbench.eval.trackers.protocol import read_keypoints, read_map, write_detections
 from depotbench.eval.trackers.reaper import Scratch
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence, timestamp_name
@@ -78,6 +80,7 @@ PLACEHOLDERS = (
     "detections",
     "keypoints",
     "parameters",
+    "map",
 )
 PARAMETER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.]{0,63}")
 """A parameter's name: also a placeholder, and ``DEPOTBENCH_PARAM_`` + its upper case."""
@@ -247,11 +250,18 @@ class CommandTracker:
                 stamps, poses = _estimate(trajectory)
                 keypoints = Path(values["keypoints"])
                 decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
+                drawn = Path(values["map"])
+                cloud = read_map(drawn) if os.path.lexists(drawn) else None
             except InputError as exc:  # what the program wrote cannot be read: its failure, named
                 raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
         run = _tracker_run(frames, stamps, poses, child.wall_s)
         return dataclasses.replace(
-            run, decisions=decisions, peak_memory_mb=child.peak_memory_mb, log=child.log
+            run,
+            decisions=decisions,
+            peak_memory_mb=child.peak_memory_mb,
+            log=child.log,
+            map_points=None if cloud is None else cloud[0],
+            map_colours=None if cloud is None else cloud[1],
         )
 
     def _word(self, word: str, values: dict[str, str]) -> str:
@@ -288,6 +298,7 @@ class CommandTracker:
             "trajectory": str(trajectory),
             "detections": str(detections),
             "keypoints": str(scratch / "keypoints.txt"),
+            "map": str(scratch / "map.ply"),
             "parameters": str(parameters),
             "vocabulary": "",
         }

@@ -177,3 +177,35 @@ def _data_lines(path: Path, limit: int, what: str, maxsplit: int):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
             yield number, stripped.split(maxsplit=maxsplit)
+
+
+MAX_MAP_BYTES = 2048 * MIB
+"""A program's map: 2 GiB is some 90M points of binary PLY, far above a dense map of a hall."""
+
+
+def read_map(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The point cloud a program wrote at ``{map}``: a PLY (ASCII or binary) of points in the
+    frame of its trajectory, with or without colours; (points (N, 3), colours (N, 3) uint8,
+    grey where it gave none). Whatever the PLY reader cannot read is this file's problem,
+    named (the reader raises all sorts on a damaged file)."""
+    import os
+
+    import trimesh
+    from depotbench.core.files import open_regular
+
+    os.close(open_regular(path, MAX_MAP_BYTES, "map"))
+    try:
+        cloud = trimesh.load(path, file_type="ply", process=False)
+    except Exception as exc:  # noqa: BLE001 - any reader failure is the file's, said in one line
+        raise ProtocolError(
+            path, None, f"not a readable PLY point cloud ({type(exc).__name__}: {exc})"
+        ) from None
+    points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or not len(points):
+        raise ProtocolError(path, None, "holds no points")
+    if not np.isfinite(points).all():
+        raise ProtocolError(path, None, "holds a point that is not finite")
+    colours = np.asarray(getattr(cloud, "colors", []))
+    if colours.shape[:1] != (len(points),) or colours.ndim != 2 or colours.shape[1] < 3:
+        colours = np.full((len(points), 3), 160, np.uint8)
+    return points, colours[:, :3].astype(np.uint8)
