@@ -86,7 +86,7 @@ def test_a_map_needs_the_built_in_tracker(walking: Path, tmp_path: Path, capsys)
     ]
     code, _, err = cli(capsys, *args)
     assert code == 2
-    one_error_line(err, "--map needs the built-in tracker")
+    one_error_line(err, "--map needs a tracker with a map")
     assert not (tmp_path / "r").exists()
 
 

@@ -55,8 +55,8 @@ MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 
 def maps_itself(tracker: TrackerConfig) -> bool:
     """Whether a run of ``tracker`` has a map to score: the built-in tracker builds one from its
-    keyframes, a command program may write one at ``{map}``."""
-    return tracker.type.per_keypoint or (tracker.type.command and "{map}" in (tracker.command or ""))
+    keyframes, ORB-SLAM3 gives its map points, a command program may write one at ``{map}``."""
+    return tracker.type.maps or (tracker.type.command and "{map}" in (tracker.command or ""))
 
 
 def slam_config(strategy: str, settings: Mapping[str, Setting], tracker: str = BUILTIN) -> SlamConfig:
@@ -118,8 +118,8 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
     if job.dense_map and not maps_itself(job.tracker):
         raise InputError(
-            f"--map needs the built-in tracker (the map is built from its keyframes and keypoint "
-            f"decisions) or a --command that writes {{map}}; --slam {job.tracker.kind} gives neither"
+            f"--map needs a tracker with a map: the built-in one, ORB-SLAM3, or a --command that "
+            f"writes {{map}}; --slam {job.tracker.kind} gives none"
         )
     if per_keypoint:  # the bench's own front end: its pyramid must fit the image
         camera = camera_of(sequence)

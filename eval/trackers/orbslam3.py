@@ -137,6 +137,8 @@ class Orbslam3Tracker:
             )
             records = [json.loads(line) for line in (scratch / "frames.jsonl").read_text().splitlines()]
             keyframes = _data_lines(scratch / "keyframes.txt")
+            drawn = scratch / "map_points.npy"
+            points = np.load(drawn, allow_pickle=False).astype(np.float64) if drawn.is_file() else None
         if len(records) != len(sequence):
             raise TrackerError(f"orbslam3: reported {len(records)} frames of {len(sequence)}")
         return TrackerRun(
@@ -148,6 +150,8 @@ class Orbslam3Tracker:
             total_s=child.wall_s,
             peak_memory_mb=child.peak_memory_mb,
             log=child.log,
+            map_points=points,
+            map_colours=None if points is None else np.full((len(points), 3), 160, np.uint8),
         )
 
 

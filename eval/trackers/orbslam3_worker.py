@@ -8,8 +8,9 @@ to the C stdout, which goes to ``orbslam3.log`` beside the results.
 The request (JSON) names ``vocabulary``, ``settings``, ``sequence`` and ``out``. Each
 frame becomes one line of ``out/frames.jsonl``: timestamp, ORB-SLAM3's state, the
 pose (world_from_camera, the first frame's camera as world) when it has one, the
-milliseconds ``track_rgbd`` took and the number of tracked map points. Progress
-goes to stderr as one frame count per line.
+milliseconds ``track_rgbd`` took and the number of tracked map points. The map points
+seen in tracked frames, each where it stood when last seen, go to ``out/map_points.npy``
+(its sparse map, for ``--map``). Progress goes to stderr as one frame count per line.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 
 def _quiet_native_stdout(log: Path) -> None:
@@ -43,7 +46,7 @@ def main(request_path: str) -> int:
     slam = pyorbslam3.Slam(
         request["vocabulary"], request["settings"], pyorbslam3.Sensor.RGBD, use_viewer=False
     )
-    lines = []
+    lines, seen = [], []
     for i in range(len(sequence)):
         rgb = sequence.rgb(i)  # RGB order, as the settings' Camera.RGB: 1 says
         depth = sequence.depth_raw(i).astype("float32")  # stored units; DepthMapFactor scales them
@@ -52,6 +55,8 @@ def main(request_path: str) -> int:
         result = slam.track_rgbd(rgb, depth, timestamp)
         elapsed_ms = (time.perf_counter() - started) * 1e3
         pose = result.pose_wc.tolist() if result.pose_valid and result.pose_wc is not None else None
+        if pose is not None:
+            seen.append(np.asarray(slam.tracked_map_points(), dtype=np.float32).reshape(-1, 3))
         lines.append(
             json.dumps(
                 {
@@ -65,6 +70,9 @@ def main(request_path: str) -> int:
         )
         print(i + 1, file=sys.stderr, flush=True)
     slam.save_keyframe_trajectory_tum(str(out / "keyframes.txt"))
+    if seen:  # a point seen in many frames once; one BA moved keeps each position it had
+        points = np.unique(np.concatenate(seen), axis=0)
+        np.save(out / "map_points.npy", points[np.isfinite(points).all(axis=1)])
     slam.shutdown()
     staged = out / "frames.jsonl.partial"
     staged.write_text("\n".join(lines) + "\n", encoding="utf-8")

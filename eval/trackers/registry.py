@@ -37,6 +37,8 @@ class TrackerType:
     """It takes a DBoW2 vocabulary (the bench builds one from generated frames)."""
     parameters: bool = False
     """It takes its own parameters (``--param``, a spec's ``parameters:``)."""
+    maps: bool = False
+    """Its runs carry a map to score (``--map``): the built-in dense map, ORB-SLAM3's map points."""
 
 
 TRACKERS: dict[str, TrackerType] = {
@@ -48,6 +50,7 @@ TRACKERS: dict[str, TrackerType] = {
             "the bench's ORB-SLAM2-style RGB-D pipeline with every rejection strategy",
             per_keypoint=True,
             external=False,
+            maps=True,
         ),
         TrackerType(
             "orbslam3",
@@ -57,6 +60,7 @@ TRACKERS: dict[str, TrackerType] = {
             external=True,
             vocabulary=True,
             parameters=True,
+            maps=True,
         ),
         TrackerType(
             "cmd",
