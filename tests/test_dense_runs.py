@@ -151,6 +151,9 @@ def test_a_sweep_with_dense_maps_gives_each_row_the_figures_of_its_run_alone(wal
     )
     report = depotbench.check(gates, tmp_path / "sw")
     assert [line.split(" [")[0] for line in report.failures] == ["haunted"]
+    # The sweep's page sets the best run's map beside its none run's, as method 2's two pictures.
+    page = depotbench.report(tmp_path / "sw", tmp_path / "page").read_text()
+    assert page.count("<h3>Dense maps</h3>") == 1 and 'alt="dense maps of ' in page
 
 
 def test_the_run_page_shows_the_map_and_names_a_damaged_one(walking: Path, tmp_path: Path, capsys):

@@ -101,6 +101,8 @@ class RunView:
     """Why ``sequence`` is None (not found, damaged): shown where its frames would be."""
     folder: Path | None = None
     """The run folder (its map.ply), where the run was read from one."""
+    placed: Any = None
+    """A run tracked for the page: its dense map placed and classified (``maps.PlacedMap``)."""
 
 
 @dataclass
@@ -392,6 +394,14 @@ def view_of(title: str, tracked, sequence: Sequence) -> RunView:
     from depotbench.eval.run.harness import diagnostics_arrays
 
     run = tracked.run
+    placed = None
+    dense = getattr(tracked, "map", None)
+    if dense is not None and dense.scores is not None and len(dense.points):
+        from depotbench.eval.report.maps import placed_points
+        from depotbench.eval.run.dense import reference_of
+
+        strategy = str(tracked.metrics.get("strategy", "map"))
+        placed = placed_points(dense.points, dense.colours, dense.scores, reference_of(sequence), strategy)
     return RunView(
         title=title,
         metrics=tracked.metrics,
@@ -400,6 +410,7 @@ def view_of(title: str, tracked, sequence: Sequence) -> RunView:
         estimate=run.trajectory(),
         sequence=sequence,
         diagnostics=diagnostics_arrays(run.results, run.labels or []) if run.results is not None else None,
+        placed=placed,
     )
 
 
@@ -1203,6 +1214,11 @@ def _family_section(
             + "</p>"
         )
     picture = _img(strip, f"runs of {family}") if strip is not None else ""
+    maps = [view.placed for view in views if view.placed is not None]
+    if maps:  # the featured run's map beside its none run's, ghosts in red (method 2's two pictures)
+        from depotbench.eval.report.maps import top_views
+
+        picture += "<h3>Dense maps</h3>" + _img(figure_png(top_views(maps)), f"dense maps of {family}")
     details = "".join(run_section(view, view.title, notes) for view in views)
     return (
         f"<section><h2>Family: {html.escape(family)}</h2>"

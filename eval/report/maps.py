@@ -72,9 +72,17 @@ def placed_map(run_folder: Path, reference: ReferenceClouds, title: str) -> Plac
     figures = json.loads((run_folder / "metrics.json").read_text())["map"]
     check_map_ply(run_folder / "map.ply")
     cloud = trimesh.load(run_folder / "map.ply")
+    points = np.asarray(cloud.vertices, dtype=np.float64)
+    return placed_points(points, np.asarray(cloud.colors)[:, :3], figures, reference, title)
+
+
+def placed_points(
+    points: np.ndarray, colours: np.ndarray, figures: dict, reference: ReferenceClouds, title: str
+) -> PlacedMap:
+    """A map's points (in the run's world, colours 0-255) placed by its figures'
+    ``to_groundtruth`` and classified at the threshold they are given at."""
     moved = np.asarray(figures["to_groundtruth"])
     placed = Similarity(moved[:3, :3], moved[:3, 3], 1.0)
-    points = np.asarray(cloud.vertices, dtype=np.float64)
     distances = map_distances(points, reference, placed)
     threshold = figures["threshold_m"]
     near_moving = (distances.to_moving_m <= threshold).any(axis=1) if distances.to_moving_m.size else False
@@ -82,7 +90,7 @@ def placed_map(run_folder: Path, reference: ReferenceClouds, title: str) -> Plac
         distances.to_static_m <= threshold, STATIC, np.where(near_moving, GHOST, NEITHER)
     ).astype(np.uint8)
     world = points @ placed.rotation.T + placed.translation
-    return PlacedMap(title, world, np.asarray(cloud.colors)[:, :3] / 255.0, kinds, figures)
+    return PlacedMap(title, world, np.asarray(colours, dtype=np.float64)[:, :3] / 255.0, kinds, figures)
 
 
 def top_views(maps: list[PlacedMap]):
