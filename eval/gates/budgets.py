@@ -37,7 +37,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, ScoredRun, with_derived
+from depotbench.eval.metrics.figures import (
+    FIGURES,
+    HIGHER_IS_BETTER,
+    ScoredRun,
+    configuration_of,
+    with_derived,
+)
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
 from depotbench.eval.sweep.spec import SweepSpec
@@ -351,21 +357,10 @@ def evaluate(
     return GateReport(gates.gates, tuple(results), tuple(empty))
 
 
-def _configuration_key(row: ScoredRun) -> tuple:
-    return (
-        row["family"],
-        row["tracker"],
-        row.get("parameters") or "{}",
-        row["detector"],
-        row["strategy"],
-        row["settings"],
-    )
-
-
 def _configurations(rows: list[ScoredRun]) -> list[list[ScoredRun]]:
     groups: dict[tuple, list[ScoredRun]] = {}
     for row in rows:
-        groups.setdefault(_configuration_key(row), []).append(row)
+        groups.setdefault(configuration_of(row), []).append(row)
     return [groups[key] for key in sorted(groups)]
 
 
@@ -423,8 +418,8 @@ def _versus_baseline(
     p below ``BASELINE_ALPHA``), so that a gate does not flake on run-to-run noise."""
     if baseline is None:
         return None, False, "(no baseline given: check --baseline DIR)"
-    key = _configuration_key(members[0])
-    theirs = {_pairing(r): r for r in baseline if _configuration_key(r) == key}
+    key = configuration_of(members[0])
+    theirs = {_pairing(r): r for r in baseline if configuration_of(r) == key}
     pairs = [(theirs[_pairing(r)].get(metric), r.get(metric)) for r in members if _pairing(r) in theirs]
     if not pairs:
         return None, False, "(the baseline has no run of this configuration on these sequences)"

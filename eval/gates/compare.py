@@ -16,7 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
-from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, TIME, ScoredRun, with_derived
+from depotbench.eval.metrics.figures import (
+    FIGURES,
+    HIGHER_IS_BETTER,
+    RATIO,
+    TIME,
+    ScoredRun,
+    configuration_of,
+    with_derived,
+)
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import Change, paired_change, stats
 from depotbench.eval.sweep.summary import configuration_label
@@ -98,17 +106,6 @@ def load_rows(folder: Path) -> list[RunRecord]:
     raise InputError(f"{folder}: neither a sweep folder (results.sqlite) nor a run folder (record.json)")
 
 
-def _config(row: ScoredRun) -> tuple:
-    return (
-        row["family"],
-        row["tracker"],
-        row.get("parameters") or "{}",
-        row["detector"],
-        row["strategy"],
-        row["settings"],
-    )
-
-
 def _label(key: tuple) -> str:
     _, tracker, parameters, detector, strategy, settings = key
     label = configuration_label(tracker, json.loads(parameters), strategy, json.loads(settings))
@@ -119,7 +116,7 @@ def _groups(records: list[RunRecord]) -> dict[tuple, dict[str, ScoredRun]]:
     """Per configuration, its runs by sequence name (what pairs runs across sets)."""
     out: dict[tuple, dict[str, ScoredRun]] = {}
     for row in with_derived(records):
-        out.setdefault(_config(row), {})[Path(row["sequence"]).name] = row
+        out.setdefault(configuration_of(row), {})[Path(row["sequence"]).name] = row
     return out
 
 

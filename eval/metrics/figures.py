@@ -75,8 +75,23 @@ def is_baseline(row: dict[str, Any]) -> bool:
     return row["strategy"] == BASELINE_STRATEGY and row["settings"] in ("{}", {}, None)
 
 
-def _parameters(row: dict[str, Any]) -> str:
+def parameters_of(row: Any) -> str:
+    """A run's tracker parameters as its row holds them (JSON; ``{}`` for none)."""
     return row.get("parameters") or "{}"
+
+
+def configuration_of(run: Any) -> tuple[str, str, str, str, str, str]:
+    """What makes runs one configuration (its seeds and sequences): family, tracker with its
+    parameters, detector, strategy and settings, as a row holds them. Summaries group by it,
+    gates check each group together, and compare pairs them across result sets."""
+    return (
+        run["family"],
+        run["tracker"],
+        parameters_of(run),
+        run["detector"],
+        run["strategy"],
+        run["settings"],
+    )
 
 
 @dataclass(frozen=True)
@@ -136,11 +151,11 @@ def with_derived(records: Iterable[RunRecord]) -> list[ScoredRun]:
 
     records = list(records)
     baseline = {
-        (r.sequence, r.tracker, _parameters(r), r.detector): r.ate_rmse_m for r in records if is_baseline(r)
+        (r.sequence, r.tracker, parameters_of(r), r.detector): r.ate_rmse_m for r in records if is_baseline(r)
     }
     out = []
     for r in records:
-        base = baseline.get((r.sequence, r.tracker, _parameters(r), r.detector))
+        base = baseline.get((r.sequence, r.tracker, parameters_of(r), r.detector))
         rho = None
         if base is not None and r.ate_rmse_m is not None and base > 0:
             rho = improvement_rate(base, r.ate_rmse_m)

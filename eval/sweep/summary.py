@@ -18,13 +18,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from depotbench.eval.metrics.figures import FIGURES, ScoredRun, is_baseline, with_derived
+from depotbench.eval.metrics.figures import (
+    FIGURES,
+    ScoredRun,
+    configuration_of,
+    is_baseline,
+    parameters_of,
+    with_derived,
+)
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule, summarize
-
-
-def _parameters(row: dict[str, Any]) -> str:
-    return row.get("parameters") or "{}"
 
 
 def with_rho(records: list[RunRecord]) -> list[ScoredRun]:
@@ -44,9 +47,7 @@ def configurations(rows: list[RunRecord], rule: SuccessRule | None = None) -> li
     rule = rule or SuccessRule()
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in with_derived(rows):
-        groups[
-            (r["family"], r["tracker"], _parameters(r), r["detector"], r["strategy"], r["settings"])
-        ].append(r)
+        groups[configuration_of(r)].append(r)
     varied = _varied_parameters(rows)
     out = []
     for (family, tracker, parameters, detector, strategy, settings), members in sorted(groups.items()):
@@ -73,7 +74,7 @@ def _varied_parameters(rows: list[RunRecord]) -> dict[str, set[str]]:
     label needs (ORB-SLAM3 has six, and a sweep varies two)."""
     values: dict[str, dict[str, set]] = defaultdict(lambda: defaultdict(set))
     for r in rows:
-        for name, value in json.loads(_parameters(r)).items():
+        for name, value in json.loads(parameters_of(r)).items():
             values[r["tracker"]][name].add(value)
     return {tracker: {n for n, seen in names.items() if len(seen) > 1} for tracker, names in values.items()}
 
