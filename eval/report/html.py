@@ -100,9 +100,10 @@ class RunView:
     sequence_problem: str | None = None
     """Why ``sequence`` is None (not found, damaged): shown where its frames would be."""
     folder: Path | None = None
-    """The run folder (its map.ply), where the run was read from one."""
+    """The run folder, where the run was read from one."""
     placed: Any = None
-    """A run tracked for the page: its dense map placed and classified (``maps.PlacedMap``)."""
+    """Its dense map placed in the ground-truth frame and classified (``maps.PlacedMap``): a
+    run folder's map.ply, or the map of a run tracked again for a sweep's page."""
 
 
 @dataclass
@@ -376,6 +377,7 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
     sequence, problem = open_sequence(metrics.get("sequence"), folder)
     if problem is not None:
         notes.add(f"{problem}; left out: the frames, the ground truth and the scenario's difficulty")
+    placed = _placed_map(folder, metrics, sequence, notes)
     return RunView(
         title=f"{metrics['tracker']} · {metrics['strategy']} · {metrics['detector']}",
         metrics=metrics,
@@ -386,6 +388,7 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
         diagnostics=diagnostics,
         sequence_problem=problem,
         folder=folder,
+        placed=placed,
     )
 
 
@@ -701,7 +704,7 @@ def run_section(view: RunView, heading: str, notes: Notes) -> str:
         f"<section><h2>{html.escape(heading)}</h2><p>{html.escape(view.title)} on "
         f"<code>{html.escape(str(where))}</code></p>"
         f"{summary}<div class='plots'>{''.join(plots)}</div><h3>Frames</h3>{strip_html}"
-        f"{_map_html(view, notes)}<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
+        f"{_map_html(view)}<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
     )
 
 
@@ -709,37 +712,54 @@ MAX_MAP_BYTES = 256 * MIB
 """map.ply: 15 bytes a point (binary xyz and rgb), so 17M points, far above a 2 cm map of a hall."""
 
 
-def _map_html(view: RunView, notes: Notes) -> str:
-    """The run's dense map from above, its ghosts in red, with its figures (``--map`` runs on a
-    generated sequence); a map that cannot be read or placed is named in the notes."""
-    figures = view.metrics.get("map")
-    if view.folder is None or not isinstance(figures, dict) or "to_groundtruth" not in figures:
-        return ""
-    path = view.folder / "map.ply"
-    if view.sequence is None or not view.sequence.is_generated:
+def _placed_map(folder: Path, metrics: dict[str, Any], sequence: Sequence | None, notes: Notes):
+    """A run folder's map.ply (``--map`` runs on a generated sequence) placed and classified, once
+    for the page and the Rerun recording; a map that cannot be read or placed is named in the
+    notes and left out."""
+    figures = metrics.get("map")
+    if not isinstance(figures, dict) or "to_groundtruth" not in figures:
+        return None
+    path = folder / "map.ply"
+    if sequence is None or not sequence.is_generated:
         notes.add(f"{path}: left out: the dense map (no generated sequence to place it against)")
-        return ""
-    from depotbench.eval.metrics.map import reference_clouds
-    from depotbench.eval.report.maps import placed_map, top_views
+        return None
+    from depotbench.eval.report.maps import placed_map
+    from depotbench.eval.run.dense import reference_of
 
     try:
         os.close(open_regular(path, MAX_MAP_BYTES, "run's map.ply"))
-        placed = placed_map(view.folder, reference_clouds(view.sequence), view.metrics.get("strategy", "map"))
-        rows = [
-            [
-                f"{s['threshold_m'] * 100:g} cm",
-                s["accuracy"],
-                s["completeness"],
-                s["f_score"],
-                s["ghost_fraction"],
-            ]
-            for s in figures.get("scores", [])
-        ]
+        placed = placed_map(folder, reference_of(sequence), str(metrics.get("strategy", "map")))
+        _map_rows(placed.figures)  # what the page tabulates must be there, or the map is left out
     except (OSError, ValueError, KeyError, TypeError, FileError) as exc:
         notes.add(f"{path}: cannot be read ({exc}); left out: the dense map")
+        return None
+    return placed
+
+
+def _map_rows(figures: dict[str, Any]) -> list[list[Any]]:
+    return [
+        [
+            f"{s['threshold_m'] * 100:g} cm",
+            s["accuracy"],
+            s["completeness"],
+            s["f_score"],
+            s["ghost_fraction"],
+        ]
+        for s in figures.get("scores", [])
+    ]
+
+
+def _map_html(view: RunView) -> str:
+    """A run folder's dense map from above, its ghosts in red, with its figures per threshold (a
+    sweep's page sets its runs' maps side by side instead: ``_family_section``)."""
+    if view.folder is None or view.placed is None:
         return ""
-    scores = table(["within", "accuracy", "completeness", "F-score", "ghost fraction"], rows)
-    return f"<h3>Dense map</h3>{scores}{_img(figure_png(top_views([placed])), 'dense map from above')}"
+    from depotbench.eval.report.maps import top_views
+
+    scores = table(
+        ["within", "accuracy", "completeness", "F-score", "ghost fraction"], _map_rows(view.placed.figures)
+    )
+    return f"<h3>Dense map</h3>{scores}{_img(figure_png(top_views([view.placed])), 'dense map from above')}"
 
 
 def page(title: str, subtitle: str, sections: list[str], notes: Notes) -> str:

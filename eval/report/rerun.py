@@ -43,7 +43,7 @@ def _log(recording, view: RunView) -> None:
         recording.log("world/groundtruth", truth, static=True)
         errors = np.linalg.norm(est.positions_m - ref.positions_m, axis=1)
         by_time = {round(float(t), 6): i for i, t in enumerate(est.timestamps_s)}
-    dense = _placed_map(view)
+    dense = view.placed  # placed once, with the page (html.load_run)
     if dense is not None:
         colours = np.rint(dense.colours * 255).astype(np.uint8)
         colours[dense.kinds == GHOST] = np.rint(np.array(GHOST_RGB) * 255).astype(np.uint8)
@@ -71,23 +71,6 @@ def _log(recording, view: RunView) -> None:
                 so_far = rr.LineStrips3D([est.positions_m[: j + 1]], colors=[(220, 50, 50)])
                 recording.log("world/estimate", so_far)
                 recording.log("error_m", rr.Scalars(float(errors[j])))
-
-
-def _placed_map(view: RunView):
-    """The run's dense map in the ground-truth frame with its ghosts marked, or None where the
-    run has none or it cannot be read (the page's notes name why: ``html._map_html``)."""
-    figures = view.metrics.get("map")
-    if view.folder is None or not isinstance(figures, dict) or "to_groundtruth" not in figures:
-        return None
-    if view.sequence is None or not view.sequence.is_generated:
-        return None
-    from depotbench.eval.metrics.map import reference_clouds
-    from depotbench.eval.report.maps import placed_map
-
-    try:
-        return placed_map(view.folder, reference_clouds(view.sequence), "map")
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 def _write_all(fd: int, data: bytes) -> None:

@@ -110,10 +110,9 @@ def score_map(frames: FrameSource, points: np.ndarray, run: TrackerRun) -> dict[
     sequence = frames.sequence
     if not sequence.is_generated or len(points) == 0 or (not run.keyframe_poses and not run.tracked.any()):
         return None
-    reference = reference_of(sequence)
-    scores = map_metrics(points, reference, DEFAULT_THRESHOLDS_M, transform=anchor(sequence, run))
-    headline = scores.at(SCORED_AT_M)
     placed = anchor(sequence, run)
+    scores = map_metrics(points, reference_of(sequence), DEFAULT_THRESHOLDS_M, transform=placed)
+    headline = scores.at(SCORED_AT_M)
     to_truth = np.eye(4)
     to_truth[:3, :3], to_truth[:3, 3] = placed.rotation, placed.translation
     return scores.to_json() | {
