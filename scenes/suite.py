@@ -27,6 +27,10 @@ from depotbench.scenes.schema import (
 from pydantic import Field, model_validator
 
 MAX_VARIATIONS = 10_000
+LENGTH_FIELDS = ("frames", "duration_s")
+"""A scenario's length, given one way (the schema refuses both): a suite's override or knob that
+sets one replaces the other that the base gave, as a user who writes ``frames: 60`` over a
+10-second base means."""
 Bound = Annotated[float, Field(ge=-1e12, le=1e12)]
 IntBound = Annotated[int, Field(ge=-(2**53), le=2**53)]
 
@@ -87,6 +91,11 @@ class Suite(Strict):
         for reserved, instead in reserved_knobs:
             if reserved in knobs:
                 raise ValueError(f"'{reserved}' cannot be a knob ({instead})")
+        for where, names in (("overrides", list(self.overrides)), ("knobs", knobs)):
+            if set(LENGTH_FIELDS) <= set(names):
+                raise ValueError(
+                    f"{where}: give frames or duration_s, not both (either one replaces the base's length)"
+                )
         return self
 
 
@@ -110,6 +119,16 @@ def set_path(data: dict[str, Any], dotted: str, value: Any, source: str) -> None
             if isinstance(node, dict) and key not in node:
                 node[key] = {}
             node = node[index]
+
+
+def set_field(data: dict[str, Any], dotted: str, value: Any, source: str) -> None:
+    """``set_path``, where setting the length one way (``LENGTH_FIELDS``) drops the other way
+    the scenario had it."""
+    if dotted in LENGTH_FIELDS:
+        for other in LENGTH_FIELDS:
+            if other != dotted:
+                data.pop(other, None)
+    set_path(data, dotted, value, source)
 
 
 def _base_data(suite: Suite, suite_path: Path) -> dict[str, Any]:
@@ -142,7 +161,7 @@ def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any]
         )
     base = _base_data(suite, suite_path)
     for key, value in suite.overrides.items():
-        set_path(base, key, value, str(suite_path))
+        set_field(base, key, value, str(suite_path))
     if suite.random is not None:
         rng = np.random.default_rng(suite.random.seed)
         draws = [{k: d.sample(rng) for k, d in suite.random.knobs.items()} for _ in range(suite.random.count)]
@@ -157,7 +176,7 @@ def variations(suite: Suite, suite_path: Path) -> list[tuple[str, dict[str, Any]
     for i, knobs in enumerate(knob_sets):
         data = copy.deepcopy(base)
         for key, value in knobs.items():
-            set_path(data, key, value, str(suite_path))
+            set_field(data, key, value, str(suite_path))
         name = f"{suite.suite}-{i:04d}"
         data["name"] = name
         result.append((name, knobs, parse_scenario(data, f"{suite_path} (variation {name})")))

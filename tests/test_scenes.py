@@ -279,6 +279,51 @@ def test_suite_expands_and_validates_each_variation(tmp_path: Path):
     assert len(draws) == 5 and draws == variations(load_suite(random_suite), random_suite)
 
 
+@pytest.mark.parametrize(
+    ("base", "override", "frames"),
+    [
+        ("sitting_static", "frames: 7", 7),  # the base's duration_s: 10 gives way to frames
+        ("smoke", "duration_s: 0.2", 6),  # the base's frames: 10 gives way to 0.2 s x 30 fps
+    ],
+)
+def test_a_suite_that_sets_the_length_one_way_replaces_the_bases_other_way(
+    tmp_path: Path, base: str, override: str, frames: int
+):
+    """A suite overriding frames on a base that sets duration_s was refused with "give frames or
+    duration_s, not both"; the override is the length the user wants. Frame counts checked
+    against fps x duration_s worked by hand (30 fps in both library scenes)."""
+    path = tmp_path / "length.yaml"
+    path.write_text(f"suite: length\nbase: {base}\noverrides: {{{override}}}\n")
+    ((_, _, scenario),) = variations(load_suite(path), path)
+    assert scenario.fps == 30.0 and scenario.n_frames == frames
+    knob = tmp_path / "knob.yaml"  # a grid knob over the length does the same, per variation
+    knob.write_text(f"suite: knob\nbase: {base}\ngrid: {{{override.split(':')[0]}: [1, 2]}}\n")
+    lengths = [sc.n_frames for _, _, sc in variations(load_suite(knob), knob)]
+    assert lengths == ([1, 2] if override.startswith("frames") else [30, 60])
+
+
+@pytest.mark.parametrize(
+    ("body", "where"),
+    [
+        ("overrides: {frames: 7, duration_s: 2}", "overrides"),
+        ("grid: {frames: [5], duration_s: [1]}", "knobs"),
+    ],
+)
+def test_a_suite_that_sets_the_length_both_ways_at_once_is_one_line_saying_how(
+    tmp_path: Path, capsys, body: str, where: str
+):
+    path = tmp_path / "both.yaml"
+    path.write_text(f"suite: both\nbase: smoke\n{body}\n")
+    out = tmp_path / "out"
+    assert main(["generate", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert str(path) in lines[0] and f"{where}: give frames or duration_s, not both" in lines[0]
+    assert "replaces the base's length" in lines[0]
+    assert not out.exists()
+
+
 @pytest.mark.render
 @pytest.mark.slow  # 45 s; suites are also byte-compared across backends (test_sweep) in the default run
 def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Path):
