@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
 PACKAGE := -e '.[dev,viz,orbslam3]'
 
-.PHONY: demo test test-slow lint docs bench system-deps browser clean readme-images
+.PHONY: demo test test-slow lint docs bench system-deps browser shells clean readme-images
 
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
@@ -21,7 +21,7 @@ SIDE_BY_SIDE := -n logical --maxprocesses 4 --dist loadfile
 # link or anchor, fails the build, and make test builds it too.
 DOCS := NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d build/site
 
-test: $(VENV)/.installed browser
+test: $(VENV)/.installed browser shells
 	$(BIN)/ruff check .
 	$(DOCS)
 	$(BIN)/python -m pytest -q $(SIDE_BY_SIDE)
@@ -68,6 +68,15 @@ system-deps:
 		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libegl1 libgl1-mesa-dri libglx-mesa0 >/dev/null; \
 	else echo "error: libEGL.so.1 not found; install your distribution's libegl1 and Mesa DRI drivers" >&2; exit 1; fi
+
+# The completion test loads `depotbench completion zsh` in zsh itself (bash is always there).
+shells:
+	@if command -v zsh >/dev/null; then :; \
+	elif command -v apt-get >/dev/null; then \
+		echo "installing zsh (the shell completion test loads the script in it)"; \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq zsh >/dev/null; \
+	fi
 
 # The HTML report's test opens it in headless Chromium: Debian's package, driven by Playwright
 # (Playwright's own browser download cannot reach its servers from CI machines here).

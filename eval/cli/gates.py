@@ -34,12 +34,16 @@ def add_check(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1), help="worker processes")
     p.add_argument("--backend", choices=("local", "ray"), default="local", help="where runs execute")
+    p.add_argument(
+        "--json", action="store_true", help="print the verdicts as JSON (each run's budgets, the failures)"
+    )
     p.add_argument("--address", help="--backend ray: the cluster's address")
     p.set_defaults(handler=_cmd_check)
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from depotbench.core.errors import InputError
+    from depotbench.core.files import dumps_json
     from depotbench.core.output import check_output_file, write_text_atomic
     from depotbench.eval.gates.budgets import format_report, junit_xml
     from depotbench.eval.gates.check import check_folder, open_gates
@@ -51,9 +55,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
         check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates.gates}"
     report = check_folder(gates, out, args.workers, args.backend, args.address)
-    print(format_report(report))
     if args.junit is not None:
         write_text_atomic(args.junit, junit_xml(report))
+    if args.json:
+        print(dumps_json(report.to_dict()))
+        return 0 if report.passed else EXIT_FAILED
+    print(format_report(report))
+    if args.junit is not None:
         print(f"wrote {args.junit}")
     for failure in report.failures:
         print(f"FAILED {failure}")

@@ -7,6 +7,7 @@ other exception is a bug and keeps its traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import signal
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING, NoReturn
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
 from depotbench.eval.cli.compare import add_compare
+from depotbench.eval.cli.conventions import add_verbosity, describe, show_messages
 from depotbench.eval.cli.detectors import (
     add_detect_eval,
     add_detector_options,
@@ -35,6 +37,7 @@ if TYPE_CHECKING:
     from depotbench.eval.metrics.accuracy import Statistics
     from depotbench.eval.metrics.evaluate import Comparison
 
+from depotbench.eval.cli import choices
 from depotbench.eval.cli.args import finite_float, positive_float, workers
 
 EXIT_INPUT_ERROR = 2
@@ -49,23 +52,19 @@ EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.metrics.accuracy import DeltaUnit
-    from depotbench.eval.metrics.alignment import Alignment
-    from depotbench.eval.metrics.trajectory import DEFAULT_MAX_DIFF_S
-
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
     p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
     p.add_argument("estimate", type=Path, help="estimated trajectory (TUM format)")
     p.add_argument(
         "--align",
-        choices=[a.value for a in Alignment],
+        choices=choices.ALIGNMENTS,
         default="se3",
         help="Umeyama alignment of the estimate (default: se3)",
     )
     p.add_argument(
         "--max-diff",
         type=finite_float,
-        default=DEFAULT_MAX_DIFF_S,
+        default=choices.MAX_DIFF_S,
         help="association window in seconds (default: 0.02, TUM's)",
     )
     p.add_argument(
@@ -74,12 +73,12 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rpe-delta", type=positive_float, default=1.0, help="RPE delta (default: 1)")
     p.add_argument(
         "--rpe-unit",
-        choices=[u.value for u in DeltaUnit],
+        choices=choices.DELTA_UNITS,
         default="frames",
         help="unit of the RPE delta (default: frames)",
     )
     p.add_argument("--all-pairs", action="store_true", help="RPE over all pairs, not consecutive ones")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--json", action="store_true", help="print the result as JSON instead of a table")
     p.set_defaults(handler=_cmd_eval)
 
 
@@ -265,47 +264,60 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
 
 def _add_validate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("validate", help="check a scenario or suite file (or a library name)")
-    p.add_argument("spec", help="a scenario file, a suite file, or a library scenario name")
+    p = sub.add_parser("validate", help="check scenario, suite, sweep and gate files (or library names)")
+    p.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="scenario, suite, sweep or gate files (the kind is read from the file), or library names",
+    )
+    p.add_argument("--json", action="store_true", help="print each file's kind, verdict and problems as JSON")
     p.set_defaults(handler=_cmd_validate)
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    from depotbench.scenes.resolve import scenario_model
-    from depotbench.scenes.suite import is_suite_file, load_suite, variations
+    from depotbench.core.files import dumps_json
+    from depotbench.eval.validate import validate_file
 
-    path = Path(args.spec)
-    if path.is_file() and is_suite_file(path):
-        jobs = variations(load_suite(path), path)
-        frames = sum(sc.n_frames for _, _, sc in jobs)
-        print(f"ok: suite with {len(jobs)} sequences, {frames} frames in all")
-        return 0
-    scenario = scenario_model(args.spec)
-    print(
-        f"ok: scenario '{scenario.name}', {scenario.n_frames} frames, "
-        f"{sum(a.count for a in scenario.actors)} actors, camera {scenario.camera.motion}"
-    )
-    return 0
+    checked = [validate_file(name) for name in args.files]
+    if args.json:
+        print(dumps_json([c.to_dict() for c in checked]))
+    else:
+        for c in checked:
+            if c.ok:
+                print(f"{c.name}: ok: {c.kind}, {c.summary}")
+            else:
+                for problem in c.problems:
+                    print(f"depotbench validate: error: {problem}", file=sys.stderr)
+    return 0 if all(c.ok for c in checked) else EXIT_INPUT_ERROR
 
 
 def _add_scenarios(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scenarios", help="list the library's named scenarios")
     p.add_argument("--tag", help="only scenarios with this tag (e.g. tum-like, depot, stress, smoke)")
+    p.add_argument("--json", action="store_true", help="print name, tags and description of each as JSON")
     p.set_defaults(handler=_cmd_scenarios)
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
+    from depotbench.core.files import dumps_json
     from depotbench.scenes import library
 
-    for name in library.names(args.tag):
-        scenario = library.get(name)
-        print(f"{name:22s} {','.join(scenario.tags):32s} {scenario.description}")
+    scenarios = [library.get(name) for name in library.names(args.tag)]
+    if args.json:
+        print(
+            dumps_json(
+                [{"name": s.name, "tags": list(s.tags), "description": s.description} for s in scenarios]
+            )
+        )
+        return 0
+    for scenario in scenarios:
+        print(f"{scenario.name:22s} {','.join(scenario.tags):32s} {scenario.description}")
     return 0
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.run.harness import STRATEGY_CHOICES
-    from depotbench.eval.trackers.registry import TRACKERS
+    from depotbench.eval.trackers.registry import TRACKERS  # data only: imports no tracker
 
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
     p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
@@ -318,7 +330,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--strategy",
-        choices=STRATEGY_CHOICES,
+        choices=choices.STRATEGIES,
         default="none",
         help="dynamic-feature rejection; 'mask' blanks dynamic boxes in RGB and depth before the "
         "tracker sees the frames (any tracker); the others are the built-in tracker's",
@@ -380,6 +392,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help="folder for trajectory, diagnostics, metrics",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    p.add_argument("--json", action="store_true", help="print metrics.json's content instead of the summary")
     p.set_defaults(handler=_cmd_run)
 
 
@@ -432,7 +445,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         cache=StageCache.from_env(),
         dense_map=args.map,
     )
-    print(format_run(metrics))
+    if args.json:
+        from depotbench.core.files import dumps_json
+
+        print(dumps_json(metrics))
+    else:
+        print(format_run(metrics))
     return 0
 
 
@@ -483,9 +501,7 @@ def format_run(metrics: dict) -> str:
 
 
 def _add_vocab(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.trackers.vocabulary import TRAINING_SCENES, VocabularySpec
-
-    default = VocabularySpec()
+    default = choices.VOCABULARY_DEFAULTS
     p = sub.add_parser(
         "vocab",
         help="build an ORB vocabulary (DBoW2 text, as ORB-SLAM reads) from generated frames",
@@ -496,16 +512,16 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="vocabulary file to write (default: the bench's cache, which --slam orbslam3 uses)",
     )
-    p.add_argument("--branching", type=int, default=default.branching, help="children per node (k)")
-    p.add_argument("--levels", type=int, default=default.levels, help="depth of the tree (L)")
+    p.add_argument("--branching", type=int, default=default["branching"], help="children per node (k)")
+    p.add_argument("--levels", type=int, default=default["levels"], help="depth of the tree (L)")
     p.add_argument(
         "--scenes",
         nargs="+",
-        default=list(TRAINING_SCENES),
+        default=list(choices.TRAINING_SCENES),
         help="library scenes to train on (default: depot scenes the fidelity benchmark does not run)",
     )
-    p.add_argument("--frames", type=int, default=default.frames, help="frames rendered per scene")
-    p.add_argument("--seed", type=int, default=default.seed, help="seed of the training scenes")
+    p.add_argument("--frames", type=int, default=default["frames"], help="frames rendered per scene")
+    p.add_argument("--seed", type=int, default=default["seed"], help="seed of the training scenes")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     p.set_defaults(handler=_cmd_vocab)
 
@@ -567,53 +583,78 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _add_completion(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("completion", help="print a bash or zsh completion script")
+    p.add_argument("shell", choices=SHELLS, help="the shell")
+    p.set_defaults(handler=_cmd_completion)
+
+
+SHELLS = ("bash", "zsh")
+
+
+def _cmd_completion(args: argparse.Namespace) -> int:
+    """shtab writes the script from the parser itself, so it knows every command, option
+    and choice the parser does (no list kept by hand)."""
+    import shtab
+
+    parser = build_parser()
+    # Paths complete as files where an option or argument takes one (argparse's type=Path).
+    for action in _actions(parser):
+        if action.type is Path:
+            action.complete = shtab.FILE  # type: ignore[attr-defined]
+    print(shtab.complete(parser, shell=args.shell))
+    return 0
+
+
+def _actions(parser: argparse.ArgumentParser):
+    for action in parser._actions:
+        yield action
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                yield from _actions(child)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from depotbench.core.version import generator_version
+
     parser = Parser(
         prog="depotbench",
-        description="Simulation-backed test bench for dynamic visual SLAM.",
+        description="Simulation-backed test bench for dynamic visual SLAM: generate scenario suites, "
+        "run trackers (the built-in one, ORB-SLAM3, your own program), sweep rejection thresholds, "
+        "gate robustness in CI. 'depotbench COMMAND --help' shows a command's options and examples.",
+        epilog="examples:\n  depotbench demo\n  depotbench generate walking_xyz -o seqs/xyz\n"
+        "  depotbench run seqs/xyz -o runs/xyz --strategy box_epipolar_flow",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"depotbench {generator_version()}")
+    add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="verb", required=True, metavar="COMMAND", parser_class=Parser)
-    _add_demo(sub)
-    _add_eval(sub)
-    _add_generate(sub)
-    _add_validate(sub)
-    _add_scenarios(sub)
-    _add_run(sub)
-    _add_preview(sub)
-    _add_vocab(sub)
-    add_detect_eval(sub)
-    add_export_dataset(sub)
-    add_sweep(sub)
-    add_check(sub)
-    add_report(sub)
-    add_compare(sub)
+    for add in (
+        _add_demo,
+        _add_eval,
+        _add_generate,
+        _add_validate,
+        _add_scenarios,
+        _add_run,
+        _add_preview,
+        _add_vocab,
+        add_detect_eval,
+        add_export_dataset,
+        add_sweep,
+        add_check,
+        add_report,
+        add_compare,
+        _add_completion,
+    ):
+        add(sub)
+    for name, command in sub.choices.items():
+        describe(name, command)
+        add_verbosity(command, top=False)
     return parser
 
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM (a CI job cancelled, ``timeout``), handled as Ctrl-C: stop, clean up, say so."""
-
-
-class _Warnings(logging.Handler):
-    """The library's warnings as ``depotbench VERB: warning: ...`` lines on stderr (looked
-    up when a line is written: tests and callers replace it)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.verb = ""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        print(f"depotbench {self.verb}: warning: {record.getMessage()}", file=sys.stderr)
-
-
-_WARNINGS = _Warnings()
-
-
-def _show_warnings(verb: str) -> None:
-    logger = logging.getLogger("depotbench")
-    _WARNINGS.verb = verb
-    if _WARNINGS not in logger.handlers:
-        logger.addHandler(_WARNINGS)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -632,8 +673,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("depotbench: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
-        _show_warnings(args.verb)
-        return _run(args)
+        level = show_messages(args.verb, -1 if args.quiet else args.verbose)
+        try:
+            if args.quiet and not getattr(args, "json", False):
+                with open(os.devnull, "w") as nowhere, contextlib.redirect_stdout(nowhere):
+                    return _run(args)
+            return _run(args)
+        finally:
+            logging.getLogger("depotbench").setLevel(level)
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

@@ -31,10 +31,16 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="track every job, even where another keeps the same keypoints in every frame",
     )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print summary.json's content (best per family, Pareto front, configurations) instead of tables",
+    )
     p.set_defaults(handler=_cmd_sweep)
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from depotbench.core.files import dumps_json
     from depotbench.eval.sweep.execute import sweep_folder
     from depotbench.eval.sweep.summary import format_best
 
@@ -48,6 +54,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         backend=args.backend,
         address=args.address,
     )
+    if args.json:
+        print(dumps_json(outcome.summary))
+        return 0
     written, elapsed = outcome.written, outcome.seconds
     rate = f", {written / elapsed * 60:.1f} rows/min" if written and elapsed > 0 else ""
     shared = (

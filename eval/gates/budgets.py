@@ -238,6 +238,36 @@ class GateReport:
     def passed(self) -> bool:
         return not self.failures
 
+    def to_dict(self) -> dict[str, Any]:
+        """The verdicts as ``depotbench check --json`` prints them: each (check, run) with its
+        budgets, values and bounds, then the failures as the text lines CI logs show."""
+        return {
+            "gates": self.gates,
+            "passed": self.passed,
+            "results": [
+                {
+                    "check": r.check,
+                    "run": r.row,
+                    "passed": r.passed,
+                    "seconds": r.seconds,
+                    "budgets": [
+                        {
+                            "metric": v.metric,
+                            "value": v.value,
+                            "min": v.bound.min,
+                            "max": v.bound.max,
+                            "passed": v.passed,
+                            "note": v.note,
+                        }
+                        for v in r.verdicts
+                    ],
+                }
+                for r in self.results
+            ],
+            "empty_checks": list(self.empty_checks),
+            "failures": self.failures,
+        }
+
 
 def _row_name(row: ScoredRun) -> str:
     settings = json.loads(row["settings"])

@@ -6,6 +6,7 @@ matrix through this one function (and so through ``depotbench.eval.sweep.engine.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -18,6 +19,8 @@ from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.sweep.engine import expand, open_store, run_jobs, sequences_of, spec_inputs, validate
 from depotbench.eval.sweep.spec import SweepSpec, load_sweep
 from depotbench.eval.sweep.summary import best_per_family, configurations, pareto, plot, unqualified, with_rho
+
+LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -55,7 +58,7 @@ def execute_sweep(
     with open_store(out, spec, spec_path) as store:
         done = len(store.keys() & {j.key for j in jobs})
         if announce:
-            print(
+            LOG.info(
                 f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
             )
         started = time.perf_counter()

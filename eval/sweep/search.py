@@ -12,6 +12,7 @@ run, the search path only from a fresh start with ``mean_ate``.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -41,6 +42,7 @@ from depotbench.eval.trackers.registry import TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.sim.sequence import Sequence
 
+LOG = logging.getLogger(__name__)
 STUDY = "optuna.sqlite"
 
 
@@ -183,7 +185,7 @@ def run_search(
         study.tell(trial, value)
         if progress:
             shown = {n: setting_text(v) for n, v in sorted(values.items())}
-            print(f"trial {trial.number}: {shown} -> {search.objective} {value:.5f}")
+            LOG.info(f"trial {trial.number}: {shown} -> {search.objective} {value:.5f}")
     best = study.best_trial
     return {
         "strategy": search.strategy,
