@@ -171,3 +171,30 @@ def test_import_depotbench_loads_no_heavy_part():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
     assert set(depotbench.__all__) >= {"generate", "run", "sweep", "check", "compare", "report", "evaluate"}
+
+
+def test_json_on_the_command_line_is_what_the_files_and_the_api_hold(session, tmp_path: Path, capsys):
+    """--json prints the result in the shape of the file the command writes: run's metrics.json,
+    sweep's summary.json, check's verdicts (as the API's GateReport, and the exit status)."""
+    work, _ = session
+    out = tmp_path / "run"
+    capsys.readouterr()
+    assert main(["run", str(work / "walking-7"), "-o", str(out), "--strategy", "box_rule", "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((out / "metrics.json").read_text())
+
+    assert main(["sweep", str(work / "sweep.yaml"), "-o", str(work / "sweep"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == json.loads((work / "sweep" / "summary.json").read_text())
+
+    strict = (work / "gates.yaml").read_text().replace("lost_fraction: {max: 0.5}", "ate_rmse_m: {max: 1e-9}")
+    gates = tmp_path / "strict-gates.yaml"
+    gates.write_text(strict)
+    for path, code in ((work / "gates.yaml", 0), (gates, 1)):
+        assert main(["check", str(path), "-o", str(work / "sweep"), "--json"]) == code
+        verdict = json.loads(capsys.readouterr().out)
+        expected = depotbench.check(path, work / "sweep")
+        assert verdict["passed"] is expected.passed is (code == 0)
+        assert verdict["failures"] == expected.failures
+        assert len(verdict["results"]) == len(expected.results)
+        for shown, result in zip(verdict["results"], expected.results, strict=True):
+            assert [b["value"] for b in shown["budgets"]] == [v.value for v in result.verdicts]
