@@ -1,0 +1,579 @@
+"""A sequence as a ROS 2 bag, so that ROS 2 nodes (ORB-SLAM3 and RTAB-Map wrappers, Nav2,
+rviz) can be fed the bench's sequences with ``ros2 bag play`` (docs/rosbag.md).
+
+Written with the pure-Python ``rosbags`` library: no ROS installation is needed. What goes in:
+
+- colour as ``sensor_msgs/Image`` (rgb8) and depth as ``sensor_msgs/Image`` in one of the
+  ``DEPTH_FORMS`` (32FC1 metres by default: REP 118's canonical form, the only one every
+  consumer must read), each with its ``sensor_msgs/CameraInfo``; header stamps are the
+  frames' timestamps, ``frame_id`` the camera's optical frame (depth is registered to colour);
+- the true pose, exactly ``groundtruth.txt``'s rows at their own timestamps: as TF on ``/tf``
+  (world -> optical frame), as ``geometry_msgs/PoseStamped`` per row, and as one latched
+  ``nav_msgs/Path``; a static TF from the optical frame to a REP 103 body frame;
+- optionally the ground-truth 2D boxes as ``vision_msgs/Detection2DArray``.
+
+The bag is staged beside its target and swapped into place when complete (``StagedOutput``),
+so it never half-exists.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from enum import IntEnum, StrEnum
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from depotbench.core.errors import InputError
+from depotbench.core.output import OutputKind, StagedOutput
+from depotbench.core.version import generator_version
+from depotbench.sim.ground_truth import ObjectState
+from depotbench.sim.sequence import Sequence, pose_matrix
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+TYPESTORE = Stores.ROS2_HUMBLE
+"""Message definitions of ROS 2 Humble, the LTS most ROS SLAM wrappers target; the types used
+here are unchanged up to Kilted, so Jazzy plays the bag too."""
+BAG_VERSION = 8
+"""rosbag2 metadata version 8: version 9 writes each topic's QoS as a YAML list, which Humble's
+reader (it expects a string) cannot parse."""
+WORLD_FRAME = "world"
+GROUND_TRUTH_NAMESPACE = "/ground_truth"
+DEFAULT_NAMESPACE = "/camera"
+INFINITE = QosTime(2147483647, 4294967295)
+"""The duration ``ros2 bag record`` stores for an unset deadline, lifespan or lease."""
+
+OPTICAL_FROM_BODY = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+"""Rotation taking a REP 103 body frame's axes (x forward, y left, z up) into the optical
+frame's (x right, y down, z forward): the body's forward axis is the optical z."""
+
+
+class BagStorage(StrEnum):
+    """rosbag2's storage plugins: MCAP (ROS 2's default since Iron) or SQLite (Humble's)."""
+
+    MCAP = "mcap"
+    SQLITE3 = "sqlite3"
+
+
+STORAGE_PLUGINS = {BagStorage.MCAP: StoragePlugin.MCAP, BagStorage.SQLITE3: StoragePlugin.SQLITE3}
+
+
+class DepthUnit(StrEnum):
+    METRES = "m"
+    MILLIMETRES = "mm"
+    RAW = "raw"
+
+
+@dataclass(frozen=True)
+class DepthForm:
+    """How depth images are encoded in the bag, and the topic REP 118 puts them on."""
+
+    encoding: str
+    topic: str
+    meaning: str
+    convert: Callable[[np.ndarray, float, Path], np.ndarray]
+
+
+def _metres(raw: np.ndarray, scale: float, where: Path) -> np.ndarray:
+    """float32 metres, as ``Sequence.depth_m`` computes them; no reading is NaN (REP 117/118:
+    a 0.0 would be a point at the camera centre to depth_image_proc). Lossless: rounding
+    ``value x scale`` gives the PNG back, since float32 holds 16-bit values exactly enough."""
+    depth = raw.astype(np.float32) / np.float32(scale)
+    depth[raw == 0] = np.nan
+    return depth.astype("<f4", copy=False)
+
+
+def _millimetres(raw: np.ndarray, scale: float, where: Path) -> np.ndarray:
+    """uint16 millimetres, REP 118's OpenNI raw form: TUM's 0.2 mm steps round to 1 mm, and a
+    reading never rounds to 0 (which means none)."""
+    mm = np.rint(raw.astype(np.float64) * (1000.0 / scale))
+    if mm.size and mm.max() > np.iinfo(np.uint16).max:
+        raise InputError(
+            f"{where}: depth {mm.max() / 1000:.3f} m exceeds 16UC1 millimetres' 65.535 m; use --depth m"
+        )
+    mm[(raw > 0) & (mm == 0)] = 1
+    return mm.astype("<u2")
+
+
+def _raw(raw: np.ndarray, scale: float, where: Path) -> np.ndarray:
+    return raw.astype("<u2", copy=False)
+
+
+DEPTH_FORMS: dict[DepthUnit, DepthForm] = {
+    DepthUnit.METRES: DepthForm(
+        "32FC1", "image", "32FC1 metres along z, NaN = no reading (REP 118)", _metres
+    ),
+    DepthUnit.MILLIMETRES: DepthForm(
+        "16UC1", "image_raw", "16UC1 millimetres along z, 0 = no reading (REP 118 raw)", _millimetres
+    ),
+    DepthUnit.RAW: DepthForm(
+        "16UC1",
+        "image_raw",
+        "16UC1 depth PNG values, metres x depth_scale, 0 = no reading (not REP 118: give nodes the factor)",
+        _raw,
+    ),
+}
+
+VISION_MSGS = {
+    "vision_msgs/msg/Point2D": "float64 x\nfloat64 y\n",
+    "vision_msgs/msg/Pose2D": "vision_msgs/Point2D position\nfloat64 theta\n",
+    "vision_msgs/msg/BoundingBox2D": "vision_msgs/Pose2D center\nfloat64 size_x\nfloat64 size_y\n",
+    "vision_msgs/msg/ObjectHypothesis": "string class_id\nfloat64 score\n",
+    "vision_msgs/msg/ObjectHypothesisWithPose": (
+        "vision_msgs/ObjectHypothesis hypothesis\ngeometry_msgs/PoseWithCovariance pose\n"
+    ),
+    "vision_msgs/msg/Detection2D": (
+        "std_msgs/Header header\nvision_msgs/ObjectHypothesisWithPose[] results\n"
+        "vision_msgs/BoundingBox2D bbox\nstring id\n"
+    ),
+    "vision_msgs/msg/Detection2DArray": "std_msgs/Header header\nvision_msgs/Detection2D[] detections\n",
+}
+"""vision_msgs 4.1 (Humble's and Jazzy's) as far as Detection2DArray needs: rosbags ships no
+vision_msgs, so the definitions are registered from their text."""
+
+NAME_PATTERN = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
+"""A ROS 2 namespace: absolute, tokens of letters, digits and underscores, none starting with a digit."""
+
+
+def _qos(durability: QosDurability, depth: int) -> list[Qos]:
+    """Reliable, which any subscriber accepts (best-effort publishers fail reliable subscribers)."""
+    return [
+        Qos(
+            QosHistory.KEEP_LAST,
+            depth,
+            QosReliability.RELIABLE,
+            durability,
+            INFINITE,
+            INFINITE,
+            QosLiveliness.AUTOMATIC,
+            INFINITE,
+            False,
+        )
+    ]
+
+
+STREAM = _qos(QosDurability.VOLATILE, 10)
+LATCHED = _qos(QosDurability.TRANSIENT_LOCAL, 1)
+"""Transient local, as tf2 publishes /tf_static: a node that starts late still gets it."""
+
+
+@dataclass(frozen=True)
+class TopicNames:
+    """Every topic and frame name of a bag, derived from the camera's namespace."""
+
+    namespace: str
+    color_image: str
+    color_info: str
+    depth_image: str
+    depth_info: str
+    detections: str
+    optical_frame: str
+    body_frame: str
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+    pose: str = f"{GROUND_TRUTH_NAMESPACE}/pose"
+    path: str = f"{GROUND_TRUTH_NAMESPACE}/path"
+
+    @classmethod
+    def under(cls, namespace: str, depth: DepthForm) -> TopicNames:
+        if not NAME_PATTERN.fullmatch(namespace) or namespace == GROUND_TRUTH_NAMESPACE:
+            raise InputError(
+                f"namespace {namespace!r} is not a ROS 2 namespace like /camera "
+                f"(absolute, letters, digits and _, and not {GROUND_TRUTH_NAMESPACE})"
+            )
+        prefix = namespace.strip("/").replace("/", "_")
+        return cls(
+            namespace=namespace,
+            color_image=f"{namespace}/color/image_raw",
+            color_info=f"{namespace}/color/camera_info",
+            depth_image=f"{namespace}/depth/{depth.topic}",
+            depth_info=f"{namespace}/depth/camera_info",
+            detections=f"{namespace}/detections",
+            optical_frame=f"{prefix}_color_optical_frame",
+            body_frame=f"{prefix}_link",
+        )
+
+
+@dataclass(frozen=True)
+class TopicCount:
+    topic: str
+    msgtype: str
+    count: int
+
+
+@dataclass(frozen=True)
+class BagSummary:
+    """What ``write_bag`` wrote."""
+
+    path: Path
+    storage: BagStorage
+    depth: DepthUnit
+    frames: int
+    topics: tuple[TopicCount, ...]
+    size_bytes: int
+    notes: tuple[str, ...]
+    """What was left out and why (a real TUM folder without ground truth, say)."""
+
+
+E = TypeVar("E", bound=StrEnum)
+
+
+def parse_choice(kind: type[E], value: E | str, what: str) -> E:
+    """An API caller's string as the enum, refused in one line naming the choices."""
+    try:
+        return kind(value)
+    except ValueError:
+        choices = ", ".join(item.value for item in kind)
+        raise InputError(f"{what} {value!r} is not one of {choices}") from None
+
+
+def stamp_ns(timestamp_s: float) -> int:
+    """Nanoseconds of a TUM timestamp, exact for the files' 6 decimals: the float is within
+    0.12 us of the written value at 1.3e9 s, so rounding to the microsecond recovers it."""
+    return round(timestamp_s * 1e6) * 1000
+
+
+class Event(IntEnum):
+    """What the bag records at one instant, in this order when instants tie."""
+
+    POSE = 0
+    COLOR = 1
+    DEPTH = 2
+    DETECTIONS = 3
+
+
+def write_bag(
+    sequence_path: Path | str,
+    bag_path: Path | str,
+    *,
+    storage: BagStorage | str = BagStorage.MCAP,
+    depth: DepthUnit | str = DepthUnit.METRES,
+    detections: bool = False,
+    namespace: str = DEFAULT_NAMESPACE,
+    compress: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> BagSummary:
+    """Write the sequence at ``sequence_path`` as a rosbag2 folder at ``bag_path``.
+
+    A real TUM folder exports too: its ground truth (100 Hz motion capture) goes in at its own
+    timestamps, a folder without ``groundtruth.txt`` gets no pose topics, and ``detections``
+    is refused (it has no ground-truth boxes). ``compress`` zstd-compresses MCAP chunks, which
+    every MCAP reader undoes; SQLite bags are written plain.
+    """
+    storage = parse_choice(BagStorage, storage, "storage")
+    depth = parse_choice(DepthUnit, depth, "depth")
+    form = DEPTH_FORMS[depth]
+    names = TopicNames.under(namespace, form)
+    if compress and storage is not BagStorage.MCAP:
+        raise InputError("compression applies to MCAP bags (zstd chunks); drop it or use storage mcap")
+    sequence_path, bag_path = Path(sequence_path), Path(bag_path)
+    sequence = Sequence.open(sequence_path)
+    objects = None
+    if detections:
+        if not sequence.is_generated:
+            raise InputError(
+                f"{sequence_path}: detections need a generated sequence (gt/objects.jsonl); "
+                "a real TUM folder exports without them"
+            )
+        objects = sequence.objects()
+    notes = []
+    if sequence.groundtruth is None:
+        notes.append(f"no groundtruth.txt: no {names.tf}, {names.pose} or {names.path}")
+    store = typestore(detections)
+    with StagedOutput(bag_path, OutputKind.ROSBAG, overwrite=overwrite, inputs=(sequence_path,)) as staged:
+        inner = staged.path / staged.target.name  # rosbags names the data file after its folder
+        writer = Writer(inner, version=BAG_VERSION, storage_plugin=STORAGE_PLUGINS[storage])
+        if compress:
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        for key, value in _custom_data(sequence, form, names).items():
+            writer.set_custom_data(key, value)
+        with writer:
+            counts = _BagWriter(writer, store, sequence, names, form, objects).write(progress)
+        for item in inner.iterdir():
+            os.rename(item, staged.path / item.name)
+        inner.rmdir()
+        size = sum(p.stat().st_size for p in staged.path.iterdir())
+        staged.commit()
+    topics = tuple(TopicCount(topic, msgtype, count) for (topic, msgtype), count in counts.items())
+    return BagSummary(bag_path, storage, depth, len(sequence), topics, size, tuple(notes))
+
+
+def typestore(detections: bool = False) -> Typestore:
+    """Humble's message types, with vision_msgs' when detections are written."""
+    store = get_typestore(TYPESTORE)
+    if detections:
+        types: dict[str, Any] = {}
+        for name, text in VISION_MSGS.items():
+            types.update(get_types_from_msg(text, name))
+        store.register(types)
+    return store
+
+
+def _custom_data(sequence: Sequence, form: DepthForm, names: TopicNames) -> dict[str, str]:
+    """What a user of the bag needs to read it right, in metadata.yaml's custom_data."""
+    return {
+        "depotbench.version": generator_version(),
+        "depotbench.sequence": sequence.root.resolve().name,
+        "depotbench.depth": form.meaning,
+        "depotbench.depth_scale": f"{sequence.intrinsics.depth_scale:g}",
+        "depotbench.poses": (
+            f"{names.tf} {WORLD_FRAME} -> {names.optical_frame} and {names.pose}: groundtruth.txt's "
+            "camera-to-world pose of the optical frame (x right, y down, z forward)"
+        ),
+    }
+
+
+class _BagWriter:
+    """Builds and writes one sequence's messages in time order."""
+
+    def __init__(
+        self,
+        writer: Writer,
+        store: Typestore,
+        sequence: Sequence,
+        names: TopicNames,
+        form: DepthForm,
+        objects: list[tuple[ObjectState, ...]] | None,
+    ) -> None:
+        self.writer = writer
+        self.store = store
+        self.types = store.types
+        self.sequence = sequence
+        self.names = names
+        self.form = form
+        self.objects = objects
+        self.counts: Counter[tuple[str, str]] = Counter()
+        self.connections: dict[str, Any] = {}
+        self._order: list[tuple[str, str]] = []  # the topics as connected: the summary's order
+        self.handlers: dict[Event, Callable[[int, int], None]] = {
+            Event.POSE: self._pose,
+            Event.COLOR: self._color,
+            Event.DEPTH: self._depth,
+            Event.DETECTIONS: self._detections,
+        }
+
+    def write(self, progress: bool) -> Counter[tuple[str, str]]:
+        events = sorted(self._events())
+        if not events:
+            return self.counts
+        self._connect()
+        start = events[0][0]
+        self._static_tf(start)
+        self._path(start)
+        bar = tqdm(
+            total=len(self.sequence),
+            desc="rosbag",
+            unit="frame",
+            disable=None if progress else True,
+            leave=False,
+        )
+        with bar:
+            for ns, kind, index in events:
+                self.handlers[kind](ns, index)
+                if kind is Event.COLOR:
+                    bar.update(1)
+        return Counter({key: self.counts[key] for key in self._order})
+
+    def _events(self) -> Iterator[tuple[int, Event, int]]:
+        for i, frame in enumerate(self.sequence.frames):
+            yield stamp_ns(frame.timestamp_s), Event.COLOR, i
+            yield stamp_ns(frame.depth_timestamp_s), Event.DEPTH, i
+            if self.objects is not None:
+                yield stamp_ns(frame.timestamp_s), Event.DETECTIONS, i
+        gt = self.sequence.groundtruth
+        if gt is not None:
+            for j, t in enumerate(gt.timestamps_s):
+                yield stamp_ns(float(t)), Event.POSE, j
+
+    def _connect(self) -> None:
+        n = self.names
+        topics = [
+            (n.color_image, "sensor_msgs/msg/Image", STREAM),
+            (n.color_info, "sensor_msgs/msg/CameraInfo", STREAM),
+            (n.depth_image, "sensor_msgs/msg/Image", STREAM),
+            (n.depth_info, "sensor_msgs/msg/CameraInfo", STREAM),
+            (n.tf_static, "tf2_msgs/msg/TFMessage", LATCHED),
+        ]
+        if self.sequence.groundtruth is not None:
+            topics += [
+                (n.tf, "tf2_msgs/msg/TFMessage", _qos(QosDurability.VOLATILE, 100)),  # tf2's broadcaster
+                (n.pose, "geometry_msgs/msg/PoseStamped", STREAM),
+                (n.path, "nav_msgs/msg/Path", LATCHED),
+            ]
+        if self.objects is not None:
+            topics.append((n.detections, "vision_msgs/msg/Detection2DArray", STREAM))
+        for topic, msgtype, qos in topics:
+            self.connections[topic] = self.writer.add_connection(
+                topic, msgtype, typestore=self.store, offered_qos_profiles=qos
+            )
+            self._order.append((topic, msgtype))
+
+    def _put(self, topic: str, ns: int, message: Any) -> None:
+        connection = self.connections[topic]
+        self.writer.write(connection, ns, self.store.serialize_cdr(message, connection.msgtype))
+        self.counts[(topic, connection.msgtype)] += 1
+
+    # -- message parts ---------------------------------------------------------------
+
+    def _header(self, ns: int, frame_id: str) -> Any:
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        stamp = self.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+        return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def _pose_message(self, position: np.ndarray, quat_xyzw: np.ndarray) -> Any:
+        t = self.types
+        x, y, z = (float(v) for v in position)
+        qx, qy, qz, qw = (float(v) for v in quat_xyzw)
+        return t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=z),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+        )
+
+    def _transform(
+        self, ns: int, parent: str, child: str, position: np.ndarray, quat_xyzw: np.ndarray
+    ) -> Any:
+        t = self.types
+        x, y, z = (float(v) for v in position)
+        qx, qy, qz, qw = (float(v) for v in quat_xyzw)
+        transform = t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+            rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+        )
+        return t["geometry_msgs/msg/TransformStamped"](
+            header=self._header(ns, parent), child_frame_id=child, transform=transform
+        )
+
+    def _image(self, ns: int, pixels: np.ndarray, encoding: str) -> Any:
+        height, width = pixels.shape[:2]
+        data = np.ascontiguousarray(pixels).view(np.uint8).reshape(-1)
+        return self.types["sensor_msgs/msg/Image"](
+            header=self._header(ns, self.names.optical_frame),
+            height=height,
+            width=width,
+            encoding=encoding,
+            is_bigendian=0,
+            step=len(data) // height,
+            data=data,
+        )
+
+    def _camera_info(self, ns: int) -> Any:
+        """The pinhole and OpenCV's (k1, k2, p1, p2, k3) as plumb_bob; P = [K | 0], the raw
+        image's own matrix, as a monocular camera's info carries when rectification keeps K."""
+        k = self.sequence.intrinsics
+        t = self.types
+        return t["sensor_msgs/msg/CameraInfo"](
+            header=self._header(ns, self.names.optical_frame),
+            height=k.height,
+            width=k.width,
+            distortion_model="plumb_bob",
+            d=np.array(k.distortion, dtype=np.float64),
+            k=k.matrix.reshape(-1),
+            r=np.eye(3).reshape(-1),
+            p=np.hstack([k.matrix, np.zeros((3, 1))]).reshape(-1),
+            binning_x=0,
+            binning_y=0,
+            roi=t["sensor_msgs/msg/RegionOfInterest"](
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+            ),
+        )
+
+    # -- the messages ------------------------------------------------------------------
+
+    def _static_tf(self, ns: int) -> None:
+        """The optical frame's REP 103 body frame (x forward, y left, z up), for nodes told a
+        robot-style base frame (RTAB-Map's frame_id, Nav2)."""
+        quat = Rotation.from_matrix(OPTICAL_FROM_BODY).as_quat()
+        zero = np.zeros(3)
+        transform = self._transform(ns, self.names.optical_frame, self.names.body_frame, zero, quat)
+        self._put(self.names.tf_static, ns, self.types["tf2_msgs/msg/TFMessage"](transforms=[transform]))
+
+    def _path(self, ns: int) -> None:
+        """The whole true trajectory once, latched at the start: rviz draws it beside a SLAM
+        estimate from the first frame on. A growing path would store n^2/2 poses (45 000 for
+        300 frames), one at the end would show nothing until the end."""
+        gt = self.sequence.groundtruth
+        if gt is None:
+            return
+        t = self.types
+        poses = [
+            t["geometry_msgs/msg/PoseStamped"](
+                header=self._header(stamp_ns(float(time)), WORLD_FRAME), pose=self._pose_message(p, q)
+            )
+            for time, p, q in zip(gt.timestamps_s, gt.positions_m, gt.quats_xyzw, strict=True)
+        ]
+        self._put(
+            self.names.path, ns, t["nav_msgs/msg/Path"](header=self._header(ns, WORLD_FRAME), poses=poses)
+        )
+
+    def _pose(self, ns: int, row: int) -> None:
+        """groundtruth.txt's row as it stands: the file's position and quaternion, no round trip
+        through a matrix."""
+        gt = self.sequence.groundtruth
+        assert gt is not None
+        position, quat = gt.positions_m[row], gt.quats_xyzw[row]
+        transform = self._transform(ns, WORLD_FRAME, self.names.optical_frame, position, quat)
+        self._put(self.names.tf, ns, self.types["tf2_msgs/msg/TFMessage"](transforms=[transform]))
+        pose = self.types["geometry_msgs/msg/PoseStamped"](
+            header=self._header(ns, WORLD_FRAME), pose=self._pose_message(position, quat)
+        )
+        self._put(self.names.pose, ns, pose)
+
+    def _color(self, ns: int, index: int) -> None:
+        self._put(self.names.color_image, ns, self._image(ns, self.sequence.rgb(index), "rgb8"))
+        self._put(self.names.color_info, ns, self._camera_info(ns))
+
+    def _depth(self, ns: int, index: int) -> None:
+        raw = self.sequence.depth_raw(index)
+        where = self.sequence.frames[index].depth_path
+        pixels = self.form.convert(raw, self.sequence.intrinsics.depth_scale, where)
+        self._put(self.names.depth_image, ns, self._image(ns, pixels, self.form.encoding))
+        self._put(self.names.depth_info, ns, self._camera_info(ns))
+
+    def _detections(self, ns: int, index: int) -> None:
+        """Each visible instance's box, class and id (the instance id, stable over frames) with
+        score 1; its pose is the object's in the optical frame. Boxes are in pixel-edge
+        coordinates, as detectors' wrappers publish them: column u covers [u, u+1)."""
+        assert self.objects is not None
+        t = self.types
+        header = self._header(ns, self.names.optical_frame)
+        camera_from_world = np.linalg.inv(self.sequence.world_from_camera(index))
+        found = []
+        for state in self.objects[index]:
+            if state.box_xyxy is None:
+                continue
+            x0, y0, x1, y1 = state.box_xyxy
+            camera_from_object = camera_from_world @ pose_matrix(
+                np.array(state.position_m), np.array(state.quat_xyzw)
+            )
+            quat = Rotation.from_matrix(camera_from_object[:3, :3]).as_quat()
+            hypothesis = t["vision_msgs/msg/ObjectHypothesisWithPose"](
+                hypothesis=t["vision_msgs/msg/ObjectHypothesis"](class_id=state.class_name, score=1.0),
+                pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=self._pose_message(camera_from_object[:3, 3], quat),
+                    covariance=np.zeros(36),
+                ),
+            )
+            center = t["vision_msgs/msg/Pose2D"](
+                position=t["vision_msgs/msg/Point2D"](x=(x0 + x1) / 2, y=(y0 + y1) / 2), theta=0.0
+            )
+            box = t["vision_msgs/msg/BoundingBox2D"](
+                center=center, size_x=float(x1 - x0), size_y=float(y1 - y0)
+            )
+            found.append(
+                t["vision_msgs/msg/Detection2D"](
+                    header=header, results=[hypothesis], bbox=box, id=str(state.instance_id)
+                )
+            )
+        message = t["vision_msgs/msg/Detection2DArray"](header=header, detections=found)
+        self._put(self.names.detections, ns, message)
