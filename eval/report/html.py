@@ -26,9 +26,9 @@ import base64
 import html
 import io
 import json
+import logging
 import math
 import os
-import sys
 import zipfile
 import zlib
 from array import array
@@ -65,6 +65,8 @@ from pydantic import (
     ValidationError,
     field_validator,
 )
+
+LOG = logging.getLogger(__name__)
 
 DECISION_COLOURS: dict[str, tuple[int, int, int]] = {
     Rejection.KEPT.value: (40, 200, 60),
@@ -1409,11 +1411,12 @@ def render_report(source: Path) -> Rendered:
     raise InputError(f"{source}: neither a run folder (metrics.json) nor a sweep folder (results.sqlite)")
 
 
-def warn(notes: Notes, verb: str = "report") -> None:
-    """The one warning line of a page that leaves something out."""
+def warn(notes: Notes) -> None:
+    """The one warning line of a page that leaves something out (the command line shows it
+    as ``depotbench report: warning: ...``; ``-q`` hides it)."""
     line = notes.warning()
     if line is not None:
-        print(f"depotbench {verb}: warning: {line}", file=sys.stderr)
+        LOG.warning(line)
 
 
 def write_report(source: Path, out: Path) -> Path:
