@@ -228,3 +228,22 @@ def test_zsh_completion_loads_in_zsh(tmp_path):
     )
     result = subprocess.run(["zsh", "-f", "-c", program], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "_depotbench"  # compinit found and registered it
+
+
+FUZZ = {
+    "completion-unknown-shell": (["completion", "fish"], "argument shell: invalid choice: 'fish'"),
+    "completion-no-shell": (["completion"], "the following arguments are required: shell"),
+    "validate-nothing": (["validate"], "the following arguments are required: FILE"),
+    "verbose-and-quiet": (["scenarios", "-v", "-q"], "not allowed with argument"),
+    "version-after-command": (["scenarios", "--version"], "unrecognized arguments: --version"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(FUZZ))
+def test_bad_use_of_the_conventions_is_one_line_and_exit_2(case, capsys):
+    argv, needle = FUZZ[case]
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_.value.code == 2
+    assert len(err) == 1 and needle in err[0], err
