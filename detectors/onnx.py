@@ -26,9 +26,10 @@ from depotbench.core.assets import asset
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import KIB, read_text
 from depotbench.detectors.base import DetectorFrame
+from depotbench.detectors.coco import bench_name
 from depotbench.detectors.config import MAX_NAMES_BYTES, OnnxSettings, check_model_file
 from depotbench.detectors.detection import Detection
-from depotbench.detectors.priors import DEFAULT_PRIORS, PriorTable, bench_name
+from depotbench.detectors.priors import DEFAULT_PRIORS, PriorTable
 
 COCO_NAMES = asset("models", "yolox_nano", "coco.names")
 STRIDES = (8, 16, 32)

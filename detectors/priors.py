@@ -1,17 +1,19 @@
 """Class priors of method 1: which classes move (dynamic) and which may (potential).
 
 A detector's class names reach SLAM through a ``PriorTable``, after
-``CLASS_ALIASES`` turned a model's spellings into the bench's ('tvmonitor' is
-'tv'; COCO's 'dining table' is the bench's 'desk'). The default table
+``depotbench.detectors.coco.bench_name`` turned a model's spellings into the bench's
+('tvmonitor' is 'tv'; COCO's 'dining table' is the bench's 'desk'). The default table
 knows COCO's names and the bench's own; ``--class-prior NAME=PRIOR`` changes a
-row. COCO has no pig: YOLOX-nano calls the bench's pigs dog, sheep or person
-(dynamic here, so they are still rejected) or teddy bear (static by default).
+row, its name read the same way (``--class-prior 'dining table=static'`` is the desk's).
+COCO has no pig: YOLOX-nano calls the bench's pigs dog, sheep or person (dynamic here, so
+they are still rejected) or teddy bear (static by default).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from depotbench.detectors.coco import bench_name
 from depotbench.detectors.detection import Prior
 
 DYNAMIC_CLASSES = frozenset(
@@ -44,24 +46,6 @@ POTENTIAL_CLASSES = frozenset(
 )
 
 
-CLASS_ALIASES = {
-    # Darknet's spellings of COCO classes (the shipped coco.names uses them) ...
-    "tvmonitor": "tv",
-    "motorbike": "motorcycle",
-    "aeroplane": "airplane",
-    "sofa": "couch",
-    "pottedplant": "potted plant",
-    # ... and COCO's nearest class to the bench's own: its desks are tables.
-    "diningtable": "desk",
-    "dining table": "desk",
-}
-"""A detector's class name as the bench names it (applied to ONNX models' names)."""
-
-
-def bench_name(class_name: str) -> str:
-    return CLASS_ALIASES.get(class_name, class_name)
-
-
 def prior_of(class_name: str) -> Prior:
     return DEFAULT_PRIORS.prior(class_name)
 
@@ -86,7 +70,7 @@ class PriorTable:
         rows = dict(self.overrides)
         for name, text in settings.items():
             try:
-                rows[name] = Prior(text)
+                rows[bench_name(name)] = Prior(text)
             except ValueError:
                 choices = ", ".join(p.value for p in Prior)
                 raise ValueError(f"--class-prior {name}={text!r}: choose one of {choices}") from None

@@ -7,16 +7,22 @@ operating point and AP50 (COCO's 101-point interpolation). A ``dynamic`` row
 matches across classes among dynamic priors, because SLAM only asks "is this a
 mover?": a pig called dog still counts there. Recall is split by size (COCO's
 small/medium/large), truncation by the image border and occlusion.
+
+Class names on both sides are read through ``depotbench.detectors.coco.bench_name``, the
+table the ONNX detector and ``export-dataset`` use: a detection called 'dining table',
+'diningtable' or 'tvmonitor' (a model's table, a ``confusion`` fault, a plug-in) is the
+bench's desk or tv, where it had scored as a miss beside a false positive of its own class.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import InputError
+from depotbench.detectors.coco import bench_name
 from depotbench.detectors.config import DetectorConfig
 from depotbench.detectors.detection import Detection, Prior
 from depotbench.detectors.faults import Difficulty
@@ -131,7 +137,7 @@ def truth_boxes(
     return [
         TruthBox(
             tuple(float(v) for v in o.box_xyxy),
-            o.class_name,
+            bench_name(o.class_name),
             detector.priors.prior(o.class_name),
             diff,
             is_truncated(o, k.width, k.height),
@@ -170,7 +176,8 @@ def evaluate_detector(
             raise ValueError("detect-eval needs a detector (not none)")
         latency.append(detections.latency_ms)
         truth_source = GroundTruthDetector(sequence, 1, config.priors)
-        for i, found in enumerate(detections.per_frame):
+        for i, boxes in enumerate(detections.per_frame):
+            found = [in_bench_words(d) for d in boxes]
             truths = truth_boxes(sequence, truth_source, i, min_visible_pixels)
             for name in {t.class_name for t in truths} | {d.class_name for d in found}:
                 _tally(
@@ -206,6 +213,12 @@ def evaluate_detector(
         ),
         "classes": classes,
     }
+
+
+def in_bench_words(detection: Detection) -> Detection:
+    """The detection with its class named as the truth names it (its prior is the detector's)."""
+    name = bench_name(detection.class_name)
+    return detection if name == detection.class_name else replace(detection, class_name=name)
 
 
 def _tally(tally: _Tally, detections: list[Detection], truths: list[TruthBox]) -> None:
