@@ -412,22 +412,20 @@ def test_export_writes_yolo_labels_and_coco_json_split_by_sequence(tmp_path: Pat
     args = ["export-dataset", *(str(tmp_path / n) for n in "abc"), "-o", str(tmp_path / "ds"), "--val", "b"]
     assert main([*args, "--min-pixels", "10"]) == 0
     splits = json.loads((tmp_path / "ds" / "splits.json").read_text())
-    assert splits["splits"] == {"a": "train", "b": "val", "c": "train"} and splits["classes"] == [
-        "chair",
-        "person",
-    ]
+    assert splits["splits"] == {"a": "train", "b": "val", "c": "train"}
+    assert splits["ids"] == {"chair": 56, "person": 0} and len(splits["classes"]) == 81  # COCO's, then pig
     # The person's visible box (30, 10)-(40, 20) in a 64 x 48 image.
     label = (tmp_path / "ds" / "labels" / "val" / "b_1.000000.txt").read_text().split()
-    assert label[0] == "1"  # classes in sorted order; the chair is never visible
+    assert label[0] == "0"  # COCO's id of person; the chair is never visible
     assert [float(v) for v in label[1:]] == pytest.approx([35 / 64, 15 / 48, 10 / 64, 10 / 48], abs=1e-6)
     assert (tmp_path / "ds" / "images" / "val" / "b_1.000000.png").read_bytes() == (
         tmp_path / "b" / "rgb" / "1.000000.png"
     ).read_bytes()
     coco = json.loads((tmp_path / "ds" / "annotations" / "instances_train.json").read_text())
     assert len(coco["images"]) == 6 and len(coco["annotations"]) == 6
-    assert coco["annotations"][0]["bbox"] == [30, 10, 10, 10] and coco["annotations"][0]["category_id"] == 2
-    assert coco["categories"] == [{"id": 1, "name": "chair"}, {"id": 2, "name": "person"}]
-    assert '1: "person"' in (tmp_path / "ds" / "data.yaml").read_text()
+    assert coco["annotations"][0]["bbox"] == [30, 10, 10, 10] and coco["annotations"][0]["category_id"] == 1
+    assert coco["categories"][0] == {"id": 1, "name": "person"} and len(coco["categories"]) == 81
+    assert "\n  0: person\n" in (tmp_path / "ds" / "data.yaml").read_text()
     seeded = [*args[:-2], "-o", str(tmp_path / "ds2"), "--seed", "3", "--val-fraction", "0.3"]
     assert main(seeded) == 0
     parts = json.loads((tmp_path / "ds2" / "splits.json").read_text())["splits"]

@@ -191,7 +191,7 @@ def test_detect_eval_refuses_a_sequence_given_twice(seq: Path, tmp_path: Path, c
     refused(tmp_path, capfd, args, "seq", "given twice")
 
 
-# -- D2 and M6: the --json file -----------------------------------------------------------------------
+# -- D2 and M6: the -o file (the JSON report) --------------------------------------------------
 
 EVAL = ["detect-eval", "--detector", "groundtruth", "--min-pixels", "1"]
 
@@ -199,8 +199,8 @@ EVAL = ["detect-eval", "--detector", "groundtruth", "--min-pixels", "1"]
 def test_detect_eval_json_keeps_an_existing_file_unless_told(seq: Path, tmp_path: Path, capfd):
     notes = tmp_path / "notes.txt"
     notes.write_text("mine\n")
-    refused(tmp_path, capfd, [*EVAL, str(seq), "--json", str(notes)], str(notes), "--overwrite")
-    assert main([*EVAL, str(seq), "--json", str(notes), "--overwrite"]) == 0
+    refused(tmp_path, capfd, [*EVAL, str(seq), "-o", str(notes)], str(notes), "--overwrite")
+    assert main([*EVAL, str(seq), "-o", str(notes), "--overwrite"]) == 0
     assert '"frames": 4' in notes.read_text()
     capfd.readouterr()
 
@@ -208,7 +208,7 @@ def test_detect_eval_json_keeps_an_existing_file_unless_told(seq: Path, tmp_path
 @pytest.mark.parametrize("inside", ["groundtruth.txt", "new.json"])
 def test_detect_eval_json_never_writes_into_an_input(seq: Path, tmp_path: Path, capfd, inside: str):
     target = seq / inside
-    args = [*EVAL, str(seq), "--json", str(target), "--overwrite"]
+    args = [*EVAL, str(seq), "-o", str(target), "--overwrite"]
     refused(tmp_path, capfd, args, str(target), "inside the input")
 
 
@@ -227,4 +227,4 @@ def test_detect_eval_json_refuses_an_unwritable_place_before_any_work(
     (tmp_path / "afile").write_text("x\n")
     (tmp_path / "folder").mkdir()
     target = Path(where) if where.startswith("/") else tmp_path / where
-    refused(tmp_path, capfd, [*EVAL, str(seq), "--json", str(target), "--overwrite"], str(target), needle)
+    refused(tmp_path, capfd, [*EVAL, str(seq), "-o", str(target), "--overwrite"], str(target), needle)

@@ -82,8 +82,11 @@ def add_detect_eval(sub: argparse._SubParsersAction) -> None:
         help="objects with fewer visible pixels are ignored: found or missed, they do not count "
         "(default 1000)",
     )
-    p.add_argument("--json", type=Path, help="also write the full report here")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    p.add_argument("--json", action="store_true", help="print the full report as JSON instead of the table")
+    p.add_argument(
+        "-o", "--output", type=Path, metavar="FILE", help="also write the full report (JSON) to this file"
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --output file")
     p.set_defaults(handler=_cmd_detect_eval)
 
 
@@ -100,8 +103,8 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
         raise InputError("detect-eval needs a detector (not --detector none)")
     if args.min_pixels < 1:
         raise InputError(f"--min-pixels must be at least 1, got {args.min_pixels}")
-    if args.json is not None:
-        check_output_file(args.json, overwrite=args.overwrite, inputs=tuple(args.sequences), option="--json")
+    if args.output is not None:
+        check_output_file(args.output, overwrite=args.overwrite, inputs=tuple(args.sequences), option="-o")
     sequences = [Sequence.open(root) for root in args.sequences]
     for seq in sequences:
         if not seq.is_generated:
@@ -109,14 +112,18 @@ def _cmd_detect_eval(args: argparse.Namespace) -> int:
     report = evaluate_detector(
         sequences, config, StageCache.from_env(), progress=True, min_visible_pixels=args.min_pixels
     )
+    if args.output is not None:
+        write_text_atomic(args.output, dumps_json(report) + "\n")
+    if args.json:  # stdout is the report alone, as `eval --json` prints its result
+        print(dumps_json(report))
+        return 0
     print(
         f"detector {config.label} on {len(sequences)} sequence(s), IoU >= 0.5, "
         f"objects >= {args.min_pixels} px"
     )
     print(format_evaluation(report))
-    if args.json is not None:
-        write_text_atomic(args.json, dumps_json(report) + "\n")
-        print(f"wrote {args.json}")
+    if args.output is not None:
+        print(f"wrote {args.output}")
     return 0
 
 
@@ -134,14 +141,19 @@ def add_export_dataset(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the sequence split (0)")
     p.add_argument("--every", type=int, default=1, help="take every n-th frame (1)")
     p.add_argument("--min-pixels", type=int, default=100, help="objects with fewer visible pixels get no box")
-    p.add_argument("--names", type=Path, help="class names in id order, one a line (e.g. COCO's)")
+    p.add_argument(
+        "--names",
+        type=Path,
+        help="class names in id order, one a line, instead of COCO's ids (COCO's and Darknet's "
+        "spellings name the bench's classes: 'dining table' is the desk); other classes get no box",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace a dataset depotbench wrote")
     p.set_defaults(handler=_cmd_export_dataset)
 
 
 def _cmd_export_dataset(args: argparse.Namespace) -> int:
     from depotbench.core.files import read_text
-    from depotbench.eval.detection.dataset import ExportOptions, export_dataset
+    from depotbench.eval.detection.dataset import ClassTable, ExportOptions, export_dataset
 
     if not 0.0 <= args.val_fraction < 1.0:
         raise InputError(f"--val-fraction must lie in [0, 1), got {args.val_fraction}")
@@ -149,23 +161,27 @@ def _cmd_export_dataset(args: argparse.Namespace) -> int:
         raise InputError(f"--every must be at least 1, got {args.every}")
     if args.min_pixels < 1:
         raise InputError(f"--min-pixels must be at least 1, got {args.min_pixels}")
-    names: tuple[str, ...] = ()
+    classes = None
     if args.names is not None:
-        names = tuple(
-            line.strip()
-            for line in read_text(args.names, 1 << 20, "class names").splitlines()
-            if line.strip()
+        text = read_text(args.names, 1 << 20, "class names")
+        classes = ClassTable.from_names(
+            [ln.strip() for ln in text.splitlines() if ln.strip()], str(args.names)
         )
-        if not names or len(set(names)) != len(names):
-            raise InputError(f"{args.names}: needs distinct class names, one a line")
-    options = ExportOptions(args.val_fraction, args.seed, tuple(args.val), args.every, args.min_pixels, names)
+    options = ExportOptions(
+        args.val_fraction, args.seed, tuple(args.val), args.every, args.min_pixels, classes
+    )
     summary = export_dataset(args.sequences, args.output, options, overwrite=args.overwrite)
     c = summary["counts"]
+    ids = ", ".join(f"{name} {i}" for name, i in summary["ids"].items())
     print(
         f"exported {c['train']['images']} train and {c['val']['images']} val images "
-        f"({c['train']['boxes']} / {c['val']['boxes']} boxes, {len(summary['classes'])} classes) "
-        f"to {args.output}"
+        f"({c['train']['boxes']} / {c['val']['boxes']} boxes) to {args.output}; class ids: {ids or 'none'}"
     )
+    if summary["appended_classes"]:
+        print(
+            "classes neither COCO's nor the bench's, numbered after them in this export only: "
+            + ", ".join(summary["appended_classes"])
+        )
     if summary["skipped_classes"]:
         skipped = ", ".join(f"{k} ({v})" for k, v in sorted(summary["skipped_classes"].items()))
         print(f"boxes of classes not in --names were left out: {skipped}")

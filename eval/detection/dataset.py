@@ -12,6 +12,12 @@ image folder serves both formats:
 
 Boxes are the true visible boxes (``gt/objects.jsonl``); objects with fewer than
 ``min_visible_pixels`` visible pixels are left out.
+
+Class ids are COCO's (``depotbench.detectors.coco``: person 0, the desk as dining table 60,
+tv 62), then the bench's classes COCO lacks (pig 80): the same class has the same id in
+every export, whatever its scenes hold, and a COCO-trained model's ids mean the same.
+``data.yaml`` gives the folder's absolute ``path``: Ultralytics reads a relative one
+against the working directory (or its datasets folder), not against the file.
 """
 
 from __future__ import annotations
@@ -26,14 +32,57 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_IMAGE_BYTES, dumps_json
 from depotbench.core.output import OutputError, OutputKind, StagedOutput
+from depotbench.detectors.coco import EXPORT_CLASSES, bench_name, export_name
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import Sequence, timestamp_name
 from tqdm import tqdm
 
 PARTS = ("train", "val")
+
+
+@dataclass(frozen=True)
+class ClassTable:
+    """The export's class numbering: names in id order (data.yaml's ``names``) and the id of
+    each bench class that gets boxes."""
+
+    names: tuple[str, ...]
+    ids: tuple[tuple[str, int], ...]
+    """(bench class, id) pairs; a class not listed gets no box."""
+    appended: tuple[str, ...] = ()
+    """Classes numbered after the fixed table (neither COCO's nor the bench's built-in ones,
+    e.g. a kind registered at run time): their ids depend on what this export holds."""
+    names_file: str | None = None
+    """Where the numbering came from: a ``--names`` file, or None for COCO's."""
+
+    @classmethod
+    def coco(cls, present: set[str]) -> ClassTable:
+        """COCO's 80 by their index, the bench's own classes after them (``EXPORT_CLASSES``),
+        then any other class of ``present``, sorted."""
+        index = {name: i for i, name in enumerate(EXPORT_CLASSES)}
+        ids = {c: index[name] for c in present if (name := export_name(c)) is not None}
+        appended = tuple(sorted(c for c in present if c not in ids))
+        ids |= {c: len(EXPORT_CLASSES) + k for k, c in enumerate(appended)}
+        return cls(EXPORT_CLASSES + appended, tuple(sorted(ids.items())), appended)
+
+    @classmethod
+    def from_names(cls, names: list[str], shown: str) -> ClassTable:
+        """A names file's numbering (one name a line, id = line order), each name read as the
+        ONNX detector reads a model's table: 'dining table' and 'diningtable' are the desk."""
+        if not names:
+            raise InputError(f"{shown}: needs distinct class names, one a line")
+        ids: dict[str, int] = {}
+        for i, name in enumerate(names):
+            bench = bench_name(name)
+            if bench in ids:
+                first = names[ids[bench]]
+                same = "given twice" if first == name else f"the bench's {bench!r}, as {first!r} is"
+                raise InputError(f"{shown}: needs distinct class names, one a line; {name!r} is {same}")
+            ids[bench] = i
+        return cls(tuple(names), tuple(sorted(ids.items())), names_file=shown)
 
 
 @dataclass(frozen=True)
@@ -45,8 +94,8 @@ class ExportOptions:
     every: int = 1
     """Take every n-th frame (consecutive frames are near-duplicates)."""
     min_visible_pixels: int = 100
-    names: tuple[str, ...] = ()
-    """Class names in id order (e.g. COCO's); default: every class in the sequences, sorted."""
+    classes: ClassTable | None = None
+    """The class numbering; None: COCO's (``ClassTable.coco`` of the sequences' classes)."""
 
 
 def split_sequences(names: list[str], options: ExportOptions) -> dict[str, str]:
@@ -66,6 +115,7 @@ def split_sequences(names: list[str], options: ExportOptions) -> dict[str, str]:
 
 
 def export_dataset(roots: list[Path], out: Path, options: ExportOptions, overwrite: bool = False) -> dict:
+    root = dataset_root(out)
     sequences = [Sequence.open(r) for r in roots]
     for seq in sequences:
         if not seq.is_generated:
@@ -75,10 +125,11 @@ def export_dataset(roots: list[Path], out: Path, options: ExportOptions, overwri
         dup = next(n for n in names if names.count(n) > 1)
         raise InputError(f"two sequences are named {dup!r}: image names would collide")
     split = split_sequences(names, options)
-    classes = list(options.names) or sorted({o.class_name for s in sequences for f in _objects(s) for o in f})
+    present = {o.class_name for s in sequences for f in _objects(s) for o in f}
+    table = options.classes or ClassTable.coco(present)
     with StagedOutput(out, OutputKind.DATASET, overwrite=overwrite, inputs=tuple(roots)) as staged:
         files = _DatasetFiles(staged.path, out)
-        exporter = _Exporter(files, classes, options)
+        exporter = _Exporter(files, table, present, options, root)
         total = sum(len(range(0, len(s), options.every)) for s in sequences)
         with tqdm(total=total, desc="export", unit="frame", disable=None, leave=False) as bar:
             for seq in sequences:
@@ -86,6 +137,22 @@ def export_dataset(roots: list[Path], out: Path, options: ExportOptions, overwri
         summary = exporter.finish(split)
         staged.commit()
     return summary
+
+
+def dataset_root(out: Path) -> str:
+    """The dataset folder's absolute path as data.yaml's ``path``, checked before any work.
+
+    Ultralytics documents ``path`` as the dataset root, "relative to 'path'" for train and
+    val; a relative root is looked up against the working directory and then its datasets
+    folder, never against data.yaml's own folder (``path: .`` found nothing from anywhere but
+    the dataset folder). An absolute path works from every working directory; a moved folder
+    needs this one line changed, which the file's comment says."""
+    root = str(out.resolve())
+    try:
+        root.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(f"{out}: the folder's path is not UTF-8, which data.yaml cannot hold") from None
+    return root
 
 
 class _DatasetFiles:
@@ -121,13 +188,17 @@ class _DatasetFiles:
 class _Exporter:
     """Collects one dataset: images and YOLO labels as frames come, COCO and splits at the end."""
 
-    def __init__(self, files: _DatasetFiles, classes: list[str], options: ExportOptions) -> None:
+    def __init__(
+        self, files: _DatasetFiles, table: ClassTable, present: set[str], options: ExportOptions, root: str
+    ) -> None:
         self.files = files
-        self.classes = classes
-        self.class_id = {c: i for i, c in enumerate(classes)}
+        self.table = table
+        self.present = present
+        self.class_id = dict(table.ids)
         self.options = options
+        self.root = root
         self.skipped: dict[str, int] = {}
-        categories = [{"id": i + 1, "name": c} for i, c in enumerate(classes)]
+        categories = [{"id": i + 1, "name": c} for i, c in enumerate(table.names)]
         self.coco = {part: {"images": [], "annotations": [], "categories": categories} for part in PARTS}
         self.counts = {part: {"images": 0, "boxes": 0} for part in PARTS}
         files.mkdirs(*(f"{kind}/{part}" for kind in ("images", "labels") for part in PARTS), "annotations")
@@ -184,9 +255,12 @@ class _Exporter:
     def finish(self, split: dict[str, str]) -> dict:
         for part in PARTS:
             self.files.write(f"annotations/instances_{part}.json", json.dumps(self.coco[part]))
-        self.files.write("data.yaml", _data_yaml(self.classes))
+        self.files.write("data.yaml", data_yaml(self.root, self.table))
         summary = {
-            "classes": self.classes,
+            "classes": list(self.table.names),
+            "names_file": self.table.names_file,
+            "ids": {c: self.class_id[c] for c in sorted(self.present) if c in self.class_id},
+            "appended_classes": list(self.table.appended),
             "splits": {n: split[n] for n in sorted(split)},
             "counts": self.counts,
             "skipped_classes": self.skipped,
@@ -280,12 +354,25 @@ def check_frame_copy(seq: Sequence, index: int, copy: Path) -> None:
         raise FileError(frame.rgb_path, None, exc.problem) from None
 
 
-def _data_yaml(classes: list[str]) -> str:
-    lines = [
-        "# depotbench export (YOLO format); paths relative to this file",
-        "path: .",
-        "train: images/train",
-    ]
-    lines += ["val: images/val", "names:"]
-    lines += [f"  {i}: {json.dumps(c)}" for i, c in enumerate(classes)]
-    return "\n".join(lines) + "\n"
+def data_yaml(root: str, table: ClassTable) -> str:
+    """Ultralytics' dataset file: ``path`` absolute (``dataset_root``), train and val relative
+    to it, ``names`` in id order; written by PyYAML, so any path or name reads back as is."""
+    numbering = (
+        "COCO's 80 by their index (the bench's desk is dining table 60), then the bench's own from 80"
+        if table.names_file is None
+        else "the order of the export's --names file"
+    )
+    head = (
+        "# depotbench export-dataset, YOLO format (Ultralytics). `path` is this folder, absolute,\n"
+        "# so the file works from any working directory; after moving the folder, set `path` to\n"
+        "# its new place (train and val are relative to it).\n"
+        f"# Class ids: {numbering}.\n"
+    )
+    body = {
+        "path": root,
+        "train": "images/train",
+        "val": "images/val",
+        "nc": len(table.names),
+        "names": dict(enumerate(table.names)),
+    }
+    return head + yaml.safe_dump(body, sort_keys=False, allow_unicode=True, width=1 << 16)
