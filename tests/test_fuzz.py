@@ -740,9 +740,9 @@ def _command_cases() -> dict[str, Case]:
         "detect-eval-min-pixels": Case(
             seq, ("detect-eval", "{tmp}/seq", "--min-pixels", "0"), "--min-pixels must be at least 1"
         ),
-        "detect-eval-json-onto-input": Case(
+        "detect-eval-output-onto-input": Case(
             seq,
-            ("detect-eval", "{tmp}/seq", "--detector", "groundtruth", "--json", "{tmp}/seq"),
+            ("detect-eval", "{tmp}/seq", "--detector", "groundtruth", "-o", "{tmp}/seq"),
             "is the input",
         ),
         "detect-eval-missing": Case(nothing, ("detect-eval", "{tmp}/nope"), "nope"),

@@ -104,7 +104,7 @@ def test_the_installed_wheel_generates_detects_and_runs_the_demo(installed: Path
                      "--frames", "3")  # fmt: skip
     assert generated.returncode == 0, generated.stderr
     report = tmp_path / "detect.json"
-    detected = _run(installed, tmp_path, "depotbench", "detect-eval", "cats", "--json", str(report))
+    detected = _run(installed, tmp_path, "depotbench", "detect-eval", "cats", "-o", str(report))
     assert detected.returncode == 0, detected.stderr
     assert json.loads(report.read_text())  # the shipped model ran
     demo = _run(installed, tmp_path, "depotbench", "demo", "-o", "demo", timeout=600)

@@ -82,8 +82,9 @@ USAGE: dict[str, Usage] = {
         "Score a detector's boxes against the sequences' exact boxes: AP50, precision and recall per "
         "class (as pycocotools computes them), COCO's class names matched to the bench's.",
         (
-            "depotbench detect-eval seqs/walking_xyz --detector yolox",
-            "depotbench detect-eval seqs/* --detector yolox --json",
+            "depotbench detect-eval seqs/walking_xyz --detector onnx",
+            "depotbench detect-eval seqs/* --detector onnx --json",
+            "depotbench detect-eval seqs/* --detector onnx -o detections.json",
         ),
     ),
     "export-dataset": Usage(
