@@ -56,6 +56,7 @@ class OutputKind(StrEnum):
     DATASET = "dataset"
     SWEEP = "sweep"
     REPORT = "report"
+    ROSBAG = "rosbag"
 
 
 class OutputError(InputError):

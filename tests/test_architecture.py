@@ -37,7 +37,19 @@ ALLOWED: dict[str, set[str]] = {
 STANDALONE = {"detectors/detection.py", "core/camera.py"}
 """Modules that import nothing from the project (slam depends on them)."""
 
-EVAL_FLOORS = ("metrics", "trackers", "run", "detection", "sweep", "gates", "report", "pytest_plugin", "cli")
+EVAL_FLOORS = (
+    "metrics",
+    "trackers",
+    "run",
+    "detection",
+    "export",
+    "sweep",
+    "gates",
+    "report",
+    "validate",
+    "pytest_plugin",
+    "cli",
+)
 """eval's parts, bottom to top: each may import its own floor and those below."""
 
 CLI = "depotbench.eval.cli"

@@ -19,7 +19,7 @@ import pytest
 from depotbench.core.camera import Intrinsics
 from depotbench.core.errors import InputError
 from depotbench.eval.cli import rosbag as cli_rosbag
-from depotbench.eval.cli.main import EXIT_INPUT_ERROR, Parser, _run
+from depotbench.eval.cli.main import EXIT_INPUT_ERROR, main
 from depotbench.eval.export import rosbag
 from depotbench.eval.export.rosbag import DEPTH_FORMS, BagStorage, DepthUnit, write_bag
 from depotbench.sim.camera import orbslam_yaml
@@ -183,16 +183,11 @@ def tum_like(sequence: Path, root: Path, *, with_groundtruth: bool) -> Path:
 
 
 def run_cli(capsys, *argv: str | Path) -> tuple[int, str, str]:
-    """The command as the lead wires it: a parser with ``add_export_rosbag``, run by main's ``_run``."""
-    parser = Parser(prog="depotbench")
-    sub = parser.add_subparsers(dest="verb", required=True, parser_class=Parser)
-    cli_rosbag.add_export_rosbag(sub)
+    """The command through the real entry point, ``depotbench export-rosbag ...``."""
     try:
-        args = parser.parse_args(["export-rosbag", *map(str, argv)])
-    except SystemExit as exc:
+        code = main(["export-rosbag", *map(str, argv)])
+    except SystemExit as exc:  # argparse's refusals
         code = int(exc.code or 0)
-    else:
-        code = _run(args)
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 

@@ -93,11 +93,17 @@ USAGE: dict[str, Usage] = {
         ("depotbench export-dataset seqs/* -o datasets/depot --every 5",),
     ),
     "export-rosbag": Usage(
-        "Write a sequence as a ROS 2 bag (MCAP or SQLite): colour and depth images, camera info, the "
-        "true pose as TF and as a path, optionally the 2D boxes; no ROS installation needed.",
+        "Write a generated sequence or a real TUM RGB-D folder as a rosbag2 folder (MCAP or SQLite), no "
+        "ROS installation needed: colour (rgb8) and depth images with their camera info on NAMESPACE/color "
+        "and NAMESPACE/depth, stamped with the frames' timestamps in the camera's optical frame; the true "
+        "poses of groundtruth.txt on /tf (world -> optical frame), /ground_truth/pose and, once and "
+        "latched, /ground_truth/path; with --detections the ground-truth boxes as "
+        "vision_msgs/Detection2DArray. Depth is 32FC1 metres by default (REP 118). The bag is written "
+        "beside BAG and moved into place when complete; play it with 'ros2 bag play BAG' (docs/rosbag.md).",
         (
             "depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz",
-            "depotbench export-rosbag seqs/walking_xyz -o bags/xyz_sqlite --storage sqlite3 --detections",
+            "depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz --detections --storage sqlite3",
+            "depotbench export-rosbag rgbd_dataset_freiburg3_walking_xyz -o bags/fr3_walking_xyz --compress",
         ),
     ),
     "sweep": Usage(

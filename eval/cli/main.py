@@ -31,6 +31,7 @@ from depotbench.eval.cli.detectors import (
 )
 from depotbench.eval.cli.gates import add_check
 from depotbench.eval.cli.report import add_report
+from depotbench.eval.cli.rosbag import add_export_rosbag
 from depotbench.eval.cli.sweep import add_sweep
 
 if TYPE_CHECKING:
@@ -640,6 +641,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_vocab,
         add_detect_eval,
         add_export_dataset,
+        add_export_rosbag,
         add_sweep,
         add_check,
         add_report,

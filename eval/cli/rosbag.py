@@ -16,29 +16,12 @@ DEPTHS = ("m", "mm", "raw")
 DEFAULT_NAMESPACE = "/camera"
 """``depotbench.eval.export.rosbag.DEFAULT_NAMESPACE``."""
 
-EXAMPLES = """\
-examples:
-  depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz
-  depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz --detections --storage sqlite3
-  depotbench export-rosbag rgbd_dataset_freiburg3_walking_xyz -o bags/fr3_walking_xyz --compress
-  ros2 bag play bags/walking_xyz      # then remap the topics to your node (docs/rosbag.md)
-"""
-
 
 def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "export-rosbag",
         help="a sequence as a ROS 2 bag (MCAP or SQLite) for ros2 bag play: images, camera info, "
         "true poses as TF and path, ground-truth boxes",
-        description="Write a generated sequence or a real TUM RGB-D folder as a rosbag2 folder, no ROS "
-        "installation needed: colour (rgb8) and depth images with their camera info on NAMESPACE/color "
-        "and NAMESPACE/depth, stamped with the frames' timestamps in the camera's optical frame; the "
-        "true poses of groundtruth.txt on /tf (world -> optical frame), /ground_truth/pose and, once and "
-        "latched, /ground_truth/path; with --detections the ground-truth boxes as "
-        "vision_msgs/Detection2DArray. Depth is 32FC1 metres by default (REP 118). The bag is written "
-        "beside BAG and moved into place when complete.",
-        epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("sequence", type=Path, help="a generated sequence folder or a real TUM RGB-D folder")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="BAG", help="the bag folder to write")
