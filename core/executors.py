@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -47,12 +46,9 @@ def _init_local_worker(parent_pid: int) -> None:
     release_sigint()
     exit_with_parent(parent_pid)
     single_threaded()
-    # tqdm's default lock is a multiprocessing RLock, whose semaphore a killed worker never
-    # unregisters: Python then warns of a "leaked semaphore" after the error. A worker's bars
-    # are off, so a thread lock serves.
-    from tqdm import tqdm
+    from depotbench.core.progress import use_thread_lock
 
-    tqdm.set_lock(threading.RLock())
+    use_thread_lock()
 
 
 class LocalPool:

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest
+from depotbench.core.progress import progress_bar
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import DetectorConfig, DetectorKind, check_model_file
 from depotbench.detectors.detection import Detection, Prior
@@ -26,7 +27,6 @@ from depotbench.detectors.faults import inject
 from depotbench.detectors.groundtruth import GroundTruthDetector
 from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.sim.sequence import Sequence
-from tqdm import tqdm
 
 CACHE_STAGE = "detections"
 CACHE_FORMAT = 1
@@ -137,11 +137,11 @@ def _run(detector, sequence: Sequence, progress: bool) -> tuple[list[tuple[Detec
     needs_image = not isinstance(detector, GroundTruthDetector)
     empty = np.zeros((0, 0, 3), np.uint8)
     per_frame, latency = [], []
-    bar = tqdm(
+    bar = progress_bar(
         range(len(sequence)),
         desc=f"detect {detector.name}",
         unit="frame",
-        disable=None if progress else True,
+        disable=not progress,
         leave=False,
     )
     with bar:

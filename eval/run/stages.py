@@ -22,6 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from depotbench.core.progress import progress_bar
 from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
@@ -31,7 +32,6 @@ from depotbench.slam.features import FeatureExtractor, FrameFeatures
 from depotbench.slam.rejection import Flow, classify, flow_to_previous
 from depotbench.slam.system import seed_frame
 from depotbench.slam.types import REJECTION_CODES, Rejection
-from tqdm import tqdm
 
 FEATURES_STAGE = "features"
 FLOW_STAGE = "flow"
@@ -91,8 +91,8 @@ def _compute(
     per_frame: dict[str, list[np.ndarray]] = {name: [] for name in _FIELDS}
     counts, labels, extract_ms, flow_prev, flow_ok, flow_ms = [], [], [], [], [], []
     previous = None
-    for i in tqdm(
-        range(len(sequence)), desc="features", unit="frame", disable=None if progress else True, leave=False
+    for i in progress_bar(
+        range(len(sequence)), desc="features", unit="frame", disable=not progress, leave=False
     ):
         rgb, depth = sequence.rgb(i), sequence.depth_raw(i).astype(np.float32) / scale
         started = time.perf_counter()

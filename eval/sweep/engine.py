@@ -15,6 +15,7 @@ from typing import Any
 
 from depotbench.core.errors import InputError
 from depotbench.core.executors import make_pool
+from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig
 from depotbench.eval.metrics.record import RunIdentity, RunRecord
@@ -59,7 +60,6 @@ from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import TrackingConfig
-from tqdm import tqdm
 
 DATABASE = "results.sqlite"
 
@@ -449,12 +449,12 @@ def run_jobs(
         decisions = [Decision(j.key, None, None, None) for j in pending]
         if StageCache.from_env() is not None:
             groups = stage_groups(pending)
-            bar = tqdm(total=len(groups), desc="stages", unit="seq", disable=None if progress else True)
+            bar = progress_bar(total=len(groups), desc="stages", unit="seq", disable=not progress)
             with bar:
                 for _ in pool.map_unordered(compute_stages, [(j,) for j in groups]):
                     bar.update(1)
         if dedupe and pending:
-            bar = tqdm(total=len(pending), desc="decisions", unit="run", disable=None if progress else True)
+            bar = progress_bar(total=len(pending), desc="decisions", unit="run", disable=not progress)
             decisions = []
             with bar:
                 for _, answer in pool.map_unordered(decide, [(c,) for c in _chunks(pending, 4 * workers)]):
@@ -491,12 +491,12 @@ def run_jobs(
             for tree in trees
         ]
         remaining = len(alone) + sum(1 + len(followers[d.key]) for d in leaders.values())
-        bar = tqdm(
+        bar = progress_bar(
             total=len(jobs),
             initial=len(jobs) - remaining,
             desc="sweep",
             unit="run",
-            disable=None if progress else True,
+            disable=not progress,
             smoothing=0.1,
         )
         tracked = 0

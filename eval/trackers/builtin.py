@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 from depotbench.core.camera import Intrinsics
+from depotbench.core.progress import progress_bar
 from depotbench.eval.trackers.base import TrackerRun
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.sim.sequence import Sequence
@@ -14,7 +15,6 @@ from depotbench.slam.config import SlamConfig
 from depotbench.slam.rejection import box_classes, classify
 from depotbench.slam.system import Slam, seed_frame
 from depotbench.slam.types import Frame, FrameResult
-from tqdm import tqdm
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
 
@@ -61,11 +61,11 @@ class BuiltinTracker:
             raise ValueError(f"{len(self.stages)} frames of stages for {len(frames)} frames")
         objects = sequence.objects() if sequence.is_generated and self.stages is None else None
         results, labels = [], []
-        bar = tqdm(
+        bar = progress_bar(
             range(len(frames)),
             desc=f"slam {self.config.strategy}",
             unit="frame",
-            disable=None if progress else True,  # None: only on a terminal
+            disable=not progress,
             leave=False,
         )
         with bar:  # closed (and its line cleared) before an error is printed

@@ -12,11 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from depotbench.core.progress import progress_bar
 from depotbench.eval.trackers.base import TrackerError
 from depotbench.eval.trackers.watcher import kill_group
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence
-from tqdm import tqdm
 
 STDERR_TAIL_LINES = 20
 STDERR_LINE_CHARS = 500
@@ -130,7 +130,7 @@ def _watch(
     progress: bool,
 ) -> None:
     """Until the program exits (left unreaped, so its group's number stays its own)."""
-    bar = tqdm(total=frames, desc=what, unit="frame", disable=None if progress else True, leave=False)
+    bar = progress_bar(total=frames, desc=what, unit="frame", disable=not progress, leave=False)
     with bar:
         while True:
             finished = _exited(child, POLL_S)
