@@ -7,8 +7,9 @@ from it. It imports nothing from the project, so that ``slam`` may depend on it 
 
 from __future__ import annotations
 
+import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -19,6 +20,10 @@ UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-9)
 
 TUM_DEPTH_SCALE = 5000.0
 """Depth PNG units per metre (TUM RGB-D)."""
+FOCAL_RANGE_PX = (1.0, 1e5)
+DEPTH_FACTOR_RANGE = (1e-3, 1e6)
+"""Focal lengths and depth factors outside which a given camera is a mistake (a 640-pixel image
+at fx = 1 sees 175 degrees); they keep the arithmetic finite."""
 
 
 @dataclass(frozen=True)
@@ -88,3 +93,139 @@ class Intrinsics:
     def fovy_deg(self) -> float:
         """Vertical field of view that a MuJoCo camera needs to reproduce ``fy``."""
         return math.degrees(2.0 * math.atan((self.height / 2.0) / self.fy))
+
+
+class CameraSource(enum.Enum):
+    """Where a sequence's camera came from (metrics.json's ``camera.source``)."""
+
+    SEQUENCE = "sequence"
+    """The folder's own camera.yaml (every generated sequence has one)."""
+    FILE = "file"
+    """A settings file the user gave (``--camera FILE``)."""
+    FLAGS = "flags"
+    """Numbers the user gave (``--intrinsics``, ``--distortion``, ``--depth-factor``)."""
+    GIVEN = "given"
+    """A camera given in Python (``depotbench.api.run(camera=...)``)."""
+    TUM = "tum"
+    """TUM's published calibration, chosen by the folder's name (freiburg1/2/3)."""
+    DEFAULT = "default"
+    """The ROS/Kinect default: the folder names no TUM sensor and no camera was given."""
+
+
+FALLBACKS = (CameraSource.TUM, CameraSource.DEFAULT)
+"""Sources that are a guess, not a calibration of this folder: a run warns that it used one."""
+
+
+@dataclass(frozen=True)
+class CameraOverride:
+    """A camera given for a real TUM-layout folder, replacing what the folder's name suggests.
+
+    Each part may be left out: ``pinhole`` (fx, fy, cx, cy) replaces the calibration, with
+    ``distortion`` (k1, k2, p1, p2, k3; none when left out, as a calibration's distortion
+    belongs with its focal lengths) and ``size`` (width, height; the images' own when left
+    out); ``depth_factor`` (depth PNG units per metre, TUM's 5000) may be given alone.
+    ``source`` and ``origin`` (the file, or the flags) say where it came from, for
+    metrics.json and for messages.
+    """
+
+    pinhole: tuple[float, float, float, float] | None = None
+    distortion: tuple[float, float, float, float, float] | None = None
+    depth_factor: float | None = None
+    size: tuple[int, int] | None = None
+    source: CameraSource = CameraSource.GIVEN
+    origin: str = "camera"
+
+    def __post_init__(self) -> None:
+        """Each number checked where it is given, so a message names the part that is wrong."""
+        if self.pinhole is None and self.distortion is None and self.depth_factor is None:
+            raise ValueError(f"{self.origin}: give the intrinsics (fx fy cx cy) or the depth factor")
+        if self.pinhole is not None:
+            if len(self.pinhole) != 4:
+                given = len(self.pinhole)
+                raise ValueError(f"{self.origin}: intrinsics are fx fy cx cy, got {given} numbers")
+            for name, value in zip(("fx", "fy", "cx", "cy"), self.pinhole, strict=True):
+                _finite(self.origin, name, value)
+            for name, value in zip(("fx", "fy"), self.pinhole[:2], strict=True):
+                _within(self.origin, name, value, FOCAL_RANGE_PX, "px")
+        elif self.distortion is not None or self.size is not None:
+            raise ValueError(
+                f"{self.origin}: distortion and image size belong with the intrinsics; give fx fy cx cy too"
+            )
+        if self.distortion is not None:
+            if len(self.distortion) != 5:
+                raise ValueError(
+                    f"{self.origin}: distortion is k1 k2 p1 p2 k3, got {len(self.distortion)} numbers"
+                )
+            for name, value in zip(("k1", "k2", "p1", "p2", "k3"), self.distortion, strict=True):
+                _finite(self.origin, name, value)
+        if self.depth_factor is not None:
+            _finite(self.origin, "depth factor", self.depth_factor)
+            unit = "per metre (TUM: 5000)"
+            _within(self.origin, "depth factor", self.depth_factor, DEPTH_FACTOR_RANGE, unit)
+        if self.size is not None and not all(isinstance(n, int) and n > 0 for n in self.size):
+            raise ValueError(f"{self.origin}: the image size must be two whole numbers > 0, got {self.size}")
+
+    @classmethod
+    def of(
+        cls, intrinsics: Intrinsics, source: CameraSource = CameraSource.GIVEN, origin: str = "camera"
+    ) -> CameraOverride:
+        """A whole camera, as given."""
+        k = intrinsics
+        return cls((k.fx, k.fy, k.cx, k.cy), k.distortion, k.depth_scale, (k.width, k.height), source, origin)
+
+    def applied(self, base: Intrinsics, image_size: tuple[int, int]) -> Intrinsics:
+        """``base`` (the folder's camera.yaml or its fallback) with what this gives replaced; the
+        image size is this camera's, or the images' (``image_size``) where it gives none."""
+        depth_factor = base.depth_scale if self.depth_factor is None else self.depth_factor
+        if self.pinhole is None:
+            return replace(base, depth_scale=depth_factor)
+        width, height = self.size or image_size
+        fx, fy, cx, cy = self.pinhole
+        distortion = self.distortion or (0.0, 0.0, 0.0, 0.0, 0.0)
+        return Intrinsics(fx, fy, cx, cy, width, height, distortion, depth_factor)
+
+
+def _finite(origin: str, name: str, value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{origin}: {name} must be a finite number, got {value!r}")
+
+
+def _within(origin: str, name: str, value: float, bounds: tuple[float, float], unit: str) -> None:
+    low, high = bounds
+    if not value > 0:
+        raise ValueError(f"{origin}: {name} must be > 0, got {value:g}")
+    if not low <= value <= high:
+        raise ValueError(f"{origin}: {name} = {value:g} is outside the plausible {low:g}..{high:g} {unit}")
+
+
+@dataclass(frozen=True)
+class CameraProvenance:
+    """Where a sequence's camera came from: the intrinsics (with distortion) and, apart, the
+    depth factor (``--depth-factor`` alone keeps the folder's calibration)."""
+
+    source: CameraSource
+    detail: str
+    """The file, the flags, or why a fallback was chosen (the folder name that names a sensor)."""
+    depth_factor_source: CameraSource
+
+    @property
+    def fallback(self) -> bool:
+        return self.source in FALLBACKS
+
+
+def camera_json(intrinsics: Intrinsics, provenance: CameraProvenance) -> dict:
+    """The camera a run used, as metrics.json records it."""
+    k = intrinsics
+    return {
+        "fx": k.fx,
+        "fy": k.fy,
+        "cx": k.cx,
+        "cy": k.cy,
+        "width": k.width,
+        "height": k.height,
+        "distortion": dict(zip(("k1", "k2", "p1", "p2", "k3"), k.distortion, strict=True)),
+        "depth_factor": k.depth_scale,
+        "source": provenance.source.value,
+        "detail": provenance.detail,
+        "depth_factor_source": provenance.depth_factor_source.value,
+    }

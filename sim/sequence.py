@@ -19,8 +19,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from depotbench.core.camera import Intrinsics
-from depotbench.core.errors import FileError, SequenceFormatError
+from depotbench.core.camera import CameraOverride, CameraProvenance, CameraSource, Intrinsics
+from depotbench.core.errors import FileError, InputError, SequenceFormatError
 from depotbench.core.files import (
     DEFAULT_PNG_COMPRESSION,
     MAX_META_BYTES,
@@ -36,7 +36,7 @@ from depotbench.sim.camera import (
     OrbSlamSettings,
     orbslam_yaml,
     read_orbslam_yaml,
-    tum_intrinsics_for,
+    tum_camera_for,
 )
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.png import assemble_png, sub_filtered
@@ -87,6 +87,12 @@ class Sequence:
     frames: tuple[FrameRef, ...]
     groundtruth: PoseTable | None
     meta: dict[str, Any] | None
+    camera_source: CameraProvenance = CameraProvenance(
+        CameraSource.SEQUENCE, "camera.yaml", CameraSource.SEQUENCE
+    )
+    """Where ``intrinsics`` came from (metrics.json's ``camera``)."""
+    camera_given: CameraOverride | None = None
+    """The camera it was opened with (``Sequence.open(camera=...)``), if any."""
 
     @property
     def is_generated(self) -> bool:
@@ -100,18 +106,38 @@ class Sequence:
     def __len__(self) -> int:
         return len(self.frames)
 
+    @property
+    def camera_warning(self) -> str | None:
+        """One line naming the guessed camera a real folder is read with, or None where the
+        camera is the folder's own or was given: a wrong one biases every pose silently
+        (TUM's fr1 against the ROS default: 16 px in cy, 8 px in fx, and a k1 of 0.26)."""
+        if not self.camera_source.fallback:
+            return None
+        return (
+            f"{self.root}: no camera given (--camera FILE, or --intrinsics FX FY CX CY) and no "
+            f"camera.yaml; using {self.camera_source.detail}; depth factor {self.intrinsics.depth_scale:g}"
+        )
+
     @classmethod
     def open(
         cls,
         root: Path | str,
         intrinsics: Intrinsics | None = None,
         max_diff_s: float = ASSOCIATION_MAX_DIFF_S,
+        camera: CameraOverride | None = None,
     ) -> Sequence:
         """Open and check a sequence folder.
 
-        Real TUM folders need no ``camera.yaml``: ``intrinsics`` is used if given,
-        else TUM's calibration chosen from the folder name (freiburg1/2/3).
+        A real TUM folder needs no ``camera.yaml``: ``camera`` (or a whole ``intrinsics``)
+        replaces what its camera.yaml or its name gives; without any, TUM's calibration is
+        chosen from the folder name (freiburg1/2/3), else the ROS default, and
+        ``camera_source`` says it was a guess. A generated sequence keeps its own camera
+        (its ground truth was rendered through it): a camera given for one is refused.
         """
+        if intrinsics is not None:
+            if camera is not None:
+                raise ValueError("give intrinsics or camera, not both")
+            camera = CameraOverride.of(intrinsics)
         root = Path(root)
         if not root.is_dir():
             raise SequenceFormatError(root, None, "is not a sequence folder (no such directory)")
@@ -119,24 +145,31 @@ class Sequence:
         camera_path = root / "camera.yaml"
         fps = 30.0
         if camera_path.exists():
-            file_intrinsics, fps = read_orbslam_yaml(camera_path)
-            intrinsics = intrinsics or file_intrinsics
+            intrinsics, fps = read_orbslam_yaml(camera_path)
+            provenance = CameraProvenance(CameraSource.SEQUENCE, "camera.yaml", CameraSource.SEQUENCE)
         elif meta is not None:
             raise SequenceFormatError(camera_path, None, "file is missing (required with meta.json)")
         else:
-            intrinsics = intrinsics or tum_intrinsics_for(root)
+            intrinsics, provenance = tum_camera_for(root)
+        if camera is not None and meta is not None:
+            raise InputError(
+                f"{root}: a generated sequence keeps its own camera (camera.yaml), the one its ground "
+                f"truth was rendered with; {camera.origin} is for real TUM folders"
+            )
         if meta is not None and "fps" in meta:
             fps = meta["fps"]
             if isinstance(fps, bool) or not isinstance(fps, int | float) or not 0 < fps < math.inf:
                 raise SequenceFormatError(root / "meta.json", None, f"fps must be a number > 0, got {fps!r}")
         frames = _read_frames(root, max_diff_s)
+        if camera is not None or provenance.fallback:
+            intrinsics, provenance = _chosen_camera(frames[0], intrinsics, provenance, camera)
         gt_path = root / "groundtruth.txt"
         groundtruth = None
         if gt_path.exists():
             groundtruth = read_pose_file(gt_path, strict=True)
         elif meta is not None:
             raise SequenceFormatError(gt_path, None, "file is missing (required with meta.json)")
-        sequence = cls(root, intrinsics, fps, frames, groundtruth, meta)
+        sequence = cls(root, intrinsics, fps, frames, groundtruth, meta, provenance, camera)
         if meta is not None:
             sequence._check_generated()
         return sequence
@@ -341,6 +374,46 @@ class Sequence:
     @property
     def _size(self) -> tuple[int, int]:
         return (self.intrinsics.width, self.intrinsics.height)
+
+
+def _chosen_camera(
+    first: FrameRef, base: Intrinsics, provenance: CameraProvenance, camera: CameraOverride | None
+) -> tuple[Intrinsics, CameraProvenance]:
+    """A real folder's camera: ``base`` (its camera.yaml's, or the fallback its name gives)
+    with what ``camera`` gives replaced, and where each part came from; checked against the
+    size of its first image, where a camera that gives no size takes it from."""
+    try:
+        width, height, _, _ = png_header(first.rgb_path)
+    except FileNotFoundError:
+        raise SequenceFormatError(
+            first.list_path, first.list_line, f"frame file {first.rgb_path} is missing"
+        ) from None
+    except FileError as exc:
+        raise SequenceFormatError(first.rgb_path, None, exc.problem) from None
+    if camera is None:
+        intrinsics = base
+    else:
+        intrinsics = camera.applied(base, (width, height))
+        if camera.pinhole is not None:
+            depth_source = (
+                camera.source if camera.depth_factor is not None else provenance.depth_factor_source
+            )
+            provenance = CameraProvenance(camera.source, camera.origin, depth_source)
+        else:
+            provenance = CameraProvenance(provenance.source, provenance.detail, camera.source)
+    if (intrinsics.width, intrinsics.height) != (width, height):
+        size = f"{intrinsics.width}x{intrinsics.height}"
+        if provenance.fallback:
+            raise SequenceFormatError(
+                first.rgb_path,
+                None,
+                f"image is {width}x{height}, but the camera guessed for the folder is {size} "
+                f"({provenance.detail}); give the camera (--camera FILE, or --intrinsics FX FY CX CY)",
+            )
+        raise InputError(
+            f"{provenance.detail}: the camera is {size}, but {first.rgb_path} is {width}x{height}"
+        )
+    return intrinsics, provenance
 
 
 def pose_matrix(position: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
