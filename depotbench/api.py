@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the parts load when a function is called: ``import depotbench`` stays light
+    from depotbench.core.camera import CameraOverride, Intrinsics
     from depotbench.detectors.config import DetectorConfig
     from depotbench.eval.gates.budgets import GateReport
     from depotbench.eval.gates.compare import SetComparison
@@ -135,6 +136,22 @@ def _settings(settings: Mapping[str, Setting]) -> tuple[tuple[str, int | float |
         raise InputError(f"settings: {exc}") from None
 
 
+def _camera(camera: CameraOverride | Intrinsics | str | Path | None) -> CameraOverride | None:
+    from depotbench.core.camera import CameraOverride, CameraSource, Intrinsics
+    from depotbench.core.errors import InputError
+    from depotbench.sim.camera import read_camera_file
+
+    if camera is None or isinstance(camera, CameraOverride):
+        return camera
+    if isinstance(camera, Intrinsics):
+        return CameraOverride.of(camera, CameraSource.GIVEN, "camera")
+    if isinstance(camera, str | Path):
+        return read_camera_file(Path(camera))
+    raise InputError(
+        f"camera: give a CameraOverride, an Intrinsics or a settings file, not {type(camera).__name__}"
+    )
+
+
 def run(
     sequence: Sequence | str | Path,
     out: str | Path | None = None,
@@ -148,6 +165,7 @@ def run(
     progress: bool = False,
     cache: bool = True,
     dense_map: bool = False,
+    camera: CameraOverride | Intrinsics | str | Path | None = None,
 ) -> RunRecord:
     """Track a sequence with a rejection ``strategy``, boxes from ``detector`` (a
     ``DetectorConfig`` or its text, ``"onnx"``, ``"groundtruth+miss=0.3"``) and threshold
@@ -156,12 +174,19 @@ def run(
     written there (trajectory, frames, metrics, record: what ``depotbench report`` reads);
     without, nothing is written. ``cache``: reuse detections, features and flow from the
     stage cache (``DEPOTBENCH_CACHE``), as the command line does. ``dense_map``: also build
-    the run's dense map (map.ply in ``out``) and score it: metrics.json's ``map``."""
+    the run's dense map (map.ply in ``out``) and score it: metrics.json's ``map``. ``camera``:
+    a real TUM folder's camera, as ``--camera``/``--intrinsics`` give it: a ``CameraOverride``
+    (``depotbench.core.camera``), a whole ``Intrinsics``, or an ORB-SLAM settings file's path;
+    a ``Sequence`` opened with one keeps it. Without, a folder named like TUM's gets that
+    sensor's calibration, else the ROS default, and a warning says which
+    (``logging.getLogger("depotbench")``); metrics.json's ``camera`` records what was used."""
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import RunJob, run_job
     from depotbench.sim.sequence import Sequence
 
     root = sequence.root if isinstance(sequence, Sequence) else Path(sequence)
+    if camera is None and isinstance(sequence, Sequence):
+        camera = sequence.camera_given
     job = RunJob(
         root,
         strategy,
@@ -169,6 +194,7 @@ def run(
         _settings(settings or {}),
         _tracker(tracker, parameters or {}),
         dense_map,
+        _camera(camera),
     )
     stages = StageCache.from_env() if cache else None
     finished = run_job(

@@ -13,6 +13,8 @@ boxes blanked in RGB and depth before the frames reach them).
 
 from __future__ import annotations
 
+import functools
+import logging
 import re
 import shlex
 import shutil
@@ -22,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from depotbench.core.camera import CameraOverride, Intrinsics, camera_json
 from depotbench.core.errors import InputError
 from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.output import OutputKind, StagedOutput
@@ -51,6 +54,7 @@ EXTERNAL_STRATEGIES = ("none", MASK)
 FLOW_STRATEGIES = ("prior_flow", "box_epipolar_flow")
 MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
+log = logging.getLogger("depotbench.camera")
 
 
 def maps_itself(tracker: TrackerConfig) -> bool:
@@ -95,6 +99,9 @@ class RunJob:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     dense_map: bool = False
     """Also build the run's dense map from its keyframes and score it (``eval/run/dense.py``)."""
+    camera: CameraOverride | None = None
+    """The camera of a real TUM folder (``--camera``, ``--intrinsics``), replacing the guess its
+    name gives (``Sequence.open``); every tracker reads it from the opened sequence."""
 
 
 @dataclass(frozen=True)
@@ -112,8 +119,10 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
     open), settings, detector use."""
     config = slam_config(job.strategy, dict(job.settings), job.tracker.kind)
     per_keypoint = job.tracker.type.per_keypoint
-    if sequence is None or sequence.root != Path(job.sequence):
-        sequence = Sequence.open(job.sequence)
+    if sequence is None or sequence.root != Path(job.sequence) or sequence.camera_given != job.camera:
+        sequence = Sequence.open(job.sequence, camera=job.camera)
+    if sequence.camera_warning is not None:
+        _warn_once(sequence.camera_warning)
     if job.strategy == MASK and job.detector.kind is DetectorKind.NONE:
         raise InputError("--strategy mask needs boxes: give a detector (not --detector none)")
     if job.dense_map and not maps_itself(job.tracker):
@@ -128,6 +137,13 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
         except ConfigError as exc:
             raise InputError(f"--set: {exc}") from None
     return sequence, config
+
+
+@functools.cache
+def _warn_once(message: str) -> None:
+    """A guessed camera is said once per folder and process: a sweep prepares each of its
+    jobs, and 40 jobs on one folder would print the same line 40 times."""
+    log.warning(message)
 
 
 def _execute(
@@ -197,7 +213,7 @@ def track_tree(jobs: list[RunJob], paths: list[tuple[str, ...]], cache: StageCac
     """Track jobs of one ``branch_root`` together: once while they keep the same keypoints
     (``paths``: per job and frame, ``depotbench.eval.run.stages.decision_path``), forked where they part.
     Each result equals the job's own ``track``, timings aside."""
-    sequence = Sequence.open(jobs[0].sequence)
+    sequence = Sequence.open(jobs[0].sequence, camera=jobs[0].camera)
     prepared = [prepare(job, sequence) for job in jobs]
     first = prepared[0][1]
     features: dict[TrackingConfig, str] = {}
@@ -270,10 +286,12 @@ def job_key(
     strategy: str,
     settings,
     dense_map: bool = False,
+    camera: Intrinsics | None = None,
 ) -> str:
     """A run's identity: its inputs' content (the sequence fingerprint), the tracker (with
-    its program and vocabulary), detector with faults, strategy, settings and the bench's
-    version."""
+    its program and vocabulary), detector with faults, strategy, settings, the bench's
+    version, and the camera where one was given for a real folder (the same folder with
+    another calibration is another run; without one the key is what it was)."""
     return content_hash(
         RECORD_VERSION,
         generator_version(),
@@ -284,6 +302,7 @@ def job_key(
         strategy,
         list(settings),
         *(["dense_map"] if dense_map else []),  # a run with its map is another run's record
+        *([("camera", repr(camera))] if camera is not None else []),
     )
 
 
@@ -329,8 +348,15 @@ def identity_of(
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
     fingerprint = sequence_fingerprint(sequence)
+    camera = sequence.intrinsics if job.camera is not None else None
     key = job_key(
-        fingerprint, tracker_identity(job.tracker), job.detector, job.strategy, job.settings, job.dense_map
+        fingerprint,
+        tracker_identity(job.tracker),
+        job.detector,
+        job.strategy,
+        job.settings,
+        job.dense_map,
+        camera,
     )
     stored = str(sequence.root.resolve())
     run = identity_of(job, key, family_of(sequence), stored, fingerprint, seed_of(sequence))
@@ -348,11 +374,13 @@ def run_sequence(
     tracker: TrackerConfig | None = None,
     cache: StageCache | None = None,
     dense_map: bool = False,
+    camera: CameraOverride | None = None,
 ) -> dict[str, Any]:
     """Track a sequence; return (and write) its metrics (``dense_map``: and its map, map.ply).
 
     ``detector`` defaults to the ground-truth boxes; ``cache`` holds detections
-    between runs (``StageCache.from_env()`` is the default on the command line).
+    between runs (``StageCache.from_env()`` is the default on the command line);
+    ``camera``: a real TUM folder's camera (``eval/cli/camera.py``), recorded in the metrics.
     """
     job = RunJob(
         Path(sequence_dir),
@@ -361,6 +389,7 @@ def run_sequence(
         tuple(sorted((settings or {}).items())),
         tracker or TrackerConfig(),
         dense_map,
+        camera,
     )
     return run_job(job, Path(out_dir), progress=progress, overwrite=overwrite, cache=cache).metrics
 
@@ -442,6 +471,7 @@ def _metrics(
         "detector": detector.label,
         "detector_config": detector.to_dict(),
         "config": settings,
+        "camera": camera_json(sequence.intrinsics, sequence.camera_source),
         "frames": len(states),
         "tracked_frames": int(run.tracked.sum()),
         "lost_frames": sum(s == TrackingState.LOST for s in states),
