@@ -287,19 +287,19 @@ def test_keypoints_through_the_given_distortion_undistort_to_the_pinhole_closed_
 
 def test_the_api_takes_the_camera_as_intrinsics_a_file_or_the_opened_sequence(small_real, tmp_path):
     k = Intrinsics(49.0, 49.5, 31.0, 23.0, 64, 48, (0.01, 0.0, 0.0, 0.0, 0.0), 5000.0)
-    record = depotbench.run(small_real, tmp_path / "given", detector="none", camera=k)
+    record = depotbench.run(small_real, tmp_path / "given", detector="none", cache=False, camera=k)
     camera = metrics_camera(tmp_path / "given")
     assert (camera["fx"], camera["fy"], camera["distortion"]["k1"]) == (49.0, 49.5, 0.01)
     assert camera["source"] == "given"
     assert record.key == json.loads((tmp_path / "given" / "record.json").read_text())["key"]
     settings = tmp_path / "generated" / "camera.yaml"
-    depotbench.run(small_real, tmp_path / "file", detector="none", camera=settings)
+    depotbench.run(small_real, tmp_path / "file", detector="none", cache=False, camera=settings)
     assert metrics_camera(tmp_path / "file")["source"] == "file"
     opened = Sequence.open(small_real, camera=CameraOverride.of(k))
     # A sequence opened with a camera keeps it: the same run, the same key.
-    assert depotbench.run(opened, detector="none").key == record.key
+    assert depotbench.run(opened, detector="none", cache=False).key == record.key
     with pytest.raises(InputError, match="camera: give a CameraOverride"):
-        depotbench.run(small_real, detector="none", camera=(50, 50, 31.5, 23.5))
+        depotbench.run(small_real, detector="none", cache=False, camera=(50, 50, 31.5, 23.5))
 
 
 # -- bad input: one line naming the flag or the file and key, exit 2, nothing written -------------
