@@ -91,8 +91,11 @@ class Suite(Strict):
         for reserved, instead in reserved_knobs:
             if reserved in knobs:
                 raise ValueError(f"'{reserved}' cannot be a knob ({instead})")
-        for where, names in (("overrides", list(self.overrides)), ("knobs", knobs)):
-            if set(LENGTH_FIELDS) <= set(names):
+        given = {name for name, value in self.overrides.items() if value is not None}  # null: unset
+        drawn = {name for name, values in self.grid.items() if any(v is not None for v in values)}
+        drawn |= set(self.random.knobs) if self.random else set()
+        for where, names in (("overrides", given), ("knobs", drawn)):
+            if set(LENGTH_FIELDS) <= names:
                 raise ValueError(
                     f"{where}: give frames or duration_s, not both (either one replaces the base's length)"
                 )
@@ -123,8 +126,8 @@ def set_path(data: dict[str, Any], dotted: str, value: Any, source: str) -> None
 
 def set_field(data: dict[str, Any], dotted: str, value: Any, source: str) -> None:
     """``set_path``, where setting the length one way (``LENGTH_FIELDS``) drops the other way
-    the scenario had it."""
-    if dotted in LENGTH_FIELDS:
+    the scenario had it (a null, ``duration_s: null``, unsets that way alone)."""
+    if dotted in LENGTH_FIELDS and value is not None:
         for other in LENGTH_FIELDS:
             if other != dotted:
                 data.pop(other, None)

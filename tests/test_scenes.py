@@ -300,6 +300,11 @@ def test_a_suite_that_sets_the_length_one_way_replaces_the_bases_other_way(
     knob.write_text(f"suite: knob\nbase: {base}\ngrid: {{{override.split(':')[0]}: [1, 2]}}\n")
     lengths = [sc.n_frames for _, _, sc in variations(load_suite(knob), knob)]
     assert lengths == ([1, 2] if override.startswith("frames") else [30, 60])
+    other = "duration_s" if override.startswith("frames") else "frames"
+    for order in (f"{override}, {other}: null", f"{other}: null, {override}"):  # the old way round
+        path.write_text(f"suite: length\nbase: {base}\noverrides: {{{order}}}\n")
+        ((_, _, scenario),) = variations(load_suite(path), path)
+        assert scenario.n_frames == frames
 
 
 @pytest.mark.parametrize(
