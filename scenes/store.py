@@ -5,10 +5,9 @@ simulator spec, seed, format and generator version), so a sequence rendered once
 be copied wherever it is asked for again: ``depotbench generate``, a sweep's suite and
 the pytest plugin render a sequence once per machine instead of once per job.
 
-- **Where.** ``$XDG_CACHE_HOME/depotbench/sequences`` (``~/.cache/depotbench/sequences``),
-  beside the stage cache; ``DEPOTBENCH_SEQUENCE_STORE`` names another folder, or turns
-  the store off (``off``, ``0``, ``no``, ``false``), as ``DEPOTBENCH_CACHE`` does the
-  stage cache.
+- **Where.** The ``sequences`` folder of the cache root (``depotbench.core.cache_home``:
+  ``~/.cache/depotbench/sequences``), beside the stage cache; ``DEPOTBENCH_CACHE`` moves
+  or switches off every cache, ``DEPOTBENCH_CACHE_SEQUENCES`` this one.
 - **What.** One folder per key and PNG compression level, ``HEX-L`` (the key's SHA-256
   digest; the level shapes the bytes, not the pixels, and the key leaves it out): a
   complete sequence with its marker, written through ``depotbench.core.output.StagedOutput``
@@ -19,7 +18,7 @@ the pytest plugin render a sequence once per machine instead of once per job.
   place change the other), written through ``StagedOutput`` like a rendered one, with
   the marker of its key; the bytes and files copied are counted against ``HEX-L.json``,
   so a copy made while the entry was evicted is never taken.
-- **Bounded.** ``DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES`` (default 20 GiB; ``500M``,
+- **Bounded.** ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` (default 20 GiB; ``500M``,
   ``20GiB`` and plain bytes are read); using an entry marks it used (its mtime) and the
   least recently used go first. An evicted entry is first renamed aside, so a reader
   copying it fails and renders instead.
@@ -43,9 +42,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from depotbench.core.cache_home import OFF as _OFF
-from depotbench.core.cache_home import ON as _ON
-from depotbench.core.cache_home import cache_home, parse_bytes
+from depotbench.core.cache_home import CACHES, cache_bound, cache_folder
 from depotbench.core.files import DEFAULT_PNG_COMPRESSION
 from depotbench.core.output import (
     MARKER_NAME,
@@ -59,30 +56,16 @@ from depotbench.core.output import (
     write_text_atomic,
 )
 
-VARIABLE = "DEPOTBENCH_SEQUENCE_STORE"
-MAX_BYTES_VARIABLE = "DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES"
-DEFAULT_MAX_BYTES = 20 << 30
+NAME = "sequences"
+"""The store's name under the cache root (``depotbench.core.cache_home.CACHES``)."""
+VARIABLE = CACHES[NAME].variable
+DEFAULT_MAX_BYTES = CACHES[NAME].default_bound
 _KEY = re.compile(r"sha256:([0-9a-f]{64})")
 _ENTRY = re.compile(r"[0-9a-f]{64}-[0-9]")
 _EVICTED = ".evicted-"
 log = logging.getLogger("depotbench.store")
 _warned: set[str] = set()
 """Stores already warned about in this process: one warning each, however many sequences."""
-
-
-def default_root() -> Path | None:
-    """The store's folder as ``DEPOTBENCH_SEQUENCE_STORE`` says, or None when it is off."""
-    value = os.environ.get(VARIABLE, "")
-    if value.strip().lower() in _OFF:
-        return None
-    if value.strip().lower() in _ON:
-        return cache_home() / "sequences"
-    return Path(value).expanduser().absolute()
-
-
-def max_bytes_from_env() -> int:
-    value = os.environ.get(MAX_BYTES_VARIABLE)
-    return parse_bytes(value, MAX_BYTES_VARIABLE) if value else DEFAULT_MAX_BYTES
 
 
 @dataclass(frozen=True)
@@ -98,15 +81,15 @@ class SequenceStore:
 
     def __init__(self, root: Path, max_bytes: int | None = None) -> None:
         self.root = Path(root)
-        self.max_bytes = max_bytes_from_env() if max_bytes is None else max_bytes
+        self.max_bytes = cache_bound(NAME) if max_bytes is None else max_bytes
         self.writable = True
         """False after a write failed: the run goes on without storing (warned once)."""
 
     @classmethod
     def from_env(cls) -> SequenceStore | None:
-        """The store ``DEPOTBENCH_SEQUENCE_STORE`` names (the default one when unset), or
-        None when it is off. A bad ``DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES`` is refused."""
-        root = default_root()
+        """The store where the cache variables put it, or None when they switch it off. A
+        bad ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` is refused."""
+        root = cache_folder(NAME)
         return None if root is None else cls(root)
 
     # -- reading -----------------------------------------------------------------------

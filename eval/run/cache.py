@@ -4,10 +4,14 @@ Entries are files named by a content hash of everything their value depends on
 (the caller makes the key), written atomically, so readers see a whole entry or
 none and concurrent writers of one key write the same bytes. Reading an entry
 marks it used (its mtime); when the cache grows past its bound the least
-recently used entries go. ``DEPOTBENCH_CACHE_DIR`` moves it (default
-``$XDG_CACHE_HOME/depotbench/stages``, or ``~/.cache/depotbench/stages``),
-``DEPOTBENCH_CACHE_MAX_BYTES`` bounds it (default 2 GiB; ``500M``, ``2GiB`` and plain
-bytes are read), and ``DEPOTBENCH_CACHE=off`` turns it off.
+recently used entries go. It lives in the ``stages`` folder of the cache root
+(``depotbench.core.cache_home``: ``DEPOTBENCH_CACHE`` moves or switches off every cache,
+``DEPOTBENCH_CACHE_STAGES`` this one, ``DEPOTBENCH_CACHE_STAGES_MAX_BYTES`` bounds it,
+2 GiB by default).
+
+Only files named as entries are ever listed, evicted or cleared (``STAGE/HEX``, 32
+hexadecimal digits): a cache folder set by mistake to one holding other files loses none
+of them.
 
 The cache only saves time, so a cache that cannot be written (read-only, full, a file
 where its folder should be) is read where it can be and otherwise left alone, with one
@@ -21,35 +25,25 @@ import hashlib
 import json
 import logging
 import os
+import re
+import stat
+import time
 from pathlib import Path
 
-from depotbench.core.cache_home import OFF as _OFF
-from depotbench.core.cache_home import ON as _ON
-from depotbench.core.cache_home import cache_home, parse_bytes
-from depotbench.core.errors import InputError
+from depotbench.core.cache_home import CACHES, Contents, cache_bound, cache_folder
 from depotbench.core.output import OutputError, write_bytes_atomic
 
-DEFAULT_MAX_BYTES = 2 << 30
-SWITCH = "DEPOTBENCH_CACHE"
+NAME = "stages"
+"""The cache's name under the root (``depotbench.core.cache_home.CACHES``)."""
+DEFAULT_MAX_BYTES = CACHES[NAME].default_bound
+_ENTRY = re.compile(r"[0-9a-f]{32}")
+_TEMPORARY = re.compile(r"\.[0-9a-f]{32}\.[0-9a-f]{8}\.tmp")
+"""What ``write_bytes_atomic`` writes first (``.KEY.XXXXXXXX.tmp``), left by a killed writer."""
+STALE_TEMPORARY_S = 3600.0
+"""A temporary file older than an hour is a killed writer's: an entry (12 MB of features
+for 150 frames of 640x480) is written in well under a second, so clearing never takes a
+live writer's file."""
 log = logging.getLogger("depotbench.cache")
-
-
-def default_root() -> Path:
-    env = os.environ.get("DEPOTBENCH_CACHE_DIR")
-    return Path(env) if env else cache_home() / "stages"
-
-
-def cache_enabled() -> bool:
-    """``DEPOTBENCH_CACHE``: on (the default) or off; anything else is refused by name,
-    since a folder given here (as some once did) would silently mean "on"."""
-    value = os.environ.get(SWITCH, "").strip().lower()
-    if value in _OFF:
-        return False
-    if value in _ON:
-        return True
-    raise InputError(
-        f"{SWITCH}={os.environ[SWITCH]!r}: give on or off (the cache's folder is DEPOTBENCH_CACHE_DIR)"
-    )
 
 
 def content_hash(*parts: object) -> str:
@@ -59,12 +53,10 @@ def content_hash(*parts: object) -> str:
 
 
 class StageCache:
-    def __init__(self, root: Path | None = None, max_bytes: int | None = None) -> None:
-        self.root = root or default_root()
-        env = os.environ.get("DEPOTBENCH_CACHE_MAX_BYTES")
-        if max_bytes is None:
-            max_bytes = parse_bytes(env, "DEPOTBENCH_CACHE_MAX_BYTES") if env else DEFAULT_MAX_BYTES
-        self.max_bytes = max_bytes
+    def __init__(self, root: Path, max_bytes: int | None = None) -> None:
+        """``max_bytes``: the bound, ``DEPOTBENCH_CACHE_STAGES_MAX_BYTES``'s when None."""
+        self.root = Path(root)
+        self.max_bytes = cache_bound(NAME) if max_bytes is None else max_bytes
         self.hits = 0
         self.misses = 0
         self.writable = True
@@ -72,22 +64,25 @@ class StageCache:
 
     @classmethod
     def from_env(cls) -> StageCache | None:
-        """The default cache, or None when ``DEPOTBENCH_CACHE=off``."""
-        return cls() if cache_enabled() else None
+        """The cache where the cache variables put it, or None when they switch it off."""
+        root = cache_folder(NAME)
+        return None if root is None else cls(root)
 
     def _unusable(self, doing: str, reason: str) -> None:
         if self.writable:
             log.warning(
                 "the stage cache %s cannot %s (%s); going on without storing stages, which costs "
-                "time, not results (set DEPOTBENCH_CACHE_DIR to a writable folder, or DEPOTBENCH_CACHE=off)",
+                "time, not results (set %s to a writable folder, or %s=off)",
                 self.root,
                 doing,
                 reason,
+                CACHES[NAME].variable,
+                CACHES[NAME].variable,
             )
         self.writable = False
 
     def _path(self, stage: str, key: str) -> Path:
-        if not stage.isidentifier() or not key.isalnum():
+        if not stage.isidentifier() or _ENTRY.fullmatch(key) is None:
             raise ValueError(f"bad cache stage or key: {stage!r} {key!r}")
         return self.root / stage / key
 
@@ -126,19 +121,22 @@ class StageCache:
         """(mtime, size, path) of every entry, oldest first."""
         out = []
         try:
-            stages = [stage for stage in self.root.iterdir() if stage.is_dir()]
-            for stage in stages:
+            for stage in self._stages():
                 for entry in stage.iterdir():
-                    if entry.name.startswith("."):
-                        continue  # a writer's temporary file
+                    if _ENTRY.fullmatch(entry.name) is None:
+                        continue  # a writer's temporary file, or not the cache's
                     with contextlib.suppress(FileNotFoundError):  # evicted by another process
-                        st = entry.stat()
-                        out.append((st.st_mtime, st.st_size, entry))
+                        st = entry.stat(follow_symlinks=False)
+                        if stat.S_ISREG(st.st_mode):
+                            out.append((st.st_mtime, st.st_size, entry))
         except FileNotFoundError:
             pass
         except OSError as exc:  # not a folder, or not readable: nothing to list or evict
             self._unusable("be listed", exc.strerror or str(exc))
         return sorted(out)
+
+    def _stages(self) -> list[Path]:
+        return [p for p in self.root.iterdir() if p.name.isidentifier() and p.is_dir() and not p.is_symlink()]
 
     def size_bytes(self) -> int:
         return sum(size for _, size, _ in self.entries())
@@ -161,3 +159,29 @@ class StageCache:
             total -= size
             removed += 1
         return removed
+
+    def clear(self) -> Contents:
+        """Remove every entry (and what killed writers left an hour ago or more); what
+        another process reads meanwhile stays whole for it (an unlinked file's bytes live
+        until it is closed), and one it writes meanwhile simply stays."""
+        entries = self.entries()
+        removed = freed = 0
+        for _, size, path in entries:
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                continue  # evicted by another process
+            removed += 1
+            freed += size
+        now = time.time()
+        with contextlib.suppress(FileNotFoundError):
+            for stage in self._stages():
+                for path in stage.iterdir():
+                    if _TEMPORARY.fullmatch(path.name) is None:
+                        continue
+                    with contextlib.suppress(FileNotFoundError):
+                        st = path.stat(follow_symlinks=False)
+                        if stat.S_ISREG(st.st_mode) and now - st.st_mtime >= STALE_TEMPORARY_S:
+                            path.unlink()
+                            freed += st.st_size
+        return Contents(removed, freed)

@@ -14,7 +14,11 @@ its children's. No newline follows the last line (ORB-SLAM's reader would take i
 for an empty node).
 
 The default vocabulary is trained on library scenes the fidelity benchmark does
-not evaluate, rendered with their own seed, and cached by content.
+not evaluate, rendered with their own seed, and cached by content in the ``vocabulary``
+folder of the cache root (``depotbench.core.cache_home``). With that cache switched off
+(``DEPOTBENCH_CACHE=off``) it is refused, not built: building takes minutes, and built
+in a temporary folder it would be built again by every process, each worker of a sweep
+too; off means that nothing is written beside the outputs a command names.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 import tempfile
 import time
 from collections import deque
@@ -29,11 +34,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from depotbench.core.cache_home import cache_home
+from depotbench.core.cache_home import Contents, cache_folder, switched_off_by
 from depotbench.core.errors import InputError
 from depotbench.core.output import OutputLock, write_text_atomic
+from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
-from tqdm import tqdm
 
 BUILDER_VERSION = 1
 TRAINING_SCENES = (
@@ -208,13 +213,10 @@ def training_descriptors(spec: VocabularySpec, progress: bool) -> list[np.ndarra
             )
             sequence = Sequence.open(generate(to_scenario(scenario), Path(scratch) / name, progress=progress))
             camera = sequence.intrinsics
-            for i in tqdm(
-                range(len(sequence)),
-                desc=f"ORB {name}",
-                unit="frame",
-                disable=None if progress else True,
-                leave=False,
-            ):
+            frames = progress_bar(
+                range(len(sequence)), desc=f"ORB {name}", unit="frame", disable=not progress, leave=False
+            )
+            for i in frames:
                 images.append(extractor.extract(sequence.rgb(i), sequence.depth_m(i), camera).descriptors)
     return images
 
@@ -230,19 +232,60 @@ def build_file(spec: VocabularySpec, path: Path, progress: bool) -> tuple[Vocabu
     return vocabulary, time.perf_counter() - started
 
 
+CACHE = "vocabulary"
+"""The cache's name under the root (``depotbench.core.cache_home.CACHES``)."""
+CACHED_NAME = re.compile(r"orb-k[0-9]+-L[0-9]+-[0-9a-f]{16}\.txt")
+"""The name of a cached vocabulary (``cached_name``): only such files are ever cleared."""
+
+
+def cached_name(spec: VocabularySpec) -> str:
+    return f"orb-k{spec.branching}-L{spec.levels}-{spec.key()}.txt"
+
+
+def cached_files(folder: Path) -> list[Path]:
+    """The vocabularies in the cache folder ``folder`` (only files named as it names them)."""
+    try:
+        names = sorted(folder.iterdir())
+    except FileNotFoundError:
+        return []
+    return [p for p in names if CACHED_NAME.fullmatch(p.name) and p.is_file() and not p.is_symlink()]
+
+
+def clear_cached(folder: Path) -> Contents:
+    """Remove the cached vocabularies; returns how many went and their bytes. A vocabulary
+    is written whole or not at all (``write_text_atomic``), so a builder at work is not
+    disturbed; a tracker that was handed a path an instant before it went cannot open it."""
+    removed = freed = 0
+    for path in cached_files(folder):
+        try:
+            size = path.stat().st_size
+            path.unlink()
+        except FileNotFoundError:
+            continue  # removed by another process meanwhile
+        removed += 1
+        freed += size
+    return Contents(removed, freed)
+
+
 def default_vocabulary(progress: bool = True, spec: VocabularySpec | None = None) -> Path:
     """The cached vocabulary of ``spec`` (the default one), built first if missing."""
     spec = spec or VocabularySpec()
-    folder = cache_home() / "vocabulary"
-    path = folder / f"orb-k{spec.branching}-L{spec.levels}-{spec.key()}.txt"
+    folder = cache_folder(CACHE)
+    if folder is None:
+        raise InputError(
+            f"{switched_off_by(CACHE)}: the ORB vocabulary cache is off, and building a vocabulary takes "
+            "minutes: build one once with `depotbench vocab -o FILE` and pass --vocabulary FILE"
+        )
+    path = folder / cached_name(spec)
     if path.is_file():
         return path
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(
-            f"{folder}: cannot keep the ORB vocabulary here ({exc.strerror or exc}); set XDG_CACHE_HOME "
-            "to a writable folder, or build one with `depotbench vocab -o FILE` and pass --vocabulary FILE"
+            f"{folder}: cannot keep the ORB vocabulary here ({exc.strerror or exc}); set "
+            "DEPOTBENCH_CACHE_VOCABULARY (or DEPOTBENCH_CACHE) to a writable folder, or build one with "
+            "`depotbench vocab -o FILE` and pass --vocabulary FILE"
         ) from None
     with OutputLock(path, wait=True):  # one builder at a time; the others then find it built
         if not path.is_file():
