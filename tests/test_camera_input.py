@@ -8,7 +8,6 @@ read (depth_m = raw / factor), and the Brown-Conrady distortion written out in n
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import shutil
@@ -21,9 +20,8 @@ from depotbench.core.camera import CameraOverride, CameraSource, Intrinsics
 from depotbench.core.errors import InputError
 from depotbench.detectors.config import DetectorConfig, DetectorKind
 from depotbench.eval.cli import main as cli_main
-from depotbench.eval.cli.camera import add_camera_options, camera_from_args
-from depotbench.eval.cli.conventions import show_messages
-from depotbench.eval.run.harness import RunJob, prepare, run_sequence
+from depotbench.eval.cli.camera import camera_from_args
+from depotbench.eval.run.harness import RunJob, prepare
 from depotbench.sim.camera import TUM_DEFAULT, read_camera_file
 from depotbench.sim.sequence import Sequence, SequenceWriter
 
@@ -65,36 +63,13 @@ def vga_real(tmp_path: Path, name: str) -> Path:
     return as_real(generated, tmp_path / name)
 
 
-def run_parser() -> argparse.ArgumentParser:
-    """``depotbench run SEQUENCE -o OUT`` with the camera options, as the lead wires them into
-    eval/cli/main.py, with the real parser class (its errors are one line, exit 2)."""
-    parser = cli_main.Parser(prog="depotbench")
-    sub = parser.add_subparsers(dest="verb", required=True, parser_class=cli_main.Parser)
-    run = sub.add_parser("run")
-    run.add_argument("sequence", type=Path)
-    run.add_argument("-o", "--output", type=Path, required=True)
-    add_camera_options(run)
-
-    def handler(args: argparse.Namespace) -> int:
-        camera = camera_from_args(args)
-        run_sequence(args.sequence, args.output, "none", NO_BOXES, progress=False, camera=camera)
-        return 0
-
-    run.set_defaults(handler=handler)
-    return parser
-
-
 def cli(argv: list[str]) -> int:
-    """``run_parser``'s command run as main runs one: its warning handler and error printer."""
+    """``depotbench run SEQUENCE ... --detector none`` through the real entry point (a real
+    folder has no boxes to detect from)."""
     try:
-        args = run_parser().parse_args(["run", *argv])
-    except SystemExit as exc:
+        return cli_main.main(["run", *argv, "--detector", "none"])
+    except SystemExit as exc:  # argparse's refusals
         return int(exc.code)
-    level = show_messages(args.verb, 0)
-    try:
-        return cli_main._run(args)
-    finally:
-        logging.getLogger("depotbench").setLevel(level)
 
 
 def metrics_camera(out: Path) -> dict:
@@ -266,7 +241,8 @@ def test_keypoints_through_the_given_distortion_undistort_to_the_pinhole_closed_
     fx, fy, cx, cy, (k1, k2, p1, p2, k3) = FR1
     flags = ["--intrinsics", *map(str, (fx, fy, cx, cy)), "--distortion", *map(str, (k1, k2, p1, p2, k3))]
     assert "-0.9531" in flags  # a negative coefficient is a number, not an option
-    given = camera_from_args(run_parser().parse_args(["run", str(small_real), "-o", "out", *flags]))
+    args = cli_main.build_parser().parse_args(["run", str(small_real), "-o", "out", *flags])
+    given = camera_from_args(args)
     camera = given.applied(TUM_DEFAULT, (640, 480))
     x, y = (a.ravel() for a in np.meshgrid(np.linspace(-0.55, 0.55, 23), np.linspace(-0.45, 0.45, 19)))
     r2 = x * x + y * y

@@ -61,12 +61,15 @@ USAGE: dict[str, Usage] = {
     "run": Usage(
         "Track one sequence (generated, or any TUM-layout folder) with a tracker and a dynamic-feature "
         "rejection strategy; write the trajectory, diagnostics and metrics.json (ATE, RPE, rejection "
-        "precision and recall, stage times).",
+        "precision and recall, stage times, the camera used). A real folder's camera comes from --camera "
+        "or the flags; without them, TUM's calibration by the folder's name or a default, with a warning.",
         (
             "depotbench run seqs/walking_xyz -o runs/xyz-none",
             "depotbench run seqs/walking_xyz -o runs/xyz-flow --strategy box_epipolar_flow --set k=2.5",
             "depotbench run seqs/walking_xyz -o runs/xyz-mine --slam cmd --command "
             '"./my_slam {sequence} {trajectory}" --json',
+            "depotbench run my_tum_recording -o runs/mine --camera orbslam_settings.yaml",
+            "depotbench run my_recording -o runs/mine --intrinsics 525 525 319.5 239.5 --depth-factor 5000",
         ),
     ),
     "preview": Usage(

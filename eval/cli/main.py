@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, NoReturn
 
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
+from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.compare import add_compare
 from depotbench.eval.cli.conventions import add_verbosity, describe, show_messages
 from depotbench.eval.cli.detectors import (
@@ -337,6 +338,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         "tracker sees the frames (any tracker); the others are the built-in tracker's",
     )
     add_detector_options(p)
+    add_camera_options(p)
     p.add_argument(
         "--set",
         action="append",
@@ -445,6 +447,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         tracker=tracker,
         cache=StageCache.from_env(),
         dense_map=args.map,
+        camera=camera_from_args(args),
     )
     if args.json:
         from depotbench.core.files import dumps_json
