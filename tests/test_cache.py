@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -166,3 +167,16 @@ def test_eviction_never_touches_files_the_cache_did_not_write(tmp_path: Path):
     assert sorted(str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()) == sorted(mine)
     with pytest.raises(ValueError, match="bad cache stage or key"):
         cache.put("features", "notes", b"x")
+
+
+def test_clearing_takes_what_killed_writers_left_an_hour_ago_and_not_a_live_writers_file(tmp_path: Path):
+    cache = StageCache(tmp_path / "cache")
+    cache.put("features", content_hash(1), bytes(100))
+    stale = tmp_path / "cache" / "features" / f".{content_hash(2)}.0a1b2c3d.tmp"
+    live = tmp_path / "cache" / "features" / f".{content_hash(3)}.4e5f6a7b.tmp"
+    for path in (stale, live):
+        path.write_bytes(bytes(10))
+    os.utime(stale, (time.time() - 3601, time.time() - 3601))
+    cleared = cache.clear()
+    assert (cleared.entries, cleared.bytes) == (1, 110)  # the entry and the stale file's bytes
+    assert not stale.exists() and live.exists()
