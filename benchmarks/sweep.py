@@ -50,8 +50,7 @@ def _sequences(out: Path, frames: int, seeds: list[int], workers: int) -> list[t
 
 
 def _timed(jobs, out: Path, workers: int, cache: bool, dedupe: bool) -> tuple[float, int, list[dict]]:
-    os.environ["DEPOTBENCH_CACHE_DIR"] = str(out / "cache")
-    os.environ["DEPOTBENCH_CACHE"] = "on" if cache else "off"
+    os.environ["DEPOTBENCH_CACHE"] = str((out / "cache").absolute()) if cache else "off"
     fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
     out.mkdir(parents=True)
     with ResultStore(out / "results.sqlite") as store:

@@ -28,11 +28,11 @@ from depotbench.core.output import (
     read_marker,
     write_text_atomic,
 )
+from depotbench.core.progress import progress_bar
 from depotbench.scenes.schema import Scenario, to_scenario
 from depotbench.scenes.store import SequenceStore
 from depotbench.scenes.suite import Suite, variations
 from depotbench.sim.spec import content_key
-from tqdm import tqdm
 
 INDEX_NAME = "index.json"
 
@@ -63,7 +63,7 @@ def _generate_all(
     pending: list[tuple[str, Scenario]],
     out_dir: Path,
     workers: int,
-    bar: tqdm,
+    bar: Any,  # depotbench.core.progress.progress_bar's
     backend: str = "local",
     address: str | None = None,
     png_compression: int = DEFAULT_PNG_COMPRESSION,
@@ -145,11 +145,11 @@ def run_suite(
         copy_s = time.perf_counter() - started
         pending = [(name, sc) for name, sc in missing if name not in copied]
         total_frames = sum(sc.n_frames for _, sc in pending)
-        bar = tqdm(
+        bar = progress_bar(
             total=total_frames,
             unit="frame",
             desc=f"suite {suite.suite}",
-            disable=None if progress else True,  # None: only on a terminal
+            disable=not progress,
             smoothing=0.1,
         )
         if len(copied) < len(held):  # evicted between the count and the copy

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from depotbench.core.errors import ScenarioError
 from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+from depotbench.core.progress import progress_bar
 from depotbench.sim.flow import exact_flow, flow_at, rigid_motions
 from depotbench.sim.ground_truth import ObjectState, visible_boxes
 from depotbench.sim.mujoco_env import mujoco
@@ -21,7 +22,6 @@ from depotbench.sim.simulation import Simulation, Snapshot
 from depotbench.sim.spec import ScenarioSpec, content_key
 from depotbench.sim.world import World, build_world, intrinsics_of, scenario_streams
 from scipy.spatial.transform import Rotation
-from tqdm import tqdm
 
 MOVING_SPEED_MPS = 0.01
 """An instance is 'moving' when any of its parts moves faster than this."""
@@ -153,11 +153,11 @@ def generate(
         geom_instance = world.body_instance[world.model.geom_bodyid]
         renderer = FrameRenderer(world.model, scenario.width, scenario.height, geom_instance)
         try:
-            frames = tqdm(
+            frames = progress_bar(
                 range(scenario.frames),
                 desc=f"generate {scenario.name}",
                 unit="frame",
-                disable=None if progress else True,  # None: only on a terminal
+                disable=not progress,
                 leave=False,
                 position=position,
             )

@@ -21,26 +21,48 @@ def tum_trajectories() -> Path:
     return TUM_TRAJECTORIES
 
 
-@pytest.fixture(autouse=True, scope="session")
-def _private_stage_cache(tmp_path_factory: pytest.TempPathFactory):
-    """Tests never read or fill the user's stage cache (~/.cache/depotbench/stages)."""
-    previous = os.environ.get("DEPOTBENCH_CACHE_DIR")
-    os.environ["DEPOTBENCH_CACHE_DIR"] = str(tmp_path_factory.mktemp("stage-cache"))
-    yield
-    if previous is None:
-        os.environ.pop("DEPOTBENCH_CACHE_DIR", None)
-    else:
-        os.environ["DEPOTBENCH_CACHE_DIR"] = previous
+CACHE_VARIABLES = (
+    "DEPOTBENCH_CACHE_STAGES",
+    "DEPOTBENCH_CACHE_VOCABULARY",
+    "DEPOTBENCH_CACHE_STAGES_MAX_BYTES",
+    "DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES",
+    "DEPOTBENCH_CACHE_DIR",  # retired names: refused wherever set, so not taken from a shell
+    "DEPOTBENCH_CACHE_MAX_BYTES",
+    "DEPOTBENCH_SEQUENCE_STORE",
+    "DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES",
+)
+
+
+def _users_vocabulary_folder() -> Path | None:
+    """The user's ORB vocabulary cache, which tests share: the default vocabulary takes
+    minutes to build, and each test process (4 under xdist) would build its own in a private
+    root. It is built from fixed scenes and a fixed seed, so sharing it changes no result;
+    None (a private one) when the user's caches are off or misconfigured."""
+    from depotbench.core.cache_home import cache_folder
+    from depotbench.core.errors import InputError
+
+    try:
+        return cache_folder("vocabulary")
+    except InputError:
+        return None
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _no_sequence_store():
-    """Tests never read or fill the user's sequence store (~/.cache/depotbench/sequences),
-    and determinism tests render what they compare; tests of the store set their own."""
-    previous = os.environ.get("DEPOTBENCH_SEQUENCE_STORE")
-    os.environ["DEPOTBENCH_SEQUENCE_STORE"] = "off"
+def _private_caches(tmp_path_factory: pytest.TempPathFactory):
+    """Tests never read or fill the user's caches (~/.cache/depotbench), the vocabulary
+    aside: the session has a cache root of its own, whatever the shell sets. The sequence
+    store is off there, since determinism tests render what they compare; tests of the store
+    set their own."""
+    names = ("DEPOTBENCH_CACHE", "DEPOTBENCH_CACHE_SEQUENCES", *CACHE_VARIABLES)
+    vocabulary = _users_vocabulary_folder()
+    previous = {name: os.environ.pop(name, None) for name in names}
+    os.environ["DEPOTBENCH_CACHE"] = str(tmp_path_factory.mktemp("caches"))
+    os.environ["DEPOTBENCH_CACHE_SEQUENCES"] = "off"
+    if vocabulary is not None:
+        os.environ["DEPOTBENCH_CACHE_VOCABULARY"] = str(vocabulary)
     yield
-    if previous is None:
-        os.environ.pop("DEPOTBENCH_SEQUENCE_STORE", None)
-    else:
-        os.environ["DEPOTBENCH_SEQUENCE_STORE"] = previous
+    for name, value in previous.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value

@@ -52,13 +52,14 @@ def small_real(tmp_path: Path) -> Path:
     return as_real(tmp_path / "generated", tmp_path / "my_recording")
 
 
-def vga_real(tmp_path: Path, name: str) -> Path:
-    """3 random frames of 640x480, the size TUM's calibrations and the ROS default are for."""
+def vga_real(tmp_path: Path, name: str, camera: Intrinsics = TUM_DEFAULT) -> Path:
+    """3 random frames of 640x480, the size TUM's calibrations and the ROS default are for
+    (or of ``camera``'s size)."""
     rng = np.random.default_rng(7)
     generated = tmp_path / f"{name}-generated"
-    with SequenceWriter(generated, TUM_DEFAULT, fps=30.0, meta={"scenario": {"name": "vga"}}) as writer:
+    with SequenceWriter(generated, camera, fps=30.0, meta={"scenario": {"name": "vga"}}) as writer:
         for k in range(3):
-            rgb, depth, pose, instances, objects, _ = random_frame(rng, k, TUM_DEFAULT)
+            rgb, depth, pose, instances, objects, _ = random_frame(rng, k, camera)
             writer.add_frame(1.0 + k / 30.0, rgb, depth, pose, instances, objects)
     return as_real(generated, tmp_path / name)
 
@@ -360,3 +361,39 @@ def test_a_camera_for_a_generated_sequence_is_refused_in_one_line(tmp_path, caps
     line = one_line(capsys.readouterr().err, "error")
     assert "a generated sequence keeps its own camera" in line and "--depth-factor" in line
     assert not out.exists()
+
+
+def test_the_settings_template_is_given_the_lens_distortion(small_real, tmp_path):
+    """A --slam cmd settings template reads the given camera's distortion by name, as
+    orbslam_camera carries it (k1..k3 were missing from ``camera``)."""
+    from depotbench.eval.trackers.command import SettingsTemplate
+
+    coefficients = (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    given = CameraOverride(
+        pinhole=(50.0, 50.0, 31.5, 23.5), distortion=coefficients, source=CameraSource.FLAGS
+    )
+    sequence = Sequence.open(small_real, camera=given)
+    template = SettingsTemplate(
+        tmp_path / "t.j2",
+        "{% for name, value in camera.distortion.items() %}{{ name }}={{ value }} {% endfor %}",
+    )
+    shown = dict(item.split("=") for item in template.render(sequence, {}).split())
+    assert {name: float(value) for name, value in shown.items()} == dict(
+        zip(("k1", "k2", "p1", "p2", "k3"), coefficients, strict=True)
+    )
+
+
+@pytest.mark.skipif(not __import__("importlib").util.find_spec("pyorbslam3"), reason="extra [orbslam3]")
+def test_orbslam3_opens_a_real_folder_of_another_size_with_the_given_camera(tmp_path, capsys):
+    """The worker reopened the folder without the run's camera: a 320x240 folder with no
+    camera.yaml failed there (the ROS default it guessed is 640x480) though the run was
+    given one. (64x48 frames are too small for ORB-SLAM3's pyramid: it stops on them.)"""
+    qvga = Intrinsics(fx=260.0, fy=260.0, cx=159.5, cy=119.5, width=320, height=240)
+    root = vga_real(tmp_path, "my_qvga", qvga)
+    out = tmp_path / "run"
+    flags = ["--slam", "orbslam3", "--intrinsics", "260", "260", "159.5", "119.5"]
+    code = cli([str(root), "-o", str(out), *flags])
+    assert code == 0, capsys.readouterr().err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 3 and metrics["camera"]["fx"] == 260.0
+    assert (metrics["camera"]["width"], metrics["camera"]["height"]) == (320, 240)

@@ -393,14 +393,15 @@ def test_detections_are_cached_per_sequence_and_detector_and_invalidated_by_an_e
 
 def test_the_cache_evicts_least_recently_used_entries(tmp_path: Path):
     cache = StageCache(tmp_path / "cache", max_bytes=2500)
-    for i, key in enumerate(("aaa", "bbb", "ccc")):
+    aaa, bbb, ccc, ddd = ("a" * 32, "b" * 32, "c" * 32, "d" * 32)  # keys are 32 hexadecimal digits
+    for i, key in enumerate((aaa, bbb, ccc)):
         cache.put("stage", key, bytes(1000))
         os.utime(tmp_path / "cache" / "stage" / key, (100.0 + i, 100.0 + i))
     # Three entries would exceed the bound: putting the third evicted the oldest.
-    assert cache.get("stage", "aaa") is None and cache.get("stage", "bbb") is not None
-    cache.put("stage", "ddd", bytes(1000))  # bbb was just used: ccc goes
-    assert cache.get("stage", "ccc") is None
-    assert cache.get("stage", "bbb") is not None and cache.get("stage", "ddd") is not None
+    assert cache.get("stage", aaa) is None and cache.get("stage", bbb) is not None
+    cache.put("stage", ddd, bytes(1000))  # bbb was just used: ccc goes
+    assert cache.get("stage", ccc) is None
+    assert cache.get("stage", bbb) is not None and cache.get("stage", ddd) is not None
     assert cache.size_bytes() <= 2500
 
 

@@ -161,7 +161,7 @@ def test_a_run_after_its_depth_was_zeroed_in_place_is_the_run_without_the_cache(
     generated: Path, tmp_path: Path, capsys, monkeypatch
 ):
     """Probe D1 `stale-depth-cached`: it reported the old "tracked 6/6" from the cache."""
-    monkeypatch.setenv("DEPOTBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("DEPOTBENCH_CACHE", str(tmp_path / "cache"))
     seq = tmp_path / "seq"
     shutil.copytree(generated, seq)
     assert main(["run", str(seq), "-o", str(tmp_path / "a"), "--strategy", "box_epipolar_flow"]) == 0

@@ -34,8 +34,8 @@ SUITE = "suite: tiny\nbase: smoke\noverrides: {frames: 3}\ngrid: {actors.0.speed
 def store(tmp_path: Path, monkeypatch) -> Path:
     """Each test's own sequence store: never the user's."""
     path = tmp_path / "store"
-    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", str(path))
-    monkeypatch.delenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", raising=False)
+    monkeypatch.setenv("DEPOTBENCH_CACHE_SEQUENCES", str(path))
+    monkeypatch.delenv("DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES", raising=False)
     return path
 
 
@@ -221,7 +221,7 @@ def test_the_plugins_second_session_with_a_fresh_dir_renders_nothing(pytester, t
 def test_an_unwritable_store_costs_one_warning_line_and_the_run_goes_on(tmp_path: Path, monkeypatch, capsys):
     """A file where the store's folder should be (as root, a read-only folder is writable)."""
     (tmp_path / "file").write_text("not a folder")
-    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", str(tmp_path / "file"))
+    monkeypatch.setenv("DEPOTBENCH_CACHE_SEQUENCES", str(tmp_path / "file"))
     path = _suite(tmp_path)
     assert main(["generate", str(path), "-o", str(tmp_path / "out"), "--workers", "2"]) == 0
     err = capsys.readouterr().err.splitlines()
@@ -268,18 +268,20 @@ def test_the_store_evicts_the_least_recently_used_to_stay_under_its_bound(tmp_pa
 
 
 def test_the_store_is_found_as_the_stage_cache_is_and_turned_off_as_it_is(tmp_path: Path, monkeypatch):
-    monkeypatch.delenv("DEPOTBENCH_SEQUENCE_STORE")
+    monkeypatch.delenv("DEPOTBENCH_CACHE_SEQUENCES")
+    monkeypatch.delenv("DEPOTBENCH_CACHE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     found = SequenceStore.from_env()
     assert found is not None and found.root == tmp_path / "xdg" / "depotbench" / "sequences"
     assert found.max_bytes == DEFAULT_MAX_BYTES
-    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", "500M")
+    monkeypatch.setenv("DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES", "500M")
     assert SequenceStore.from_env().max_bytes == 500 << 20
-    monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES", "lots")
-    with pytest.raises(InputError, match="DEPOTBENCH_SEQUENCE_STORE_MAX_BYTES"):
+    monkeypatch.setenv("DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES", "lots")
+    with pytest.raises(InputError, match="DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES"):
         SequenceStore.from_env()
+    monkeypatch.delenv("DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES")
     for off in ("off", "OFF", "0", "no", "false"):
-        monkeypatch.setenv("DEPOTBENCH_SEQUENCE_STORE", off)
+        monkeypatch.setenv("DEPOTBENCH_CACHE_SEQUENCES", off)
         assert SequenceStore.from_env() is None
 
 

@@ -21,24 +21,11 @@ from pathlib import Path
 from depotbench.core.cache_home import CACHES, ROOT_VARIABLE, Contents
 from depotbench.eval.cli.conventions import add_verbosity
 
-DESCRIPTION = (
-    "Show or clear depotbench's caches: the tracking stages (detections, features, flow), the "
-    "generated sequences and the ORB vocabularies. They live under one root, "
-    "$XDG_CACHE_HOME/depotbench (~/.cache/depotbench); DEPOTBENCH_CACHE moves it (an absolute "
-    "folder) or switches every cache off (off), DEPOTBENCH_CACHE_STAGES, _SEQUENCES and "
-    "_VOCABULARY do the same for one cache, and DEPOTBENCH_CACHE_STAGES_MAX_BYTES and "
-    "DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES bound the first two."
-)
-EXAMPLES = ("depotbench cache info", "depotbench cache info --json", "depotbench cache clear --stage")
-
 
 def add_cache(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "cache",
         help="show or clear the caches (stages, sequences, vocabularies): where, how big, bounds",
-        description=DESCRIPTION,
-        epilog="examples:\n" + "\n".join(f"  {example}" for example in EXAMPLES),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     info = actions.add_parser(

@@ -142,9 +142,13 @@ USAGE: dict[str, Usage] = {
         ),
     ),
     "cache": Usage(
-        "Show or clear depotbench's caches (tracking stages, generated sequences, ORB vocabularies): "
-        "where they are, their sizes and bounds.",
-        ("depotbench cache info", "depotbench cache clear --stage"),
+        "Show or clear depotbench's caches: the tracking stages (detections, features, flow), the "
+        "generated sequences and the ORB vocabularies. They live under one root, "
+        "$XDG_CACHE_HOME/depotbench (~/.cache/depotbench); DEPOTBENCH_CACHE moves it (an absolute "
+        "folder) or switches every cache off (off), DEPOTBENCH_CACHE_STAGES, _SEQUENCES and "
+        "_VOCABULARY do the same for one cache, and DEPOTBENCH_CACHE_STAGES_MAX_BYTES and "
+        "DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES bound the first two.",
+        ("depotbench cache info", "depotbench cache info --json", "depotbench cache clear --stage"),
     ),
     "completion": Usage(
         "Print a shell completion script for bash or zsh.",

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, NoReturn
 
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
+from depotbench.eval.cli.cache import add_cache
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.compare import add_compare
 from depotbench.eval.cli.conventions import add_verbosity, describe, show_messages
@@ -649,6 +650,7 @@ def build_parser() -> argparse.ArgumentParser:
         add_check,
         add_report,
         add_compare,
+        add_cache,
         _add_completion,
     ):
         add(sub)

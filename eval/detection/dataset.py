@@ -30,16 +30,17 @@ import os
 import stat
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_IMAGE_BYTES, dumps_json
 from depotbench.core.output import OutputError, OutputKind, StagedOutput
+from depotbench.core.progress import progress_bar
 from depotbench.detectors.coco import EXPORT_CLASSES, bench_name, export_name
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import Sequence, timestamp_name
-from tqdm import tqdm
 
 PARTS = ("train", "val")
 
@@ -131,7 +132,7 @@ def export_dataset(roots: list[Path], out: Path, options: ExportOptions, overwri
         files = _DatasetFiles(staged.path, out)
         exporter = _Exporter(files, table, present, options, root)
         total = sum(len(range(0, len(s), options.every)) for s in sequences)
-        with tqdm(total=total, desc="export", unit="frame", disable=None, leave=False) as bar:
+        with progress_bar(total=total, desc="export", unit="frame", leave=False) as bar:
             for seq in sequences:
                 exporter.add_sequence(seq, split[seq.root.name], bar)
         summary = exporter.finish(split)
@@ -203,7 +204,7 @@ class _Exporter:
         self.counts = {part: {"images": 0, "boxes": 0} for part in PARTS}
         files.mkdirs(*(f"{kind}/{part}" for kind in ("images", "labels") for part in PARTS), "annotations")
 
-    def add_sequence(self, seq: Sequence, part: str, bar: tqdm) -> None:
+    def add_sequence(self, seq: Sequence, part: str, bar: Any) -> None:
         objects = _objects(seq)
         real_root = seq.root.resolve()
         for i in range(0, len(seq), self.options.every):

@@ -7,6 +7,7 @@ sequence's camera and a DBoW2 vocabulary built by ``depotbench vocab``.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import sys
@@ -118,6 +119,9 @@ class Orbslam3Tracker:
                 "vocabulary": str(self.vocabulary.resolve()),
                 "settings": str(settings),
                 "sequence": str(frames.folder(scratch).resolve()),
+                # The camera the run was given: a real folder of another size than TUM's, with
+                # no camera.yaml, opens in the worker only with it.
+                "intrinsics": dataclasses.asdict(sequence.intrinsics),
                 "out": str(scratch),
             }
             (scratch / "request.json").write_text(json.dumps(request), encoding="utf-8")

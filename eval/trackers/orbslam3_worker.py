@@ -33,6 +33,7 @@ def _quiet_native_stdout(log: Path) -> None:
 
 
 def main(request_path: str) -> int:
+    from depotbench.core.camera import Intrinsics
     from depotbench.core.processes import exit_with_parent
     from depotbench.sim.sequence import Sequence
 
@@ -42,7 +43,9 @@ def main(request_path: str) -> int:
     _quiet_native_stdout(out / "orbslam3.log")
     import pyorbslam3
 
-    sequence = Sequence.open(request["sequence"])
+    given = request["intrinsics"]
+    intrinsics = Intrinsics(**{**given, "distortion": tuple(given["distortion"])})
+    sequence = Sequence.open(request["sequence"], intrinsics=intrinsics)
     slam = pyorbslam3.Slam(
         request["vocabulary"], request["settings"], pyorbslam3.Sensor.RGBD, use_viewer=False
     )
