@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
 PACKAGE := -e '.[dev,viz,orbslam3]'
 
-.PHONY: demo test test-slow lint docs bench system-deps browser shells clean readme-images
+.PHONY: demo test test-slow lint docs bench system-deps browser shells ultralytics clean readme-images
 
 demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
@@ -26,7 +26,7 @@ test: $(VENV)/.installed browser shells
 	$(DOCS)
 	$(BIN)/python -m pytest -q $(SIDE_BY_SIDE)
 
-test-slow: $(VENV)/.installed
+test-slow: $(VENV)/.installed ultralytics
 	$(BIN)/python -m pytest -q -m slow $(SIDE_BY_SIDE)
 
 lint: $(VENV)/.installed
@@ -68,6 +68,20 @@ system-deps:
 		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 		$$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libegl1 libgl1-mesa-dri libglx-mesa0 >/dev/null; \
 	else echo "error: libEGL.so.1 not found; install your distribution's libegl1 and Mesa DRI drivers" >&2; exit 1; fi
+
+# The slow suite runs Ultralytics' own dataset check on an export (tests/test_coco_names.py).
+# Ultralytics needs torch, installed only where a CPU wheel is at hand (/opt/wheels on this
+# machine image: 183 MB, 695 MB installed): PyPI's default torch pulls 3 GB of CUDA libraries,
+# and Ultralytics' own dependencies a second, non-headless OpenCV. Test-only: nothing at run
+# time imports torch.
+TORCH_CPU := $(firstword $(wildcard /opt/wheels/torch-*+cpu-*.whl))
+ultralytics: $(VENV)/.installed
+	@if YOLO_CONFIG_DIR=$(CURDIR)/build/ultralytics $(BIN)/python -c "import ultralytics.data.utils" 2>/dev/null; then :; \
+	elif [ -n "$(TORCH_CPU)" ]; then \
+		echo "installing torch (CPU) and Ultralytics for the slow suite's dataset check"; \
+		$(BIN)/uv pip install -q --python $(BIN)/python "$(TORCH_CPU)" && \
+		$(BIN)/uv pip install -q --python $(BIN)/python --no-deps torchvision==0.28.0 ultralytics==8.4.190 ultralytics-thop; \
+	else echo "no CPU torch wheel here: the slow suite's Ultralytics check will say it did not run"; fi
 
 # The completion test loads `depotbench completion zsh` in zsh itself (bash is always there).
 shells:
