@@ -13,6 +13,7 @@ is added to it.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -33,6 +34,8 @@ from depotbench.scenes.schema import Scenario, to_scenario
 from depotbench.scenes.store import SequenceStore
 from depotbench.scenes.suite import Suite, variations
 from depotbench.sim.spec import content_key
+
+LOG = logging.getLogger(__name__)
 
 INDEX_NAME = "index.json"
 
@@ -134,11 +137,10 @@ def run_suite(
         ]
         stale = sum((root / name).exists() for name, _ in missing)
         held = [] if overwrite else [(n, sc) for n, sc in missing if has(keys[n])]
-        print(  # before the copies: a suite of many held sequences takes seconds to copy
+        LOG.info(  # before the copies: a suite of many held sequences takes seconds to copy
             f"{len(jobs)} sequences: {len(jobs) - len(missing)} complete, {len(held)} from the store and "
             f"{len(missing) - len(held)} to generate ({stale} of those stale or replaced) "
-            f"with {workers} worker(s)",
-            flush=True,
+            f"with {workers} worker(s)"
         )
         started = time.perf_counter()
         copied = [name for name, _ in held if fetch(keys[name], root / name)]
@@ -191,5 +193,5 @@ def run_suite(
             )
         if copied:
             parts.append(f"copied {len(copied)} from the store in {copy_s:.1f} s")
-        print(f"{'; '.join(parts)}; index: {out_dir / INDEX_NAME}")
+        LOG.info(f"{'; '.join(parts)}; index: {out_dir / INDEX_NAME}")
     return index

@@ -247,3 +247,20 @@ def test_bad_use_of_the_conventions_is_one_line_and_exit_2(case, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert exit_.value.code == 2
     assert len(err) == 1 and needle in err[0], err
+
+
+@pytest.mark.render
+def test_a_sweep_that_generates_its_suite_prints_only_json_on_stdout(tmp_path):
+    """The suite's and the sweep's status lines go to stderr (they were print()s on stdout,
+    which broke --json whenever a sweep had sequences to render)."""
+    (tmp_path / "suite.yaml").write_text("suite: tiny\nbase: smoke\noverrides: {frames: 4}\nseeds: [1]\n")
+    (tmp_path / "spec.yaml").write_text("sweep: tiny\nsuite: suite.yaml\nstrategies: [none]\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "depotbench.eval.cli", "sweep", str(tmp_path / "spec.yaml")]
+        + ["-o", str(tmp_path / "sw"), "--workers", "1", "--json"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == json.loads((tmp_path / "sw" / "summary.json").read_text())
+    assert "1 sequences: 0 complete" in done.stderr and "sweep tiny: 1 runs" in done.stderr

@@ -5,6 +5,7 @@ is asked for again (``run_suite``, a sweep's suite, the pytest plugin)."""
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
 import shutil
@@ -65,17 +66,19 @@ def _summary(text: str) -> str:
 
 @pytest.mark.render
 def test_run_suite_twice_into_two_folders_renders_once_and_copies_byte_for_byte(
-    tmp_path: Path, monkeypatch, capsys, store: Path
+    tmp_path: Path, monkeypatch, caplog, store: Path
 ):
+    caplog.set_level(logging.INFO, logger="depotbench")  # the suite's status lines are INFO
     renders = Renders(monkeypatch)
     path = _suite(tmp_path)
     depotbench.scenes.generation.run_suite(load_suite(path), path, tmp_path / "a", workers=2, progress=False)
     assert renders.frames == 6
-    assert "0 from the store and 2 to generate" in _summary(capsys.readouterr().out)
+    assert "0 from the store and 2 to generate" in _summary(caplog.text)
+    caplog.clear()
     assert len([p for p in store.iterdir() if p.is_dir()]) == 2
     depotbench.scenes.generation.run_suite(load_suite(path), path, tmp_path / "b", workers=2, progress=False)
     assert renders.frames == 6  # none more
-    assert "2 from the store and 0 to generate" in _summary(capsys.readouterr().out)
+    assert "2 from the store and 0 to generate" in _summary(caplog.text)
     assert tree_differences(tmp_path / "a", tmp_path / "b") == []
     # A copy, not a link: editing one leaves the other (and the store) as it was.
     frame = next((tmp_path / "b" / "tiny-0000" / "rgb").iterdir())
@@ -87,10 +90,11 @@ def test_run_suite_twice_into_two_folders_renders_once_and_copies_byte_for_byte(
 
 @pytest.mark.render
 def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_suites_families(
-    tmp_path: Path, monkeypatch, capsys
+    tmp_path: Path, monkeypatch, caplog
 ):
     """Before: a sweep could only generate its suite again (86 s of a 151 s sweep); a
     suite folder in ``sequences:`` was not a sequence folder."""
+    caplog.set_level(logging.INFO, logger="depotbench")
     renders = Renders(monkeypatch)
     path = _suite(tmp_path)
     assert main(["generate", str(path), "-o", str(tmp_path / "suite"), "--workers", "2"]) == 0
@@ -108,7 +112,7 @@ def test_a_sweep_over_a_generated_suite_folder_renders_nothing_and_keeps_the_sui
         )
         rows[spec_path.stem] = sorted((r.family, r.knobs, r.seed) for r in outcome.records)
     assert renders.frames == 6  # the suite: sweep copied from the store, the other used the folder
-    assert "2 from the store and 0 to generate" in capsys.readouterr().out
+    assert "2 from the store and 0 to generate" in caplog.text
     assert rows["by-folder"] == rows["by-suite"]
     assert rows["by-folder"] == [
         ("tiny actors.0.speed_mps=0.6", json.dumps({"actors.0.speed_mps": 0.6, "seed": 0}), 0),

@@ -30,6 +30,7 @@ from typing import Any, TypeVar
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.output import OutputKind, StagedOutput
+from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import Sequence, pose_matrix
@@ -39,7 +40,6 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 from scipy.spatial.transform import Rotation
-from tqdm import tqdm
 
 TYPESTORE = Stores.ROS2_HUMBLE
 """Message definitions of ROS 2 Humble, the LTS most ROS SLAM wrappers target; the types used
@@ -371,12 +371,8 @@ class _BagWriter:
         start = events[0][0]
         self._static_tf(start)
         self._path(start)
-        bar = tqdm(
-            total=len(self.sequence),
-            desc="rosbag",
-            unit="frame",
-            disable=None if progress else True,
-            leave=False,
+        bar = progress_bar(
+            total=len(self.sequence), desc="rosbag", unit="frame", disable=not progress, leave=False
         )
         with bar:
             for ns, kind, index in events:

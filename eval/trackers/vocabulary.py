@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import re
 import tempfile
@@ -41,6 +42,8 @@ from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
 
 BUILDER_VERSION = 1
+LOG = logging.getLogger(__name__)
+
 TRAINING_SCENES = (
     "dog_and_cat_roaming",
     "pig_pen",
@@ -226,7 +229,7 @@ def build_file(spec: VocabularySpec, path: Path, progress: bool) -> tuple[Vocabu
     started = time.perf_counter()
     images = training_descriptors(spec, progress)
     if progress:
-        print(f"clustering {sum(len(d) for d in images)} descriptors of {len(images)} frames", flush=True)
+        LOG.info(f"clustering {sum(len(d) for d in images)} descriptors of {len(images)} frames")
     vocabulary = build(images, spec.branching, spec.levels, spec.seed)
     write_text_atomic(path, vocabulary.to_text())
     return vocabulary, time.perf_counter() - started
@@ -290,6 +293,6 @@ def default_vocabulary(progress: bool = True, spec: VocabularySpec | None = None
     with OutputLock(path, wait=True):  # one builder at a time; the others then find it built
         if not path.is_file():
             if progress:
-                print(f"building the ORB vocabulary once into {path} (a few minutes)", flush=True)
+                LOG.info(f"building the ORB vocabulary once into {path} (a few minutes)")
             build_file(spec, path, progress)
     return path
