@@ -20,6 +20,9 @@ from depotbench.slam.pose import MIN_MATCHES, Tracked, observations
 
 CLOSE_DEPTH_FACTOR = 40.0
 """ORB-SLAM's ThDepth: points closer than 40 baselines are 'close'."""
+MAX_FRAMES = 30
+"""ORB-SLAM's mMaxFrames, the camera's frame rate (30 on TUM and the bench): a keyframe at least
+every 30 frames, none within 30 frames of a relocalisation once the map holds more than 30."""
 
 
 class LocalMapping:
@@ -35,27 +38,44 @@ class LocalMapping:
         usable: np.ndarray,
         tracked: Tracked,
         reference_keyframe: int,
+        since_relocalisation: int | None = None,
     ) -> bool:
-        """ORB-SLAM's NeedNewKeyFrame for RGB-D with an idle local mapper (mapping here is
-        synchronous, so always idle): a keyframe is due when the frame tracks fewer points than
-        keyframe_inlier_ratio of its reference keyframe's established points (0.4 while the
-        map has one keyframe), or when it tracks few close points and sees many untracked ones."""
-        if not map_.keyframes:
+        """ORB-SLAM3's NeedNewKeyFrame for RGB-D, its local mapper always idle (mapping here is
+        synchronous); ``since_relocalisation`` counts frames (None: never relocalised).
+
+        - No keyframe within ``MAX_FRAMES`` (30) frames of a relocalisation once the map holds
+          more than 30 keyframes.
+        - c1: 30 frames since the last keyframe (c1a), or an idle mapper (c1b), or weak
+          tracking (c1c). The mapper is always idle here, so c1 always holds.
+        - c2: the frame tracks more than 15 points and fewer than thRefRatio (0.75; 0.4 while
+          the map has one keyframe) of the reference keyframe's points seen by at least two
+          keyframes with depth (observation weight >= 3; >= 2 while the map has two), or it
+          tracks under 100 close points (depth < ThDepth) and sees over 70 close ones untracked.
+        A keyframe is due when c1 and c2 hold, so here when c2 does.
+        """
+        keyframes = map_.keyframes
+        if not keyframes:
             return True
-        n_keyframes = len(map_.keyframes)
-        reference = map_.keyframe(min(reference_keyframe, n_keyframes - 1))
-        ids = reference.point_ids[reference.point_ids >= 0]
-        ids = ids[map_.alive[ids]]
-        # Established points: ORB-SLAM counts 2 observations per keyframe with depth.
-        min_observations = 3 if n_keyframes > 2 else 2
-        ref_points = int(np.sum(map_.observation_weight[ids] >= min_observations))
+        n_keyframes = len(keyframes)
+        if since_relocalisation is not None and since_relocalisation < MAX_FRAMES < n_keyframes:
+            return False
+        ref_points = self.reference_points(map_, reference_keyframe, n_keyframes)
         close = (features.depth_m > 0) & (features.depth_m < self.close_depth_m) & usable
         tracked_mask = np.zeros(len(features), bool)
         tracked_mask[tracked.keypoints] = True
         need_close = (close & tracked_mask).sum() < 100 and (close & ~tracked_mask).sum() > 70
         ratio = self.tc.keyframe_inlier_ratio if n_keyframes >= 2 else 0.4
-        weak = tracked.inliers < ratio * ref_points
-        return (weak or need_close) and tracked.inliers > MIN_MATCHES
+        return (tracked.inliers < ratio * ref_points or need_close) and tracked.inliers > MIN_MATCHES
+
+    @staticmethod
+    def reference_points(map_: Map, reference_keyframe: int, n_keyframes: int) -> int:
+        """ORB-SLAM's KeyFrame::TrackedMapPoints(nMinObs): the reference keyframe's points
+        whose observation weight is at least 3 (2 while the map has at most two keyframes)."""
+        reference = map_.keyframe(reference_keyframe)
+        ids = reference.point_ids[reference.point_ids >= 0]
+        ids = ids[map_.alive[ids]]
+        min_observations = 3 if n_keyframes > 2 else 2
+        return int(np.sum(map_.observation_weight[ids] >= min_observations))
 
     def new_point_mask(
         self, map_: Map, features: FrameFeatures, usable: np.ndarray, point_ids: np.ndarray
@@ -83,7 +103,7 @@ class LocalMapping:
         """Add the frame as a keyframe with its new map points, then (after the first) adjust
         the local window, cull recent points and move ``tracked`` to the adjusted pose;
         returns the new points (keypoints, ids)."""
-        kf_id = len(map_.keyframes)
+        kf_id = len(map_.all_keyframes)
         point_ids = np.full(len(features), -1)
         point_ids[tracked.keypoints] = tracked.point_ids
         new = self.new_point_mask(map_, features, usable, point_ids)
@@ -91,21 +111,23 @@ class LocalMapping:
         positions = transform(tracked.world_from_camera, backproject(self.camera, uv, features.depth_m[new]))
         point_ids[new] = map_.add_points(positions, features.descriptors[new], kf_id)
         keyframe = KeyFrame(kf_id, frame_index, tracked.world_from_camera.copy(), features, usable, point_ids)
-        map_.keyframes.append(keyframe)
-        for keypoint in np.flatnonzero(point_ids >= 0):
-            map_.observe(int(point_ids[keypoint]), kf_id, int(keypoint))
+        map_.add_keyframe(keyframe)
+        observed = point_ids.copy()
+        keyframe.point_ids = np.full(len(features), -1)
+        for keypoint in np.flatnonzero(observed >= 0):
+            map_.observe(int(observed[keypoint]), kf_id, int(keypoint))
         if kf_id > 0:
             self.local_bundle_adjustment(map_)
             map_.cull(kf_id, self.tc.recent_point_keyframes)
-            tracked.world_from_camera = map_.keyframes[-1].world_from_camera.copy()
-        made = np.flatnonzero(new & (point_ids >= 0))
-        return made, point_ids[made]
+            tracked.world_from_camera = keyframe.world_from_camera.copy()
+        made = np.flatnonzero(new & (keyframe.point_ids >= 0))
+        return made, keyframe.point_ids[made]
 
     def local_bundle_adjustment(self, map_: Map) -> None:
         """Adjust the last ``ba_window`` keyframes (not the first: it fixes the gauge) and their
         points; keyframes outside the window that see those points take part, held fixed.
         Observations the adjustment finds to be outliers are dropped from the map."""
-        window = [kf.id for kf in map_.keyframes[-self.tc.ba_window :]]
+        window = [kf.id for kf in map_.all_keyframes[-self.tc.ba_window :]]
         points = np.unique(np.concatenate([map_.keyframe(k).point_ids for k in window]))
         points = points[(points >= 0)]
         points = points[map_.alive[points]]

@@ -1,4 +1,14 @@
-"""Keyframes and map points, held in arrays for vectorised projection."""
+"""Keyframes and map points, held in arrays for vectorised projection, with the covisibility graph.
+
+Beside each point's position and descriptor the map keeps what ORB-SLAM's MapPoint keeps for
+the local-map search: its mean viewing direction and the distances at which it can be seen
+(``max_distance`` = distance at its reference keyframe times scale^octave, ``min_distance`` =
+that over scale^(levels - 1)). Keyframes carry ORB-SLAM's covisibility weights as one
+matrix, kept current as observations come and go: ``covisibility[i, j]`` is the number of
+points keyframes i and j both see, and two keyframes are neighbours from ``COVISIBILITY_MIN``
+(15) shared points. A culled keyframe stays in ``all_keyframes`` (ids are indices) flagged
+``bad``; ``keyframes`` lists the live ones.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +16,26 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from depotbench.slam.features import FrameFeatures
+from depotbench.slam.geometry import POPCOUNT
+
+COVISIBILITY_MIN = 15
+"""ORB-SLAM's KeyFrame::UpdateConnections: keyframes sharing at least 15 points are connected
+(a keyframe with no such neighbour is connected to the one it shares most with)."""
+
+_POINT_ARRAYS = (
+    "positions",
+    "descriptors",
+    "alive",
+    "first_keyframe",
+    "visible",
+    "found",
+    "n_observations",
+    "observation_weight",
+    "normals",
+    "max_distance",
+    "min_distance",
+    "replaced",
+)
 
 
 @dataclass(eq=False)
@@ -18,11 +48,19 @@ class KeyFrame:
     """Keypoints that passed rejection."""
     point_ids: np.ndarray
     """Map point id per keypoint, -1 where none."""
+    bad: bool = False
+    """Culled (ORB-SLAM's KeyFrameCulling): kept for its id, seen by no point."""
+    parent: int = -1
+    """The keyframe it shared most points with when inserted (ORB-SLAM's spanning tree)."""
+
+    @property
+    def center(self) -> np.ndarray:
+        return self.world_from_camera[:3, 3]
 
 
 @dataclass
 class Map:
-    """Map points as growable arrays; keyframes in insertion order."""
+    """Map points as growable arrays; keyframes by id, in insertion order."""
 
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     descriptors: np.ndarray = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
@@ -34,9 +72,73 @@ class Map:
     """Keyframes observing each point (kept equal to len(observations[point]))."""
     observation_weight: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     """ORB-SLAM's MapPoint::Observations(): 2 per keyframe whose keypoint has depth, else 1."""
-    keyframes: list[KeyFrame] = field(default_factory=list)
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    """Mean unit direction from the observing keyframes' centres to the point."""
+    max_distance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    min_distance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    replaced: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    """The point a fused point was merged into, -1 where none (ORB-SLAM's GetReplaced)."""
+    all_keyframes: list[KeyFrame] = field(default_factory=list)
     observations: dict[int, dict[int, int]] = field(default_factory=dict)
     """point id -> {keyframe id: keypoint index}."""
+    covisibility: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int32))
+    """(capacity, capacity) shared-point counts between keyframes (the first len(all_keyframes))."""
+
+    # -- keyframes -------------------------------------------------------------------
+
+    @property
+    def keyframes(self) -> list[KeyFrame]:
+        """The live keyframes, oldest first."""
+        return [kf for kf in self.all_keyframes if not kf.bad]
+
+    def keyframe(self, keyframe_id: int) -> KeyFrame:
+        return self.all_keyframes[keyframe_id]
+
+    def add_keyframe(self, keyframe: KeyFrame) -> None:
+        """Append a keyframe (its id must be the next one); its observations come after."""
+        if keyframe.id != len(self.all_keyframes):
+            raise ValueError(f"keyframe id {keyframe.id} is not the next one ({len(self.all_keyframes)})")
+        self.all_keyframes.append(keyframe)
+        capacity = len(self.covisibility)
+        if len(self.all_keyframes) > capacity:
+            grown = np.zeros((max(16, 2 * capacity),) * 2, np.int32)
+            grown[:capacity, :capacity] = self.covisibility
+            self.covisibility = grown
+
+    def covisible(self, keyframe_id: int, limit: int | None = None) -> np.ndarray:
+        """Live keyframes connected to ``keyframe_id`` (at least ``COVISIBILITY_MIN`` shared
+        points, or the one sharing most when none has that many), most shared first, at most
+        ``limit`` of them (ORB-SLAM's GetBestCovisibilityKeyFrames / GetVectorCovisibleKeyFrames)."""
+        n = len(self.all_keyframes)
+        weights = self.covisibility[keyframe_id, :n].copy()
+        weights[keyframe_id] = 0
+        bad = np.fromiter((kf.bad for kf in self.all_keyframes), bool, n)
+        weights[bad] = 0
+        order = np.lexsort((-np.arange(n), -weights))
+        order = order[weights[order] > 0]
+        connected = order[weights[order] >= COVISIBILITY_MIN]
+        if not len(connected):
+            connected = order[:1]
+        return connected if limit is None else connected[:limit]
+
+    def children(self, keyframe_id: int) -> list[int]:
+        return [kf.id for kf in self.all_keyframes if kf.parent == keyframe_id and not kf.bad]
+
+    def set_bad(self, keyframe_id: int) -> None:
+        """Cull a keyframe (ORB-SLAM's KeyFrame::SetBadFlag): its observations are erased, a
+        point left seen by at most one keyframe with depth (weight <= 2) is culled, and its
+        children take its parent."""
+        keyframe = self.all_keyframes[keyframe_id]
+        for point in np.unique(keyframe.point_ids[keyframe.point_ids >= 0]):
+            self.forget(int(point), keyframe_id)
+            if self.alive[point] and self.observation_weight[point] <= 2:
+                self.cull_points(np.array([point]))
+        keyframe.bad = True
+        for kf in self.all_keyframes:
+            if kf.parent == keyframe_id:
+                kf.parent = keyframe.parent
+
+    # -- points ----------------------------------------------------------------------
 
     def add_points(self, positions: np.ndarray, descriptors: np.ndarray, keyframe_id: int) -> np.ndarray:
         start = len(self.positions)
@@ -49,50 +151,155 @@ class Map:
         self.found = np.r_[self.found, np.ones(n, int)]
         self.n_observations = np.r_[self.n_observations, np.zeros(n, int)]
         self.observation_weight = np.r_[self.observation_weight, np.zeros(n, int)]
+        self.normals = np.vstack([self.normals, np.zeros((n, 3))])
+        self.max_distance = np.r_[self.max_distance, np.zeros(n)]
+        self.min_distance = np.r_[self.min_distance, np.zeros(n)]
+        self.replaced = np.r_[self.replaced, np.full(n, -1)]
         return np.arange(start, start + n)
 
     def _weight(self, keyframe_id: int, keypoint: int) -> int:
-        return 2 if self.keyframes[keyframe_id].features.depth_m[keypoint] > 0 else 1
+        return 2 if self.all_keyframes[keyframe_id].features.depth_m[keypoint] > 0 else 1
 
     def observe(self, point_id: int, keyframe_id: int, keypoint: int) -> None:
+        """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id)."""
         seen = self.observations.setdefault(point_id, {})
-        if keyframe_id not in seen:
-            self.n_observations[point_id] += 1
-            self.observation_weight[point_id] += self._weight(keyframe_id, keypoint)
+        if keyframe_id in seen:
+            return  # one keypoint per point in a keyframe (ORB-SLAM's IsInKeyFrame)
+        others = np.fromiter(seen, int, len(seen))
+        self.covisibility[keyframe_id, others] += 1
+        self.covisibility[others, keyframe_id] += 1
+        self.n_observations[point_id] += 1
+        self.observation_weight[point_id] += self._weight(keyframe_id, keypoint)
         seen[keyframe_id] = keypoint
+        self.all_keyframes[keyframe_id].point_ids[keypoint] = point_id
 
     def forget(self, point_id: int, keyframe_id: int) -> None:
-        """Drop one observation (an outlier found by bundle adjustment)."""
-        keypoint = self.observations.get(point_id, {}).pop(keyframe_id, None)
+        """Drop one observation (an outlier found by bundle adjustment, a culled keyframe)."""
+        seen = self.observations.get(point_id, {})
+        keypoint = seen.pop(keyframe_id, None)
         if keypoint is not None:
+            others = np.fromiter(seen, int, len(seen))
+            self.covisibility[keyframe_id, others] -= 1
+            self.covisibility[others, keyframe_id] -= 1
             self.n_observations[point_id] -= 1
             self.observation_weight[point_id] -= self._weight(keyframe_id, keypoint)
-            self.keyframes[keyframe_id].point_ids[keypoint] = -1
+            self.all_keyframes[keyframe_id].point_ids[keypoint] = -1
+
+    def cull_points(self, point_ids: np.ndarray) -> None:
+        """Remove points with every observation of them."""
+        for point in point_ids:
+            seen = self.observations.pop(int(point), {})
+            kfs = np.fromiter(seen, int, len(seen))
+            if len(kfs) > 1:
+                self.covisibility[np.ix_(kfs, kfs)] -= 1
+                self.covisibility[kfs, kfs] += 1  # the diagonal was not counted
+            for kf_id, keypoint in seen.items():
+                self.all_keyframes[kf_id].point_ids[keypoint] = -1
+        self.alive[point_ids] = False
+        self.n_observations[point_ids] = 0
+        self.observation_weight[point_ids] = 0
+
+    def replace_point(self, old: int, new: int) -> None:
+        """Merge point ``old`` into ``new`` (ORB-SLAM's MapPoint::Replace): each keyframe that
+        saw ``old`` sees ``new`` instead, unless it already does; counts are summed."""
+        if old == new:
+            return
+        seen = self.observations.get(old, {})
+        for kf_id, keypoint in list(seen.items()):
+            self.forget(old, kf_id)
+            if kf_id not in self.observations.get(new, {}):
+                self.observe(new, kf_id, keypoint)
+        self.visible[new] += self.visible[old]
+        self.found[new] += self.found[old]
+        self.cull_points(np.array([old]))
+        self.replaced[old] = new
+
+    def resolve(self, point_ids: np.ndarray) -> np.ndarray:
+        """Point ids with fused points followed to the point they became (CheckReplacedInLastFrame)."""
+        out = point_ids.copy()
+        for _ in range(len(self.replaced)):
+            has = out >= 0
+            nxt = np.where(has, self.replaced[np.where(has, out, 0)], -1)
+            moved = nxt >= 0
+            if not moved.any():
+                return out
+            out[moved] = nxt[moved]
+        return out
+
+    def observation_table(self, point_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every observation of ``point_ids``: (index into point_ids, keyframe id, keypoint)."""
+        index, kfs, kps = [], [], []
+        for i, point in enumerate(point_ids):
+            seen = self.observations.get(int(point), {})
+            index += [i] * len(seen)
+            kfs += seen.keys()
+            kps += seen.values()
+        return np.array(index, int), np.array(kfs, int), np.array(kps, int)
+
+    def keypoint_values(self, name: str, kfs: np.ndarray, kps: np.ndarray) -> np.ndarray:
+        """A feature array (``octaves``, ``descriptors``, ...) at keypoints ``kps`` of keyframes ``kfs``."""
+        out = None
+        for kf_id in np.unique(kfs):
+            rows = np.flatnonzero(kfs == kf_id)
+            values = getattr(self.all_keyframes[kf_id].features, name)[kps[rows]]
+            if out is None:
+                out = np.empty((len(kfs), *values.shape[1:]), values.dtype)
+            out[rows] = values
+        return out if out is not None else np.zeros(0)
+
+    def update_points(self, point_ids: np.ndarray, scale_factor: float, n_levels: int) -> None:
+        """ORB-SLAM's UpdateNormalAndDepth and ComputeDistinctiveDescriptors for ``point_ids``:
+        the normal is the mean direction from the observers, the distances come from the
+        first observer (the reference: distance times scale^octave, and that over
+        scale^(levels - 1)), the descriptor is the observation's with the least median
+        Hamming distance to the others."""
+        point_ids = np.unique(point_ids[point_ids >= 0])
+        point_ids = point_ids[self.alive[point_ids]]
+        index, kfs, kps = self.observation_table(point_ids)
+        if not len(index):
+            return
+        centers = np.array([kf.center for kf in self.all_keyframes])[kfs]
+        rays = self.positions[point_ids][index] - centers
+        lengths = np.linalg.norm(rays, axis=1)
+        units = rays / np.maximum(lengths, 1e-12)[:, None]
+        normal = np.zeros((len(point_ids), 3))
+        np.add.at(normal, index, units)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        has = np.bincount(index, minlength=len(point_ids)) > 0
+        self.normals[point_ids[has]] = normal[has]
+        # The reference observation: the first keyframe of each point.
+        order = np.lexsort((kfs, index))
+        first = order[np.r_[True, np.diff(index[order]) != 0]]
+        octaves = self.keypoint_values("octaves", kfs[first], kps[first])
+        ref = point_ids[index[first]]
+        self.max_distance[ref] = lengths[first] * scale_factor ** octaves.astype(float)
+        self.min_distance[ref] = self.max_distance[ref] / scale_factor ** (n_levels - 1)
+        # Distinctive descriptors, points grouped by their number of observations.
+        descriptors = self.keypoint_values("descriptors", kfs[order], kps[order])
+        counts = np.bincount(index, minlength=len(point_ids))
+        starts = np.r_[0, np.cumsum(counts)[:-1]]
+        for n in np.unique(counts[counts >= 2]):
+            which = np.flatnonzero(counts == n)
+            rows = starts[which][:, None] + np.arange(n)
+            group = descriptors[rows]  # (points, n, 32)
+            distance = _pairwise(group)
+            best = np.argmin(np.median(distance, axis=2), axis=1)
+            self.descriptors[point_ids[which]] = group[np.arange(len(which)), best]
 
     def copy(self) -> Map:
         """An independent copy (features are shared: nothing changes them)."""
-        arrays = {
-            name: getattr(self, name).copy()
-            for name in (
-                "positions",
-                "descriptors",
-                "alive",
-                "first_keyframe",
-                "visible",
-                "found",
-                "n_observations",
-                "observation_weight",
-            )
-        }
+        arrays = {name: getattr(self, name).copy() for name in _POINT_ARRAYS}
         keyframes = [
             replace(kf, world_from_camera=kf.world_from_camera.copy(), point_ids=kf.point_ids.copy())
-            for kf in self.keyframes
+            for kf in self.all_keyframes
         ]
         observations = {point: dict(seen) for point, seen in self.observations.items()}
-        return Map(**arrays, keyframes=keyframes, observations=observations)
-
-    def keyframe(self, keyframe_id: int) -> KeyFrame:
-        return self.keyframes[keyframe_id]
+        return Map(
+            **arrays,
+            all_keyframes=keyframes,
+            observations=observations,
+            covisibility=self.covisibility.copy(),
+        )
 
     def cull(self, current_keyframe_id: int, recent_keyframes: int) -> int:
         """ORB-SLAM's MapPointCulling: while a point is recent (its keyframe is at most
@@ -105,10 +312,11 @@ class Map:
         old = age[candidates] >= 2
         bad = (ratio < 0.25) | (old & (self.observation_weight[candidates] <= 3))
         removed = candidates[bad]
-        self.alive[removed] = False
-        for point in removed:
-            for kf_id, keypoint in self.observations.pop(int(point), {}).items():
-                self.keyframes[kf_id].point_ids[keypoint] = -1
-        self.n_observations[removed] = 0
-        self.observation_weight[removed] = 0
+        self.cull_points(removed)
         return len(removed)
+
+
+def _pairwise(group: np.ndarray) -> np.ndarray:
+    """(points, n, n) Hamming distances within each point's n descriptors."""
+    xor = np.bitwise_xor(group[:, :, None, :], group[:, None, :, :])
+    return POPCOUNT[xor].sum(axis=3, dtype=np.int32)

@@ -58,6 +58,7 @@ class Tracking:
         self._last_angles = np.zeros(0)
         self._last_octaves = np.zeros(0, int)
         self._reference_keyframe = 0
+        self._relocalised_at: int | None = None
 
     def fork(self) -> Tracking:
         """An independent copy (the map too); matcher, mapper and features are shared: they
@@ -97,7 +98,8 @@ class Tracking:
             return False, None
         if self.state == TrackingState.NOT_INITIALIZED:
             return True, None  # the initial keyframe, inserted by _initialize
-        if self.mapping.need_keyframe(self.map, features, usable, tracked, self._reference_keyframe):
+        since = None if self._relocalised_at is None else self.frame_index - self._relocalised_at
+        if self.mapping.need_keyframe(self.map, features, usable, tracked, self._reference_keyframe, since):
             return True, self._insert_keyframe(features, usable, tracked)
         return False, None
 
@@ -123,6 +125,8 @@ class Tracking:
             self._last_point_ids = point_ids
             self._last_angles = features.angles_deg[keypoints]
             self._last_octaves = features.octaves[keypoints]
+        if state == TrackingState.RELOCALIZED:
+            self._relocalised_at = self.frame_index
         self.state = state
         self.previous = features
         self.frame_index += 1
