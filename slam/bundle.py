@@ -15,6 +15,10 @@ the Schur complement (3x3 blocks, inverted all at once), the reduced system of
 the free poses is dense (6 x free poses, at most 6 x ``ba_window``). Fixed
 keyframes are held exactly, as ORB-SLAM fixes them (``setFixed``). The damping
 and stopping rules follow GTSAM's Levenberg-Marquardt defaults.
+
+``_Problem`` is the NumPy reference; ``_CompiledProblem`` evaluates the same cost,
+linearisation and step with ``depotbench.slam.kernels.optimize``, and ``bundle_adjust`` runs
+one Levenberg-Marquardt loop on whichever ``DEPOTBENCH_KERNELS`` selects.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from depotbench.core.camera import Intrinsics
+from depotbench.slam import kernels
 from depotbench.slam.geometry import exp_se3
 from depotbench.slam.optimize import is_inlier
 from scipy import sparse
@@ -175,13 +180,88 @@ class _Problem:
         return pose_step.reshape(-1, 6), point_step
 
 
+class _CompiledProblem:
+    """``_Problem``'s interface on the compiled kernels: the same observations, cost,
+    linearisation (the same five blocks) and damped step."""
+
+    def __init__(self, window: BundleWindow) -> None:
+        from depotbench.slam.kernels import optimize as compiled
+
+        self.kernels = compiled
+        camera = window.camera
+        self.camera_numbers = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy))
+        self.bf = float(window.bf)
+        self.obs_pose = np.ascontiguousarray(window.obs_pose, np.int64)
+        self.obs_point = np.ascontiguousarray(window.obs_point, np.int64)
+        self.stereo = np.isfinite(window.ur)
+        right = np.where(self.stereo, window.ur, 0.0)
+        self.measured = np.ascontiguousarray(np.c_[window.uv, right], np.float64)
+        self.weight = np.ascontiguousarray(window.weight, np.float64)
+        slot = np.full(len(window.free), -1, np.int64)
+        slot[window.free] = np.arange(int(window.free.sum()))
+        self.n_free = int(window.free.sum())
+        self.obs_slot = slot[self.obs_pose]
+        on_free = np.flatnonzero(self.obs_slot >= 0)
+        # Rows of W (observations on free poses) grouped by point, in observation order.
+        by_point = np.argsort(self.obs_point[on_free], kind="stable")
+        self.point_obs = by_point.astype(np.int64)
+        self.point_start = np.searchsorted(
+            self.obs_point[on_free][by_point], np.arange(len(window.points) + 1)
+        ).astype(np.int64)
+        self.free_slot = self.obs_slot[on_free]
+
+    def _camera_points(self, poses: np.ndarray, points: np.ndarray) -> np.ndarray:
+        return self.kernels.camera_points(poses, points, self.obs_pose, self.obs_point)
+
+    def cost(self, poses: np.ndarray, points: np.ndarray) -> float:
+        return float(
+            self.kernels.cost(
+                poses,
+                points,
+                self.obs_pose,
+                self.obs_point,
+                self.measured,
+                self.stereo,
+                self.weight,
+                *self.camera_numbers,
+                self.bf,
+                HUBER_K,
+                MIN_DEPTH,
+            )
+        )
+
+    def linearise(self, poses: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, ...]:
+        return self.kernels.linearise(
+            poses,
+            points,
+            self.obs_pose,
+            self.obs_point,
+            self.obs_slot,
+            self.measured,
+            self.stereo,
+            self.weight,
+            *self.camera_numbers,
+            self.bf,
+            HUBER_K,
+            MIN_DEPTH,
+            self.n_free,
+            len(self.free_slot),
+        )
+
+    def step(self, linear: tuple[np.ndarray, ...], damping: float) -> tuple[np.ndarray, np.ndarray] | None:
+        solved, pose_step, point_step = self.kernels.step(
+            *linear, float(damping), self.point_start, self.point_obs, self.free_slot
+        )
+        return (pose_step, point_step) if solved else None
+
+
 def bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Optimise the window's free poses and every point.
 
     Returns new poses, new points, the inlier mask of the observations (ORB-SLAM's
     chi-square test at the result) and the final cost.
     """
-    problem = _Problem(window)
+    problem = _CompiledProblem(window) if kernels.compiled() else _Problem(window)
     poses, points = window.poses.copy(), window.points.astype(np.float64).copy()
     free_index = np.flatnonzero(window.free)
     cost = problem.cost(poses, points)

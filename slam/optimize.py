@@ -6,12 +6,15 @@ Huber loss. The pose-only refinement is a small Gauss-Newton on the analytic
 Jacobian (6 unknowns; a solver call would cost more than the solve).
 
 Local BA (``depotbench.slam.bundle``) minimises the same edges over a keyframe window.
+``refine_pose`` runs the compiled kernel (``depotbench.slam.kernels.optimize``) or this module's
+NumPy reference, ``refine_pose_numpy``, as ``DEPOTBENCH_KERNELS`` says.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from depotbench.core.camera import Intrinsics
+from depotbench.slam import kernels
 from depotbench.slam.geometry import exp_se3
 
 CHI2_STEREO = 7.815
@@ -81,6 +84,42 @@ def _pose_jacobian(points_c: np.ndarray, camera: Intrinsics, bf: float, has_dept
 
 
 def refine_pose(
+    camera_from_world: np.ndarray,
+    points_w: np.ndarray,
+    uv: np.ndarray,
+    ur: np.ndarray,
+    weight: np.ndarray,
+    camera: Intrinsics,
+    bf: float,
+    rounds: int = 4,
+    iterations: int = 10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose-only optimisation with outlier rounds (``refine_pose_numpy``), compiled unless
+    ``DEPOTBENCH_KERNELS=numpy``: (camera_from_world, inlier mask)."""
+    if not kernels.compiled():
+        return refine_pose_numpy(camera_from_world, points_w, uv, ur, weight, camera, bf, rounds, iterations)
+    from depotbench.slam.kernels import optimize as compiled
+
+    return compiled.refine_pose(
+        np.ascontiguousarray(camera_from_world, np.float64),
+        np.ascontiguousarray(points_w, np.float64),
+        np.ascontiguousarray(uv, np.float64),
+        np.ascontiguousarray(ur, np.float64),
+        np.ascontiguousarray(weight, np.float64),
+        float(camera.fx),
+        float(camera.fy),
+        float(camera.cx),
+        float(camera.cy),
+        float(bf),
+        int(rounds),
+        int(iterations),
+        CHI2_STEREO,
+        CHI2_MONO,
+        GN_STEP_TOLERANCE,
+    )
+
+
+def refine_pose_numpy(
     camera_from_world: np.ndarray,
     points_w: np.ndarray,
     uv: np.ndarray,

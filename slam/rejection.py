@@ -10,6 +10,10 @@
 ``box_epipolar_flow`` method 3: dynamic boxes out; the rest tracked to the previous
                       frame, F by RANSAC, points farther than epsilon from their
                       epipolar line out; then the 2-sigma and L_thr1/L_thr2 flow tests.
+
+Method 3's epipolar distances and flow test run compiled (``depotbench.slam.kernels.rejection``)
+unless ``DEPOTBENCH_KERNELS=numpy``; ``epipolar_geometry_numpy`` and ``flow_outliers_numpy``
+are the references.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from depotbench.detectors.detection import Detection, Prior
+from depotbench.slam import kernels
 from depotbench.slam.config import RejectionConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.types import REJECTION_CODES, Rejection
@@ -186,13 +191,31 @@ def _epipolar_flow(
         tracked, magnitude = tracked[~off_line], magnitude[~off_line]
     if len(tracked) < 2:
         return codes
+    codes[tracked[flow_outliers(magnitude, config)]] = REJECTION_CODES[Rejection.FLOW_OUTLIER]
+    return codes
+
+
+def flow_outliers(magnitude: np.ndarray, config: RejectionConfig) -> np.ndarray:
+    """Method 3's flow test: a point is dynamic when |L_i - L_avg| > sigma_factor L_std, or
+    > L_thr1 while L_std < L_thr2 (compiled unless ``DEPOTBENCH_KERNELS=numpy``)."""
+    if not kernels.compiled():
+        return flow_outliers_numpy(magnitude, config)
+    from depotbench.slam.kernels import rejection as compiled
+
+    return compiled.flow_outliers(
+        np.ascontiguousarray(magnitude, np.float64),
+        float(config.sigma_factor),
+        float(config.l_thr1_px),
+        float(config.l_thr2_px),
+    )
+
+
+def flow_outliers_numpy(magnitude: np.ndarray, config: RejectionConfig) -> np.ndarray:
     deviation = np.abs(magnitude - magnitude.mean())
     std = float(magnitude.std())
-    outlier = (deviation > config.sigma_factor * std) | (
+    return (deviation > config.sigma_factor * std) | (
         (deviation > config.l_thr1_px) & (std < config.l_thr2_px)
     )
-    codes[tracked[outlier]] = REJECTION_CODES[Rejection.FLOW_OUTLIER]
-    return codes
 
 
 def _epipolar_geometry(
@@ -201,9 +224,24 @@ def _epipolar_geometry(
     """Each point's distance to its epipolar line under F from RANSAC (None when F fails)
     and its flow magnitude: what method 3's thresholds are then applied to."""
     cur_pts, prev_pts = current_px.astype(np.float64), previous_px.astype(np.float64)
-    magnitude = np.linalg.norm(cur_pts - prev_pts, axis=1)
     f, _ = cv2.findFundamentalMat(prev_pts, cur_pts, cv2.FM_RANSAC, config.fundamental_ransac_px, 0.99)
     if f is None or f.shape != (3, 3):
+        f = None
+    if not kernels.compiled():
+        return epipolar_geometry_numpy(f, prev_pts, cur_pts)
+    from depotbench.slam.kernels import rejection as compiled
+
+    distance, magnitude = compiled.epipolar_geometry(np.zeros((0, 3)) if f is None else f, prev_pts, cur_pts)
+    return (None if f is None else distance), magnitude
+
+
+def epipolar_geometry_numpy(
+    f: np.ndarray | None, prev_pts: np.ndarray, cur_pts: np.ndarray
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """(distance of each current point to its epipolar line under ``f``, None without one;
+    flow magnitude), in NumPy."""
+    magnitude = np.linalg.norm(cur_pts - prev_pts, axis=1)
+    if f is None:
         return None, magnitude
     lines = np.c_[prev_pts, np.ones(len(prev_pts))] @ f.T
     distance = np.abs(np.sum(lines * np.c_[cur_pts, np.ones(len(cur_pts))], axis=1)) / np.maximum(

@@ -1,0 +1,111 @@
+"""Compiled hot paths of tracking and mapping, and the one switch between them and NumPy.
+
+Pose refinement, search by projection, the Schur-complement local bundle adjustment and
+method 3's epipolar and flow tests run on a few hundred to a few thousand points per call,
+several times per frame: in NumPy each call pays ~10 us per array operation whatever the size
+(pose refinement, 40 Gauss-Newton steps of ~15 operations, cost 2.6 ms of a 15 ms frame on
+walking_xyz). Compiled with Numba each is one loop over the points.
+
+The NumPy functions stay the reference: each compiled kernel (``kernels.optimize`` for pose
+refinement and local BA, ``kernels.matching``, ``kernels.rejection``) takes and returns what its
+reference does, and ``tests/test_kernels.py`` holds each to it within a stated tolerance.
+One environment variable, read here and nowhere else, picks the path:
+
+- ``DEPOTBENCH_KERNELS=numba``: the compiled kernels (the default where numba imports);
+- ``DEPOTBENCH_KERNELS=numpy``: the NumPy reference throughout.
+
+Kernels compile with ``cache=True`` (Numba's cache beside the module, else under
+``~/.cache/numba`` or ``NUMBA_CACHE_DIR``), so only the first process compiles; where no
+cache folder is writable they compile in memory in each process (``kernels.jit``). No kernel
+uses threads or ``fastmath``: the sweep runs one process per core, and the results must match
+NumPy's arithmetic, not reassociate it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import functools
+import importlib.util
+import os
+import time
+from collections.abc import Iterator
+
+from depotbench.core.errors import InputError
+
+VARIABLE = "DEPOTBENCH_KERNELS"
+
+
+class Kernels(enum.Enum):
+    NUMPY = "numpy"
+    NUMBA = "numba"
+
+
+@functools.cache
+def kernels() -> Kernels:
+    """The path this process runs, from ``DEPOTBENCH_KERNELS`` (read once; tests that set it
+    call ``kernels.cache_clear()``). A value other than numpy or numba is refused, and so is
+    numba where it is not installed: a comparison that asked for it must not get NumPy."""
+    value = os.environ.get(VARIABLE, "").strip().lower()
+    installed = importlib.util.find_spec("numba") is not None
+    if not value:
+        return Kernels.NUMBA if installed else Kernels.NUMPY
+    try:
+        chosen = Kernels(value)
+    except ValueError:
+        choices = " or ".join(k.value for k in Kernels)
+        raise InputError(f"{VARIABLE}={os.environ[VARIABLE]!r}: choose {choices}") from None
+    if chosen is Kernels.NUMBA and not installed:
+        raise InputError(f"{VARIABLE}=numba, but numba is not installed (pip install numba)")
+    return chosen
+
+
+def compiled() -> bool:
+    """Whether the hot paths run compiled (the callers' one question)."""
+    return kernels() is Kernels.NUMBA
+
+
+@contextlib.contextmanager
+def using(path: Kernels) -> Iterator[None]:
+    """Run a block on one path, as ``DEPOTBENCH_KERNELS`` set for it would (benchmarks and tests
+    compare both in one process); the variable is restored after."""
+    before = os.environ.get(VARIABLE)
+    os.environ[VARIABLE] = path.value
+    kernels.cache_clear()
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(VARIABLE, None)
+        else:
+            os.environ[VARIABLE] = before
+        kernels.cache_clear()
+
+
+def warm_up() -> float:
+    """Compile every kernel now (or load it from Numba's cache), on tiny inputs of the types
+    the pipeline passes; returns the seconds it took. A timed run calls it first so that no
+    frame pays for compilation: ~1 s from the cache, 10-30 s without one."""
+    import numpy as np
+    from depotbench.slam.kernels import matching, optimize, rejection
+
+    started = time.perf_counter()
+    n = 4
+    points = np.c_[np.arange(n, dtype=np.float64), np.ones(n), np.full(n, 2.0)]
+    uv, ones = np.zeros((n, 2)), np.ones(n)
+    index = np.arange(n, dtype=np.int64)
+    optimize.solve(np.eye(2), np.ones(2))
+    optimize.refine_pose(np.eye(4), points, uv, ones, ones, 1.0, 1.0, 0.0, 0.0, 1.0, 1, 1, 7.8, 6.0, 1e-6)
+    poses, slot = np.eye(4)[None].repeat(2, axis=0), np.zeros(n, np.int64)
+    measured, stereo = np.zeros((n, 3)), np.ones(n, np.bool_)
+    camera = (1.0, 1.0, 0.0, 0.0, 1.0, 2.8, 1e-6)
+    index_zero = np.zeros(n, np.int64)
+    optimize.cost(poses, points, index_zero, index, measured, stereo, ones, *camera)
+    linear = optimize.linearise(poses, points, index_zero, index, slot, measured, stereo, ones, *camera, 1, n)
+    optimize.step(*linear, 1e-5, np.arange(n + 1, dtype=np.int64), index, slot)
+    optimize.camera_points(poses, points, index_zero, index)
+    descriptors = np.zeros((n, 32), np.uint8)
+    matching.pair(uv, ones, index, index, uv, index, index, descriptors, descriptors, 100, ones, ones)
+    rejection.epipolar_geometry(np.eye(3), uv, uv)
+    rejection.flow_outliers(ones, 2.0, 1.0, 1.0)
+    return time.perf_counter() - started

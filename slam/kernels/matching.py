@@ -1,0 +1,225 @@
+"""Compiled search by projection: ``Matcher.search_by_projection`` with its pairing as one loop.
+
+The reference builds a k-d tree of the usable keypoints per call, queries the 8 nearest within
+the search radius of each projected map point, and pairs them by Hamming distance with two
+lexsorts. Here the keypoints go into a grid of radius-sized cells and each point scans the
+cells around it for its 8 nearest, its best keypoint and then each keypoint's best point,
+with the reference's tie rules: the nearer keypoint wins an equal Hamming distance, the lower
+point index an equal claim on a keypoint. The one order the reference leaves unspecified is
+that of two keypoints at exactly the same distance (the k-d tree's); here the lower keypoint
+index comes first.
+
+``search_by_projection`` takes and returns what the method does, the matcher first
+(``depotbench.slam.matcher.Matcher`` calls it when ``DEPOTBENCH_KERNELS`` says numba).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from depotbench.slam.geometry import POPCOUNT, project, transform
+from depotbench.slam.kernels.jit import jit
+
+NEIGHBOURS = 8
+"""As ``matcher.NEIGHBOURS``: keypoints within the radius considered per point, nearest first."""
+ROTATION_BINS = 30
+"""As ``matcher.ROTATION_BINS``: the 3 most common of 30 keypoint-angle changes are kept."""
+
+_EMPTY = np.zeros(0, int)
+
+
+@jit
+def consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
+    """``matcher.consistent_rotation``: matches in the 3 most common angle-change bins."""
+    bins = (np.mod(delta_deg, 360.0) / (360.0 / ROTATION_BINS)).astype(np.int64) % ROTATION_BINS
+    counts = np.zeros(ROTATION_BINS, np.int64)
+    for b in bins:
+        counts[b] += 1
+    # the 3 largest counts, the lower bin first among equals (a stable sort's order)
+    keep = np.zeros(ROTATION_BINS, np.bool_)
+    largest = -1
+    for _ in range(3):
+        top = -1
+        for b in range(ROTATION_BINS):
+            if not keep[b] and (top < 0 or counts[b] > counts[top]):
+                top = b
+        if largest < 0:
+            largest = counts[top]
+        keep[top] = counts[top] >= 0.1 * largest
+        if not keep[top]:
+            break
+    out = np.empty(len(bins), np.bool_)
+    for i in range(len(bins)):
+        out[i] = keep[bins[i]]
+    return out
+
+
+@jit
+def pair(
+    uv: np.ndarray,
+    radius: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    candidates_px: np.ndarray,
+    candidates: np.ndarray,
+    octaves: np.ndarray,
+    point_descriptors: np.ndarray,
+    descriptors: np.ndarray,
+    max_hamming: int,
+    keypoint_angles: np.ndarray,
+    point_angles: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one matches (keypoint indices ascending, point rows) of projected points ``uv``
+    (M, 2) and the keypoints ``candidates`` at ``candidates_px``.
+
+    ``low`` and ``high`` (per point, empty for none) bound the keypoint's pyramid level;
+    ``point_angles`` (per point, empty for none) turn on the rotation check."""
+    n_points, n_candidates = len(uv), len(candidates)
+    r_max = radius.max()
+    bound = r_max * r_max
+    cell = max(r_max, 1.0)
+    x0, y0 = candidates_px[:, 0].min(), candidates_px[:, 1].min()
+    nx = int((candidates_px[:, 0].max() - x0) / cell) + 1
+    ny = int((candidates_px[:, 1].max() - y0) / cell) + 1
+    # keypoints by grid cell (counting sort; within a cell in candidate order)
+    cell_of = np.empty(n_candidates, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for c in range(n_candidates):
+        cx = min(int((candidates_px[c, 0] - x0) / cell), nx - 1)
+        cy = min(int((candidates_px[c, 1] - y0) / cell), ny - 1)
+        cell_of[c] = cy * nx + cx
+        start[cell_of[c] + 1] += 1
+    for k in range(nx * ny):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    in_cell = np.empty(n_candidates, np.int64)
+    for c in range(n_candidates):
+        in_cell[fill[cell_of[c]]] = c
+        fill[cell_of[c]] += 1
+    windowed = len(low) > 0
+    best_kp = np.full(n_points, -1, np.int64)
+    best_distance = np.zeros(n_points, np.int64)
+    near = np.empty(NEIGHBOURS, np.int64)
+    near_d2 = np.empty(NEIGHBOURS)
+    for i in range(n_points):
+        u, v = uv[i, 0], uv[i, 1]
+        gx0 = max(int(math.floor((u - r_max - x0) / cell)), 0)
+        gx1 = min(int(math.floor((u + r_max - x0) / cell)), nx - 1)
+        gy0 = max(int(math.floor((v - r_max - y0) / cell)), 0)
+        gy1 = min(int(math.floor((v + r_max - y0) / cell)), ny - 1)
+        count = 0
+        for gy in range(gy0, gy1 + 1):
+            for gx in range(gx0, gx1 + 1):
+                k = gy * nx + gx
+                for s in range(start[k], start[k + 1]):
+                    c = in_cell[s]
+                    dx, dy = candidates_px[c, 0] - u, candidates_px[c, 1] - v
+                    d2 = dx * dx + dy * dy
+                    if not d2 < bound:
+                        continue
+                    # insert into the sorted nearest list, (distance, candidate order)
+                    j = count if count < NEIGHBOURS else NEIGHBOURS
+                    while j > 0 and (near_d2[j - 1] > d2 or (near_d2[j - 1] == d2 and near[j - 1] > c)):
+                        if j < NEIGHBOURS:
+                            near_d2[j], near[j] = near_d2[j - 1], near[j - 1]
+                        j -= 1
+                    if j < NEIGHBOURS:
+                        near_d2[j], near[j] = d2, c
+                        count = min(count + 1, NEIGHBOURS)
+        for j in range(count):
+            if not math.sqrt(near_d2[j]) <= radius[i]:
+                break
+            keypoint = candidates[near[j]]
+            if windowed and not (low[i] <= octaves[keypoint] <= high[i]):
+                continue
+            distance = 0
+            for b in range(descriptors.shape[1]):
+                distance += POPCOUNT[point_descriptors[i, b] ^ descriptors[keypoint, b]]
+            if distance <= max_hamming and (best_kp[i] < 0 or distance < best_distance[i]):
+                best_kp[i], best_distance[i] = keypoint, distance
+    # each keypoint keeps its best point (the lowest index among equals)
+    claim = np.full(len(descriptors), -1, np.int64)
+    for i in range(n_points):
+        k = best_kp[i]
+        if k >= 0 and (claim[k] < 0 or best_distance[i] < best_distance[claim[k]]):
+            claim[k] = i
+    n = 0
+    for k in range(len(claim)):
+        if claim[k] >= 0:
+            n += 1
+    keypoints = np.empty(n, np.int64)
+    rows = np.empty(n, np.int64)
+    n = 0
+    for k in range(len(claim)):
+        if claim[k] >= 0:
+            keypoints[n], rows[n] = k, claim[k]
+            n += 1
+    if len(point_angles) and n:
+        keep = consistent_rotation(keypoint_angles[keypoints] - point_angles[rows])
+        keypoints, rows = keypoints[keep], rows[keep]
+    return keypoints, rows
+
+
+def search_by_projection(
+    matcher: Any,
+    map_: Any,
+    point_ids: np.ndarray,
+    camera_from_world: np.ndarray,
+    features: Any,
+    usable: np.ndarray,
+    radius: float | np.ndarray,
+    exclude: np.ndarray | None = None,
+    reference_angles: np.ndarray | None = None,
+    octave_window: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``Matcher.search_by_projection`` (``matcher`` is its ``self``: its settings and camera)
+    with the pairing compiled: the same matches in the same order, and the same ids that
+    projected into the image."""
+    tc, camera = matcher.tc, matcher.camera
+    empty = (_EMPTY, _EMPTY, _EMPTY)
+    angles = reference_angles
+    per_point = {"radius": np.broadcast_to(np.asarray(radius, float), point_ids.shape)}
+    if octave_window is not None:
+        per_point["low"], per_point["high"] = octave_window
+    if len(point_ids):
+        alive = map_.alive[point_ids]
+        point_ids = point_ids[alive]
+        angles = None if angles is None else angles[alive]
+        per_point = {k: v[alive] for k, v in per_point.items()}
+    candidates = np.flatnonzero(usable)
+    if exclude is not None:
+        candidates = candidates[~exclude[candidates]]
+    if len(point_ids) == 0 or len(candidates) == 0:
+        return empty
+    pc = transform(camera_from_world, map_.positions[point_ids])
+    front = pc[:, 2] > tc.min_depth_m
+    point_ids, pc = point_ids[front], pc[front]
+    angles = None if angles is None else angles[front]
+    per_point = {k: v[front] for k, v in per_point.items()}
+    uv = project(camera, pc)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    point_ids, uv = point_ids[inside], uv[inside]
+    angles = None if angles is None else angles[inside]
+    per_point = {k: v[inside] for k, v in per_point.items()}
+    if len(point_ids) == 0:
+        return empty
+    none = np.zeros(0, np.int64)
+    keypoints, rows = pair(
+        np.ascontiguousarray(uv, np.float64),
+        np.ascontiguousarray(per_point["radius"], np.float64),
+        np.ascontiguousarray(per_point["low"], np.int64) if octave_window is not None else none,
+        np.ascontiguousarray(per_point["high"], np.int64) if octave_window is not None else none,
+        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
+        candidates.astype(np.int64),
+        np.ascontiguousarray(features.octaves, np.int64),
+        np.ascontiguousarray(map_.descriptors[point_ids]),
+        np.ascontiguousarray(features.descriptors),
+        int(tc.match_max_hamming),
+        np.ascontiguousarray(features.angles_deg, np.float64),
+        np.ascontiguousarray(angles, np.float64) if angles is not None else np.zeros(0),
+    )
+    if len(keypoints) == 0:
+        return (*empty[:2], point_ids)
+    return keypoints, point_ids[rows], point_ids
