@@ -66,7 +66,6 @@ class TrackingConfig:
     """A new map point is culled for a poor found/visible ratio or too few observations only
     while fewer than this many keyframes have followed its own (ORB-SLAM's MapPointCulling)."""
     local_keyframes: int = 10
-    ba_window: int = 5
     ba_iterations: int = 10
     relocalize_keyframes: int = 20
     seed: int = 0
@@ -94,7 +93,6 @@ class TrackingConfig:
                 "keyframe_points": (0, 100000),
                 "recent_point_keyframes": (1, 100000),
                 "local_keyframes": (1, 100),
-                "ba_window": (2, 50),
                 "ba_iterations": (0, 200),
                 "relocalize_keyframes": (1, 1000),
                 "seed": (0, 2**31 - 1),
