@@ -23,6 +23,7 @@ short generated sequence is tracked on both with the same trajectory to 1e-9.
 
 from __future__ import annotations
 
+import inspect
 import subprocess
 import sys
 from pathlib import Path
@@ -48,6 +49,8 @@ CAMERA = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)
 BF = 40.0
 COMPILED = (CAMERA.fx, CAMERA.fy, CAMERA.cx, CAMERA.cy, BF)
 CONSTANTS = (optimize.CHI2_STEREO, optimize.CHI2_MONO, optimize.GN_STEP_TOLERANCE)
+DEPTH_CHECK = "depth_check" in inspect.signature(Matcher.search_by_projection).parameters
+"""Whether the reference has the last frame's depth check yet (issue 40's local-mapping work)."""
 
 
 @pytest.fixture
@@ -363,7 +366,7 @@ def _scene(rng: np.random.Generator, n_keypoints: int, n_points: int):
         px,
         rng.integers(0, 8, n_keypoints),
         descriptors,
-        rng.uniform(0.5, 5, n_keypoints),
+        np.where(rng.uniform(size=n_keypoints) < 0.2, 0.0, rng.uniform(0.5, 5, n_keypoints)),
         rng.uniform(0, 360, n_keypoints),
     )
     source = rng.integers(0, max(n_keypoints, 1), n_points)
@@ -394,6 +397,8 @@ def _search_arguments(rng: np.random.Generator, features: FrameFeatures, map_: M
         octaves = rng.integers(0, 8, len(point_ids))
         kwargs["octave_window"] = (octaves - 1, octaves + 1)
         kwargs["reference_angles"] = rng.uniform(0, 360, len(point_ids))
+    if DEPTH_CHECK and variant in (1, 2):
+        kwargs["depth_check"] = True
     return (map_, point_ids, pose, features, usable, radius), kwargs
 
 
@@ -455,6 +460,34 @@ def test_equal_keypoints_at_equal_distance_go_to_the_lower_index():
         Matcher(TrackingConfig(), CAMERA), map_, np.array([0]), np.eye(4), features, np.ones(3, bool), 4.0
     )
     assert kp.tolist() == [0] and pid.tolist() == [0]
+
+
+def test_the_depth_check_compares_right_image_columns():
+    """A keypoint with depth matches only where its right-image column (u - bf / depth) lies
+    within the radius of the point's; one without depth always passes. Hand-made: the point
+    projects to (300.5, 200) at 2 m (right column 280.5); keypoints at (301, 200)."""
+    descriptor = np.arange(32, dtype=np.uint8)
+    position = [(300.5 - CAMERA.cx) / CAMERA.fx * 2.0, (200.0 - CAMERA.cy) / CAMERA.fy * 2.0, 2.0]
+    map_ = Map()
+    map_.add_points(np.array([position]), descriptor[None], 0)
+    matcher = Matcher(TrackingConfig(), CAMERA)
+    for depth, matched in ((2.0, True), (2.5, False), (1.8, False), (0.0, True)):
+        # right columns: 281.0, 285.0, 278.8 against 280.5 within 1.5 px; no depth: no check
+        features = FrameFeatures(
+            np.zeros((480, 640), np.uint8),
+            np.array([[301.0, 200.0]], np.float32),
+            np.array([[301.0, 200.0]]),
+            np.array([0]),
+            descriptor[None],
+            np.array([depth]),
+            np.zeros(1),
+        )
+        args = (map_, np.array([0]), np.eye(4), features, np.ones(1, bool), 1.5)
+        kp, _, _ = matching.search_by_projection(matcher, *args, depth_check=True)
+        assert len(kp) == matched, depth
+        assert len(matching.search_by_projection(matcher, *args)[0]) == 1
+        if DEPTH_CHECK:
+            assert len(matcher.search_by_projection(*args, depth_check=True)[0]) == matched
 
 
 def test_hamming_and_rotation_checks_equal_numpy():

@@ -19,8 +19,9 @@ def jit(function: F) -> F:
 
     Numba looks for one when the kernel is defined (``NUMBA_CACHE_DIR``, the package's
     ``__pycache__``, the user's cache) and raises if there is none, as in a read-only install
-    run by a user without a home; the kernel then compiles in memory in each process
-    (about a second per process, ``benchmarks/tracking.py --kernels both`` prints it)."""
+    run by a user without a home; the kernels then compile in memory in every process
+    (14 s for all of them on a busy 2-core machine, against 0.5 s to load them from the cache;
+    ``benchmarks/tracking.py --kernels both`` prints both)."""
     import numba
 
     try:

@@ -70,12 +70,17 @@ def pair(
     max_hamming: int,
     keypoint_angles: np.ndarray,
     point_angles: np.ndarray,
+    point_right: np.ndarray,
+    keypoint_right: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one matches (keypoint indices ascending, point rows) of projected points ``uv``
     (M, 2) and the keypoints ``candidates`` at ``candidates_px``.
 
     ``low`` and ``high`` (per point, empty for none) bound the keypoint's pyramid level;
-    ``point_angles`` (per point, empty for none) turn on the rotation check."""
+    ``point_angles`` (per point, empty for none) turn on the rotation check; ``point_right``
+    (per point, empty for none) and ``keypoint_right`` (per keypoint, NaN where its depth is
+    not positive: it passes) turn on the depth check: the right-image columns within the
+    point's radius."""
     n_points, n_candidates = len(uv), len(candidates)
     r_max = radius.max()
     bound = r_max * r_max
@@ -99,6 +104,7 @@ def pair(
         in_cell[fill[cell_of[c]]] = c
         fill[cell_of[c]] += 1
     windowed = len(low) > 0
+    depth_checked = len(point_right) > 0
     best_kp = np.full(n_points, -1, np.int64)
     best_distance = np.zeros(n_points, np.int64)
     near = np.empty(NEIGHBOURS, np.int64)
@@ -133,6 +139,9 @@ def pair(
                 break
             keypoint = candidates[near[j]]
             if windowed and not (low[i] <= octaves[keypoint] <= high[i]):
+                continue
+            right = keypoint_right[keypoint]
+            if depth_checked and not math.isnan(right) and not abs(right - point_right[i]) <= radius[i]:
                 continue
             distance = 0
             for b in range(descriptors.shape[1]):
@@ -173,10 +182,12 @@ def search_by_projection(
     exclude: np.ndarray | None = None,
     reference_angles: np.ndarray | None = None,
     octave_window: tuple[np.ndarray, np.ndarray] | None = None,
+    depth_check: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``Matcher.search_by_projection`` (``matcher`` is its ``self``: its settings and camera)
     with the pairing compiled: the same matches in the same order, and the same ids that
-    projected into the image."""
+    projected into the image. ``depth_check`` refuses a keypoint with depth whose right-image
+    column (u - bf / depth) lies farther than the radius from the point's projected one."""
     tc, camera = matcher.tc, matcher.camera
     empty = (_EMPTY, _EMPTY, _EMPTY)
     angles = reference_angles
@@ -206,6 +217,12 @@ def search_by_projection(
     if len(point_ids) == 0:
         return empty
     none = np.zeros(0, np.int64)
+    point_right = keypoint_right = np.zeros(0)
+    if depth_check:
+        point_right = np.ascontiguousarray(uv[:, 0] - tc.baseline_fx / pc[inside, 2], np.float64)
+        depth = features.depth_m
+        keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
+        keypoint_right = np.ascontiguousarray(np.where(depth <= 0, np.nan, keypoint_right), np.float64)
     keypoints, rows = pair(
         np.ascontiguousarray(uv, np.float64),
         np.ascontiguousarray(per_point["radius"], np.float64),
@@ -219,6 +236,8 @@ def search_by_projection(
         int(tc.match_max_hamming),
         np.ascontiguousarray(features.angles_deg, np.float64),
         np.ascontiguousarray(angles, np.float64) if angles is not None else np.zeros(0),
+        point_right,
+        keypoint_right,
     )
     if len(keypoints) == 0:
         return (*empty[:2], point_ids)
