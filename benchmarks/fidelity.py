@@ -103,8 +103,9 @@ class Job:
         return self.runs / self.sequence.name / f"{self.tracker}-{strategy}-{self.repeat}"
 
 
-def _run(job: Job) -> tuple[Job, dict[str, dict], float]:
-    """The job's metrics per strategy; a tracker that fails is recorded as a failure, not dropped."""
+def _run(job: Job) -> tuple[Job, dict[str, dict], float, int]:
+    """The job's metrics per strategy, its seconds and how many runs it read back (``--resume``);
+    a tracker that fails is recorded as a failure, not dropped."""
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import run_sequence
     from depotbench.eval.trackers.base import TrackerError
@@ -113,11 +114,12 @@ def _run(job: Job) -> tuple[Job, dict[str, dict], float]:
     started = time.perf_counter()
     cache = StageCache(job.stages) if job.stages is not None else None
     config = TrackerConfig(job.tracker, vocabulary=job.vocabulary)
-    out = {}
+    out, resumed = {}, 0
     for strategy in job.strategies:
         target = job.target(strategy)
         if job.resume and (target / "metrics.json").is_file():
             out[strategy] = json.loads((target / "metrics.json").read_text(encoding="utf-8"))
+            resumed += 1
             continue
         try:
             out[strategy] = run_sequence(
@@ -125,7 +127,7 @@ def _run(job: Job) -> tuple[Job, dict[str, dict], float]:
             )
         except TrackerError as exc:  # ORB-SLAM3 crashed or timed out: a failed run, counted as one
             out[strategy] = {"failure": str(exc)}
-    return job, out, time.perf_counter() - started
+    return job, out, time.perf_counter() - started, resumed
 
 
 @dataclass(frozen=True)
@@ -183,7 +185,7 @@ def _seed_rows(scene_seeds: list[tuple[int, str]], results: dict, strategies: tu
 
 def _scene_summary(scene: str, rows: list, strategies: tuple[str, ...], static: dict | None) -> dict:
     """Per scene: the figures of issue 40's "done when", each with its inputs."""
-    from scipy.stats import mannwhitneyu, wilcoxon
+    from scipy.stats import mannwhitneyu, spearmanr, wilcoxon
 
     bi = [r["builtin"]["none"].ate_m for r in rows]
     orb = [_median([run.ate_m for run in r["orbslam3"]]) for r in rows]
@@ -203,8 +205,10 @@ def _scene_summary(scene: str, rows: list, strategies: tuple[str, ...], static: 
             if len(finite) >= 2 and any(a != b for a, b in finite)
             else None
         )
+        # Informative: do the two agree on which seeds are hard (when nearly every seed "fails")?
+        summary["spearman_r"] = float(spearmanr([a for a, _ in paired], [b for _, b in paired]).statistic)
     else:
-        summary["mannwhitney_p"] = summary["wilcoxon_p"] = None
+        summary["mannwhitney_p"] = summary["wilcoxon_p"] = summary["spearman_r"] = None
     bi_kf = [r["builtin"]["none"].keyframes_per_span for r in rows]
     orb_kf = [_median([run.keyframes_per_span for run in r["orbslam3"]]) for r in rows]
     summary["builtin_keyframes_per_200"] = _median(bi_kf)
@@ -303,17 +307,19 @@ def _print_seeds(scene: str, rows: list, strategies: tuple[str, ...], static: di
 def _print_summary(summaries: dict, strategies: tuple[str, ...]) -> None:
     print("\nper scene: medians over seeds (ORB-SLAM3: median of each seed's runs first), ATE mm")
     print(
-        f"{'scene':20s}{'bi none':>9s}{'ORB':>9s}{'ratio':>7s}{'MWU p':>8s}{'Wilc p':>8s}{'agree':>7s}"
+        f"{'scene':20s}{'bi none':>9s}{'ORB':>9s}{'ratio':>7s}{'MWU p':>8s}{'Wilc p':>8s}{'Spear':>7s}"
+        f"{'agree':>7s}"
         f"{'F bi':>5s}{'F orb':>6s}{'kf bi':>7s}{'kf orb':>7s}{'kf ratio':>9s}"
     )
     for scene, s in summaries.items():
         p = "-" if s["mannwhitney_p"] is None else f"{s['mannwhitney_p']:.3f}"
         w = "-" if s["wilcoxon_p"] is None else f"{s['wilcoxon_p']:.3f}"
+        r = "-" if s["spearman_r"] is None or math.isnan(s["spearman_r"]) else f"{s['spearman_r']:.2f}"
         agree = f"{s['verdicts_agree']}/{s['n_seeds']}" if "verdicts_agree" in s else "-"
         fails = (str(s.get("builtin_fails", "-")), str(s.get("orbslam3_fails", "-")))
         print(
             f"{scene:20s}{_mm(s['builtin_none_ate_median_m']):>9s}{_mm(s['orbslam3_ate_median_m']):>9s}"
-            f"{s['ate_ratio']:7.2f}{p:>8s}{w:>8s}{agree:>7s}{fails[0]:>5s}{fails[1]:>6s}"
+            f"{s['ate_ratio']:7.2f}{p:>8s}{w:>8s}{r:>7s}{agree:>7s}{fails[0]:>5s}{fails[1]:>6s}"
             f"{s['builtin_keyframes_per_200']:7.1f}{s['orbslam3_keyframes_per_200']:7.1f}{s['keyframe_ratio']:9.2f}"
         )
     print(
@@ -445,6 +451,8 @@ def _seeds(values: list[str], parser: argparse.ArgumentParser) -> tuple[str, tup
         parser.error(f"--seeds: give {' or '.join(SEED_SETS)}, or seeds as integers; got {' '.join(values)}")
     if len(set(seeds)) != len(seeds):
         parser.error(f"--seeds: {' '.join(values)} repeats a seed")
+    if set(seeds) & set(DEVELOPMENT) and set(seeds) & set(HELD_OUT):
+        parser.error(f"--seeds: {' '.join(values)} mixes development and held-out seeds; run them apart")
     named = (
         "dev" if set(seeds) <= set(DEVELOPMENT) else "held-out" if set(seeds) <= set(HELD_OUT) else "other"
     )
@@ -542,13 +550,14 @@ def main() -> None:
             for scene, seed, path in sequences
         ]
         results: dict[tuple[str, str, int], dict] = {}
-        busy = {"builtin": 0.0, "orbslam3": 0.0}
+        busy = {"builtin": 0.0, "orbslam3": 0.0, "runs_read_back": 0}
         with ProcessPoolExecutor(
             args.workers, mp_context=get_context("spawn"), initializer=_worker_init
         ) as pool:
             futures = [pool.submit(_run, job) for job in jobs]
             for done, future in enumerate(as_completed(futures), 1):
-                job, metrics, seconds = future.result()
+                job, metrics, seconds, read_back = future.result()
+                busy["runs_read_back"] += read_back
                 results[(job.sequence.name, job.tracker, job.repeat)] = metrics
                 busy[job.tracker] += seconds
                 ates = ", ".join(f"{s} {_mm(Run.of(m).ate_m)}" for s, m in metrics.items())
@@ -602,6 +611,11 @@ def _report(
     print(
         f"\ntime: {total_s / 60:.1f} min in all; sequences {generated_s / 60:.1f} min; worker time built-in "
         f"{busy['builtin'] / 60:.1f} min, ORB-SLAM3 {busy['orbslam3'] / 60:.1f} min ({args.workers} workers)"
+        + (
+            f"; {busy['runs_read_back']} runs read back (--resume), not timed"
+            if busy["runs_read_back"]
+            else ""
+        )
     )
     document = {
         "meta": {
@@ -622,6 +636,7 @@ def _report(
                 "sequences": generated_s,
                 "worker_builtin": busy["builtin"],
                 "worker_orbslam3": busy["orbslam3"],
+                "runs_read_back": busy["runs_read_back"],
             },
         },
         "scenes": {scene: {"summary": summaries[scene], "seeds": per_scene[scene]} for scene in per_scene},
