@@ -378,15 +378,18 @@ def linearise(
             for j in range(3):
                 jac[i, 3 + j] = -d[i, j]
                 jac[i, 6 + j] = -(d[i, 0] * pose[0, j] + d[i, 1] * pose[1, j] + d[i, 2] * pose[2, j])
+        # J^T robust J, its upper triangle mirrored (the reference's two halves differ by rounding)
         for a in range(9):
             gradient[a] = 0.0
-            for b in range(9):
+            for b in range(a, 9):
                 hessian[a, b] = 0.0
             for i in range(3):
                 ja = jac[i, a] * robust
                 gradient[a] += ja * r[i]
-                for b in range(9):
+                for b in range(a, 9):
                     hessian[a, b] += ja * jac[i, b]
+            for b in range(a):
+                hessian[a, b] = hessian[b, a]
         point = obs_point[k]
         for a in range(3):
             g_point[point, a] += gradient[6 + a]
@@ -467,19 +470,23 @@ def step(
                     )
                 g, t = g_point[p], wv[row, a]
                 rhs_sum[6 * obs_slot[row] + a] += t[0] * g[0] + t[1] * g[1] + t[2] * g[2]
+        # W V^-1 W^T over the pairs of free keyframes seeing the point: one triangle, mirrored
         for i in range(first, last):
             row_a = point_obs[i]
             base_a = 6 * obs_slot[row_a]
-            for j in range(first, last):
+            for j in range(i, last):
                 row_b = point_obs[j]
                 base_b = 6 * obs_slot[row_b]
                 for a in range(6):
                     for b in range(6):
-                        schur[base_a + a, base_b + b] += (
+                        block = (
                             wv[row_a, a, 0] * w_blocks[row_b, b, 0]
                             + wv[row_a, a, 1] * w_blocks[row_b, b, 1]
                             + wv[row_a, a, 2] * w_blocks[row_b, b, 2]
                         )
+                        schur[base_a + a, base_b + b] += block
+                        if j != i:
+                            schur[base_b + b, base_a + a] += block
     reduced = np.zeros((size, size))
     for k in range(n_free):
         for a in range(6):
