@@ -249,10 +249,20 @@ class _CompiledProblem:
         )
 
     def step(self, linear: tuple[np.ndarray, ...], damping: float) -> tuple[np.ndarray, np.ndarray] | None:
-        solved, pose_step, point_step = self.kernels.step(
-            *linear, float(damping), self.point_start, self.point_obs, self.free_slot
-        )
-        return (pose_step, point_step) if solved else None
+        grouping = (self.point_start, self.point_obs, self.free_slot)
+        invertible, reduced, rhs, v_inverse = self.kernels.reduce(*linear, float(damping), *grouping)
+        if not invertible:
+            return None
+        try:
+            pose_step = np.linalg.solve(reduced, rhs) if self.n_free else np.zeros(0)
+        except np.linalg.LinAlgError:
+            return None
+        pose_step = pose_step.reshape(-1, 6)
+        _, _, _, g_point, w_blocks = linear
+        point_step = self.kernels.back_substitute(pose_step, g_point, w_blocks, v_inverse, *grouping)
+        if not (np.isfinite(pose_step).all() and np.isfinite(point_step).all()):
+            return None
+        return pose_step, point_step
 
 
 def bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:

@@ -1,5 +1,5 @@
 """Compiled pose refinement and local bundle adjustment (``depotbench.slam.optimize`` and
-``depotbench.slam.bundle``), with the small dense solve both use.
+``depotbench.slam.bundle``), with pose refinement's small dense solve.
 
 Pose refinement: each Gauss-Newton step accumulates the 6x6 normal equations point by point
 (residual, analytic Jacobian, Huber weight) instead of building (N, 3, 6) arrays; the rounds,
@@ -12,11 +12,13 @@ poses, 3) array; here each observation adds its blocks where they belong and eac
 W V^-1 W^T for the pairs of free keyframes that see it. The 3x3 point blocks are inverted in
 closed form (the reference calls LAPACK per point).
 
-The solve is Gaussian elimination with partial pivoting in LAPACK's unblocked order (the
-largest pivot in the column, the first of equals): ``numpy.linalg.solve`` compiled by Numba
-cost ~5 s of compile time in each kernel calling it. Every kernel that calls another lives in
-this file: Numba's cache checks only the file of the kernel it loads, so a callee edited in
-another file would go on running from its callers' caches.
+Pose refinement's 6x6 solve is Gaussian elimination with partial pivoting in LAPACK's
+unblocked order (the largest pivot in the column, the first of equals): ``numpy.linalg.solve``
+compiled by Numba cost ~5 s of compile time in each kernel calling it. Local BA's reduced
+system (6 x up to ~40 free keyframes) is solved by NumPy's LAPACK between two kernels.
+Every kernel that calls another lives in this file: Numba's cache checks only the file of the
+kernel it loads, so a callee edited in another file would go on running from its callers'
+caches.
 """
 
 from __future__ import annotations
@@ -425,7 +427,7 @@ def _inverse3(m: np.ndarray, out: np.ndarray) -> None:
 
 
 @jit
-def step(
+def reduce(
     u_blocks: np.ndarray,
     g_pose: np.ndarray,
     v_blocks: np.ndarray,
@@ -435,15 +437,18 @@ def step(
     point_start: np.ndarray,
     point_obs: np.ndarray,
     obs_slot: np.ndarray,
-) -> tuple[bool, np.ndarray, np.ndarray]:
-    """``_Problem.step``: (solved, pose step (F, 6), point step (P, 3)).
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:
+    """The damped reduced camera system of ``_Problem.step``: (the points' blocks invertible,
+    S (6F, 6F), its right-hand side, the damped V^-1 (P, 3, 3)).
 
     The free observations of point p are ``point_obs[point_start[p]:point_start[p + 1]]``
-    (rows of ``w_blocks``), each on free slot ``obs_slot`` of that row."""
+    (rows of ``w_blocks``), each on free slot ``obs_slot`` of that row. S is solved in LAPACK
+    (``numpy.linalg.solve``, as the reference does: 6 x 40 free poses take ~1 ms there)."""
     n_free = len(u_blocks)
     n_points = len(v_blocks)
-    pose_step = np.zeros((n_free, 6))
-    point_step = np.zeros((n_points, 3))
+    size = 6 * n_free
+    reduced = np.zeros((size, size))
+    rhs = np.empty(size)
     v_inverse = np.empty((n_points, 3, 3))
     damped = np.empty((3, 3))
     for p in range(n_points):
@@ -452,8 +457,7 @@ def step(
                 damped[a, b] = v_blocks[p, a, b] + (damping if a == b else 0.0)
         _inverse3(damped, v_inverse[p])
         if not np.isfinite(v_inverse[p]).all():
-            return False, pose_step, point_step
-    size = 6 * n_free
+            return False, reduced, rhs, v_inverse
     schur = np.zeros((size, size))
     rhs_sum = np.zeros(size)
     wv = np.empty((len(w_blocks), 6, 3))
@@ -487,23 +491,30 @@ def step(
                         schur[base_a + a, base_b + b] += block
                         if j != i:
                             schur[base_b + b, base_a + a] += block
-    reduced = np.zeros((size, size))
     for k in range(n_free):
         for a in range(6):
             for b in range(6):
                 reduced[6 * k + a, 6 * k + b] = u_blocks[k, a, b]
-    rhs = np.empty(size)
     for a in range(size):
         reduced[a, a] += damping
         rhs[a] = -g_pose[a // 6, a % 6] + rhs_sum[a]
     reduced -= schur
-    if n_free:
-        solved, solution = solve(reduced, rhs)
-        if not solved:
-            return False, pose_step, point_step
-        for k in range(n_free):
-            for a in range(6):
-                pose_step[k, a] = solution[6 * k + a]
+    return True, reduced, rhs, v_inverse
+
+
+@jit
+def back_substitute(
+    pose_step: np.ndarray,
+    g_point: np.ndarray,
+    w_blocks: np.ndarray,
+    v_inverse: np.ndarray,
+    point_start: np.ndarray,
+    point_obs: np.ndarray,
+    obs_slot: np.ndarray,
+) -> np.ndarray:
+    """The points' step (P, 3) given the free poses' (F, 6): V^-1 (-g_p - W_p^T pose step)."""
+    n_points = len(v_inverse)
+    point_step = np.empty((n_points, 3))
     point_rhs = np.empty(3)
     for p in range(n_points):
         for b in range(3):
@@ -519,6 +530,4 @@ def step(
         vi = v_inverse[p]
         for a in range(3):
             point_step[p, a] = vi[a, 0] * point_rhs[0] + vi[a, 1] * point_rhs[1] + vi[a, 2] * point_rhs[2]
-    if not (np.isfinite(pose_step).all() and np.isfinite(point_step).all()):
-        return False, pose_step, point_step
-    return True, pose_step, point_step
+    return point_step
