@@ -187,7 +187,7 @@ def test_json_on_the_command_line_is_what_the_files_and_the_api_hold(session, tm
     assert json.loads(capsys.readouterr().out) == json.loads((work / "sweep" / "summary.json").read_text())
 
     strict = (work / "gates.yaml").read_text().replace("lost_fraction: {max: 0.5}", "ate_rmse_m: {max: 1e-9}")
-    gates = tmp_path / "strict-gates.yaml"
+    gates = work / "strict-gates-json.yaml"  # beside gates.yaml: its sequences are relative
     gates.write_text(strict)
     for path, code in ((work / "gates.yaml", 0), (gates, 1)):
         assert main(["check", str(path), "-o", str(work / "sweep"), "--json"]) == code

@@ -84,7 +84,7 @@ def test_a_sweep_runs_an_external_program_over_its_parameters_and_detectors(
     assert mean(faulted) < mean(clean)  # half the boxes missing reach its rejection
     capsys.readouterr()
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
-    assert "(24 already done)" in capsys.readouterr().err  # a status line: stderr
+    assert "(24 already done)" in capsys.readouterr().out
 
 
 def test_the_programs_keypoint_decisions_are_scored_against_the_exact_labels(sequences: Path, tmp_path: Path):
@@ -222,7 +222,7 @@ def test_a_changed_program_is_run_again_not_resumed(sequences: Path, tmp_path: P
     program.write_text(program.read_text() + "\n# rebuilt\n")
     capsys.readouterr()
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
-    assert "(2 already done)" in capsys.readouterr().err  # the built-in none rows only
+    assert "(2 already done)" in capsys.readouterr().out  # the built-in none rows only
 
 
 def test_processes_of_a_hung_program_do_not_outlive_the_sweep(sequences: Path, tmp_path: Path, monkeypatch):

@@ -74,7 +74,7 @@ def test_a_copied_sweep_folder_keeps_every_figure(swept: Path, tmp_path: Path, c
     shutil.rmtree(swept / "sw" / "sequences")  # the original's sequences are gone
     capsys.readouterr()
     assert main(["sweep", str(swept / "spec.yaml"), "-o", str(copy), "--workers", "2"]) == 0
-    assert "(32 already done)" in capsys.readouterr().err
+    assert "(32 already done)" in capsys.readouterr().out
     rows = _csv(copy / "results.csv")
     assert all(not Path(r["sequence"]).is_absolute() for r in rows)
     base = {(r["sequence"], r["detector"]): r["ate_rmse_m"] for r in rows if r["strategy"] == "none"}

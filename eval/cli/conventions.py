@@ -191,23 +191,26 @@ def add_verbosity(parser: argparse.ArgumentParser, *, top: bool) -> None:
 
 
 class Messages(logging.Handler):
-    """The library's log records on stderr: ``depotbench VERB: warning: ...`` and
-    ``... error: ...`` lines, the rest as they are. The stream is looked up when a line is
-    written (tests and callers replace ``sys.stderr``)."""
+    """The library's log records as the command line prints them: ``depotbench VERB:
+    warning: ...`` and ``... error: ...`` lines on stderr; status lines (INFO and below) on
+    stdout beside the command's own output, or on stderr when stdout carries ``--json``
+    (it then holds nothing but the JSON). The streams are looked up when a line is written
+    (tests and callers replace ``sys.stdout`` and ``sys.stderr``)."""
 
     def __init__(self) -> None:
         super().__init__(logging.NOTSET)
         self.verb = ""
+        self.status_to_stderr = False
 
     def emit(self, record: logging.LogRecord) -> None:
         message = record.getMessage()
         if record.levelno >= logging.ERROR:
-            line = f"depotbench {self.verb}: error: {message}"
+            line, stream = f"depotbench {self.verb}: error: {message}", sys.stderr
         elif record.levelno >= logging.WARNING:
-            line = f"depotbench {self.verb}: warning: {message}"
+            line, stream = f"depotbench {self.verb}: warning: {message}", sys.stderr
         else:
-            line = message
-        print(line, file=sys.stderr, flush=True)
+            line, stream = message, sys.stderr if self.status_to_stderr else sys.stdout
+        print(line, file=stream, flush=True)
 
 
 MESSAGES = Messages()
@@ -216,13 +219,15 @@ LEVELS = {-1: logging.ERROR, 0: logging.INFO}
 """``-q``, nothing; ``-v`` and more: DEBUG."""
 
 
-def show_messages(verb: str, verbosity: int) -> int:
+def show_messages(verb: str, verbosity: int, *, json: bool = False) -> int:
     """Route the ``depotbench`` logger's records to stderr at the level ``verbosity`` asks for
-    (-1 for ``-q``). The library's own progress lines are INFO: a command line user sees them
-    unless ``-q``, a library user only by asking (Python shows warnings alone by default);
-    progress bars stop at ``-q`` too. Returns the level it replaced."""
+    (-1 for ``-q``; ``json``: stdout is the command's JSON). The library's status lines are
+    INFO: a command line user sees them unless ``-q``, a library user only by asking
+    (Python shows warnings alone by default); progress bars stop at ``-q`` too. Returns the
+    level it replaced."""
     logger = logging.getLogger("depotbench")
     MESSAGES.verb = verb
+    MESSAGES.status_to_stderr = json
     previous = logger.level
     logger.setLevel(LEVELS.get(verbosity, logging.DEBUG))
     if MESSAGES not in logger.handlers:

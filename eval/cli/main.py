@@ -680,9 +680,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("depotbench: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
-        level = show_messages(args.verb, -1 if args.quiet else args.verbose)
+        as_json = getattr(args, "json", False)
+        level = show_messages(args.verb, -1 if args.quiet else args.verbose, json=as_json)
         try:
-            if args.quiet and not getattr(args, "json", False):
+            if args.quiet and not as_json:
                 with open(os.devnull, "w") as nowhere, contextlib.redirect_stdout(nowhere):
                     return _run(args)
             return _run(args)

@@ -119,9 +119,10 @@ class Orbslam3Tracker:
                 "vocabulary": str(self.vocabulary.resolve()),
                 "settings": str(settings),
                 "sequence": str(frames.folder(scratch).resolve()),
-                # The camera the run was given: a real folder of another size than TUM's, with
-                # no camera.yaml, opens in the worker only with it.
-                "intrinsics": dataclasses.asdict(sequence.intrinsics),
+                # A real folder's camera as the run was given it (one of another size than
+                # TUM's, with no camera.yaml, opens in the worker only with it); a generated
+                # sequence has its own, and refuses another.
+                "intrinsics": None if sequence.is_generated else dataclasses.asdict(sequence.intrinsics),
                 "out": str(scratch),
             }
             (scratch / "request.json").write_text(json.dumps(request), encoding="utf-8")

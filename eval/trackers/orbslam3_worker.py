@@ -44,7 +44,7 @@ def main(request_path: str) -> int:
     import pyorbslam3
 
     given = request["intrinsics"]
-    intrinsics = Intrinsics(**{**given, "distortion": tuple(given["distortion"])})
+    intrinsics = None if given is None else Intrinsics(**{**given, "distortion": tuple(given["distortion"])})
     sequence = Sequence.open(request["sequence"], intrinsics=intrinsics)
     slam = pyorbslam3.Slam(
         request["vocabulary"], request["settings"], pyorbslam3.Sensor.RGBD, use_viewer=False
