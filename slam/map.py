@@ -247,12 +247,15 @@ class Map:
             out[rows] = values
         return out if out is not None else np.zeros(0)
 
-    def update_points(self, point_ids: np.ndarray, scale_factor: float, n_levels: int) -> None:
-        """ORB-SLAM's UpdateNormalAndDepth and ComputeDistinctiveDescriptors for ``point_ids``:
-        the normal is the mean direction from the observers, the distances come from the
-        first observer (the reference: distance times scale^octave, and that over
-        scale^(levels - 1)), the descriptor is the observation's with the least median
-        Hamming distance to the others."""
+    def update_points(
+        self, point_ids: np.ndarray, scale_factor: float, n_levels: int, descriptors: bool = True
+    ) -> None:
+        """ORB-SLAM's UpdateNormalAndDepth (and, with ``descriptors``, ComputeDistinctiveDescriptors)
+        for ``point_ids``: the normal is the mean direction from the observers; the distances
+        come from the reference observer (the keyframe that made the point while it sees it,
+        else the oldest): its distance times scale^octave, and that over scale^(levels - 1);
+        the descriptor is the observation's with the least median Hamming distance to the
+        others (the lower median, as ORB-SLAM sorts and takes element (n - 1) / 2)."""
         point_ids = np.unique(point_ids[point_ids >= 0])
         point_ids = point_ids[self.alive[point_ids]]
         index, kfs, kps = self.observation_table(point_ids)
@@ -267,23 +270,25 @@ class Map:
         normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
         has = np.bincount(index, minlength=len(point_ids)) > 0
         self.normals[point_ids[has]] = normal[has]
-        # The reference observation: the first keyframe of each point.
-        order = np.lexsort((kfs, index))
+        not_maker = kfs != self.first_keyframe[point_ids][index]
+        order = np.lexsort((kfs, not_maker, index))
         first = order[np.r_[True, np.diff(index[order]) != 0]]
         octaves = self.keypoint_values("octaves", kfs[first], kps[first])
         ref = point_ids[index[first]]
         self.max_distance[ref] = lengths[first] * scale_factor ** octaves.astype(float)
         self.min_distance[ref] = self.max_distance[ref] / scale_factor ** (n_levels - 1)
+        if not descriptors:
+            return
         # Distinctive descriptors, points grouped by their number of observations.
-        descriptors = self.keypoint_values("descriptors", kfs[order], kps[order])
+        order = np.lexsort((kfs, index))
+        values = self.keypoint_values("descriptors", kfs[order], kps[order])
         counts = np.bincount(index, minlength=len(point_ids))
         starts = np.r_[0, np.cumsum(counts)[:-1]]
         for n in np.unique(counts[counts >= 2]):
             which = np.flatnonzero(counts == n)
-            rows = starts[which][:, None] + np.arange(n)
-            group = descriptors[rows]  # (points, n, 32)
-            distance = _pairwise(group)
-            best = np.argmin(np.median(distance, axis=2), axis=1)
+            group = values[starts[which][:, None] + np.arange(n)]  # (points, n, 32)
+            median = np.sort(_pairwise(group), axis=2)[:, :, (n - 1) // 2]
+            best = np.argmin(median, axis=1)
             self.descriptors[point_ids[which]] = group[np.arange(len(which)), best]
 
     def copy(self) -> Map:

@@ -14,7 +14,7 @@ import numpy as np
 from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
-from depotbench.slam.geometry import hamming, hamming_matrix, project, transform
+from depotbench.slam.geometry import hamming, hamming_matrix, invert, project, transform
 from depotbench.slam.map import Map
 from scipy.spatial import cKDTree
 
@@ -150,3 +150,150 @@ class Matcher:
         kp, pid = candidates[good], point_ids[best[good]]
         _, unique = np.unique(pid, return_index=True)
         return kp[unique], pid[unique]
+
+
+TH_LOW = 50
+"""ORB-SLAM's TH_LOW: the largest descriptor distance of a fusion or a triangulation match."""
+FUSE_RADIUS = 3.0
+"""ORB-SLAM's Fuse searches th = 3 px times the predicted level's scale around a projection."""
+CHI2_FUSE_STEREO, CHI2_FUSE_MONO = 7.8, 5.99
+"""Fuse's reprojection gates on (u, v, u_r) and on (u, v), in units of the level's sigma^2."""
+EPIPOLAR_CHI2 = 3.84
+"""SearchForTriangulation keeps a pair within sqrt(3.84) sigma of its epipolar line (1 dof, 95 %)."""
+
+
+def predict_level(
+    max_distance: np.ndarray, distance: np.ndarray, scale_factor: float, n_levels: int
+) -> np.ndarray:
+    """ORB-SLAM's MapPoint::PredictScale: the pyramid level a point at ``distance`` should be
+    detected at, ceil(log_scale(max_distance / distance)), within [0, n_levels - 1]."""
+    ratio = max_distance / np.maximum(distance, 1e-12)
+    level = np.ceil(np.log(np.maximum(ratio, 1e-12)) / np.log(scale_factor))
+    return np.clip(level, 0, n_levels - 1).astype(int)
+
+
+def fuse_candidates(
+    tc: TrackingConfig,
+    camera: Intrinsics,
+    map_: Map,
+    point_ids: np.ndarray,
+    camera_from_world: np.ndarray,
+    features: FrameFeatures,
+    usable: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """ORB-SLAM's ORBmatcher::Fuse without the map changes: for each map point the keypoint it
+    would be fused with, (point ids, keypoints). A point qualifies when it projects in front of
+    the camera into the image, within its distance range (0.8 min .. 1.2 max), seen less than
+    60 degrees off its normal; the keypoint lies within 3 px times the predicted level's scale
+    (a square, as GetFeaturesInArea), at the predicted level or one finer, with a
+    reprojection error under chi-square 7.8 with depth (5.99 without) in sigma units, and the
+    descriptor closest to the point's within TH_LOW (50)."""
+    empty = (_EMPTY, _EMPTY)
+    point_ids = point_ids[map_.alive[point_ids]]
+    candidates = np.flatnonzero(usable)
+    if not len(point_ids) or not len(candidates):
+        return empty
+    pw = map_.positions[point_ids]
+    pc = transform(camera_from_world, pw)
+    front = pc[:, 2] > 0
+    point_ids, pw, pc = point_ids[front], pw[front], pc[front]
+    uv = project(camera, pc)
+    center = invert(camera_from_world)[:3, 3]
+    offset = pw - center
+    distance = np.linalg.norm(offset, axis=1)
+    normal = map_.normals[point_ids]
+    keep = (
+        (uv[:, 0] >= 0)
+        & (uv[:, 0] < camera.width)
+        & (uv[:, 1] >= 0)
+        & (uv[:, 1] < camera.height)
+        & (distance >= 0.8 * map_.min_distance[point_ids])
+        & (distance <= 1.2 * map_.max_distance[point_ids])
+        & (np.einsum("ij,ij->i", offset, normal) >= 0.5 * distance)
+    )
+    point_ids, pc, uv, distance = point_ids[keep], pc[keep], uv[keep], distance[keep]
+    if not len(point_ids):
+        return empty
+    level = predict_level(map_.max_distance[point_ids], distance, tc.scale_factor, tc.n_levels)
+    radius = FUSE_RADIUS * tc.scale_factor**level
+    tree = cKDTree(features.undistorted_px[candidates])
+    gap, nearest = tree.query(uv, k=NEIGHBOURS, p=np.inf, distance_upper_bound=float(radius.max()))
+    found = (nearest < len(candidates)) & (gap < radius[:, None])
+    rows, cols = np.nonzero(found)
+    kps = candidates[nearest[rows, cols]]
+    kp_level = features.octaves[kps]
+    fits = (kp_level >= level[rows] - 1) & (kp_level <= level[rows])
+    rows, kps, kp_level = rows[fits], kps[fits], kp_level[fits]
+    err = features.undistorted_px[kps] - uv[rows]
+    e2 = np.einsum("ij,ij->i", err, err)
+    depth = features.depth_m[kps]
+    stereo = depth > 0
+    ur_measured = features.undistorted_px[kps, 0] - tc.baseline_fx / np.where(stereo, depth, 1.0)
+    ur_projected = uv[rows, 0] - tc.baseline_fx / pc[rows, 2]
+    e2 = e2 + np.where(stereo, (ur_measured - ur_projected) ** 2, 0.0)
+    inv_sigma2 = tc.scale_factor ** (-2.0 * kp_level)
+    good = e2 * inv_sigma2 <= np.where(stereo, CHI2_FUSE_STEREO, CHI2_FUSE_MONO)
+    rows, kps = rows[good], kps[good]
+    if not len(rows):
+        return empty
+    dist = hamming(map_.descriptors[point_ids[rows]], features.descriptors[kps])
+    order = np.lexsort((dist, rows))
+    first = order[np.r_[True, np.diff(rows[order]) != 0]]
+    first = first[dist[first] <= TH_LOW]
+    return point_ids[rows[first]], kps[first]
+
+
+def search_for_triangulation(
+    tc: TrackingConfig,
+    camera: Intrinsics,
+    features1: FrameFeatures,
+    free1: np.ndarray,
+    pose1_cw: np.ndarray,
+    features2: FrameFeatures,
+    free2: np.ndarray,
+    pose2_cw: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """ORB-SLAM's SearchForTriangulation without a vocabulary: pairs (keypoints of 1, of 2)
+    among keypoints with no map point (``free1``, ``free2``) whose descriptors are within
+    TH_LOW (50) and whose keypoint in 2 lies within sqrt(3.84) sigma of its epipolar line;
+    where neither has depth, a keypoint in 2 closer than 10 px x scale to the epipole is
+    refused. Each keypoint pairs once: the closest descriptor of 1's candidates, then of 2's.
+    (ORB-SLAM first narrows the candidates to one vocabulary node; here every keypoint is
+    a candidate and the epipolar test does the narrowing.)"""
+    idx1, idx2 = np.flatnonzero(free1), np.flatnonzero(free2)
+    if not len(idx1) or not len(idx2):
+        return _EMPTY, _EMPTY
+    k_inv = np.linalg.inv(camera.matrix)
+    r21 = pose2_cw[:3, :3] @ pose1_cw[:3, :3].T
+    t21 = pose2_cw[:3, 3] - r21 @ pose1_cw[:3, 3]
+    skew = np.array([[0, -t21[2], t21[1]], [t21[2], 0, -t21[0]], [-t21[1], t21[0], 0]])
+    fundamental = k_inv.T @ skew @ r21 @ k_inv  # x2^T F x1 = 0
+    x1 = np.c_[features1.undistorted_px[idx1], np.ones(len(idx1))]
+    x2 = np.c_[features2.undistorted_px[idx2], np.ones(len(idx2))]
+    lines = x1 @ fundamental.T  # (n1, 3): epipolar lines in image 2
+    num = lines @ x2.T  # (n1, n2)
+    den = lines[:, 0] ** 2 + lines[:, 1] ** 2
+    sigma2 = tc.scale_factor ** (2.0 * features2.octaves[idx2])
+    close = num**2 < EPIPOLAR_CHI2 * sigma2[None, :] * den[:, None]
+    # The epipole in image 2 (camera 1's centre seen from 2).
+    center1 = -pose1_cw[:3, :3].T @ pose1_cw[:3, 3]
+    epipole_c = pose2_cw[:3, :3] @ center1 + pose2_cw[:3, 3]
+    if epipole_c[2] > 1e-9:
+        epipole = camera.matrix[:2, :2] @ (epipole_c[:2] / epipole_c[2]) + camera.matrix[:2, 2]
+        near = (
+            np.sum((features2.undistorted_px[idx2] - epipole) ** 2, axis=1)
+            < 100 * tc.scale_factor ** features2.octaves[idx2]
+        )
+        no_depth = (features1.depth_m[idx1] <= 0)[:, None] & (features2.depth_m[idx2] <= 0)[None, :]
+        close &= ~(no_depth & near[None, :])
+    rows, cols = np.nonzero(close)
+    if not len(rows):
+        return _EMPTY, _EMPTY
+    dist = hamming(features1.descriptors[idx1[rows]], features2.descriptors[idx2[cols]])
+    good = dist <= TH_LOW
+    rows, cols, dist = rows[good], cols[good], dist[good]
+    order = np.lexsort((dist, rows))
+    best = order[np.r_[True, np.diff(rows[order]) != 0]] if len(order) else order
+    order = np.lexsort((dist[best], cols[best]))
+    best = best[order[np.r_[True, np.diff(cols[best][order]) != 0]]] if len(order) else best
+    return idx1[rows[best]], idx2[cols[best]]

@@ -155,8 +155,9 @@ class Tracking:
         local map (ORB-SLAM's TrackWithMotionModel and TrackLocalMap)."""
         assert self._last_pose is not None
         predicted_cw = invert(self._last_pose @ self._velocity)
-        has_point = self._last_point_ids >= 0
-        last_ids, last_angles = self._last_point_ids[has_point], self._last_angles[has_point]
+        resolved = self.map.resolve(self._last_point_ids)  # points fused since: their survivors
+        has_point = resolved >= 0
+        last_ids, last_angles = resolved[has_point], self._last_angles[has_point]
         octaves = self._last_octaves[has_point]
         radius = self.tc.match_radius_px * self.tc.scale_factor**octaves
         window = octave_window(

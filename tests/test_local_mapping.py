@@ -4,6 +4,8 @@
 - The covisibility weights against shared points counted from index sets; the covisibility
   bundle adjustment against ``bundle_adjust`` on a window built by hand where the two coincide,
   and a weakly connected keyframe held fixed where they do not.
+- Triangulation against known points seen from two views (DLT, and the depth where it holds
+  more parallax); the epipolar pairing; keyframe culling and fusion on maps counted by hand.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import invert
 from depotbench.slam.local_mapping import CLOSE_DEPTH_FACTOR, LocalMapping
 from depotbench.slam.map import KeyFrame, Map
+from depotbench.slam.matcher import search_for_triangulation
 from depotbench.slam.pose import Tracked, observations
 
 CAMERA = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -252,3 +255,202 @@ def test_covisibility_bundle_adjustment_holds_weakly_connected_keyframes_fixed()
     for k in (2, 3, 4):
         assert np.linalg.norm(before[k][:3, 3] - poses[k][:3, 3]) > 1e-3
         assert np.allclose(map_.keyframe(k).world_from_camera, poses[k], atol=1e-9), k
+
+
+# -- triangulation (CreateNewMapPoints) ------------------------------------------------------
+
+
+def _view(
+    points: np.ndarray, pose: np.ndarray, depth: bool, octaves: np.ndarray | None = None
+) -> FrameFeatures:
+    """Exact keypoints of world ``points`` seen from ``pose`` (world_from_camera)."""
+    pc = (points - pose[:3, 3]) @ pose[:3, :3]
+    uv = np.c_[CAMERA.fx * pc[:, 0] / pc[:, 2] + CAMERA.cx, CAMERA.fy * pc[:, 1] / pc[:, 2] + CAMERA.cy]
+    n = len(points)
+    return FrameFeatures(
+        np.zeros((0, 0), np.uint8),
+        uv.astype(np.float32),
+        uv,
+        np.zeros(n, int) if octaves is None else octaves,
+        np.random.default_rng(7).integers(0, 256, (n, 32), dtype=np.uint8),
+        pc[:, 2] if depth else np.zeros(n),
+        np.zeros(n),
+    )
+
+
+def test_triangulation_recovers_known_points_from_two_views_without_depth():
+    """Two views 0.3 m apart of points 2-5 m away, no depth: the DLT gives each point back
+    (1e-9 m); a swapped pair fails the reprojection test and a pair seen at levels 0 and 5
+    fails the scale test (their distances agree, 1.2^5 = 2.5 does not)."""
+    rng = np.random.default_rng(3)
+    truth = np.c_[rng.uniform(-1, 1, 40), rng.uniform(-0.7, 0.7, 40), rng.uniform(2, 5, 40)]
+    pose1, pose2 = _pose(0.0), _pose(0.3, 0.05)
+    octaves2 = np.zeros(40, int)
+    octaves2[39] = 5
+    view1, view2 = _view(truth, pose1, False), _view(truth, pose2, False, octaves2)
+    i1 = np.arange(40)
+    i2 = np.arange(40)
+    i2[[0, 1]] = [1, 0]  # a swapped pair
+    mapping = LocalMapping(TC, CAMERA)
+    points, ok = mapping.triangulate(view1, i1, invert(pose1), view2, i2, invert(pose2))
+    assert not ok[0] and not ok[1] and not ok[39]
+    assert ok[2:39].all()
+    assert np.abs(points[2:39] - truth[2:39]).max() < 1e-9
+
+
+def test_triangulation_takes_the_depth_where_it_sees_more_parallax_than_the_rays():
+    """With depth (measured 2 % long) the rule picks by parallax: 0.3 m apart at 2-3 m the rays'
+    parallax (about 6 degrees) beats the depth's (2 atan(b / 2 / z), about 2 degrees), so the
+    DLT gives the true point; 2 cm apart at 4-5 m the depth's wins, so the point is the
+    first view's back-projection, 2 % long (its reprojection in the second view still passes)."""
+    rng = np.random.default_rng(4)
+    mapping = LocalMapping(TC, CAMERA)
+    for baseline, near, far, dlt in ((0.3, 2.0, 3.0, True), (0.02, 4.0, 5.0, False)):
+        truth = np.c_[rng.uniform(-0.3, 0.3, 20), rng.uniform(-0.3, 0.3, 20), rng.uniform(near, far, 20)]
+        pose1, pose2 = _pose(0.0), _pose(baseline)
+        view1 = _view(truth, pose1, True)
+        long1 = FrameFeatures(
+            *[
+                getattr(view1, f)
+                for f in ("grey", "keypoints_px", "undistorted_px", "octaves", "descriptors")
+            ],
+            view1.depth_m * 1.02,
+            view1.angles_deg,
+        )
+        view2 = _view(truth, pose2, False)
+        rays = np.cos(np.arctan2(baseline, truth[:, 2]))  # about the parallax of the two rays
+        depth_parallax = np.cos(2 * np.arctan2(mapping.baseline_m / 2, long1.depth_m))
+        assert ((rays < depth_parallax) == dlt).all()
+        idx = np.arange(20)
+        points, ok = mapping.triangulate(long1, idx, invert(pose1), view2, idx, invert(pose2))
+        expected = truth if dlt else truth * 1.02  # the first camera sits at the origin
+        assert ok.all(), (baseline, ok)
+        assert np.abs(points - expected).max() < 1e-9, baseline
+
+
+def test_search_for_triangulation_pairs_keypoints_on_their_epipolar_lines():
+    """Each keypoint of view 1 is paired with its true keypoint in view 2; a decoy with the
+    same descriptor 6 px off the epipolar line is refused, and keypoints that already have
+    a point are left out."""
+    rng = np.random.default_rng(5)
+    truth = np.c_[rng.uniform(-1, 1, 30), rng.uniform(-0.7, 0.7, 30), rng.uniform(2, 5, 30)]
+    pose1, pose2 = _pose(0.0), _pose(0.25, 0.03)
+    view1, view2 = _view(truth, pose1, False), _view(truth, pose2, False)
+    decoy_px = view2.undistorted_px[:1] + [[0.0, 6.0]]
+    view2 = FrameFeatures(
+        view2.grey,
+        np.r_[view2.keypoints_px, decoy_px.astype(np.float32)],
+        np.r_[view2.undistorted_px, decoy_px],
+        np.r_[view2.octaves, 0],
+        np.r_[view2.descriptors, view1.descriptors[:1]],
+        np.r_[view2.depth_m, 0.0],
+        np.r_[view2.angles_deg, 0.0],
+    )
+    view2.descriptors[:30] = view1.descriptors  # the true pairs share descriptors
+    view2.descriptors[0, 0] ^= 1  # the decoy is the closer descriptor for keypoint 0
+    free1 = np.ones(30, bool)
+    free1[29] = False
+    i1, i2 = search_for_triangulation(
+        TC, CAMERA, view1, free1, invert(pose1), view2, np.ones(31, bool), invert(pose2)
+    )
+    assert list(i1) == list(range(29)) and list(i2) == list(range(29))
+
+
+# -- keyframe culling and fusion ---------------------------------------------------------------
+
+
+def _culling_map(others: int, share: float, coarse: bool = False) -> Map:
+    """Keyframe 1 sees 100 close points (depth 2 m, level 1); ``share`` of them are also seen
+    by ``others`` keyframes (2 .. others + 1) at level 0, or at level 3 with ``coarse``; the
+    rest only by keyframe 1 and keyframe 0. Keyframe 0 sees all of keyframe 1's points (it is
+    never culled); each other keyframe also sees 20 points of its own, which keeps it."""
+    n = 100
+    own = 20
+    map_ = Map()
+    ids = map_.add_points(np.zeros((n, 3)), np.zeros((n, 32), np.uint8), 0)
+    seen_often = np.arange(int(round(share * n)))
+    for k in range(others + 2):
+        size = n + own
+        octaves = np.full(size, 1 if k == 1 else (3 if coarse else 0))
+        frame = FrameFeatures(
+            np.zeros((0, 0), np.uint8),
+            np.zeros((size, 2), np.float32),
+            np.zeros((size, 2)),
+            octaves,
+            np.zeros((size, 32), np.uint8),
+            np.full(size, 2.0),
+            np.zeros(size),
+        )
+        map_.add_keyframe(KeyFrame(k, k, np.eye(4), frame, np.ones(size, bool), np.full(size, -1)))
+        for i in ids if k < 2 else seen_often:
+            map_.observe(int(i), k, int(i))
+        if k >= 2:
+            private = map_.add_points(np.zeros((own, 3)), np.zeros((own, 32), np.uint8), k)
+            for j, point in enumerate(private):
+                map_.observe(int(point), k, n + j)
+    return map_
+
+
+@pytest.mark.parametrize(
+    ("others", "share", "coarse", "culled"),
+    [
+        (4, 0.95, False, True),  # 95 % seen by 4 others (5 with keyframe 0): redundant
+        (4, 0.90, False, False),  # exactly 90 %: not over 90 %
+        (3, 0.95, False, True),  # 3 others plus keyframe 0 make 4 > 3
+        (2, 0.95, False, False),  # 2 others plus keyframe 0 make 3, not more than 3
+        (4, 0.95, True, False),  # the others see them two levels coarser: they do not count
+    ],
+)
+def test_keyframe_culling_drops_a_keyframe_whose_close_points_others_see(others, share, coarse, culled):
+    """ORB-SLAM3's KeyFrameCulling counted by hand: keyframe 1 goes when over 90 % of its close
+    points are seen by more than 3 other keyframes at its level + 1 or finer."""
+    map_ = _culling_map(others, share, coarse)
+    removed = LocalMapping(TC, CAMERA).keyframe_culling(map_, others + 1)
+    assert removed == int(culled)
+    assert map_.keyframe(1).bad == culled
+    assert 1 not in [kf.id for kf in map_.keyframes] if culled else len(map_.keyframes) == others + 2
+    if culled:  # its observations are gone, the covisibility with it too
+        assert (map_.keyframe(1).point_ids == -1).all() and (map_.covisibility[1] == 0).all()
+        assert all(1 not in map_.observations.get(p, {}) for p in range(100))
+
+
+def test_keyframe_culling_ignores_far_points_and_keeps_the_first_keyframe():
+    """Points farther than ThDepth do not count either way (here: all of keyframe 1's non-
+    redundant points are far, so its close points are all redundant); keyframe 0 is never culled."""
+    map_ = _culling_map(4, 0.5)
+    map_.keyframe(1).features.depth_m[50:] = THDEPTH + 1.0
+    mapping = LocalMapping(TC, CAMERA)
+    assert mapping.keyframe_culling(map_, 5) == 1 and map_.keyframe(1).bad
+    assert not map_.keyframe(0).bad
+
+
+def test_fusion_adds_observations_and_merges_duplicates():
+    """Points projected onto a keyframe: a point over a free keypoint with its descriptor is
+    added there; a point over a keypoint that holds another point merges with it (the one seen
+    by fewer keyframes goes, its observations move); a point 30 px off its keypoint, and one
+    behind the camera, are left alone."""
+    rng = np.random.default_rng(8)
+    truth = np.c_[rng.uniform(-1, 1, 4), rng.uniform(-0.5, 0.5, 4), rng.uniform(2, 3, 4)]
+    seen = truth.copy()
+    truth[3, 2] = -2.0  # the point is behind; its keypoint is where it would be in front
+    pose = _pose(0.0)
+    view = _view(seen, pose, True)
+    view.undistorted_px[2] += 30.0
+    map_ = Map()
+    map_.add_keyframe(
+        KeyFrame(0, 0, _pose(0.1), _view(seen, _pose(0.1), True), np.ones(4, bool), np.full(4, -1))
+    )
+    map_.add_keyframe(KeyFrame(1, 1, pose, view, np.ones(4, bool), np.full(4, -1)))
+    ids = map_.add_points(truth, view.descriptors.copy(), 0)
+    duplicate = map_.add_points(truth[1:2], view.descriptors[1:2], 1)[0]
+    map_.observe(int(duplicate), 1, 1)  # keyframe 1's keypoint 1 holds a duplicate seen once
+    for i in ids:
+        map_.observe(int(i), 0, int(i))
+    mapping = LocalMapping(TC, CAMERA)
+    mapping._update_points(map_, np.r_[ids, duplicate])
+    fused = mapping._fuse(map_, 1, ids)
+    assert fused == 2
+    assert map_.keyframe(1).point_ids[0] == ids[0] and 1 in map_.observations[int(ids[0])]
+    assert not map_.alive[duplicate] and map_.replaced[duplicate] == ids[1]  # merged into ids[1]
+    assert map_.keyframe(1).point_ids[1] == ids[1] and set(map_.observations[int(ids[1])]) == {0, 1}
+    assert map_.keyframe(1).point_ids[2] == -1 and map_.keyframe(1).point_ids[3] == -1
