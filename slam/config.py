@@ -47,7 +47,9 @@ class TrackingConfig:
     """Largest descriptor distance of a projection match: ORB-SLAM2's TH_HIGH, which its
     SearchByProjection uses. 50 (TH_LOW, its bag-of-words threshold) halves the matches per
     frame, nearly doubles keyframes and measured 2.5 vs 1.9 mm ATE on static_depot."""
-    local_radius_px: float = 4.0
+    local_search_th: float = 3.0
+    """ORB-SLAM's SearchLocalPoints th for RGB-D: a local-map point is searched for within th x
+    (2.5 px seen within 3.6 degrees of its normal, else 4 px) x scale^predicted level."""
     motion_model_ransac: bool = False
     """False (ORB-SLAM2/3's TrackWithMotionModel): the pose optimisation starts from the
     constant-velocity prediction, and PnP RANSAC runs only when that fails and for
@@ -65,7 +67,8 @@ class TrackingConfig:
     recent_point_keyframes: int = 3
     """A new map point is culled for a poor found/visible ratio or too few observations only
     while fewer than this many keyframes have followed its own (ORB-SLAM's MapPointCulling)."""
-    local_keyframes: int = 10
+    local_keyframes: int = 80
+    """ORB-SLAM's UpdateLocalKeyFrames stops adding neighbours once the local map holds 80 keyframes."""
     ba_iterations: int = 10
     relocalize_keyframes: int = 20
     seed: int = 0
@@ -85,14 +88,14 @@ class TrackingConfig:
                 "baseline_fx": (1.0, 1000.0),
                 "match_radius_px": (1.0, 200.0),
                 "match_max_hamming": (1, 256),
-                "local_radius_px": (0.5, 100.0),
+                "local_search_th": (0.1, 50.0),
                 "ransac_reprojection_px": (0.5, 50.0),
                 "ransac_iterations": (10, 10000),
                 "min_inliers": (6, 1000),
                 "keyframe_inlier_ratio": (0.1, 1.0),
                 "keyframe_points": (0, 100000),
                 "recent_point_keyframes": (1, 100000),
-                "local_keyframes": (1, 100),
+                "local_keyframes": (1, 1000),
                 "ba_iterations": (0, 200),
                 "relocalize_keyframes": (1, 1000),
                 "seed": (0, 2**31 - 1),

@@ -29,6 +29,8 @@ from depotbench.slam.relocalisation import relocalise
 from depotbench.slam.types import TrackingState
 
 MIN_INIT_POINTS = 50
+RELOCALISED_SEARCH_TH = 5.0
+"""SearchLocalPoints widens th from 3 to 5 for the two frames after a relocalisation (ORB-SLAM)."""
 MOTION_MODEL_MIN_MATCHES = 20
 """ORB-SLAM's TrackWithMotionModel widens its search below 20 matches and gives up below 20 again."""
 
@@ -173,6 +175,7 @@ class Tracking:
                 widen * radius,
                 reference_angles=last_angles,
                 octave_window=window,
+                depth_check=True,
             )
             if len(kp) >= MOTION_MODEL_MIN_MATCHES:
                 break
@@ -184,18 +187,19 @@ class Tracking:
         pose_cw, inl = solved
         kp, pid = kp[inl], pid[inl]
         self.map.visible[pid] += 1  # seen in this frame, as the local map's points below
-        # Local map: points of the keyframes that see the tracked points.
+        # Local map: points of the keyframes around those that see the tracked points.
         local_ids = self._local_points(pid)
         matched = np.zeros(len(features), bool)
         matched[kp] = True
-        new_kp, new_pid, projected = self.matcher.search_by_projection(
+        recently = self._relocalised_at is not None and self.frame_index < self._relocalised_at + 2
+        new_kp, new_pid, projected = self.matcher.search_local_points(
             self.map,
             np.setdiff1d(local_ids, pid),
             pose_cw,
             features,
             usable,
-            self.tc.local_radius_px,
-            exclude=matched,
+            matched,
+            RELOCALISED_SEARCH_TH if recently else self.tc.local_search_th,
         )
         self.map.visible[projected] += 1
         kp, pid = np.r_[kp, new_kp], np.r_[pid, new_pid]
@@ -212,17 +216,33 @@ class Tracking:
         return Tracked(invert(pose_cw), kp, pid, len(kp))
 
     def _local_points(self, point_ids: np.ndarray) -> np.ndarray:
-        """Points of the keyframes that see the frame's points, most shared first; the keyframe
-        sharing the most becomes the reference (ORB-SLAM's UpdateLocalKeyFrames)."""
+        """The points of the local keyframes (ORB-SLAM's UpdateLocalKeyFrames): every keyframe
+        that sees one of ``point_ids``, and for each of those, while the set holds at most
+        ``local_keyframes`` (80): its best covisible keyframe not yet in, a child not yet in,
+        and its parent, after which the search stops (ORB-SLAM breaks out of the loop there).
+        The keyframe seeing the most of ``point_ids`` becomes the reference."""
         counts: dict[int, int] = {}
         for point in point_ids:
             for kf_id in self.map.observations.get(int(point), {}):
                 counts[kf_id] = counts.get(kf_id, 0) + 1
-        local = sorted(counts, key=lambda k: (-counts[k], -k))[: self.tc.local_keyframes]
-        if local:
-            self._reference_keyframe = local[0]
-        ids = [kf.point_ids[kf.point_ids >= 0] for kf in (self.map.keyframe(k) for k in local)]
-        if not ids:
+        if not counts:
             return np.zeros(0, int)
-        ids_all = np.unique(np.concatenate(ids))
-        return ids_all[self.map.alive[ids_all]]
+        seeing = sorted(counts)
+        self._reference_keyframe = max(seeing, key=lambda k: counts[k])  # the first of the most
+        local = list(seeing)
+        included = set(local)
+        for kf_id in seeing:
+            if len(local) > self.tc.local_keyframes:
+                break
+            for extra in (self.map.covisible(kf_id, 10), self.map.children(kf_id)):
+                new = [int(k) for k in extra if int(k) not in included][:1]
+                local += new
+                included.update(new)
+            parent = self.map.keyframe(kf_id).parent
+            if parent >= 0 and parent not in included and not self.map.keyframe(parent).bad:
+                local.append(parent)
+                included.add(parent)
+                break
+        ids = np.concatenate([self.map.keyframe(k).point_ids for k in local])
+        ids = np.unique(ids[ids >= 0])
+        return ids[self.map.alive[ids]]

@@ -4,8 +4,6 @@
 - The covisibility weights against shared points counted from index sets; the covisibility
   bundle adjustment against ``bundle_adjust`` on a window built by hand where the two coincide,
   and a weakly connected keyframe held fixed where they do not.
-- Triangulation against known points seen from two views (DLT, and the depth where it holds
-  more parallax); the epipolar pairing; keyframe culling and fusion on maps counted by hand.
 """
 
 from __future__ import annotations
@@ -21,7 +19,7 @@ from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import invert
 from depotbench.slam.local_mapping import CLOSE_DEPTH_FACTOR, LocalMapping
 from depotbench.slam.map import KeyFrame, Map
-from depotbench.slam.matcher import search_for_triangulation
+from depotbench.slam.matcher import Matcher, predict_level, search_for_triangulation
 from depotbench.slam.pose import Tracked, observations
 
 CAMERA = Intrinsics(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
@@ -454,3 +452,119 @@ def test_fusion_adds_observations_and_merges_duplicates():
     assert not map_.alive[duplicate] and map_.replaced[duplicate] == ids[1]  # merged into ids[1]
     assert map_.keyframe(1).point_ids[1] == ids[1] and set(map_.observations[int(ids[1])]) == {0, 1}
     assert map_.keyframe(1).point_ids[2] == -1 and map_.keyframe(1).point_ids[3] == -1
+
+
+# -- the predicted-scale local-map search --------------------------------------------------------
+
+
+def test_predicted_level_is_orb_slams_predict_scale():
+    """ceil(log(max_distance / distance) / log(1.2)) clipped to the pyramid, on values where
+    the log is well away from an integer."""
+    max_distance = np.array([4.0, 4.0, 4.0, 4.0, 1.0, 40.0])
+    distance = np.array([4.1, 3.9, 2.0, 1.0, 3.0, 1.0])
+    expected = [0, 1, 4, 7, 0, 7]  # 4/2 = 2 -> 3.8 -> 4; 4/1 -> 7.6 -> 8 -> 7; 1/3 -> < 0 -> 0
+    assert list(predict_level(max_distance, distance, 1.2, 8)) == expected
+
+
+def _search_reference(map_, point_ids, pose_cw, frame, usable, exclude, th):
+    """SearchLocalPoints written out point by point and keypoint by keypoint."""
+    center = invert(pose_cw)[:3, 3]
+    best_of_point = {}
+    in_view = []
+    for p in point_ids:
+        pw = map_.positions[p]
+        pc = pose_cw[:3, :3] @ pw + pose_cw[:3, 3]
+        if pc[2] <= 0:
+            continue
+        u = CAMERA.fx * pc[0] / pc[2] + CAMERA.cx
+        v = CAMERA.fy * pc[1] / pc[2] + CAMERA.cy
+        if not (0 <= u < CAMERA.width and 0 <= v < CAMERA.height):
+            continue
+        dist = np.linalg.norm(pw - center)
+        if dist < 0.8 * map_.min_distance[p] or dist > 1.2 * map_.max_distance[p]:
+            continue
+        view_cos = (pw - center) @ map_.normals[p] / dist
+        if view_cos < 0.5:
+            continue
+        in_view.append(p)
+        level = min(max(int(np.ceil(np.log(map_.max_distance[p] / dist) / np.log(1.2))), 0), 7)
+        r = th * (2.5 if view_cos > 0.998 else 4.0) * 1.2**level
+        found = []
+        for k in range(len(frame)):
+            if not usable[k] or exclude[k]:
+                continue
+            x, y = frame.undistorted_px[k]
+            if abs(x - u) >= r or abs(y - v) >= r:
+                continue
+            if not level - 1 <= frame.octaves[k] <= level:
+                continue
+            if frame.depth_m[k] > 0 and abs((u - 40.0 / pc[2]) - (x - 40.0 / frame.depth_m[k])) > r:
+                continue
+            d = int(np.unpackbits(map_.descriptors[p] ^ frame.descriptors[k]).sum())
+            found.append((d, k))
+        if not found:
+            continue
+        found.sort()
+        d1, k1 = found[0]
+        if d1 > 100:
+            continue
+        if len(found) > 1:
+            d2, k2 = found[1]
+            if frame.octaves[k2] == frame.octaves[k1] and d1 > 0.8 * d2:
+                continue
+        best_of_point[p] = (d1, k1)
+    best_of_keypoint = {}
+    for p, (d, k) in best_of_point.items():
+        if k not in best_of_keypoint or d < best_of_keypoint[k][0]:
+            best_of_keypoint[k] = (d, p)
+    return {(k, p) for k, (d, p) in best_of_keypoint.items()}, set(in_view)
+
+
+def test_local_map_search_equals_the_rule_written_out():
+    """On 300 points (some out of range, off their normal or behind) and a frame of their
+    keypoints moved by up to 8 px, at their predicted level or up to two finer, with noisy
+    depth and descriptors, plus 300 keypoints of clutter, the vectorised search finds the
+    matches and the in-view points of the rule written out with loops."""
+    rng = np.random.default_rng(11)
+    n = 300
+    pose = _pose(0.05, 0.02)
+    pose_cw = invert(pose)
+    pc = np.c_[rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(1.0, 6.0, n)]
+    pc[:10, 2] = -1.0  # behind
+    points = pc @ pose[:3, :3].T + pose[:3, 3]
+    map_ = Map()
+    ids = map_.add_points(points, rng.integers(0, 256, (n, 32), dtype=np.uint8), 0)
+    to_point = points - pose[:3, 3]
+    dist = np.linalg.norm(to_point, axis=1)
+    normal = to_point / dist[:, None] + rng.normal(0, 0.05, (n, 3))
+    normal[10:30] = -normal[10:30]  # seen from behind
+    map_.normals[:] = normal / np.linalg.norm(normal, axis=1)[:, None]
+    map_.max_distance[:] = dist * 1.2 ** rng.integers(0, 5, n) * rng.uniform(0.9, 1.1, n)
+    map_.max_distance[30:40] = dist[30:40] / 2  # too far for them
+    map_.min_distance[:] = map_.max_distance / 1.2**7
+    uv = np.c_[CAMERA.fx * pc[:, 0] / pc[:, 2] + CAMERA.cx, CAMERA.fy * pc[:, 1] / pc[:, 2] + CAMERA.cy]
+    kp = np.r_[uv + rng.uniform(-8, 8, (n, 2)), rng.uniform(0, [640, 480], (n, 2))]
+    level = predict_level(map_.max_distance, dist, 1.2, 8)
+    octaves = np.r_[np.maximum(level - rng.integers(0, 3, n), 0), rng.integers(0, 5, n)]
+    descriptors = np.r_[map_.descriptors.copy(), rng.integers(0, 256, (n, 32), dtype=np.uint8)]
+    flips = rng.random((n, 256)) < rng.uniform(0, 0.5, n)[:, None]
+    descriptors[:n] ^= np.packbits(flips, axis=1)
+    depth = np.r_[np.abs(pc[:, 2]) * rng.uniform(0.9, 1.1, n), rng.uniform(0, 6, n)]
+    depth[rng.random(2 * n) < 0.2] = 0.0
+    frame = FrameFeatures(
+        np.zeros((0, 0), np.uint8),
+        kp.astype(np.float32),
+        kp,
+        octaves,
+        descriptors,
+        depth,
+        np.zeros(2 * n),
+    )
+    usable = rng.random(2 * n) > 0.1
+    exclude = rng.random(2 * n) < 0.1
+    matcher = Matcher(TC, CAMERA)
+    kps, pids, in_view = matcher.search_local_points(map_, ids, pose_cw, frame, usable, exclude, 3.0)
+    expected, expected_in_view = _search_reference(map_, ids, pose_cw, frame, usable, exclude, 3.0)
+    assert set(in_view.tolist()) == expected_in_view
+    assert set(zip(kps.tolist(), pids.tolist(), strict=True)) == expected
+    assert len(expected) > 50 and len(expected_in_view) < n - 40
