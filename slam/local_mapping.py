@@ -114,15 +114,27 @@ class LocalMapping:
         return new & (point_ids < 0)
 
     def insert_keyframe(
-        self, map_: Map, features: FrameFeatures, usable: np.ndarray, tracked: Tracked, frame_index: int
+        self,
+        map_: Map,
+        features: FrameFeatures,
+        usable: np.ndarray,
+        tracked: Tracked,
+        frame_index: int,
+        outliers: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Add the frame as a keyframe with its new map points from depth, then run ORB-SLAM's
         local mapper on it in its order: MapPointCulling, CreateNewMapPoints,
         SearchInNeighbors, the local bundle adjustment (from three keyframes) and
         KeyFrameCulling; ``tracked`` moves to the adjusted pose. Returns the points made from
-        depth (keypoints, ids, after fusion), which the next frame searches too."""
+        depth (keypoints, ids, after fusion), which the next frame searches too.
+
+        ``outliers`` (keypoints, point ids): matches the frame's pose optimisation set aside.
+        ORB-SLAM keeps them in the keyframe ("so that bundle adjustment will finally decide
+        if they are outliers or not") while the next frame does without them."""
         kf_id = len(map_.all_keyframes)
         point_ids = np.full(len(features), -1)
+        if outliers is not None:
+            point_ids[outliers[0]] = outliers[1]
         point_ids[tracked.keypoints] = tracked.point_ids
         new = self.new_point_mask(map_, features, usable, point_ids)
         uv = features.undistorted_px[new]

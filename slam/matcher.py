@@ -29,6 +29,8 @@ scans all of them; 16 hold every one of the square in 93 % of searches, 32 in 99
 on walking_static seed 1 and walking_xyz seed 3)."""
 VIEWING_COS_LIMIT = 0.5
 """Frame::isInFrustum's viewingCosLimit: a point is in view only within 60 degrees of its normal."""
+REFERENCE_RATIO = 0.7
+"""TrackReferenceKeyFrame's ORBmatcher(0.7, true): nearest under 0.7 times the second nearest."""
 LOCAL_RATIO = 0.8
 """SearchLocalPoints' ORBmatcher(0.8): a best match no better than 0.8 times the second best
 at the same level is ambiguous."""
@@ -239,6 +241,37 @@ class Matcher:
         order = np.lexsort((dist[best], kps[best]))
         best = best[order[np.r_[True, np.diff(kps[best][order]) != 0]]] if len(best) else best
         return kps[best], point_ids[rows[best]], point_ids
+
+    def search_keyframe(
+        self,
+        map_: Map,
+        keyframe_point_ids: np.ndarray,
+        keyframe_angles: np.ndarray,
+        features: FrameFeatures,
+        usable: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """ORB-SLAM's SearchByBoW(keyframe, frame) as TrackReferenceKeyFrame runs it
+        (ORBmatcher(0.7, true)), without the vocabulary: each usable keypoint's closest point
+        of the keyframe, within TH_LOW (50) and under 0.7 times the second closest, one
+        keypoint per point, then the rotation-consistency check against the keyframe's
+        keypoint angles. Returns (keypoints, point ids)."""
+        candidates = np.flatnonzero(usable)
+        alive = map_.alive[keyframe_point_ids]
+        point_ids, angles = keyframe_point_ids[alive], keyframe_angles[alive]
+        if len(point_ids) < 2 or not len(candidates):
+            return _EMPTY, _EMPTY
+        distances = hamming_matrix(features.descriptors[candidates], map_.descriptors[point_ids])
+        two = np.partition(distances, 1, axis=1)[:, :2]
+        best = np.argmin(distances, axis=1)
+        good = (two[:, 0] <= TH_LOW) & (two[:, 0] < REFERENCE_RATIO * two[:, 1])
+        kp, slot, dist = candidates[good], best[good], two[good, 0]
+        order = np.lexsort((dist, slot))
+        first = order[np.r_[True, np.diff(slot[order]) != 0]] if len(order) else order
+        kp, slot = kp[first], slot[first]
+        if len(kp):
+            keep = consistent_rotation(features.angles_deg[kp] - angles[slot])
+            kp, slot = kp[keep], slot[keep]
+        return kp, point_ids[slot]
 
     def search_by_descriptor(
         self, map_: Map, features: FrameFeatures, candidates: np.ndarray, point_ids: np.ndarray, ratio: float

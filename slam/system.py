@@ -1,13 +1,15 @@
 """The RGB-D SLAM system: one frame in, its pose and per-keypoint diagnostics out.
 
 Follows ORB-SLAM2's RGB-D structure, one module per part: ``tracking`` (the per-frame state
-machine: motion model, last frame, local map, relocalisation), ``matcher`` (search by
-projection and by descriptor), ``pose`` (PnP RANSAC and robust pose refinement),
-``local_mapping`` (keyframes, new points, culling, local bundle adjustment) and
-``relocalisation``. ``Slam`` is their face: it extracts features, runs the rejection
-strategy (which decides the keypoints tracking and mapping may use), steps tracking and
-times each stage. Mapping runs synchronously (so runs are deterministic) and its time is
-reported apart from tracking, as ORB-SLAM reports them.
+machine: motion model, reference keyframe, local map, relocalisation), ``matcher`` (search by
+projection, the local-map search, fusion and triangulation pairs, search by descriptor),
+``map`` (keyframes, points and the covisibility graph), ``pose`` (PnP RANSAC and robust pose
+refinement), ``local_mapping`` (keyframes, new points from depth and by triangulation,
+fusion, point and keyframe culling, local bundle adjustment) and ``relocalisation``.
+``Slam`` is their face: it extracts features, runs the rejection strategy (which decides the
+keypoints tracking and mapping may use), steps tracking and times each stage. Mapping runs
+synchronously (so runs are deterministic) and its time is reported apart from tracking, as
+ORB-SLAM reports them.
 """
 
 from __future__ import annotations

@@ -4,10 +4,12 @@ Holds the state carried from frame to frame (state, last pose, constant-velocity
 model, the last frame's map points, the reference keyframe) and the order of the steps: the
 first frame with at least ``MIN_INIT_POINTS`` (50) usable keypoints with depth initialises
 the map; then each frame is tracked with the motion model against the last frame's points
-(at least ``MOTION_MODEL_MIN_MATCHES`` (20) matches, the search widened once), then against
-the local map, and a frame that fails, or follows a lost one, is relocalised. It decides
-keyframes through local mapping. Matching, pose solving, mapping and relocalisation live in
-the modules below it; this one only calls them in ORB-SLAM's order.
+(at least ``MOTION_MODEL_MIN_MATCHES`` (20) matches, the search widened once), or against the
+reference keyframe when that fails and for two frames after a relocalisation, then against
+the local map (ORB-SLAM's predicted-scale search over the local keyframes), and a frame that
+fails, or follows a lost one, is relocalised. It decides keyframes through local mapping.
+Matching, pose solving, mapping and relocalisation live in the modules below it; this one
+only calls them in ORB-SLAM's order.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from depotbench.core.camera import Intrinsics
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import constant_velocity, invert, orthonormalize
-from depotbench.slam.local_mapping import LocalMapping
+from depotbench.slam.local_mapping import MAX_FRAMES, LocalMapping
 from depotbench.slam.map import Map
 from depotbench.slam.matcher import Matcher, octave_window
 from depotbench.slam.optimize import refine_pose
@@ -29,8 +31,12 @@ from depotbench.slam.relocalisation import relocalise
 from depotbench.slam.types import TrackingState
 
 MIN_INIT_POINTS = 50
+RELOCALISED_MIN_INLIERS = 50
+"""TrackLocalMap needs 50 inliers (30 otherwise) within MAX_FRAMES (30) frames of a relocalisation."""
 RELOCALISED_SEARCH_TH = 5.0
 """SearchLocalPoints widens th from 3 to 5 for the two frames after a relocalisation (ORB-SLAM)."""
+FIRST_STAGE_MIN_INLIERS = 10
+"""TrackWithMotionModel and TrackReferenceKeyFrame fail below 10 inliers (nmatchesMap)."""
 MOTION_MODEL_MIN_MATCHES = 20
 """ORB-SLAM's TrackWithMotionModel widens its search below 20 matches and gives up below 20 again."""
 
@@ -61,13 +67,24 @@ class Tracking:
         self._last_octaves = np.zeros(0, int)
         self._reference_keyframe = 0
         self._relocalised_at: int | None = None
+        self._tracked_pose = np.eye(4)
+        """The frame's pose as tracked, before a keyframe's bundle adjustment moves it."""
+        self._outliers = (np.zeros(0, int), np.zeros(0, int))
+        """The last frame's matches the final pose optimisation set aside (keypoints, point ids)."""
 
     def fork(self) -> Tracking:
         """An independent copy (the map too); matcher, mapper and features are shared: they
         hold no state, or nothing changes them."""
         twin = copy.copy(self)
         twin.map = self.map.copy()
-        for name in ("_last_pose", "_velocity", "_last_point_ids", "_last_angles", "_last_octaves"):
+        for name in (
+            "_last_pose",
+            "_velocity",
+            "_last_point_ids",
+            "_last_angles",
+            "_last_octaves",
+            "_tracked_pose",
+        ):
             value = getattr(self, name)
             setattr(twin, name, None if value is None else value.copy())
         return twin
@@ -85,6 +102,7 @@ class Tracking:
         if self.state in (TrackingState.OK, TrackingState.RELOCALIZED):
             tracked = self._track(features, usable)
             state = TrackingState.OK if tracked else TrackingState.LOST
+        self._outliers = (np.zeros(0, int), np.zeros(0, int))
         if tracked is None:
             tracked = relocalise(self.map, self.matcher, self.tc, self.camera, features, usable)
             if tracked is not None:
@@ -101,6 +119,7 @@ class Tracking:
         if self.state == TrackingState.NOT_INITIALIZED:
             return True, None  # the initial keyframe, inserted by _initialize
         since = None if self._relocalised_at is None else self.frame_index - self._relocalised_at
+        self._tracked_pose = tracked.world_from_camera.copy()
         if self.mapping.need_keyframe(self.map, features, usable, tracked, self._reference_keyframe, since):
             return True, self._insert_keyframe(features, usable, tracked)
         return False, None
@@ -114,10 +133,12 @@ class Tracking:
     ) -> None:
         """Make this frame the last one. Its map points are the pose inliers and, on a
         keyframe, the points just made from it: ORB-SLAM puts those into the frame, so the
-        next frame searches them too (people close to the camera among them)."""
+        next frame searches them too (people close to the camera among them). The motion
+        model is the motion to the frame's tracked pose (ORB-SLAM updates it before the
+        keyframe's bundle adjustment); the next prediction starts from the adjusted pose."""
         if tracked is not None:
             if self._last_pose is not None and state == TrackingState.OK:
-                self._velocity = constant_velocity(self._last_pose, tracked.world_from_camera)
+                self._velocity = constant_velocity(self._last_pose, self._tracked_pose)
             else:
                 self._velocity = np.eye(4)
             self._last_pose = orthonormalize(tracked.world_from_camera)
@@ -138,7 +159,9 @@ class Tracking:
     def _insert_keyframe(
         self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked
     ) -> tuple[np.ndarray, np.ndarray]:
-        made = self.mapping.insert_keyframe(self.map, features, usable, tracked, self.frame_index)
+        made = self.mapping.insert_keyframe(
+            self.map, features, usable, tracked, self.frame_index, self._outliers
+        )
         self._reference_keyframe = len(self.map.keyframes) - 1
         return made
 
@@ -153,8 +176,56 @@ class Tracking:
         return Tracked(np.eye(4), with_point, keyframe.point_ids[with_point], len(with_point))
 
     def _track(self, features: FrameFeatures, usable: np.ndarray) -> Tracked | None:
-        """Track with the motion model against the last frame's points, then against the
-        local map (ORB-SLAM's TrackWithMotionModel and TrackLocalMap)."""
+        """Track with the motion model against the last frame's points, or against the
+        reference keyframe when that fails or right after a relocalisation, then against the
+        local map (ORB-SLAM's TrackWithMotionModel, TrackReferenceKeyFrame, TrackLocalMap)."""
+        assert self._last_pose is not None
+        recently = self._relocalised_at is not None and self.frame_index < self._relocalised_at + 2
+        first = None if recently else self._track_motion_model(features, usable)
+        if first is None:
+            first = self._track_reference_keyframe(features, usable)
+        if first is None:
+            return None
+        pose_cw, kp, pid, searched = first
+        self.map.visible[pid] += 1  # seen in this frame, as the local map's points below
+        # Local map: points of the keyframes around those that see the tracked points.
+        local_ids = self._local_points(pid)
+        matched = np.zeros(len(features), bool)
+        matched[kp] = True
+        new_kp, new_pid, projected = self.matcher.search_local_points(
+            self.map,
+            np.setdiff1d(local_ids, searched),
+            pose_cw,
+            features,
+            usable,
+            matched,
+            RELOCALISED_SEARCH_TH if recently else self.tc.local_search_th,
+        )
+        self.map.visible[projected] += 1
+        kp, pid = np.r_[kp, new_kp], np.r_[pid, new_pid]
+        if len(kp) < MIN_MATCHES:
+            return None
+        uv, ur, weight = observations(self.tc, features, kp)
+        pose_cw, inl = refine_pose(
+            pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.tc.baseline_fx
+        )
+        self._outliers = (kp[~inl], pid[~inl])
+        kp, pid = kp[inl], pid[inl]
+        self.map.found[pid] += 1
+        after_relocalisation = (
+            self._relocalised_at is not None and self.frame_index < self._relocalised_at + MAX_FRAMES
+        )
+        if len(kp) < (RELOCALISED_MIN_INLIERS if after_relocalisation else self.tc.min_inliers):
+            return None
+        return Tracked(invert(pose_cw), kp, pid, len(kp))
+
+    def _track_motion_model(
+        self, features: FrameFeatures, usable: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """ORB-SLAM's TrackWithMotionModel: the last frame's points searched around their
+        projection by the constant-velocity prediction (twice as wide below 20 matches), the
+        pose optimised from the prediction; it fails below 20 matches or 10 inliers.
+        Returns (camera_from_world, inlier keypoints, their points, every point matched)."""
         assert self._last_pose is not None
         predicted_cw = invert(self._last_pose @ self._velocity)
         resolved = self.map.resolve(self._last_point_ids)  # points fused since: their survivors
@@ -181,39 +252,44 @@ class Tracking:
                 break
         if len(kp) < MOTION_MODEL_MIN_MATCHES:
             return None
-        solved = solve_pose(self.tc, self.camera, features, kp, self.map.positions[pid], predicted_cw)
-        if solved is None:
+        return self._optimise(features, kp, pid, predicted_cw)
+
+    def _track_reference_keyframe(
+        self, features: FrameFeatures, usable: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """ORB-SLAM's TrackReferenceKeyFrame: the reference keyframe's points matched by
+        descriptor (``Matcher.search_keyframe``), at least 15, the pose optimised from the last
+        frame's; it fails below 10 inliers."""
+        assert self._last_pose is not None
+        live = [kf.id for kf in self.map.keyframes]
+        if not live:
             return None
-        pose_cw, inl = solved
-        kp, pid = kp[inl], pid[inl]
-        self.map.visible[pid] += 1  # seen in this frame, as the local map's points below
-        # Local map: points of the keyframes around those that see the tracked points.
-        local_ids = self._local_points(pid)
-        matched = np.zeros(len(features), bool)
-        matched[kp] = True
-        recently = self._relocalised_at is not None and self.frame_index < self._relocalised_at + 2
-        new_kp, new_pid, projected = self.matcher.search_local_points(
+        reference = self.map.keyframe(
+            self._reference_keyframe if self._reference_keyframe in live else live[-1]
+        )
+        with_point = np.flatnonzero(reference.point_ids >= 0)
+        kp, pid = self.matcher.search_keyframe(
             self.map,
-            np.setdiff1d(local_ids, pid),
-            pose_cw,
+            reference.point_ids[with_point],
+            reference.features.angles_deg[with_point],
             features,
             usable,
-            matched,
-            RELOCALISED_SEARCH_TH if recently else self.tc.local_search_th,
         )
-        self.map.visible[projected] += 1
-        kp, pid = np.r_[kp, new_kp], np.r_[pid, new_pid]
         if len(kp) < MIN_MATCHES:
             return None
-        uv, ur, weight = observations(self.tc, features, kp)
-        pose_cw, inl = refine_pose(
-            pose_cw, self.map.positions[pid], uv, ur, weight, self.camera, self.tc.baseline_fx
-        )
-        kp, pid = kp[inl], pid[inl]
-        self.map.found[pid] += 1
-        if len(kp) < self.tc.min_inliers:
+        return self._optimise(features, kp, pid, invert(self._last_pose))
+
+    def _optimise(
+        self, features: FrameFeatures, kp: np.ndarray, pid: np.ndarray, guess_cw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Optimise the pose from ``guess_cw`` on the matches (``solve_pose``: PnP RANSAC first
+        with ``motion_model_ransac``, or as a fallback); at least ``FIRST_STAGE_MIN_INLIERS``
+        (10) inliers, as ORB-SLAM's nmatchesMap >= 10."""
+        solved = solve_pose(self.tc, self.camera, features, kp, self.map.positions[pid], guess_cw)
+        if solved is None or solved[1].sum() < FIRST_STAGE_MIN_INLIERS:
             return None
-        return Tracked(invert(pose_cw), kp, pid, len(kp))
+        pose_cw, inl = solved
+        return pose_cw, kp[inl], pid[inl], pid
 
     def _local_points(self, point_ids: np.ndarray) -> np.ndarray:
         """The points of the local keyframes (ORB-SLAM's UpdateLocalKeyFrames): every keyframe

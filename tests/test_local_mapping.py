@@ -568,3 +568,85 @@ def test_local_map_search_equals_the_rule_written_out():
     assert set(in_view.tolist()) == expected_in_view
     assert set(zip(kps.tolist(), pids.tolist(), strict=True)) == expected
     assert len(expected) > 50 and len(expected_in_view) < n - 40
+
+
+# -- tracking against the reference keyframe ---------------------------------------------------
+
+
+def test_reference_keyframe_search_equals_the_rule_written_out():
+    """Each usable keypoint's closest keyframe point within TH_LOW (50) and under 0.7 times the
+    second closest, one keypoint per point (the closest), then the 3 most common angle
+    changes: against loops over every pair."""
+    rng = np.random.default_rng(12)
+    n_points, n_keypoints = 80, 200
+    map_ = Map()
+    ids = map_.add_points(np.zeros((n_points, 3)), rng.integers(0, 256, (n_points, 32), dtype=np.uint8), 0)
+    descriptors = rng.integers(0, 256, (n_keypoints, 32), dtype=np.uint8)
+    source = rng.integers(0, n_points, n_keypoints)
+    near = rng.random(n_keypoints) < 0.7
+    flips = rng.random((n_keypoints, 256)) < rng.uniform(0, 0.2, n_keypoints)[:, None]
+    descriptors[near] = map_.descriptors[source[near]] ^ np.packbits(flips[near], axis=1)
+    kf_angles = rng.uniform(0, 360, n_points)
+    angles = np.where(near, kf_angles[source] + rng.choice([5.0, 5.0, 5.0, 100.0], n_keypoints), 0.0)
+    frame = FrameFeatures(
+        np.zeros((0, 0), np.uint8),
+        np.zeros((n_keypoints, 2), np.float32),
+        np.zeros((n_keypoints, 2)),
+        np.zeros(n_keypoints, int),
+        descriptors,
+        np.zeros(n_keypoints),
+        np.mod(angles, 360.0),
+    )
+    usable = rng.random(n_keypoints) > 0.1
+    kps, pids = Matcher(TC, CAMERA).search_keyframe(map_, ids, kf_angles, frame, usable)
+    best = {}
+    for k in np.flatnonzero(usable):
+        d = [int(np.unpackbits(descriptors[k] ^ map_.descriptors[p]).sum()) for p in ids]
+        order = np.argsort(d, kind="stable")
+        if d[order[0]] <= 50 and d[order[0]] < 0.7 * d[order[1]]:
+            p = int(order[0])
+            if p not in best or d[order[0]] < best[p][0]:
+                best[p] = (d[order[0]], int(k))
+    pairs = [(k, p) for p, (_, k) in best.items()]
+    delta = np.array([frame.angles_deg[k] - kf_angles[p] for k, p in pairs])
+    bins = (np.mod(delta, 360.0) // 12).astype(int)
+    counts = np.bincount(bins, minlength=30)
+    top = np.argsort(-counts, kind="stable")[:3]
+    top = top[counts[top] >= 0.1 * counts[top[0]]]
+    expected = {pair for pair, b in zip(pairs, bins, strict=True) if b in top}
+    assert set(zip(kps.tolist(), pids.tolist(), strict=True)) == expected
+    assert len(expected) > 20
+
+
+@pytest.mark.render
+def test_a_frame_the_motion_model_loses_is_tracked_against_the_reference_keyframe(tmp_path):
+    """A static depot sequence tracked with a motion model that predicts a 0.5 m jump: the
+    motion-model search finds too few matches, the reference keyframe's points give the pose
+    (ORB-SLAM's TrackReferenceKeyFrame) and the frame stays OK, within 2 cm of where the
+    unperturbed run puts it."""
+    from depotbench.eval.run.harness import camera_of
+    from depotbench.scenes import library
+    from depotbench.scenes.schema import to_scenario
+    from depotbench.sim.generate import generate
+    from depotbench.sim.sequence import Sequence
+    from depotbench.slam.config import SlamConfig
+    from depotbench.slam.system import Slam
+    from depotbench.slam.types import Frame, TrackingState
+
+    spec = library.get("static_depot").model_copy(update={"frames": 8, "duration_s": None})
+    seq = Sequence.open(generate(to_scenario(spec), tmp_path / "depot", progress=False))
+    camera = camera_of(seq)
+    frames = [Frame(seq.frames[i].timestamp_s, seq.rgb(i), seq.depth_m(i), camera) for i in range(8)]
+    plain, jumped = Slam(SlamConfig(), camera), Slam(SlamConfig(), camera)
+    for frame in frames[:7]:
+        plain.process(frame)
+        jumped.process(frame)
+    jump = np.eye(4)
+    jump[:3, 3] = (0.5, 0.0, 0.0)
+    jumped.tracking._velocity = jump
+    features = jumped.extract(frames[7])
+    assert jumped.tracking._track_motion_model(features, np.ones(len(features), bool)) is None
+    expected = plain.process(frames[7])
+    got = jumped.process(frames[7])
+    assert got.state == TrackingState.OK
+    assert np.linalg.norm(got.world_from_camera[:3, 3] - expected.world_from_camera[:3, 3]) < 0.02
