@@ -77,6 +77,11 @@ def test_scene_figures_equal_those_worked_out_by_hand():
     orb_medians = [230.0, 50.0, 400.0, 340.0]
     assert s["ate_ratio"] == pytest.approx(statistics.median(builtin) / statistics.median(orb_medians))
     assert s["mannwhitney_p"] == pytest.approx(_exact_two_sided_p(builtin, orb_medians))
+    low, high = s["ate_ratio_ci95"]  # seeded: the same interval on every evaluation
+    assert (
+        low <= s["ate_ratio"] <= high
+        and (low, high) == f._scene_summary("walking_xyz", rows, ("box_rule",), static)["ate_ratio_ci95"]
+    )
     # Seed 2: built-in 9 mm < 20 mm (passes), ORB-SLAM3 400 mm > 40 mm (fails); the rest both fail.
     assert (s["builtin_fails"], s["orbslam3_fails"], s["verdicts_agree"]) == (3, 4, 3)
     assert s["builtin_keyframes_per_200"] == 25 and s["orbslam3_keyframes_per_200"] == 100
@@ -108,6 +113,7 @@ def test_a_failed_run_ranks_worst_and_static_depot_is_judged_on_its_own_checks()
     # Seed 1's median of (failed, 3 mm) is inf, so the per-seed medians are 4.5, inf, 4.0 mm.
     assert s["orbslam3_ate_median_m"] == pytest.approx(0.0045)
     assert s["criteria"]["static_not_worse"] is True
+    assert s["ate_ratio_ci95"] is None  # no finite ratio to resample on the failed seed
     assert s["criteria"]["ate_ratio"] is None and s["criteria"]["rho_box_rule"] is None
     assert json.loads(json.dumps(f._jsonable(rows)))[1]["orbslam3"][0]["ate_m"] == "inf"
 
