@@ -12,7 +12,7 @@ factor per observation in a Python loop, which cost as much as its solve; a
 keyframe window has a handful of free poses and a few thousand observations,
 so the whole problem fits in a few array operations. Points are eliminated by
 the Schur complement (3x3 blocks, inverted all at once), the reduced system of
-the free poses is dense (6 x free poses, at most 6 x ``ba_window``). Fixed
+the free poses is dense (6 x free poses, 6 x the covisibility window's free keyframes). Fixed
 keyframes are held exactly, as ORB-SLAM fixes them (``setFixed``). The damping
 and stopping rules follow GTSAM's Levenberg-Marquardt defaults.
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from depotbench.core.camera import Intrinsics
+from depotbench.slam import kernels
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import hamming, hamming_matrix, invert, project, transform
@@ -92,6 +93,22 @@ class Matcher:
         lies farther than the radius from the point's projected one (ORB-SLAM's
         SearchByProjection against the last frame: at 2 m a 10 % depth error moves it 2 px).
         """
+        if kernels.compiled():
+            from depotbench.slam.kernels import matching
+
+            return matching.search_by_projection(
+                self,
+                map_,
+                point_ids,
+                camera_from_world,
+                features,
+                usable,
+                radius,
+                exclude,
+                reference_angles,
+                octave_window,
+                depth_check,
+            )
         empty = (_EMPTY, _EMPTY, _EMPTY)
         angles = reference_angles
         per_point = {"radius": np.broadcast_to(np.asarray(radius, float), point_ids.shape)}
@@ -126,7 +143,13 @@ class Matcher:
         if len(point_ids) == 0:
             return empty
         tree = cKDTree(features.undistorted_px[candidates])
-        gap, nearest = tree.query(uv, k=NEIGHBOURS, distance_upper_bound=float(per_point["radius"].max()))
+        bound = float(per_point["radius"].max())
+        gap, nearest = tree.query(uv, k=2 * NEIGHBOURS, distance_upper_bound=bound)
+        # Keypoints at one distance (one pixel at two pyramid levels) come in the k-d tree's
+        # order: the lower index goes first, then the NEIGHBOURS nearest are kept (the
+        # compiled search keeps the same ones).
+        order = np.lexsort((nearest, gap), axis=-1)[:, :NEIGHBOURS]
+        gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
         found = (nearest < len(candidates)) & (gap <= per_point["radius"][:, None])
         pairs_point = np.nonzero(found)[0]
         if len(pairs_point) == 0:
