@@ -264,6 +264,7 @@ def test_spec_model_defaults():
     assert spec.trackers == ["builtin"] and spec.detectors == ["groundtruth"] and spec.strategies == ["none"]
 
 
+@pytest.mark.slow  # 34 s (Ray starts a local cluster); the default run is near its 10-minute budget
 def test_ray_and_local_backends_give_identical_rows(tmp_path: Path):
     """A local Ray instance, started by the test (extra [ray])."""
     pytest.importorskip("ray")
@@ -285,6 +286,7 @@ def _table_of(database: Path) -> list[dict]:
 
 
 @pytest.mark.render
+@pytest.mark.slow  # 23 s, as above
 def test_ray_and_local_generate_a_suite_byte_for_byte(tmp_path: Path):
     pytest.importorskip("ray")
     from depotbench.scenes.generation import run_suite
