@@ -26,6 +26,10 @@ DEPTH_FACTOR_RANGE = (1e-3, 1e6)
 at fx = 1 sees 175 degrees); they keep the arithmetic finite."""
 
 
+DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
+"""OpenCV's radial-tangential coefficients, in the order ``Intrinsics.distortion`` holds them."""
+
+
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole camera in the OpenCV convention (pixel centres at integers).
@@ -67,6 +71,11 @@ class Intrinsics:
     @property
     def distorted(self) -> bool:
         return any(self.distortion)
+
+    @property
+    def distortion_by_name(self) -> dict[str, float]:
+        """The coefficients by OpenCV's names, as settings templates and metrics.json give them."""
+        return dict(zip(DISTORTION_NAMES, self.distortion, strict=True))
 
     def undistort(self, points_px: np.ndarray) -> np.ndarray:
         """Where image points (N, 2) would lie through a distortion-free lens (ORB-SLAM's mvKeysUn)."""
@@ -156,7 +165,7 @@ class CameraOverride:
                 raise ValueError(
                     f"{self.origin}: distortion is k1 k2 p1 p2 k3, got {len(self.distortion)} numbers"
                 )
-            for name, value in zip(("k1", "k2", "p1", "p2", "k3"), self.distortion, strict=True):
+            for name, value in zip(DISTORTION_NAMES, self.distortion, strict=True):
                 _finite(self.origin, name, value)
         if self.depth_factor is not None:
             _finite(self.origin, "depth factor", self.depth_factor)
@@ -223,7 +232,7 @@ def camera_json(intrinsics: Intrinsics, provenance: CameraProvenance) -> dict:
         "cy": k.cy,
         "width": k.width,
         "height": k.height,
-        "distortion": dict(zip(("k1", "k2", "p1", "p2", "k3"), k.distortion, strict=True)),
+        "distortion": k.distortion_by_name,
         "depth_factor": k.depth_scale,
         "source": provenance.source.value,
         "detail": provenance.detail,

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from depotbench.core.camera import (
     DEPTH_FACTOR_RANGE,
+    DISTORTION_NAMES,
     FOCAL_RANGE_PX,
     CameraOverride,
     CameraProvenance,
@@ -152,7 +153,6 @@ _REQUIRED_KEYS = (
     "Camera.height",
     "DepthMapFactor",
 )
-_DISTORTION = ("k1", "k2", "p1", "p2", "k3")
 
 
 MAX_SETTINGS_NESTING = 16
@@ -243,7 +243,7 @@ def _check_plausible(settings: _Settings, key: str, value: float | None, bounds:
 
 def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
     """Intrinsics and frame rate from an ORB-SLAM settings file (OpenCV YAML)."""
-    keys = (*_REQUIRED_KEYS, *(f"Camera.{k}" for k in _DISTORTION), "Camera.fps")
+    keys = (*_REQUIRED_KEYS, *(f"Camera.{k}" for k in DISTORTION_NAMES), "Camera.fps")
     settings = _read_settings(path, keys, SequenceFormatError)
     values = {key: settings.number(key, key in _REQUIRED_KEYS) for key in keys}
     width, height = _check_size(settings)
@@ -258,7 +258,7 @@ def read_orbslam_yaml(path: Path) -> tuple[Intrinsics, float]:
             cy=values["Camera.cy"],
             width=width,
             height=height,
-            distortion=tuple(values[f"Camera.{k}"] or 0.0 for k in _DISTORTION),
+            distortion=tuple(values[f"Camera.{k}"] or 0.0 for k in DISTORTION_NAMES),
             depth_scale=values["DepthMapFactor"],
         )
     except ValueError as exc:
@@ -295,7 +295,7 @@ def read_camera_file(path: Path) -> CameraOverride:
         raise FileError(path, None, f'File.version {version!r} is not an ORB-SLAM3 settings format ("1.0")')
     cam, depth_key = ("Camera1", "RGBD.DepthMapFactor") if version else ("Camera", "DepthMapFactor")
     pinhole_keys = tuple(f"{cam}.{k}" for k in ("fx", "fy", "cx", "cy"))
-    distortion_keys = tuple(f"{cam}.{k}" for k in _DISTORTION)
+    distortion_keys = tuple(f"{cam}.{k}" for k in DISTORTION_NAMES)
     resize = ("Camera.newWidth", "Camera.newHeight")
     keys = (
         *pinhole_keys,

@@ -389,7 +389,7 @@ class SettingsTemplate:
                 "height": k.height,
                 "fps": sequence.fps,
                 "depth_scale": k.depth_scale,
-                "distortion": dict(zip(("k1", "k2", "p1", "p2", "k3"), k.distortion, strict=True)),
+                "distortion": k.distortion_by_name,
             },
             "params": {name: typed(text) for name, text in parameters.items()},
             "orbslam_camera": "\n".join(camera_block),
