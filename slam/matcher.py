@@ -208,25 +208,7 @@ class Matcher:
         point_ids = point_ids[map_.alive[point_ids]]
         if not len(point_ids):
             return empty
-        pw = map_.positions[point_ids]
-        pc = transform(camera_from_world, pw)
-        front = pc[:, 2] > 0
-        point_ids, pw, pc = point_ids[front], pw[front], pc[front]
-        uv = project(camera, pc)
-        offset = pw - invert(camera_from_world)[:3, 3]
-        distance = np.linalg.norm(offset, axis=1)
-        view_cos = np.einsum("ij,ij->i", offset, map_.normals[point_ids]) / np.maximum(distance, 1e-12)
-        in_view = (
-            (uv[:, 0] >= 0)
-            & (uv[:, 0] < camera.width)
-            & (uv[:, 1] >= 0)
-            & (uv[:, 1] < camera.height)
-            & (distance >= 0.8 * map_.min_distance[point_ids])
-            & (distance <= 1.2 * map_.max_distance[point_ids])
-            & (view_cos >= VIEWING_COS_LIMIT)
-        )
-        point_ids, pc, uv = point_ids[in_view], pc[in_view], uv[in_view]
-        distance, view_cos = distance[in_view], view_cos[in_view]
+        point_ids, pc, uv, distance, view_cos = points_in_view(map_, point_ids, camera_from_world, camera)
         candidates = np.flatnonzero(usable & ~exclude)
         if not len(point_ids) or not len(candidates):
             return (*empty[:2], point_ids)
@@ -333,6 +315,33 @@ def predict_level(
     return np.clip(level, 0, n_levels - 1).astype(int)
 
 
+def points_in_view(
+    map_: Map, point_ids: np.ndarray, camera_from_world: np.ndarray, camera: Intrinsics
+) -> tuple[np.ndarray, ...]:
+    """Frame::isInFrustum, which the local-map search and Fuse share: the points that project
+    in front of the camera into the image, within their distance range (0.8 min .. 1.2 max),
+    seen less than 60 degrees off their normal. Returns (point ids, camera-frame positions,
+    projections, distances, viewing cosines) of those."""
+    pw = map_.positions[point_ids]
+    pc = transform(camera_from_world, pw)
+    front = pc[:, 2] > 0
+    point_ids, pw, pc = point_ids[front], pw[front], pc[front]
+    uv = project(camera, pc)
+    offset = pw - invert(camera_from_world)[:3, 3]
+    distance = np.linalg.norm(offset, axis=1)
+    view_cos = np.einsum("ij,ij->i", offset, map_.normals[point_ids]) / np.maximum(distance, 1e-12)
+    in_view = (
+        (uv[:, 0] >= 0)
+        & (uv[:, 0] < camera.width)
+        & (uv[:, 1] >= 0)
+        & (uv[:, 1] < camera.height)
+        & (distance >= 0.8 * map_.min_distance[point_ids])
+        & (distance <= 1.2 * map_.max_distance[point_ids])
+        & (view_cos >= VIEWING_COS_LIMIT)
+    )
+    return point_ids[in_view], pc[in_view], uv[in_view], distance[in_view], view_cos[in_view]
+
+
 def fuse_candidates(
     tc: TrackingConfig,
     camera: Intrinsics,
@@ -354,25 +363,7 @@ def fuse_candidates(
     candidates = np.flatnonzero(usable)
     if not len(point_ids) or not len(candidates):
         return empty
-    pw = map_.positions[point_ids]
-    pc = transform(camera_from_world, pw)
-    front = pc[:, 2] > 0
-    point_ids, pw, pc = point_ids[front], pw[front], pc[front]
-    uv = project(camera, pc)
-    center = invert(camera_from_world)[:3, 3]
-    offset = pw - center
-    distance = np.linalg.norm(offset, axis=1)
-    normal = map_.normals[point_ids]
-    keep = (
-        (uv[:, 0] >= 0)
-        & (uv[:, 0] < camera.width)
-        & (uv[:, 1] >= 0)
-        & (uv[:, 1] < camera.height)
-        & (distance >= 0.8 * map_.min_distance[point_ids])
-        & (distance <= 1.2 * map_.max_distance[point_ids])
-        & (np.einsum("ij,ij->i", offset, normal) >= 0.5 * distance)
-    )
-    point_ids, pc, uv, distance = point_ids[keep], pc[keep], uv[keep], distance[keep]
+    point_ids, pc, uv, distance, _ = points_in_view(map_, point_ids, camera_from_world, camera)
     if not len(point_ids):
         return empty
     level = predict_level(map_.max_distance[point_ids], distance, tc.scale_factor, tc.n_levels)
