@@ -13,10 +13,7 @@ def add_compare(sub: argparse._SubParsersAction) -> None:
         "compare",
         help="compare sweeps or runs: per configuration, each figure's paired change from the first, "
         "with its 95 %% interval and p",
-        description="Compare result sets against the first one. Runs are paired by sequence; a change "
-        "is marked * where the paired test says it is real (two-sided p < 0.05). "
-        "Example: depotbench compare runs/main runs/branch --fail-on-regression",
-    )
+    )  # its description and examples: conventions.USAGE
     p.add_argument("folders", nargs="+", type=Path, help="sweep, check or run folders; the first is the base")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.add_argument("--html", type=Path, metavar="FILE", help="also write the tables as an HTML page")
