@@ -215,8 +215,20 @@ class Matcher:
         level = predict_level(map_.max_distance[point_ids], distance, tc.scale_factor, tc.n_levels)
         radius = th * np.where(view_cos > 0.998, 2.5, 4.0) * tc.scale_factor**level
         right = uv[:, 0] - tc.baseline_fx / pc[:, 2]
+        if kernels.compiled():
+            from depotbench.slam.kernels import matching
+
+            args = (point_ids, uv, radius, level, right, features, candidates)
+            kps, rows = matching.local_pairs(self, map_, *args)
+            return kps, point_ids[rows], point_ids
         tree = cKDTree(features.undistorted_px[candidates])
-        gap, nearest = tree.query(uv, k=LOCAL_NEIGHBOURS, p=np.inf, distance_upper_bound=float(radius.max()))
+        gap, nearest = tree.query(
+            uv, k=2 * LOCAL_NEIGHBOURS, p=np.inf, distance_upper_bound=float(radius.max())
+        )
+        # Keypoints at one distance come in the k-d tree's order: the lower index goes first,
+        # then the LOCAL_NEIGHBOURS nearest are kept (as the compiled search does).
+        order = np.lexsort((nearest, gap), axis=-1)[:, :LOCAL_NEIGHBOURS]
+        gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
         found = (nearest < len(candidates)) & (gap < radius[:, None])
         rows, cols = np.nonzero(found)
         kps = candidates[nearest[rows, cols]]

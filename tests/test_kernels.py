@@ -490,6 +490,83 @@ def test_the_depth_check_compares_right_image_columns():
             assert len(matcher.search_by_projection(*args, depth_check=True)[0]) == matched
 
 
+def _local_map(rng: np.random.Generator, features: FrameFeatures, map_: Map) -> None:
+    """Give ``_scene``'s points what the local search reads: normals (most towards the camera,
+    some oblique, some seen from behind) and distance ranges (some too near or too far)."""
+    n = len(map_.positions)
+    offset = map_.positions.copy()
+    distance = np.linalg.norm(offset, axis=1)
+    normal = offset + rng.normal(0, 0.3, (n, 3)) * (rng.uniform(size=n) < 0.5)[:, None] * distance[:, None]
+    normal[rng.uniform(size=n) < 0.05] *= -1
+    map_.normals[:] = normal / np.linalg.norm(normal, axis=1)[:, None]
+    map_.max_distance[:] = distance * 1.2 ** rng.integers(0, 6, n) * rng.uniform(0.9, 1.1, n)
+    map_.max_distance[rng.uniform(size=n) < 0.05] /= 2
+    map_.min_distance[:] = map_.max_distance / 1.2**7
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_local_map_search_equals_numpy(seed: int):
+    """search_local_points on both paths: the same matches in the same order, the same ids in
+    view: exact, over draws with and without exclusions, at th 3 and 5 (after relocalisation)."""
+    rng = np.random.default_rng(100 + seed)
+    matcher = Matcher(TrackingConfig(), CAMERA)
+    matched = 0
+    for trial in range(40):
+        features, map_ = _scene(rng, int(rng.integers(0, 1200)), int(rng.integers(0, 900)))
+        _local_map(rng, features, map_)
+        n = len(map_.positions)
+        point_ids = rng.permutation(n)[: int(rng.integers(0, n + 1))]
+        pose = exp_se3(np.r_[rng.normal(0, 0.002, 3), rng.normal(0, 0.01, 3)])
+        usable = rng.uniform(size=len(features)) < 0.9
+        exclude = rng.uniform(size=len(features)) < (0.3 if trial % 2 else 0.0)
+        args = (map_, point_ids, pose, features, usable, exclude, 5.0 if trial % 3 == 0 else 3.0)
+        with kernels.using(Kernels.NUMPY):
+            expected = matcher.search_local_points(*args)
+        with kernels.using(Kernels.NUMBA):
+            found = matcher.search_local_points(*args)
+        for part_expected, part_found in zip(expected, found, strict=True):
+            np.testing.assert_array_equal(part_found, part_expected)
+        matched += len(expected[0])
+    assert matched > 400  # the draws do match (about 650 per seed)
+
+
+def test_local_map_search_ties_go_to_the_nearer_then_the_lower_keypoint():
+    """A point and keypoints at one pixel (two pyramid levels of one corner): equal descriptor
+    distances go to the nearer keypoint, then the lower index; at one level the 0.8 ratio
+    test refuses a best no better than the second (unless both are exact). Both paths."""
+    descriptor = np.arange(32, dtype=np.uint8)
+    ten_bits = descriptor.copy()
+    ten_bits[:2] ^= np.array([0b11111, 0b11111], np.uint8)  # 10 bits from the point's
+    px = np.array([[300.0, 200.0], [300.0, 200.0], [300.8, 200.2]])
+    cases = {  # (octaves, descriptors of the three keypoints): expected keypoints
+        "exact, one level: the lower index": ((1, 1, 5), (descriptor, descriptor, ~descriptor), [0]),
+        "10 bits, one level: ambiguous": ((1, 1, 5), (ten_bits, ten_bits, ~descriptor), []),
+        "10 bits, two levels: the lower index": ((1, 0, 5), (ten_bits, ten_bits, ~descriptor), [0]),
+        "10 bits, the nearer wins": ((0, 0, 1), (ten_bits, ten_bits, ten_bits), [2]),
+    }
+    position = np.array([[(300.9 - CAMERA.cx) / CAMERA.fx, (200.3 - CAMERA.cy) / CAMERA.fy, 1.0]])
+    for name, (octaves, descriptors, expected) in cases.items():
+        features = FrameFeatures(
+            np.zeros((480, 640), np.uint8),
+            px.astype(np.float32),
+            px,
+            np.array(octaves),
+            np.stack(descriptors),
+            np.zeros(3),
+            np.zeros(3),
+        )
+        map_ = Map()
+        map_.add_points(position, descriptor[None], 0)
+        map_.normals[:] = position / np.linalg.norm(position)
+        map_.max_distance[:] = np.linalg.norm(position) * 1.1  # predicted level 1: levels 0 and 1
+        map_.min_distance[:] = map_.max_distance / 1.2**7
+        args = (map_, np.array([0]), np.eye(4), features, np.ones(3, bool), np.zeros(3, bool), 3.0)
+        for value in (Kernels.NUMPY, Kernels.NUMBA):
+            with kernels.using(value):
+                found = Matcher(TrackingConfig(), CAMERA).search_local_points(*args)[0]
+            assert found.tolist() == expected, (name, value)
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

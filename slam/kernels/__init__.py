@@ -1,6 +1,6 @@
 """Compiled hot paths of tracking and mapping, and the one switch between them and NumPy.
 
-Pose refinement, search by projection, the Schur-complement local bundle adjustment and
+Pose refinement, the searches by projection, the Schur-complement local bundle adjustment and
 method 3's epipolar and flow tests run on a few hundred to a few thousand points per call,
 several times per frame: in NumPy each call pays ~10 us per array operation whatever the size
 (pose refinement, 40 Gauss-Newton steps of ~15 operations, cost 2.6 ms of a 15 ms frame on
@@ -109,6 +109,7 @@ def warm_up() -> float:
     optimize.camera_points(poses, points, index_zero, index)
     descriptors = np.zeros((n, 32), np.uint8)
     matching.pair(uv, ones, index, index, uv, index, index, descriptors, descriptors, 100, *(ones,) * 4)
+    matching.pair_local(uv, ones, index, ones, uv, index, index, descriptors, descriptors, 100, ones)
     rejection.epipolar_geometry(np.eye(3), uv, uv)
     rejection.flow_outliers(ones, 2.0, 1.0, 1.0)
     return time.perf_counter() - started

@@ -1,4 +1,5 @@
-"""Compiled search by projection: ``Matcher.search_by_projection`` with its pairing as one loop.
+"""Compiled searches by projection: ``Matcher.search_by_projection`` and the pairing of
+``Matcher.search_local_points``, each as one loop.
 
 The reference builds a k-d tree of the usable keypoints per call, queries the 8 nearest within
 the search radius of each projected map point, and pairs them by Hamming distance with two
@@ -11,6 +12,9 @@ index comes first.
 
 ``search_by_projection`` takes and returns what the method does, the matcher first
 (``depotbench.slam.matcher.Matcher`` calls it when ``DEPOTBENCH_KERNELS`` says numba).
+``local_pairs`` is the part of ``search_local_points`` after its in-view test: the same square
+(Chebyshev) window of 32 nearest keypoints, level window, right-image check, 0.8 ratio test at
+one level and one point per keypoint, with the same tie rules.
 """
 
 from __future__ import annotations
@@ -24,6 +28,10 @@ from depotbench.slam.kernels.jit import jit
 
 NEIGHBOURS = 8
 """As ``matcher.NEIGHBOURS``: keypoints within the radius considered per point, nearest first."""
+LOCAL_NEIGHBOURS = 32
+"""As ``matcher.LOCAL_NEIGHBOURS``: keypoints of the local search's square considered per point."""
+LOCAL_RATIO = 0.8
+"""As ``matcher.LOCAL_RATIO``: the ratio test of the local search, between matches at one level."""
 ROTATION_BINS = 30
 """As ``matcher.ROTATION_BINS``: the 3 most common of 30 keypoint-angle changes are kept."""
 
@@ -57,6 +65,31 @@ def consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
 
 
 @jit
+def _grid(candidates_px: np.ndarray, cell: float) -> tuple[Any, ...]:
+    """Keypoints by grid cell (counting sort; within a cell in candidate order): origin,
+    size in cells, each cell's start in ``in_cell``, and ``in_cell``."""
+    n_candidates = len(candidates_px)
+    x0, y0 = candidates_px[:, 0].min(), candidates_px[:, 1].min()
+    nx = int((candidates_px[:, 0].max() - x0) / cell) + 1
+    ny = int((candidates_px[:, 1].max() - y0) / cell) + 1
+    cell_of = np.empty(n_candidates, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for c in range(n_candidates):
+        cx = min(int((candidates_px[c, 0] - x0) / cell), nx - 1)
+        cy = min(int((candidates_px[c, 1] - y0) / cell), ny - 1)
+        cell_of[c] = cy * nx + cx
+        start[cell_of[c] + 1] += 1
+    for k in range(nx * ny):
+        start[k + 1] += start[k]
+    fill = start[:-1].copy()
+    in_cell = np.empty(n_candidates, np.int64)
+    for c in range(n_candidates):
+        in_cell[fill[cell_of[c]]] = c
+        fill[cell_of[c]] += 1
+    return x0, y0, nx, ny, start, in_cell
+
+
+@jit
 def pair(
     uv: np.ndarray,
     radius: np.ndarray,
@@ -81,28 +114,11 @@ def pair(
     (per point, empty for none) and ``keypoint_right`` (per keypoint, NaN where its depth is
     not positive: it passes) turn on the depth check: the right-image columns within the
     point's radius."""
-    n_points, n_candidates = len(uv), len(candidates)
+    n_points = len(uv)
     r_max = radius.max()
     bound = r_max * r_max
     cell = max(r_max, 1.0)
-    x0, y0 = candidates_px[:, 0].min(), candidates_px[:, 1].min()
-    nx = int((candidates_px[:, 0].max() - x0) / cell) + 1
-    ny = int((candidates_px[:, 1].max() - y0) / cell) + 1
-    # keypoints by grid cell (counting sort; within a cell in candidate order)
-    cell_of = np.empty(n_candidates, np.int64)
-    start = np.zeros(nx * ny + 1, np.int64)
-    for c in range(n_candidates):
-        cx = min(int((candidates_px[c, 0] - x0) / cell), nx - 1)
-        cy = min(int((candidates_px[c, 1] - y0) / cell), ny - 1)
-        cell_of[c] = cy * nx + cx
-        start[cell_of[c] + 1] += 1
-    for k in range(nx * ny):
-        start[k + 1] += start[k]
-    fill = start[:-1].copy()
-    in_cell = np.empty(n_candidates, np.int64)
-    for c in range(n_candidates):
-        in_cell[fill[cell_of[c]]] = c
-        fill[cell_of[c]] += 1
+    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
     windowed = len(low) > 0
     depth_checked = len(point_right) > 0
     best_kp = np.full(n_points, -1, np.int64)
@@ -242,3 +258,128 @@ def search_by_projection(
     if len(keypoints) == 0:
         return (*empty[:2], point_ids)
     return keypoints, point_ids[rows], point_ids
+
+
+@jit
+def pair_local(
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    right: np.ndarray,
+    candidates_px: np.ndarray,
+    candidates: np.ndarray,
+    octaves: np.ndarray,
+    point_descriptors: np.ndarray,
+    descriptors: np.ndarray,
+    max_hamming: int,
+    keypoint_right: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one matches (keypoint indices ascending, point rows) of the local search.
+
+    Per point: the ``LOCAL_NEIGHBOURS`` keypoints nearest its projection (Chebyshev distance
+    under its radius, the lower candidate index first among equals), at its predicted level
+    or one finer, whose right-image column (``keypoint_right``, NaN without depth: it
+    passes) lies within the radius of the point's; the closest descriptor wins within
+    ``max_hamming`` unless the second closest is at the same level and the best is not under
+    0.8 times it; then each keypoint keeps its closest point (the lower row among equals)."""
+    n_points = len(uv)
+    cell = max(radius.max(), 1.0)
+    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
+    best_kp = np.full(n_points, -1, np.int64)
+    best_distance = np.zeros(n_points, np.int64)
+    near = np.empty(LOCAL_NEIGHBOURS, np.int64)
+    near_gap = np.empty(LOCAL_NEIGHBOURS)
+    for i in range(n_points):
+        u, v, r = uv[i, 0], uv[i, 1], radius[i]
+        gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
+        gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
+        gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
+        gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
+        count = 0
+        for gy in range(gy0, gy1 + 1):
+            for gx in range(gx0, gx1 + 1):
+                k = gy * nx + gx
+                for s in range(start[k], start[k + 1]):
+                    c = in_cell[s]
+                    gap = max(abs(candidates_px[c, 0] - u), abs(candidates_px[c, 1] - v))
+                    if not gap < r:
+                        continue
+                    j = count if count < LOCAL_NEIGHBOURS else LOCAL_NEIGHBOURS
+                    while j > 0 and (near_gap[j - 1] > gap or (near_gap[j - 1] == gap and near[j - 1] > c)):
+                        if j < LOCAL_NEIGHBOURS:
+                            near_gap[j], near[j] = near_gap[j - 1], near[j - 1]
+                        j -= 1
+                    if j < LOCAL_NEIGHBOURS:
+                        near_gap[j], near[j] = gap, c
+                        count = min(count + 1, LOCAL_NEIGHBOURS)
+        d1, d2, level1, level2, kp1 = -1, -1, -1, -1, -1
+        for j in range(count):
+            keypoint = candidates[near[j]]
+            octave = octaves[keypoint]
+            if not (level[i] - 1 <= octave <= level[i]):
+                continue
+            kr = keypoint_right[keypoint]
+            if not math.isnan(kr) and not abs(right[i] - kr) <= r:
+                continue
+            distance = 0
+            for b in range(descriptors.shape[1]):
+                distance += POPCOUNT[point_descriptors[i, b] ^ descriptors[keypoint, b]]
+            if kp1 < 0 or distance < d1:
+                d2, level2 = d1, level1
+                d1, level1, kp1 = distance, octave, keypoint
+            elif d2 < 0 or distance < d2:
+                d2, level2 = distance, octave
+        if kp1 < 0 or d1 > max_hamming:
+            continue
+        if d2 >= 0 and level2 == level1 and d1 > LOCAL_RATIO * d2:
+            continue
+        best_kp[i], best_distance[i] = kp1, d1
+    claim = np.full(len(descriptors), -1, np.int64)
+    for i in range(n_points):
+        k = best_kp[i]
+        if k >= 0 and (claim[k] < 0 or best_distance[i] < best_distance[claim[k]]):
+            claim[k] = i
+    n = 0
+    for k in range(len(claim)):
+        if claim[k] >= 0:
+            n += 1
+    keypoints = np.empty(n, np.int64)
+    rows = np.empty(n, np.int64)
+    n = 0
+    for k in range(len(claim)):
+        if claim[k] >= 0:
+            keypoints[n], rows[n] = k, claim[k]
+            n += 1
+    return keypoints, rows
+
+
+def local_pairs(
+    matcher: Any,
+    map_: Any,
+    point_ids: np.ndarray,
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    right: np.ndarray,
+    features: Any,
+    candidates: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``Matcher.search_local_points``' pairing compiled: (keypoints, rows of ``point_ids``),
+    the same matches in the same order as the NumPy path. The arguments are what that method
+    computed for the points in view: projections, radii, predicted levels, right columns."""
+    tc = matcher.tc
+    depth = features.depth_m
+    keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
+    return pair_local(
+        np.ascontiguousarray(uv, np.float64),
+        np.ascontiguousarray(radius, np.float64),
+        np.ascontiguousarray(level, np.int64),
+        np.ascontiguousarray(right, np.float64),
+        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
+        candidates.astype(np.int64),
+        np.ascontiguousarray(features.octaves, np.int64),
+        np.ascontiguousarray(map_.descriptors[point_ids]),
+        np.ascontiguousarray(features.descriptors),
+        int(tc.match_max_hamming),
+        np.ascontiguousarray(np.where(depth <= 0, np.nan, keypoint_right), np.float64),
+    )
