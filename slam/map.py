@@ -121,6 +121,23 @@ class Map:
             connected = order[:1]
         return connected if limit is None else connected[:limit]
 
+    def sightings(self, point_ids: np.ndarray) -> np.ndarray:
+        """Per keyframe id, how many of ``point_ids`` it sees, a point listed twice counted
+        twice (a frame can hold one point at two keypoints after a fusion, and ORB-SLAM's
+        UpdateLocalKeyFrames counts per keypoint). A keyframe's ``point_ids`` hold exactly the
+        points whose observations name it (``observe`` and ``forget`` keep the two equal; a
+        culled keyframe holds none)."""
+        wanted = np.bincount(point_ids, minlength=len(self.positions) + 1)
+        wanted[-1] = 0  # the last slot answers -1, no point
+        return np.array([wanted[kf.point_ids].sum() for kf in self.all_keyframes], int)
+
+    def points_of(self, keyframe_ids: list[int]) -> np.ndarray:
+        """The live points the keyframes see, ascending and each once."""
+        seen = np.zeros(len(self.positions) + 1, bool)
+        for kf_id in keyframe_ids:
+            seen[self.all_keyframes[kf_id].point_ids] = True
+        return np.flatnonzero(seen[:-1] & self.alive)
+
     def children(self, keyframe_id: int) -> list[int]:
         return [kf.id for kf in self.all_keyframes if kf.parent == keyframe_id and not kf.bad]
 

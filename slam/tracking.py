@@ -297,14 +297,11 @@ class Tracking:
         ``local_keyframes`` (80): its best covisible keyframe not yet in, a child not yet in,
         and its parent, after which the search stops (ORB-SLAM breaks out of the loop there).
         The keyframe seeing the most of ``point_ids`` becomes the reference."""
-        counts: dict[int, int] = {}
-        for point in point_ids:
-            for kf_id in self.map.observations.get(int(point), {}):
-                counts[kf_id] = counts.get(kf_id, 0) + 1
-        if not counts:
+        counts = self.map.sightings(point_ids)
+        seeing = [int(k) for k in np.flatnonzero(counts)]
+        if not seeing:
             return np.zeros(0, int)
-        seeing = sorted(counts)
-        self._reference_keyframe = max(seeing, key=lambda k: counts[k])  # the first of the most
+        self._reference_keyframe = seeing[int(np.argmax(counts[seeing]))]  # the first of the most
         local = list(seeing)
         included = set(local)
         for kf_id in seeing:
@@ -319,6 +316,4 @@ class Tracking:
                 local.append(parent)
                 included.add(parent)
                 break
-        ids = np.concatenate([self.map.keyframe(k).point_ids for k in local])
-        ids = np.unique(ids[ids >= 0])
-        return ids[self.map.alive[ids]]
+        return self.map.points_of(local)

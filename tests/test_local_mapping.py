@@ -422,6 +422,33 @@ def test_keyframe_culling_ignores_far_points_and_keeps_the_first_keyframe():
     assert not map_.keyframe(0).bad
 
 
+def test_sightings_and_local_points_follow_the_observations():
+    """Map.sightings (how many of a frame's points each keyframe sees) and Map.points_of (the
+    points of a set of keyframes) against the observation dictionaries, counted by hand, after
+    forgotten observations, culled points, a merge and a culled keyframe; a point listed twice
+    (two keypoints of a frame after a fusion) counts twice, as ORB-SLAM counts per keypoint."""
+    visible = [np.arange(0, 60), np.arange(20, 80), np.arange(50, 110), np.arange(100, 120)]
+    map_, _, _ = synthetic_map([0.0, 0.2, 0.4, 0.6], visible)
+    map_.forget(55, 1)
+    map_.cull_points(np.array([56, 57]))
+    map_.replace_point(25, 70)
+    map_.set_bad(3)
+    frame_points = np.r_[np.arange(10, 75, 3), 70, 70]
+
+    def by_hand(points):
+        counts = np.zeros(len(map_.all_keyframes), int)
+        for point in points:
+            for kf in map_.observations.get(int(point), {}):
+                counts[kf] += 1
+        return counts
+
+    np.testing.assert_array_equal(map_.sightings(frame_points), by_hand(frame_points))
+    assert map_.sightings(frame_points)[3] == 0 and map_.sightings(np.array([70]))[0] == 1  # 25 merged
+    for keyframes in ([0], [1, 2], [0, 1, 2, 3]):
+        expected = sorted(p for p, seen in map_.observations.items() if set(seen) & set(keyframes))
+        assert map_.points_of(keyframes).tolist() == [p for p in expected if map_.alive[p]]
+
+
 def test_fusion_adds_observations_and_merges_duplicates():
     """Points projected onto a keyframe: a point over a free keypoint with its descriptor is
     added there; a point over a keypoint that holds another point merges with it (the one seen
