@@ -117,3 +117,37 @@ def test_the_strategies_table_takes_settings_as_the_command_line_does(tmp_path):
     bad = _run(str(BENCHMARKS / "strategies.py"), str(tmp_path / "seq"), "--set", "k=wide")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert bad.stderr.strip().splitlines()[-1].endswith("--set: setting k='wide' is not a number")
+
+
+def _has_commit(rev: str) -> bool:
+    return (
+        subprocess.run(
+            ["git", "-C", str(REPO), "cat-file", "-e", f"{rev}^{{commit}}"], check=False
+        ).returncode
+        == 0
+    )
+
+
+@pytest.mark.render
+def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
+    """sweep.py on a toy sweep (1 sequence of 3 frames, 2 configurations): its modes run (the
+    settings went in as text until they were typed, and it crashed), and ``--baseline`` runs
+    the same sweep with depotbench imported from the revision's files (settings as that code
+    took them, its cache switch), then prints the speed-up over it."""
+    spec = importlib.util.spec_from_file_location("sweep_benchmark", BENCHMARKS / "sweep.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    if not _has_commit(module.BEFORE_ISSUE_40):
+        pytest.skip(f"this clone lacks commit {module.BEFORE_ISSUE_40}")
+    toy = ("--frames", "3", "--seeds", "1", "--configs", "2", "--workers", "1", "--skip-naive")
+    result = _run(str(BENCHMARKS / "sweep.py"), *toy, "--baseline")
+    assert result.returncode == 0, result.stderr[-2000:]
+    out = result.stdout
+    assert re.search(r"^  \| depotbench from .*depotbench-baseline-.*/tree$", out, re.M), out
+    assert re.search(r"^  \| cache \+ dedupe\s+\d+\.\d s \(2 tracked, 1 shared\)$", out, re.M), out
+    assert re.search(r"^cache \+ dedupe\s+\d+\.\d s .*\(2 tracked, 1 shared\)$", out, re.M), out
+    assert re.search(r"^cache\s+\d+\.\d s .*\(3 tracked, 0 shared\)$", out, re.M), out
+    assert re.search(
+        rf"^speed-up of cache \+ dedupe over revision {module.BEFORE_ISSUE_40}: \d+\.\d\dx", out, re.M
+    )
