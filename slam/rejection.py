@@ -146,7 +146,12 @@ def _prior_flow(
     )
     q = in_potential & ~in_dynamic
     p = ~in_potential & ~in_dynamic
-    prev, ok = flow_stage if flow_stage is not None else flow_to_previous(previous, current, config)
+    if flow_stage is not None:
+        prev, ok = flow_stage
+    else:  # only P and Q are read: LK on them alone (it tracks each point on its own)
+        needed = np.flatnonzero(~in_dynamic)
+        prev, ok = np.zeros((len(codes), 2), np.float32), np.zeros(len(codes), bool)
+        prev[needed], ok[needed] = track_to_previous(previous, current, current.keypoints_px[needed], config)
     flow = current.keypoints_px - prev
     if not (p & ok).any():
         codes[q] = REJECTION_CODES[Rejection.MOVING_FLOW]  # no camera-flow reference: Q stays unverified

@@ -17,7 +17,7 @@ from depotbench.scenes.schema import to_scenario
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import RejectionConfig, SlamConfig
 from depotbench.slam.features import FrameFeatures
-from depotbench.slam.rejection import STRATEGIES, classify
+from depotbench.slam.rejection import STRATEGIES, classify, flow_to_previous, track_to_previous
 from depotbench.slam.system import Slam
 from depotbench.slam.types import REJECTION_CODES, Frame, Rejection, TrackingState
 
@@ -216,6 +216,35 @@ def test_prior_flow_flags_only_the_potential_points_that_move():
         Rejection.KEPT,
         Rejection.DYNAMIC_BOX,
     ]
+    # Without the flow stage LK runs on the points outside person boxes alone; with it (every
+    # keypoint's flow, as a sweep caches it) the decisions are the same.
+    stage = flow_to_previous(_features(previous, points), _features(current, points), RejectionConfig(k=2.0))
+    with_stage = classify(
+        "prior_flow",
+        _features(current, points),
+        _features(previous, points),
+        detections,
+        RejectionConfig(k=2.0),
+        flow=stage,
+    )
+    assert with_stage.tolist() == codes.tolist()
+
+
+def test_lk_flow_of_a_subset_is_the_subsets_rows_of_the_flow_of_all():
+    """LK tracks each point on its own: the rejection strategies run it on the points they read."""
+    rng = np.random.default_rng(5)
+    previous = _textured(rng)
+    current = np.roll(previous, (2, 5), axis=(0, 1))
+    points = rng.uniform([10, 10], [310, 230], (300, 2)).astype(np.float32)
+    every = track_to_previous(
+        _features(previous, points), _features(current, points), points, RejectionConfig()
+    )
+    subset = np.flatnonzero(rng.uniform(size=300) < 0.6)
+    some = track_to_previous(
+        _features(previous, points), _features(current, points), points[subset], RejectionConfig()
+    )
+    np.testing.assert_array_equal(some[0], every[0][subset])
+    np.testing.assert_array_equal(some[1], every[1][subset])
 
 
 def test_epipolar_rule_flags_points_off_their_epipolar_line():
