@@ -144,8 +144,8 @@ class LocalMapping:
         map_.add_keyframe(keyframe)
         observed = point_ids.copy()
         keyframe.point_ids = np.full(len(features), -1)
-        for keypoint in np.flatnonzero(observed >= 0):
-            map_.observe(int(observed[keypoint]), kf_id, int(keypoint))
+        with_point = np.flatnonzero(observed >= 0)
+        map_.observe_many(observed[with_point], kf_id, with_point)
         self._update_points(map_, keyframe.point_ids)
         if kf_id > 0:
             best = map_.covisible(kf_id, 1)
@@ -191,9 +191,8 @@ class LocalMapping:
             points, ok = self.triangulate(keyframe.features, i1, pose1, other.features, i2, pose2)
             i1, i2 = i1[ok], i2[ok]
             ids = map_.add_points(points[ok], keyframe.features.descriptors[i1], keyframe_id)
-            for point, k1, k2 in zip(ids, i1, i2, strict=True):
-                map_.observe(int(point), keyframe_id, int(k1))
-                map_.observe(int(point), int(other_id), int(k2))
+            map_.observe_many(ids, keyframe_id, i1)
+            map_.observe_many(ids, int(other_id), i2)
             self._update_points(map_, ids)
             made += len(ids)
         return made
@@ -319,8 +318,7 @@ class LocalMapping:
         keyframe = map_.keyframe(keyframe_id)
         point_ids = np.unique(point_ids[point_ids >= 0])
         point_ids = point_ids[map_.alive[point_ids]]
-        seen_here = np.array([keyframe_id in map_.observations.get(int(p), {}) for p in point_ids], bool)
-        point_ids = point_ids[~seen_here] if len(point_ids) else point_ids
+        point_ids = point_ids[~np.isin(point_ids, keyframe.point_ids)]  # those it sees already
         if not len(point_ids):
             return 0
         ids, kps = fuse_candidates(

@@ -190,6 +190,31 @@ class Map:
         seen[keyframe_id] = keypoint
         self.all_keyframes[keyframe_id].point_ids[keypoint] = point_id
 
+    def observe_many(self, point_ids: np.ndarray, keyframe_id: int, keypoints: np.ndarray) -> None:
+        """``observe`` for each (point, keypoint) pair in order, the counts updated at once: a
+        keyframe adds hundreds of observations, and each ``observe`` pays ~6 us of NumPy calls."""
+        seen_by = self.observations
+        others: list[int] = []
+        taken_points, taken_keypoints = [], []
+        for point, keypoint in zip(point_ids.tolist(), keypoints.tolist(), strict=True):
+            seen = seen_by.setdefault(point, {})
+            if keyframe_id in seen:
+                continue  # one keypoint per point in a keyframe (ORB-SLAM's IsInKeyFrame)
+            others += seen
+            seen[keyframe_id] = keypoint
+            taken_points.append(point)
+            taken_keypoints.append(keypoint)
+        if not taken_points:
+            return
+        points, kps = np.array(taken_points), np.array(taken_keypoints)
+        keyframe = self.all_keyframes[keyframe_id]
+        shared = np.bincount(np.array(others, int), minlength=len(self.covisibility))
+        self.covisibility[keyframe_id] += shared.astype(self.covisibility.dtype)
+        self.covisibility[:, keyframe_id] += shared.astype(self.covisibility.dtype)
+        self.n_observations[points] += 1
+        self.observation_weight[points] += np.where(keyframe.features.depth_m[kps] > 0, 2, 1)
+        keyframe.point_ids[kps] = points
+
     def forget(self, point_id: int, keyframe_id: int) -> None:
         """Drop one observation (an outlier found by bundle adjustment, a culled keyframe)."""
         seen = self.observations.get(point_id, {})

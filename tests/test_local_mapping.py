@@ -422,6 +422,41 @@ def test_keyframe_culling_ignores_far_points_and_keeps_the_first_keyframe():
     assert not map_.keyframe(0).bad
 
 
+def test_observing_many_at_once_equals_observing_one_by_one():
+    """Map.observe_many against observe in a loop: the same observation dictionaries (in the
+    same order), covisibility, counts, weights (a keypoint without depth weighs 1) and point
+    ids, a point listed twice taking only its first keypoint."""
+    visible = [np.arange(0, 60), np.arange(20, 80), np.arange(50, 110)]
+    maps = [synthetic_map([0.0, 0.2, 0.4], visible)[0] for _ in range(2)]
+    for map_ in maps:
+        frame = maps[0].keyframe(2).features
+        depth = frame.depth_m.copy()
+        depth[::4] = 0.0
+        view = FrameFeatures(
+            frame.grey,
+            frame.keypoints_px,
+            frame.undistorted_px,
+            frame.octaves,
+            frame.descriptors,
+            depth,
+            frame.angles_deg,
+        )
+        map_.add_keyframe(KeyFrame(3, 3, np.eye(4), view, np.ones(len(depth), bool), np.full(len(depth), -1)))
+    points = np.r_[np.arange(30, 90), 40, 115]
+    keypoints = np.r_[np.arange(60), 7, 60 - 1]
+    for point, keypoint in zip(points, keypoints, strict=True):
+        maps[0].observe(int(point), 3, int(keypoint))
+    maps[1].observe_many(points, 3, keypoints)
+    one, many = maps
+    assert list(one.observations.items()) == list(many.observations.items())
+    assert all(list(one.observations[p]) == list(many.observations[p]) for p in one.observations)
+    np.testing.assert_array_equal(one.covisibility, many.covisibility)
+    np.testing.assert_array_equal(one.n_observations, many.n_observations)
+    np.testing.assert_array_equal(one.observation_weight, many.observation_weight)
+    np.testing.assert_array_equal(one.keyframe(3).point_ids, many.keyframe(3).point_ids)
+    assert one.covisibility[3, :3].tolist() == [30, 50, 40]  # points 30-59, 30-79, 50-89 shared
+
+
 def test_sightings_and_local_points_follow_the_observations():
     """Map.sightings (how many of a frame's points each keyframe sees) and Map.points_of (the
     points of a set of keyframes) against the observation dictionaries, counted by hand, after
