@@ -13,6 +13,7 @@ points keyframes i and j both see, and two keyframes are neighbours from ``COVIS
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from itertools import chain
 
 import numpy as np
 from depotbench.slam.features import FrameFeatures
@@ -21,6 +22,9 @@ from depotbench.slam.geometry import POPCOUNT
 COVISIBILITY_MIN = 15
 """ORB-SLAM's KeyFrame::UpdateConnections: keyframes sharing at least 15 points are connected
 (a keyframe with no such neighbour is connected to the one it shares most with)."""
+
+_NONE: dict[int, int] = {}
+"""The observations of a point no keyframe sees (read only)."""
 
 _POINT_ARRAYS = (
     "positions",
@@ -270,13 +274,14 @@ class Map:
 
     def observation_table(self, point_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every observation of ``point_ids``: (index into point_ids, keyframe id, keypoint)."""
-        index, kfs, kps = [], [], []
-        for i, point in enumerate(point_ids):
-            seen = self.observations.get(int(point), {})
-            index += [i] * len(seen)
-            kfs += seen.keys()
-            kps += seen.values()
-        return np.array(index, int), np.array(kfs, int), np.array(kps, int)
+        get = self.observations.get
+        seen = [get(point, _NONE) for point in point_ids.tolist()]
+        counts = np.fromiter(map(len, seen), int, len(seen))
+        total = int(counts.sum())
+        index = np.repeat(np.arange(len(seen)), counts)
+        kfs = np.fromiter(chain.from_iterable(seen), int, total)
+        kps = np.fromiter(chain.from_iterable(map(dict.values, seen)), int, total)
+        return index, kfs, kps
 
     def keypoint_values(self, name: str, kfs: np.ndarray, kps: np.ndarray) -> np.ndarray:
         """A feature array (``octaves``, ``descriptors``, ...) at keypoints ``kps`` of keyframes ``kfs``."""

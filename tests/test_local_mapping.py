@@ -461,7 +461,8 @@ def test_sightings_and_local_points_follow_the_observations():
     """Map.sightings (how many of a frame's points each keyframe sees) and Map.points_of (the
     points of a set of keyframes) against the observation dictionaries, counted by hand, after
     forgotten observations, culled points, a merge and a culled keyframe; a point listed twice
-    (two keypoints of a frame after a fusion) counts twice, as ORB-SLAM counts per keypoint."""
+    (two keypoints of a frame after a fusion) counts twice, as ORB-SLAM counts per keypoint.
+    Map.observation_table lists the same observations in the dictionaries' order."""
     visible = [np.arange(0, 60), np.arange(20, 80), np.arange(50, 110), np.arange(100, 120)]
     map_, _, _ = synthetic_map([0.0, 0.2, 0.4, 0.6], visible)
     map_.forget(55, 1)
@@ -482,6 +483,13 @@ def test_sightings_and_local_points_follow_the_observations():
     for keyframes in ([0], [1, 2], [0, 1, 2, 3]):
         expected = sorted(p for p, seen in map_.observations.items() if set(seen) & set(keyframes))
         assert map_.points_of(keyframes).tolist() == [p for p in expected if map_.alive[p]]
+    # observation_table: every observation, point by point in the dictionaries' order
+    table = [
+        (i, kf, kp)
+        for i, p in enumerate(frame_points)
+        for kf, kp in map_.observations.get(int(p), {}).items()
+    ]
+    assert list(zip(*(a.tolist() for a in map_.observation_table(frame_points)), strict=True)) == table
 
 
 def test_fusion_adds_observations_and_merges_duplicates():

@@ -161,7 +161,11 @@ def _member_frame(
     codes = classify(
         config.strategy, stage.features, previous, detections, config.rejection, stage.flow, memo
     )
-    classes = box_classes(stage.features.keypoints_px, list(detections), config.rejection.box_dilation_px)
+    dilation = config.rejection.box_dilation_px
+    key = ("box classes", dilation)  # the same for every setting of the frame but the dilation
+    if key not in memo:
+        memo[key] = box_classes(stage.features.keypoints_px, list(detections), dilation)
+    classes = memo[key]
     return replace(result, diagnostics=replace(result.diagnostics, rejection=codes, keypoint_classes=classes))
 
 
