@@ -249,3 +249,21 @@ def test_a_detector_is_keyed_by_the_bytes_of_its_class_names_file(tmp_path: Path
     first = parse_detector("onnx", {"names": str(names)}).key()
     names.write_text("dog\nperson\n")
     assert parse_detector("onnx", {"names": str(names)}).key() != first
+
+
+def test_an_opened_sequence_is_hashed_once_and_a_reopened_one_again(generated: Path, monkeypatch):
+    """A branching sweep task keys features, stages and detections on one opened sequence: its
+    files are read once. Opening the folder again reads them again (an edit shows)."""
+    from depotbench.eval.run import detections
+
+    reads = []
+    real = detections.file_digest
+    monkeypatch.setattr(detections, "file_digest", lambda path, what: reads.append(path) or real(path, what))
+    sequence = Sequence.open(generated)
+    first = sequence_fingerprint(sequence)
+    n_files = len(reads)
+    assert n_files == len(sequence.files()) > 10
+    assert sequence_fingerprint(sequence) == first and len(reads) == n_files
+    assert sequence_fingerprint(sequence, generated.parent) != first  # another anchor: hashed
+    assert len(reads) == 2 * n_files
+    assert sequence_fingerprint(Sequence.open(generated)) == first and len(reads) == 3 * n_files

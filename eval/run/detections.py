@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,14 +51,24 @@ def sequence_fingerprint(sequence: Sequence, anchor: Path | None = None) -> str:
     each get a key of their own. Hashing a 300-frame 640x480 sequence reads about
     150 MB once, at about 1.5 GB/s with SHA-256's CPU instructions. Where is the folder's
     path, or its path relative to ``anchor`` (a sweep folder) when it lies inside it: a
-    sweep copied or moved whole keeps its keys, and with them its rows.
+    sweep copied or moved whole keeps its keys, and with them its rows. Hashed once per opened
+    ``Sequence`` (``_FINGERPRINTS``).
     """
-    digest = hashlib.sha256(FINGERPRINT_FORMAT.encode())
-    digest.update(os.fsencode(stored_path(sequence.root, anchor)) + b"\0")
-    for path in sequence.files():
-        digest.update(os.fsencode(path.relative_to(sequence.root)) + b"\0")
-        digest.update(file_digest(path, "sequence file"))
-    return digest.hexdigest()[:32]
+    known = _FINGERPRINTS.setdefault(sequence, {})
+    if anchor not in known:
+        digest = hashlib.sha256(FINGERPRINT_FORMAT.encode())
+        digest.update(os.fsencode(stored_path(sequence.root, anchor)) + b"\0")
+        for path in sequence.files():
+            digest.update(os.fsencode(path.relative_to(sequence.root)) + b"\0")
+            digest.update(file_digest(path, "sequence file"))
+        known[anchor] = digest.hexdigest()[:32]
+    return known[anchor]
+
+
+_FINGERPRINTS: weakref.WeakKeyDictionary[Sequence, dict[Path | None, str]] = weakref.WeakKeyDictionary()
+"""Each opened sequence's fingerprints, by anchor: an open sequence is hashed once however many
+stages key on it (a branching sweep task asked three times: features, stages, detections).
+Opening the folder again hashes it again, so a file changed between two opens is seen."""
 
 
 def stored_path(root: Path, anchor: Path | None) -> str:
