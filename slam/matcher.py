@@ -380,8 +380,20 @@ def fuse_candidates(
         return empty
     level = predict_level(map_.max_distance[point_ids], distance, tc.scale_factor, tc.n_levels)
     radius = FUSE_RADIUS * tc.scale_factor**level
+    right = uv[:, 0] - tc.baseline_fx / pc[:, 2]
+    if kernels.compiled():
+        from depotbench.slam.kernels import matching
+
+        args = (point_ids, uv, radius, level, right, features, candidates)
+        rows, kps = matching.fuse_pairs(tc, map_, *args, (CHI2_FUSE_STEREO, CHI2_FUSE_MONO), TH_LOW)
+        return point_ids[rows], kps
     tree = cKDTree(features.undistorted_px[candidates])
-    gap, nearest = tree.query(uv, k=NEIGHBOURS, p=np.inf, distance_upper_bound=float(radius.max()))
+    bound = float(radius.max())
+    gap, nearest = tree.query(uv, k=2 * NEIGHBOURS, p=np.inf, distance_upper_bound=bound)
+    # Keypoints at one distance come in the k-d tree's order: the lower index goes first, then
+    # the NEIGHBOURS nearest are kept (as the compiled pairing does).
+    order = np.lexsort((nearest, gap), axis=-1)[:, :NEIGHBOURS]
+    gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
     found = (nearest < len(candidates)) & (gap < radius[:, None])
     rows, cols = np.nonzero(found)
     kps = candidates[nearest[rows, cols]]
@@ -393,7 +405,7 @@ def fuse_candidates(
     depth = features.depth_m[kps]
     stereo = depth > 0
     ur_measured = features.undistorted_px[kps, 0] - tc.baseline_fx / np.where(stereo, depth, 1.0)
-    ur_projected = uv[rows, 0] - tc.baseline_fx / pc[rows, 2]
+    ur_projected = right[rows]
     e2 = e2 + np.where(stereo, (ur_measured - ur_projected) ** 2, 0.0)
     inv_sigma2 = tc.scale_factor ** (-2.0 * kp_level)
     good = e2 * inv_sigma2 <= np.where(stereo, CHI2_FUSE_STEREO, CHI2_FUSE_MONO)

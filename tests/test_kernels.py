@@ -567,6 +567,32 @@ def test_local_map_search_ties_go_to_the_nearer_then_the_lower_keypoint():
             assert found.tolist() == expected, (name, value)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_fuse_candidates_equal_numpy(seed: int):
+    """Fuse's candidate pairs on both paths: the same (point, keypoint) pairs in the same order,
+    exactly, over draws with keypoints with and without depth and unusable ones."""
+    from depotbench.slam.matcher import fuse_candidates
+
+    rng = np.random.default_rng(200 + seed)
+    tc = TrackingConfig()
+    fused = 0
+    for _ in range(40):
+        features, map_ = _scene(rng, int(rng.integers(0, 1200)), int(rng.integers(0, 900)))
+        _local_map(rng, features, map_)
+        point_ids = rng.permutation(len(map_.positions))
+        pose = exp_se3(np.r_[rng.normal(0, 0.002, 3), rng.normal(0, 0.01, 3)])
+        usable = rng.uniform(size=len(features)) < 0.9
+        args = (tc, CAMERA, map_, point_ids, pose, features, usable)
+        with kernels.using(Kernels.NUMPY):
+            expected = fuse_candidates(*args)
+        with kernels.using(Kernels.NUMBA):
+            found = fuse_candidates(*args)
+        for part_expected, part_found in zip(expected, found, strict=True):
+            np.testing.assert_array_equal(part_found, part_expected)
+        fused += len(expected[0])
+    assert fused > 150  # the draws do fuse (about 250 per seed)
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

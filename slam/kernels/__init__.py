@@ -110,6 +110,7 @@ def warm_up() -> float:
     descriptors = np.zeros((n, 32), np.uint8)
     matching.pair(uv, ones, index, index, uv, index, index, descriptors, descriptors, 100, *(ones,) * 4)
     matching.pair_local(uv, ones, index, ones, uv, index, index, descriptors, descriptors, 100, ones)
+    matching.pair_fuse(uv, ones, index, ones, uv, index, index, ones, ones, *(descriptors,) * 2, 7.8, 6.0, 50)
     rejection.epipolar_geometry(np.eye(3), uv, uv)
     rejection.flow_outliers(ones, 2.0, 1.0, 1.0)
     return time.perf_counter() - started

@@ -383,3 +383,119 @@ def local_pairs(
         int(tc.match_max_hamming),
         np.ascontiguousarray(np.where(depth <= 0, np.nan, keypoint_right), np.float64),
     )
+
+
+@jit
+def pair_fuse(
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    right: np.ndarray,
+    candidates_px: np.ndarray,
+    candidates: np.ndarray,
+    octaves: np.ndarray,
+    keypoint_right: np.ndarray,
+    inv_sigma2: np.ndarray,
+    point_descriptors: np.ndarray,
+    descriptors: np.ndarray,
+    chi2_stereo: float,
+    chi2_mono: float,
+    max_hamming: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse's pairs (point rows ascending, keypoints): per point, of the ``NEIGHBOURS`` keypoints
+    nearest its projection (Chebyshev distance under its radius, the lower candidate index
+    first among equals) at its predicted level or one finer whose reprojection error passes
+    the chi-square gate (``keypoint_right`` NaN without depth: the (u, v) gate, else (u, v,
+    u_r)), the one with the closest descriptor (the nearer among equals) within
+    ``max_hamming``."""
+    n_points = len(uv)
+    cell = max(radius.max(), 1.0)
+    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
+    rows = np.empty(n_points, np.int64)
+    keypoints = np.empty(n_points, np.int64)
+    n = 0
+    near = np.empty(NEIGHBOURS, np.int64)
+    near_gap = np.empty(NEIGHBOURS)
+    for i in range(n_points):
+        u, v, r = uv[i, 0], uv[i, 1], radius[i]
+        gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
+        gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
+        gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
+        gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
+        count = 0
+        for gy in range(gy0, gy1 + 1):
+            for gx in range(gx0, gx1 + 1):
+                k = gy * nx + gx
+                for s in range(start[k], start[k + 1]):
+                    c = in_cell[s]
+                    gap = max(abs(candidates_px[c, 0] - u), abs(candidates_px[c, 1] - v))
+                    if not gap < r:
+                        continue
+                    j = count if count < NEIGHBOURS else NEIGHBOURS
+                    while j > 0 and (near_gap[j - 1] > gap or (near_gap[j - 1] == gap and near[j - 1] > c)):
+                        if j < NEIGHBOURS:
+                            near_gap[j], near[j] = near_gap[j - 1], near[j - 1]
+                        j -= 1
+                    if j < NEIGHBOURS:
+                        near_gap[j], near[j] = gap, c
+                        count = min(count + 1, NEIGHBOURS)
+        best, best_distance = -1, 0
+        for j in range(count):
+            c = near[j]
+            keypoint = candidates[c]
+            octave = octaves[keypoint]
+            if not (level[i] - 1 <= octave <= level[i]):
+                continue
+            dx, dy = candidates_px[c, 0] - u, candidates_px[c, 1] - v
+            e2 = dx * dx + dy * dy
+            kr = keypoint_right[keypoint]
+            stereo = not math.isnan(kr)
+            if stereo:
+                e2 = e2 + (kr - right[i]) ** 2
+            if not e2 * inv_sigma2[octave] <= (chi2_stereo if stereo else chi2_mono):
+                continue
+            distance = 0
+            for b in range(descriptors.shape[1]):
+                distance += POPCOUNT[point_descriptors[i, b] ^ descriptors[keypoint, b]]
+            if best < 0 or distance < best_distance:
+                best, best_distance = keypoint, distance
+        if best >= 0 and best_distance <= max_hamming:
+            rows[n], keypoints[n] = i, best
+            n += 1
+    return rows[:n], keypoints[:n]
+
+
+def fuse_pairs(
+    tc: Any,
+    map_: Any,
+    point_ids: np.ndarray,
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    right: np.ndarray,
+    features: Any,
+    candidates: np.ndarray,
+    chi2: tuple[float, float],
+    max_hamming: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``matcher.fuse_candidates``' pairing compiled: (rows of ``point_ids``, keypoints), the
+    same pairs in the same order as the NumPy path, from what it computed for the points in
+    view (projections, radii, predicted levels, projected right columns)."""
+    depth = features.depth_m
+    keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
+    return pair_fuse(
+        np.ascontiguousarray(uv, np.float64),
+        np.ascontiguousarray(radius, np.float64),
+        np.ascontiguousarray(level, np.int64),
+        np.ascontiguousarray(right, np.float64),
+        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
+        candidates.astype(np.int64),
+        np.ascontiguousarray(features.octaves, np.int64),
+        np.ascontiguousarray(np.where(depth > 0, keypoint_right, np.nan), np.float64),
+        tc.scale_factor ** (-2.0 * np.arange(tc.n_levels)),
+        np.ascontiguousarray(map_.descriptors[point_ids]),
+        np.ascontiguousarray(features.descriptors),
+        float(chi2[0]),
+        float(chi2[1]),
+        int(max_hamming),
+    )
