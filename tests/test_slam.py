@@ -201,13 +201,8 @@ def test_prior_flow_flags_only_the_potential_points_that_move():
         Detection((140, 40, 180, 80), "cup", Prior.POTENTIAL, 1.0),
         Detection((40, 180, 80, 220), "person", Prior.DYNAMIC, 1.0),
     )
-    codes = classify(
-        "prior_flow",
-        _features(current, points),
-        _features(previous, points),
-        detections,
-        RejectionConfig(k=2.0),
-    )
+    frames = (_features(current, points), _features(previous, points), detections, RejectionConfig(k=2.0))
+    codes = classify("prior_flow", *frames)
     names = [list(REJECTION_CODES)[c] for c in codes]
     assert names == [
         Rejection.KEPT,
@@ -218,16 +213,8 @@ def test_prior_flow_flags_only_the_potential_points_that_move():
     ]
     # Without the flow stage LK runs on the points outside person boxes alone; with it (every
     # keypoint's flow, as a sweep caches it) the decisions are the same.
-    stage = flow_to_previous(_features(previous, points), _features(current, points), RejectionConfig(k=2.0))
-    with_stage = classify(
-        "prior_flow",
-        _features(current, points),
-        _features(previous, points),
-        detections,
-        RejectionConfig(k=2.0),
-        flow=stage,
-    )
-    assert with_stage.tolist() == codes.tolist()
+    stage = flow_to_previous(frames[1], frames[0], frames[3])
+    assert classify("prior_flow", *frames, flow=stage).tolist() == codes.tolist()
 
 
 def test_lk_flow_of_a_subset_is_the_subsets_rows_of_the_flow_of_all():

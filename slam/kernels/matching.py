@@ -99,6 +99,72 @@ def _grid(candidates_px: np.ndarray, cell: float) -> tuple[Any, ...]:
 
 
 @jit
+def _nearest(
+    u: float,
+    v: float,
+    r: float,
+    limit: float,
+    chebyshev: bool,
+    grid: tuple,
+    candidates_px: np.ndarray,
+    near: np.ndarray,
+    near_distance: np.ndarray,
+) -> int:
+    """Fill ``near`` with the candidates nearest (u, v), at most ``len(near)``, from the grid
+    cells within ``r`` of it: by Chebyshev distance or squared Euclidean distance, under
+    ``limit``, in (distance, candidate index) order (``near_distance`` holds the distances).
+    Returns how many."""
+    x0, y0, nx, ny, start, in_cell, cell = grid
+    size = len(near)
+    gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
+    gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
+    gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
+    gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
+    count = 0
+    for gy in range(gy0, gy1 + 1):
+        for gx in range(gx0, gx1 + 1):
+            k = gy * nx + gx
+            for s in range(start[k], start[k + 1]):
+                c = in_cell[s]
+                dx, dy = candidates_px[c, 0] - u, candidates_px[c, 1] - v
+                d = max(abs(dx), abs(dy)) if chebyshev else dx * dx + dy * dy
+                if not d < limit:
+                    continue
+                j = count if count < size else size
+                while j > 0 and (near_distance[j - 1] > d or (near_distance[j - 1] == d and near[j - 1] > c)):
+                    if j < size:
+                        near_distance[j], near[j] = near_distance[j - 1], near[j - 1]
+                    j -= 1
+                if j < size:
+                    near_distance[j], near[j] = d, c
+                    count = min(count + 1, size)
+    return count
+
+
+@jit
+def _one_per_keypoint(best_kp: np.ndarray, best_distance: np.ndarray, n_keypoints: int) -> tuple:
+    """Each keypoint keeps its closest point (the lower row among equals): (keypoints
+    ascending, rows)."""
+    claim = np.full(n_keypoints, -1, np.int64)
+    for i in range(len(best_kp)):
+        k = best_kp[i]
+        if k >= 0 and (claim[k] < 0 or best_distance[i] < best_distance[claim[k]]):
+            claim[k] = i
+    n = 0
+    for k in range(n_keypoints):
+        if claim[k] >= 0:
+            n += 1
+    keypoints = np.empty(n, np.int64)
+    rows = np.empty(n, np.int64)
+    n = 0
+    for k in range(n_keypoints):
+        if claim[k] >= 0:
+            keypoints[n], rows[n] = k, claim[k]
+            n += 1
+    return keypoints, rows
+
+
+@jit
 def pair(
     uv: np.ndarray,
     radius: np.ndarray,
@@ -127,39 +193,16 @@ def pair(
     r_max = radius.max()
     bound = r_max * r_max
     cell = _cell_size(radius)
-    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
     windowed = len(low) > 0
     depth_checked = len(point_right) > 0
     best_kp = np.full(n_points, -1, np.int64)
     best_distance = np.zeros(n_points, np.int64)
+    grid = (*_grid(candidates_px, cell), cell)
     near = np.empty(NEIGHBOURS, np.int64)
     near_d2 = np.empty(NEIGHBOURS)
     for i in range(n_points):
         # the cells within this point's radius: nearer keypoints outside it are cut below
-        u, v, r = uv[i, 0], uv[i, 1], radius[i]
-        gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
-        gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
-        gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
-        gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
-        count = 0
-        for gy in range(gy0, gy1 + 1):
-            for gx in range(gx0, gx1 + 1):
-                k = gy * nx + gx
-                for s in range(start[k], start[k + 1]):
-                    c = in_cell[s]
-                    dx, dy = candidates_px[c, 0] - u, candidates_px[c, 1] - v
-                    d2 = dx * dx + dy * dy
-                    if not d2 < bound:
-                        continue
-                    # insert into the sorted nearest list, (distance, candidate order)
-                    j = count if count < NEIGHBOURS else NEIGHBOURS
-                    while j > 0 and (near_d2[j - 1] > d2 or (near_d2[j - 1] == d2 and near[j - 1] > c)):
-                        if j < NEIGHBOURS:
-                            near_d2[j], near[j] = near_d2[j - 1], near[j - 1]
-                        j -= 1
-                    if j < NEIGHBOURS:
-                        near_d2[j], near[j] = d2, c
-                        count = min(count + 1, NEIGHBOURS)
+        count = _nearest(uv[i, 0], uv[i, 1], radius[i], bound, False, grid, candidates_px, near, near_d2)
         for j in range(count):
             if not math.sqrt(near_d2[j]) <= radius[i]:
                 break
@@ -174,23 +217,8 @@ def pair(
                 distance += POPCOUNT[point_descriptors[i, b] ^ descriptors[keypoint, b]]
             if distance <= max_hamming and (best_kp[i] < 0 or distance < best_distance[i]):
                 best_kp[i], best_distance[i] = keypoint, distance
-    # each keypoint keeps its best point (the lowest index among equals)
-    claim = np.full(len(descriptors), -1, np.int64)
-    for i in range(n_points):
-        k = best_kp[i]
-        if k >= 0 and (claim[k] < 0 or best_distance[i] < best_distance[claim[k]]):
-            claim[k] = i
-    n = 0
-    for k in range(len(claim)):
-        if claim[k] >= 0:
-            n += 1
-    keypoints = np.empty(n, np.int64)
-    rows = np.empty(n, np.int64)
-    n = 0
-    for k in range(len(claim)):
-        if claim[k] >= 0:
-            keypoints[n], rows[n] = k, claim[k]
-            n += 1
+    keypoints, rows = _one_per_keypoint(best_kp, best_distance, len(descriptors))
+    n = len(keypoints)
     if len(point_angles) and n:
         keep = consistent_rotation(keypoint_angles[keypoints] - point_angles[rows])
         keypoints, rows = keypoints[keep], rows[keep]
@@ -246,9 +274,7 @@ def search_by_projection(
     point_right = keypoint_right = np.zeros(0)
     if depth_check:
         point_right = np.ascontiguousarray(uv[:, 0] - tc.baseline_fx / pc[inside, 2], np.float64)
-        depth = features.depth_m
-        keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
-        keypoint_right = np.ascontiguousarray(np.where(depth <= 0, np.nan, keypoint_right), np.float64)
+        keypoint_right = right_columns(tc, features)
     keypoints, rows = pair(
         np.ascontiguousarray(uv, np.float64),
         np.ascontiguousarray(per_point["radius"], np.float64),
@@ -294,34 +320,14 @@ def pair_local(
     0.8 times it; then each keypoint keeps its closest point (the lower row among equals)."""
     n_points = len(uv)
     cell = max(radius.max(), 1.0)
-    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
+    grid = (*_grid(candidates_px, cell), cell)
     best_kp = np.full(n_points, -1, np.int64)
     best_distance = np.zeros(n_points, np.int64)
     near = np.empty(LOCAL_NEIGHBOURS, np.int64)
     near_gap = np.empty(LOCAL_NEIGHBOURS)
     for i in range(n_points):
-        u, v, r = uv[i, 0], uv[i, 1], radius[i]
-        gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
-        gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
-        gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
-        gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
-        count = 0
-        for gy in range(gy0, gy1 + 1):
-            for gx in range(gx0, gx1 + 1):
-                k = gy * nx + gx
-                for s in range(start[k], start[k + 1]):
-                    c = in_cell[s]
-                    gap = max(abs(candidates_px[c, 0] - u), abs(candidates_px[c, 1] - v))
-                    if not gap < r:
-                        continue
-                    j = count if count < LOCAL_NEIGHBOURS else LOCAL_NEIGHBOURS
-                    while j > 0 and (near_gap[j - 1] > gap or (near_gap[j - 1] == gap and near[j - 1] > c)):
-                        if j < LOCAL_NEIGHBOURS:
-                            near_gap[j], near[j] = near_gap[j - 1], near[j - 1]
-                        j -= 1
-                    if j < LOCAL_NEIGHBOURS:
-                        near_gap[j], near[j] = gap, c
-                        count = min(count + 1, LOCAL_NEIGHBOURS)
+        r = radius[i]
+        count = _nearest(uv[i, 0], uv[i, 1], r, r, True, grid, candidates_px, near, near_gap)
         d1, d2, level1, level2, kp1 = -1, -1, -1, -1, -1
         for j in range(count):
             keypoint = candidates[near[j]]
@@ -344,23 +350,37 @@ def pair_local(
         if d2 >= 0 and level2 == level1 and d1 > LOCAL_RATIO * d2:
             continue
         best_kp[i], best_distance[i] = kp1, d1
-    claim = np.full(len(descriptors), -1, np.int64)
-    for i in range(n_points):
-        k = best_kp[i]
-        if k >= 0 and (claim[k] < 0 or best_distance[i] < best_distance[claim[k]]):
-            claim[k] = i
-    n = 0
-    for k in range(len(claim)):
-        if claim[k] >= 0:
-            n += 1
-    keypoints = np.empty(n, np.int64)
-    rows = np.empty(n, np.int64)
-    n = 0
-    for k in range(len(claim)):
-        if claim[k] >= 0:
-            keypoints[n], rows[n] = k, claim[k]
-            n += 1
-    return keypoints, rows
+    return _one_per_keypoint(best_kp, best_distance, len(descriptors))
+
+
+def right_columns(tc: Any, features: Any) -> np.ndarray:
+    """Each keypoint's right-image column u - bf / depth (ORB-SLAM's mvuRight), NaN where it
+    has no depth: what the kernels' depth checks compare with a point's projected column."""
+    depth = features.depth_m
+    right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
+    return np.ascontiguousarray(np.where(depth > 0, right, np.nan), np.float64)
+
+
+def _window(
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    right: np.ndarray,
+    features: Any,
+    candidates: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """The arrays the local search and Fuse kernels take first, typed as they compile: the
+    points' projections, radii, predicted levels and right columns, the candidates'
+    positions and indices, every keypoint's level."""
+    return (
+        np.ascontiguousarray(uv, np.float64),
+        np.ascontiguousarray(radius, np.float64),
+        np.ascontiguousarray(level, np.int64),
+        np.ascontiguousarray(right, np.float64),
+        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
+        candidates.astype(np.int64),
+        np.ascontiguousarray(features.octaves, np.int64),
+    )
 
 
 def local_pairs(
@@ -378,20 +398,12 @@ def local_pairs(
     the same matches in the same order as the NumPy path. The arguments are what that method
     computed for the points in view: projections, radii, predicted levels, right columns."""
     tc = matcher.tc
-    depth = features.depth_m
-    keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
     return pair_local(
-        np.ascontiguousarray(uv, np.float64),
-        np.ascontiguousarray(radius, np.float64),
-        np.ascontiguousarray(level, np.int64),
-        np.ascontiguousarray(right, np.float64),
-        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
-        candidates.astype(np.int64),
-        np.ascontiguousarray(features.octaves, np.int64),
+        *_window(uv, radius, level, right, features, candidates),
         np.ascontiguousarray(map_.descriptors[point_ids]),
         np.ascontiguousarray(features.descriptors),
         int(tc.match_max_hamming),
-        np.ascontiguousarray(np.where(depth <= 0, np.nan, keypoint_right), np.float64),
+        right_columns(tc, features),
     )
 
 
@@ -420,7 +432,7 @@ def pair_fuse(
     ``max_hamming``."""
     n_points = len(uv)
     cell = max(radius.max(), 1.0)
-    x0, y0, nx, ny, start, in_cell = _grid(candidates_px, cell)
+    grid = (*_grid(candidates_px, cell), cell)
     rows = np.empty(n_points, np.int64)
     keypoints = np.empty(n_points, np.int64)
     n = 0
@@ -428,27 +440,7 @@ def pair_fuse(
     near_gap = np.empty(NEIGHBOURS)
     for i in range(n_points):
         u, v, r = uv[i, 0], uv[i, 1], radius[i]
-        gx0 = max(int(math.floor((u - r - x0) / cell)), 0)
-        gx1 = min(int(math.floor((u + r - x0) / cell)), nx - 1)
-        gy0 = max(int(math.floor((v - r - y0) / cell)), 0)
-        gy1 = min(int(math.floor((v + r - y0) / cell)), ny - 1)
-        count = 0
-        for gy in range(gy0, gy1 + 1):
-            for gx in range(gx0, gx1 + 1):
-                k = gy * nx + gx
-                for s in range(start[k], start[k + 1]):
-                    c = in_cell[s]
-                    gap = max(abs(candidates_px[c, 0] - u), abs(candidates_px[c, 1] - v))
-                    if not gap < r:
-                        continue
-                    j = count if count < NEIGHBOURS else NEIGHBOURS
-                    while j > 0 and (near_gap[j - 1] > gap or (near_gap[j - 1] == gap and near[j - 1] > c)):
-                        if j < NEIGHBOURS:
-                            near_gap[j], near[j] = near_gap[j - 1], near[j - 1]
-                        j -= 1
-                    if j < NEIGHBOURS:
-                        near_gap[j], near[j] = gap, c
-                        count = min(count + 1, NEIGHBOURS)
+        count = _nearest(u, v, r, r, True, grid, candidates_px, near, near_gap)
         best, best_distance = -1, 0
         for j in range(count):
             c = near[j]
@@ -491,17 +483,9 @@ def fuse_pairs(
     """``matcher.fuse_candidates``' pairing compiled: (rows of ``point_ids``, keypoints), the
     same pairs in the same order as the NumPy path, from what it computed for the points in
     view (projections, radii, predicted levels, projected right columns)."""
-    depth = features.depth_m
-    keypoint_right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
     return pair_fuse(
-        np.ascontiguousarray(uv, np.float64),
-        np.ascontiguousarray(radius, np.float64),
-        np.ascontiguousarray(level, np.int64),
-        np.ascontiguousarray(right, np.float64),
-        np.ascontiguousarray(features.undistorted_px[candidates], np.float64),
-        candidates.astype(np.int64),
-        np.ascontiguousarray(features.octaves, np.int64),
-        np.ascontiguousarray(np.where(depth > 0, keypoint_right, np.nan), np.float64),
+        *_window(uv, radius, level, right, features, candidates),
+        right_columns(tc, features),
         tc.scale_factor ** (-2.0 * np.arange(tc.n_levels)),
         np.ascontiguousarray(map_.descriptors[point_ids]),
         np.ascontiguousarray(features.descriptors),
