@@ -87,6 +87,9 @@ class Map:
     """point id -> {keyframe id: keypoint index}."""
     covisibility: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int32))
     """(capacity, capacity) shared-point counts between keyframes (the first len(all_keyframes))."""
+    _culled: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    """(capacity,) each keyframe's ``bad`` flag as one array (``covisible`` reads it ~30 times a
+    frame); ``add_keyframe`` and ``set_bad`` keep the two equal."""
 
     # -- keyframes -------------------------------------------------------------------
 
@@ -108,6 +111,8 @@ class Map:
             grown = np.zeros((max(16, 2 * capacity),) * 2, np.int32)
             grown[:capacity, :capacity] = self.covisibility
             self.covisibility = grown
+            self._culled = np.r_[self._culled, np.zeros(len(grown) - capacity, bool)]
+        self._culled[keyframe.id] = keyframe.bad
 
     def covisible(self, keyframe_id: int, limit: int | None = None) -> np.ndarray:
         """Live keyframes connected to ``keyframe_id`` (at least ``COVISIBILITY_MIN`` shared
@@ -116,8 +121,7 @@ class Map:
         n = len(self.all_keyframes)
         weights = self.covisibility[keyframe_id, :n].copy()
         weights[keyframe_id] = 0
-        bad = np.fromiter((kf.bad for kf in self.all_keyframes), bool, n)
-        weights[bad] = 0
+        weights[self._culled[:n]] = 0
         order = np.lexsort((-np.arange(n), -weights))
         order = order[weights[order] > 0]
         connected = order[weights[order] >= COVISIBILITY_MIN]
@@ -155,6 +159,7 @@ class Map:
             if self.alive[point] and self.observation_weight[point] <= 2:
                 self.cull_points(np.array([point]))
         keyframe.bad = True
+        self._culled[keyframe_id] = True
         for kf in self.all_keyframes:
             if kf.parent == keyframe_id:
                 kf.parent = keyframe.parent
@@ -351,6 +356,7 @@ class Map:
             all_keyframes=keyframes,
             observations=observations,
             covisibility=self.covisibility.copy(),
+            _culled=self._culled.copy(),
         )
 
     def cull(self, current_keyframe_id: int, recent_keyframes: int) -> int:

@@ -479,6 +479,10 @@ def test_sightings_and_local_points_follow_the_observations():
         return counts
 
     np.testing.assert_array_equal(map_.sightings(frame_points), by_hand(frame_points))
+    assert map_.covisible(0).tolist() == [1]  # 2 shares 8 points with it: under 15
+    copy = map_.copy()
+    copy.set_bad(1)  # a culled keyframe is nobody's neighbour (in the copy only): 2 is the best left
+    assert copy.covisible(0).tolist() == [2] and map_.covisible(0).tolist() == [1]
     assert map_.sightings(frame_points)[3] == 0 and map_.sightings(np.array([70]))[0] == 1  # 25 merged
     for keyframes in ([0], [1, 2], [0, 1, 2, 3]):
         expected = sorted(p for p, seen in map_.observations.items() if set(seen) & set(keyframes))
