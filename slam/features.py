@@ -99,20 +99,31 @@ class FeatureExtractor:
         level = np.fromiter(map(_OCTAVE, keypoints), np.int64, len(keypoints))
         size = c.grid_cell_px * c.scale_factor**level  # a cell of the level's image, in level-0 pixels
         cells = level * 1_000_000 + (pts[:, 1] // size).astype(int) * 1000 + (pts[:, 0] // size).astype(int)
-        strong = score >= c.fast_threshold
-        cell_ids, cell_index = np.unique(cells, return_inverse=True)
-        has_strong = np.zeros(len(cell_ids), bool)
-        has_strong[cell_index[strong]] = True
-        keep = strong | ~has_strong[cell_index]
-        candidates = np.flatnonzero(keep)
-        order = candidates[np.lexsort((-score[candidates], cells[candidates]))]
-        sorted_cells = cells[order]
-        starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
-        rank = np.arange(len(order)) - np.repeat(starts, np.diff(np.r_[starts, len(order)]))
-        level, score = level[order], score[order]
-        chosen = []
-        for lev in range(c.n_levels):
-            at_level = level == lev
-            picks = order[at_level][np.lexsort((-score[at_level], rank[at_level]))]
-            chosen.append(picks[: self._per_level[lev]])
-        return [keypoints[i] for i in np.sort(np.concatenate(chosen))]
+        return [keypoints[i] for i in spread(cells, score, level, c.fast_threshold, self._per_level)]
+
+
+def spread(
+    cells: np.ndarray, score: np.ndarray, level: np.ndarray, strong_score: float, per_level: np.ndarray
+) -> np.ndarray:
+    """Indices (ascending) of the candidates kept: in each cell, those scoring at least
+    ``strong_score`` where it has any, else all; then per level its ``per_level`` share,
+    round-robin over the level's cells (each cell's best, then each one's second best, ...,
+    by score within a round). Two stable sorts in all: a per-level sort and loop cost twice
+    as much (0.8 ms a frame)."""
+    if not len(cells):
+        return np.zeros(0, int)
+    by_cell = np.lexsort((-score, cells))  # by cell, then score, best first
+    cell_sorted = cells[by_cell]
+    new_cell = np.r_[True, cell_sorted[1:] != cell_sorted[:-1]]
+    group = np.cumsum(new_cell) - 1
+    has_strong = score[by_cell[new_cell]] >= strong_score  # a cell's best decides
+    kept = (score[by_cell] >= strong_score) | ~has_strong[group]
+    order, group = by_cell[kept], group[kept]
+    first = np.r_[True, group[1:] != group[:-1]]
+    starts = np.flatnonzero(first)
+    rank = np.arange(len(order)) - starts[np.cumsum(first) - 1]
+    rounds = order[np.lexsort((-score[order], rank, level[order]))]  # per level, round by round
+    at_level = level[rounds]
+    level_start = np.searchsorted(at_level, np.arange(len(per_level)))
+    within = np.arange(len(rounds)) - level_start[at_level]
+    return np.sort(rounds[within < per_level[at_level]])

@@ -427,3 +427,41 @@ def test_local_bundle_adjustment_reaches_gtsams_minimum(seed: int):
     before = np.linalg.norm(start[free, :3, 3] - true_poses[free, :3, 3], axis=1).mean()
     after = np.linalg.norm(poses[free, :3, 3] - true_poses[free, :3, 3], axis=1).mean()
     assert after < 0.5 * before
+
+
+def _spread_by_hand(cells, score, level, strong_score, per_level):
+    """The spreading rule written out with dictionaries and loops: a cell keeps its strong
+    corners where it has any, else all; a level takes its share round by round, each round
+    one corner from every cell that has one left, a round's corners by score (the earlier
+    cell, then the lower index among equals)."""
+    by_cell: dict[int, list[int]] = {}
+    for i in range(len(cells)):
+        by_cell.setdefault(int(cells[i]), []).append(i)
+    chosen = []
+    for lev in range(len(per_level)):
+        queues = []
+        for cell in sorted(c for c, members in by_cell.items() if level[members[0]] == lev):
+            members = by_cell[cell]
+            if any(score[i] >= strong_score for i in members):
+                members = [i for i in members if score[i] >= strong_score]
+            queues.append(sorted(members, key=lambda i: (-score[i], i)))
+        taken = []
+        for depth in range(max((len(q) for q in queues), default=0)):
+            round_ = [(q[depth], position) for position, q in enumerate(queues) if depth < len(q)]
+            taken += [i for i, _ in sorted(round_, key=lambda item: (-score[item[0]], item[1]))]
+        chosen += taken[: per_level[lev]]
+    return sorted(chosen)
+
+
+def test_keypoint_spreading_is_the_per_cell_round_robin_rule():
+    from depotbench.slam.features import spread
+
+    rng = np.random.default_rng(3)
+    for _ in range(150):
+        n = int(rng.integers(0, 600))
+        level = rng.integers(0, 8, n)
+        cells = level * 1_000_000 + rng.integers(0, 6, n) * 1000 + rng.integers(0, 8, n)
+        score = rng.integers(7, int(rng.choice([22, 60])), n).astype(np.float32)  # many equal scores
+        per_level = rng.integers(0, 60, 8)
+        expected = _spread_by_hand(cells, score, level, 20, per_level)
+        assert spread(cells, score, level, 20, per_level).tolist() == expected
