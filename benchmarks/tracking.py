@@ -8,8 +8,9 @@ Generates the scenario once per seed (into a temporary folder), then, on that se
 this run: the built-in pipeline with each strategy pinned to one core (tracking as ORB-SLAM
 reports it: extraction + rejection + tracking; local mapping runs synchronously and is
 reported apart), and ORB-SLAM3 (if the orbslam3 extra is installed) with its local-mapping
-thread on the other core, as it is built to run: its time is that of ``track_rgbd``. Mean
-and median milliseconds per frame.
+thread on the other core, as it is built to run: its time is that of ``track_rgbd``, and its
+tracked frames are printed beside it. Mean and median milliseconds per frame; per seed and
+over the seeds, each strategy's median over ORB-SLAM3's (issue 40's speed criterion).
 
 ``--kernels both`` tracks each strategy on the NumPy reference path and on the compiled
 kernels (``DEPOTBENCH_KERNELS``, ``depotbench.slam.kernels``) in the order numpy, numba,
@@ -45,7 +46,10 @@ from depotbench.slam import kernels  # noqa: E402
 from depotbench.slam.config import ConfigError, SlamConfig, parse_settings  # noqa: E402
 from depotbench.slam.kernels import Kernels  # noqa: E402
 from depotbench.slam.rejection import STRATEGIES  # noqa: E402
+from depotbench.slam.types import TrackingState  # noqa: E402
 
+TRACKED = (TrackingState.OK, TrackingState.RELOCALIZED)
+"""States of a tracked frame: ORB-SLAM3's tracked count is printed, since a lost run looks fast."""
 ORDER = (Kernels.NUMPY, Kernels.NUMBA, Kernels.NUMBA, Kernels.NUMPY)
 """--kernels both: each path twice, mirrored, so that a linear drift in load cancels."""
 
@@ -119,6 +123,7 @@ def main() -> None:
         kernels.warm_up()
     every_core = os.sched_getaffinity(0)
     ratios: dict[str, list[float]] = {s: [] for s in strategies}
+    to_orbslam3: dict[str, list[float]] = {s: [] for s in strategies}
     for seed in args.seed or [None]:
         with tempfile.TemporaryDirectory() as tmp:
             update = {"frames": args.frames, "duration_s": None}
@@ -133,6 +138,7 @@ def main() -> None:
             )
             print(f"{'tracker / strategy':32s} " + " ".join(f"{s + ' mean/med ms':>24s}" for s in STAGES))
             os.sched_setaffinity(0, {min(every_core)})
+            totals: dict[str, float] = {}
             for strategy in strategies:
                 config = SlamConfig(strategy=strategy).with_settings(settings)
                 runs: dict[Kernels | None, list[dict[str, np.ndarray]]] = {}
@@ -144,6 +150,7 @@ def main() -> None:
                     medians[path] = {s: float(np.median(v)) for s, v in stages.items()}
                     label = f"builtin {strategy}" + (f" [{path.value}]" if path else "")
                     print(f"{label:32s} " + " ".join(f"{_cell(stages[s]):>24s}" for s in STAGES))
+                totals[strategy] = medians[paths[0]]["tracking_total"]
                 if len(runs) == 2:
                     ratio = {s: medians[Kernels.NUMPY][s] / medians[Kernels.NUMBA][s] for s in STAGES}
                     ratios[strategy].append(ratio["tracking_total"])
@@ -151,27 +158,45 @@ def main() -> None:
                         f"{'  numpy / numba, medians':32s} " + " ".join(f"{ratio[s]:>23.2f}x" for s in STAGES)
                     )
             os.sched_setaffinity(0, every_core)
-            if not args.no_orbslam3:
-                _orbslam3(args, seq)
+            orbslam3_ms = None if args.no_orbslam3 else _orbslam3(args, seq)
+            if orbslam3_ms is not None:
+                for strategy, total in totals.items():
+                    to_orbslam3[strategy].append(total / orbslam3_ms)
+                print(
+                    f"{'  built-in / orbslam3, medians':32s} "
+                    + " ".join(f"{s} {to_orbslam3[s][-1]:.2f}x" for s in strategies)
+                )
     if args.kernels == "both":
         print("numpy / numba, median tracking_total per frame, by seed:")
         for strategy, values in ratios.items():
             print(f"  {strategy:20s} " + " ".join(f"{v:.2f}x" for v in values))
+    if any(to_orbslam3.values()):
+        print("built-in / orbslam3, median tracking_total per frame, by seed; median over seeds:")
+        for strategy, values in to_orbslam3.items():
+            line = " ".join(f"{v:.2f}x" for v in values)
+            print(f"  {strategy:20s} {line}; {float(np.median(values)):.2f}x")
     print("built-in: tracking_total = extract + reject + track; mapping (synchronous) apart, per frame")
     print("orbslam3: track_rgbd per frame (extraction and tracking; mapping in its own thread)")
 
 
-def _orbslam3(args: argparse.Namespace, seq: Sequence) -> None:
+def _orbslam3(args: argparse.Namespace, seq: Sequence) -> float | None:
+    """ORB-SLAM3's median ms per frame (None where it is not installed). Its tracked frames are
+    printed beside it: a run that got lost tracks nothing and looks fast."""
     from depotbench.eval.trackers.orbslam3 import Orbslam3Tracker, available
 
     if not available():
         print("orbslam3: not installed (pip install 'depotbench[orbslam3]')")
-        return
+        return None
     from depotbench.eval.trackers.vocabulary import default_vocabulary
 
     vocabulary = args.vocabulary or default_vocabulary()
     run = Orbslam3Tracker(vocabulary).run(FrameSource(seq), progress=False)
-    print(f"{'orbslam3 none':32s} {'':>24s} {'':>24s} {'':>24s} {_cell(run.track_ms):>24s}")
+    tracked = sum(state in TRACKED for state in run.states)
+    print(
+        f"{'orbslam3 none':32s} {'':>24s} {'':>24s} {'':>24s} {_cell(run.track_ms):>24s}"
+        f"   tracked {tracked}/{len(run.states)} frames"
+    )
+    return float(np.median(run.track_ms))
 
 
 if __name__ == "__main__":
