@@ -43,7 +43,7 @@ def _interrupts_caught(draw) -> tuple[int, int]:
     Only a SIGINT that lands inside a pick raises: the rest of the storm lands anywhere (in
     ``Thread.start``, between the loop's statements, in the clean-up) and would escape the
     test into pytest, where an interrupted clean-up left the storm running and crashed the
-    xdist worker (2 of ~10 full runs under load)."""
+    xdist worker (fresh-clone runs under load, before and after collecting garbage first)."""
     raised = caught = 0
 
     def handler(signum, frame):
