@@ -24,9 +24,11 @@ DOCS := NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d build/site
 test: $(VENV)/.installed browser shells
 	$(BIN)/ruff check .
 	$(DOCS)
+	$(BIN)/python tests/prepare.py
 	$(BIN)/python -m pytest -q $(SIDE_BY_SIDE)
 
 test-slow: $(VENV)/.installed ultralytics
+	$(BIN)/python tests/prepare.py
 	$(BIN)/python -m pytest -q -m slow $(SIDE_BY_SIDE)
 
 lint: $(VENV)/.installed
