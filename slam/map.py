@@ -183,25 +183,17 @@ class Map:
         self.replaced = np.r_[self.replaced, np.full(n, -1)]
         return np.arange(start, start + n)
 
-    def _weight(self, keyframe_id: int, keypoint: int) -> int:
-        return 2 if self.all_keyframes[keyframe_id].features.depth_m[keypoint] > 0 else 1
+    def _weight(self, keyframe_id: int, keypoints: np.ndarray | int) -> np.ndarray | int:
+        """MapPoint::Observations()' share of each observation: 2 where the keypoint has depth."""
+        return np.where(self.all_keyframes[keyframe_id].features.depth_m[keypoints] > 0, 2, 1)
 
     def observe(self, point_id: int, keyframe_id: int, keypoint: int) -> None:
         """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id)."""
-        seen = self.observations.setdefault(point_id, {})
-        if keyframe_id in seen:
-            return  # one keypoint per point in a keyframe (ORB-SLAM's IsInKeyFrame)
-        others = np.fromiter(seen, int, len(seen))
-        self.covisibility[keyframe_id, others] += 1
-        self.covisibility[others, keyframe_id] += 1
-        self.n_observations[point_id] += 1
-        self.observation_weight[point_id] += self._weight(keyframe_id, keypoint)
-        seen[keyframe_id] = keypoint
-        self.all_keyframes[keyframe_id].point_ids[keypoint] = point_id
+        self.observe_many(np.array([point_id]), keyframe_id, np.array([keypoint]))
 
     def observe_many(self, point_ids: np.ndarray, keyframe_id: int, keypoints: np.ndarray) -> None:
-        """``observe`` for each (point, keypoint) pair in order, the counts updated at once: a
-        keyframe adds hundreds of observations, and each ``observe`` pays ~6 us of NumPy calls."""
+        """Record each (point, keypoint) pair of a keyframe in order, the counts and covisibility
+        updated at once: a keyframe adds hundreds, and NumPy calls per pair cost ~6 us each."""
         seen_by = self.observations
         others: list[int] = []
         taken_points, taken_keypoints = [], []
@@ -216,13 +208,12 @@ class Map:
         if not taken_points:
             return
         points, kps = np.array(taken_points), np.array(taken_keypoints)
-        keyframe = self.all_keyframes[keyframe_id]
         shared = np.bincount(np.array(others, int), minlength=len(self.covisibility))
         self.covisibility[keyframe_id] += shared.astype(self.covisibility.dtype)
         self.covisibility[:, keyframe_id] += shared.astype(self.covisibility.dtype)
         self.n_observations[points] += 1
-        self.observation_weight[points] += np.where(keyframe.features.depth_m[kps] > 0, 2, 1)
-        keyframe.point_ids[kps] = points
+        self.observation_weight[points] += self._weight(keyframe_id, kps)
+        self.all_keyframes[keyframe_id].point_ids[kps] = points
 
     def forget(self, point_id: int, keyframe_id: int) -> None:
         """Drop one observation (an outlier found by bundle adjustment, a culled keyframe)."""
