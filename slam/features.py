@@ -47,6 +47,13 @@ class FrameFeatures:
     def __len__(self) -> int:
         return len(self.keypoints_px)
 
+    def right_px(self, baseline_fx: float) -> np.ndarray:
+        """Each keypoint's column in a virtual right image, u - bf / depth (ORB-SLAM's mvuRight
+        for RGB-D), NaN where it has no depth: what every depth check and stereo residual reads."""
+        depth = self.depth_m
+        right = self.undistorted_px[:, 0] - baseline_fx / np.where(depth > 0, depth, 1.0)
+        return np.where(depth > 0, right, np.nan)
+
 
 class FeatureExtractor:
     def __init__(self, config: TrackingConfig) -> None:

@@ -270,8 +270,7 @@ class LocalMapping:
             v = camera.fy * pc[:, 1] / safe + camera.cy
             kp = features.undistorted_px[index]
             e2 = (u - kp[:, 0]) ** 2 + (v - kp[:, 1]) ** 2
-            depth = features.depth_m[index]
-            ur = kp[:, 0] - tc.baseline_fx / np.where(stereo, depth, 1.0)
+            ur = features.right_px(tc.baseline_fx)[index]
             e2 = e2 + np.where(stereo, (u - tc.baseline_fx / safe - ur) ** 2, 0.0)
             sigma2 = tc.scale_factor ** (2.0 * features.octaves[index])
             ok &= e2 <= np.where(stereo, 7.8, 5.991) * sigma2

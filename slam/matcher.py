@@ -49,6 +49,19 @@ def consistent_rotation(delta_deg: np.ndarray) -> np.ndarray:
     return np.isin(bins, top)
 
 
+def nearest_keypoints(
+    keypoints_px: np.ndarray, uv: np.ndarray, k: int, bound: float, p: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` keypoints nearest each projection in ``uv`` within ``bound`` (distance of
+    Minkowski order ``p``: 2 a circle, inf a square), nearest first: (distances, indices into
+    ``keypoints_px``; inf and ``len(keypoints_px)`` where fewer are in reach). Keypoints at one
+    distance (one corner at two pyramid levels) go lower index first, as the compiled searches
+    take them; the k-d tree's own order of equals is unspecified, so it is asked for 2k."""
+    gap, nearest = cKDTree(keypoints_px).query(uv, k=2 * k, p=p, distance_upper_bound=bound)
+    order = np.lexsort((nearest, gap), axis=-1)[:, :k]
+    return np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
+
+
 def octave_window(
     octaves: np.ndarray, forward_m: float, baseline_m: float, n_levels: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -142,14 +155,9 @@ class Matcher:
         right = uv[:, 0] - self.tc.baseline_fx / pc[inside, 2]
         if len(point_ids) == 0:
             return empty
-        tree = cKDTree(features.undistorted_px[candidates])
-        bound = float(per_point["radius"].max())
-        gap, nearest = tree.query(uv, k=2 * NEIGHBOURS, distance_upper_bound=bound)
-        # Keypoints at one distance (one pixel at two pyramid levels) come in the k-d tree's
-        # order: the lower index goes first, then the NEIGHBOURS nearest are kept (the
-        # compiled search keeps the same ones).
-        order = np.lexsort((nearest, gap), axis=-1)[:, :NEIGHBOURS]
-        gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
+        gap, nearest = nearest_keypoints(
+            features.undistorted_px[candidates], uv, NEIGHBOURS, float(per_point["radius"].max()), 2
+        )
         found = (nearest < len(candidates)) & (gap <= per_point["radius"][:, None])
         pairs_point = np.nonzero(found)[0]
         if len(pairs_point) == 0:
@@ -160,11 +168,9 @@ class Matcher:
             fits = (level >= per_point["low"][pairs_point]) & (level <= per_point["high"][pairs_point])
             pairs_point, pairs_kp = pairs_point[fits], pairs_kp[fits]
         if depth_check:
-            depth = features.depth_m[pairs_kp]
-            kp_right = features.undistorted_px[pairs_kp, 0] - self.tc.baseline_fx / np.where(
-                depth > 0, depth, 1.0
-            )
-            fits = (depth <= 0) | (np.abs(kp_right - right[pairs_point]) <= per_point["radius"][pairs_point])
+            kp_right = features.right_px(self.tc.baseline_fx)[pairs_kp]
+            near = np.abs(kp_right - right[pairs_point]) <= per_point["radius"][pairs_point]
+            fits = np.isnan(kp_right) | near
             pairs_point, pairs_kp = pairs_point[fits], pairs_kp[fits]
         distance = hamming(map_.descriptors[point_ids[pairs_point]], features.descriptors[pairs_kp])
         good = distance <= self.tc.match_max_hamming
@@ -221,24 +227,18 @@ class Matcher:
             args = (point_ids, uv, radius, level, right, features, candidates)
             kps, rows = matching.local_pairs(self, map_, *args)
             return kps, point_ids[rows], point_ids
-        tree = cKDTree(features.undistorted_px[candidates])
-        gap, nearest = tree.query(
-            uv, k=2 * LOCAL_NEIGHBOURS, p=np.inf, distance_upper_bound=float(radius.max())
+        gap, nearest = nearest_keypoints(
+            features.undistorted_px[candidates], uv, LOCAL_NEIGHBOURS, float(radius.max()), np.inf
         )
-        # Keypoints at one distance come in the k-d tree's order: the lower index goes first,
-        # then the LOCAL_NEIGHBOURS nearest are kept (as the compiled search does).
-        order = np.lexsort((nearest, gap), axis=-1)[:, :LOCAL_NEIGHBOURS]
-        gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
         found = (nearest < len(candidates)) & (gap < radius[:, None])
         rows, cols = np.nonzero(found)
         kps = candidates[nearest[rows, cols]]
         kp_level = features.octaves[kps]
-        depth = features.depth_m[kps]
-        kp_right = features.undistorted_px[kps, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
+        kp_right = features.right_px(tc.baseline_fx)[kps]
         fits = (
             (kp_level >= level[rows] - 1)
             & (kp_level <= level[rows])
-            & ((depth <= 0) | (np.abs(right[rows] - kp_right) <= radius[rows]))
+            & (np.isnan(kp_right) | (np.abs(right[rows] - kp_right) <= radius[rows]))
         )
         rows, kps, kp_level = rows[fits], kps[fits], kp_level[fits]
         if not len(rows):
@@ -387,13 +387,9 @@ def fuse_candidates(
         args = (point_ids, uv, radius, level, right, features, candidates)
         rows, kps = matching.fuse_pairs(tc, map_, *args, (CHI2_FUSE_STEREO, CHI2_FUSE_MONO), TH_LOW)
         return point_ids[rows], kps
-    tree = cKDTree(features.undistorted_px[candidates])
-    bound = float(radius.max())
-    gap, nearest = tree.query(uv, k=2 * NEIGHBOURS, p=np.inf, distance_upper_bound=bound)
-    # Keypoints at one distance come in the k-d tree's order: the lower index goes first, then
-    # the NEIGHBOURS nearest are kept (as the compiled pairing does).
-    order = np.lexsort((nearest, gap), axis=-1)[:, :NEIGHBOURS]
-    gap, nearest = np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
+    gap, nearest = nearest_keypoints(
+        features.undistorted_px[candidates], uv, NEIGHBOURS, float(radius.max()), np.inf
+    )
     found = (nearest < len(candidates)) & (gap < radius[:, None])
     rows, cols = np.nonzero(found)
     kps = candidates[nearest[rows, cols]]
@@ -402,11 +398,9 @@ def fuse_candidates(
     rows, kps, kp_level = rows[fits], kps[fits], kp_level[fits]
     err = features.undistorted_px[kps] - uv[rows]
     e2 = np.einsum("ij,ij->i", err, err)
-    depth = features.depth_m[kps]
-    stereo = depth > 0
-    ur_measured = features.undistorted_px[kps, 0] - tc.baseline_fx / np.where(stereo, depth, 1.0)
-    ur_projected = right[rows]
-    e2 = e2 + np.where(stereo, (ur_measured - ur_projected) ** 2, 0.0)
+    ur_measured = features.right_px(tc.baseline_fx)[kps]
+    stereo = ~np.isnan(ur_measured)
+    e2 = e2 + np.where(stereo, (ur_measured - right[rows]) ** 2, 0.0)
     inv_sigma2 = tc.scale_factor ** (-2.0 * kp_level)
     good = e2 * inv_sigma2 <= np.where(stereo, CHI2_FUSE_STEREO, CHI2_FUSE_MONO)
     rows, kps = rows[good], kps[good]

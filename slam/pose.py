@@ -35,10 +35,8 @@ def observations(
     tc: TrackingConfig, features: FrameFeatures, keypoints: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(undistorted pixel, right-image column or NaN without depth, 1 / scale^level) per keypoint."""
-    bf = tc.baseline_fx
     uv = features.undistorted_px[keypoints]
-    depth = features.depth_m[keypoints]
-    ur = np.where(depth > 0, uv[:, 0] - bf / np.where(depth > 0, depth, 1.0), np.nan)
+    ur = features.right_px(tc.baseline_fx)[keypoints]
     weight = 1.0 / tc.scale_factor ** features.octaves[keypoints]
     return uv, ur, weight
 

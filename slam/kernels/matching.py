@@ -274,7 +274,7 @@ def search_by_projection(
     point_right = keypoint_right = np.zeros(0)
     if depth_check:
         point_right = np.ascontiguousarray(uv[:, 0] - tc.baseline_fx / pc[inside, 2], np.float64)
-        keypoint_right = right_columns(tc, features)
+        keypoint_right = features.right_px(tc.baseline_fx)
     keypoints, rows = pair(
         np.ascontiguousarray(uv, np.float64),
         np.ascontiguousarray(per_point["radius"], np.float64),
@@ -353,14 +353,6 @@ def pair_local(
     return _one_per_keypoint(best_kp, best_distance, len(descriptors))
 
 
-def right_columns(tc: Any, features: Any) -> np.ndarray:
-    """Each keypoint's right-image column u - bf / depth (ORB-SLAM's mvuRight), NaN where it
-    has no depth: what the kernels' depth checks compare with a point's projected column."""
-    depth = features.depth_m
-    right = features.undistorted_px[:, 0] - tc.baseline_fx / np.where(depth > 0, depth, 1.0)
-    return np.ascontiguousarray(np.where(depth > 0, right, np.nan), np.float64)
-
-
 def _window(
     uv: np.ndarray,
     radius: np.ndarray,
@@ -403,7 +395,7 @@ def local_pairs(
         np.ascontiguousarray(map_.descriptors[point_ids]),
         np.ascontiguousarray(features.descriptors),
         int(tc.match_max_hamming),
-        right_columns(tc, features),
+        features.right_px(tc.baseline_fx),
     )
 
 
@@ -485,7 +477,7 @@ def fuse_pairs(
     view (projections, radii, predicted levels, projected right columns)."""
     return pair_fuse(
         *_window(uv, radius, level, right, features, candidates),
-        right_columns(tc, features),
+        features.right_px(tc.baseline_fx),
         tc.scale_factor ** (-2.0 * np.arange(tc.n_levels)),
         np.ascontiguousarray(map_.descriptors[point_ids]),
         np.ascontiguousarray(features.descriptors),
