@@ -62,6 +62,25 @@ def nearest_keypoints(
     return np.take_along_axis(gap, order, 1), np.take_along_axis(nearest, order, 1)
 
 
+def square_pairs(
+    features: FrameFeatures,
+    candidates: np.ndarray,
+    uv: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    k: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(point rows, keypoints, their levels) of the local-map search and Fuse: of each point's
+    ``k`` nearest ``candidates``, those inside the square of its ``radius`` around its
+    projection (GetFeaturesInArea) at its predicted ``level`` or one finer, nearest first."""
+    gap, nearest = nearest_keypoints(features.undistorted_px[candidates], uv, k, float(radius.max()), np.inf)
+    rows, cols = np.nonzero((nearest < len(candidates)) & (gap < radius[:, None]))
+    kps = candidates[nearest[rows, cols]]
+    kp_level = features.octaves[kps]
+    fits = (kp_level >= level[rows] - 1) & (kp_level <= level[rows])
+    return rows[fits], kps[fits], kp_level[fits]
+
+
 def octave_window(
     octaves: np.ndarray, forward_m: float, baseline_m: float, n_levels: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -227,19 +246,9 @@ class Matcher:
             args = (point_ids, uv, radius, level, right, features, candidates)
             kps, rows = matching.local_pairs(self, map_, *args)
             return kps, point_ids[rows], point_ids
-        gap, nearest = nearest_keypoints(
-            features.undistorted_px[candidates], uv, LOCAL_NEIGHBOURS, float(radius.max()), np.inf
-        )
-        found = (nearest < len(candidates)) & (gap < radius[:, None])
-        rows, cols = np.nonzero(found)
-        kps = candidates[nearest[rows, cols]]
-        kp_level = features.octaves[kps]
+        rows, kps, kp_level = square_pairs(features, candidates, uv, radius, level, LOCAL_NEIGHBOURS)
         kp_right = features.right_px(tc.baseline_fx)[kps]
-        fits = (
-            (kp_level >= level[rows] - 1)
-            & (kp_level <= level[rows])
-            & (np.isnan(kp_right) | (np.abs(right[rows] - kp_right) <= radius[rows]))
-        )
+        fits = np.isnan(kp_right) | (np.abs(right[rows] - kp_right) <= radius[rows])
         rows, kps, kp_level = rows[fits], kps[fits], kp_level[fits]
         if not len(rows):
             return (*empty[:2], point_ids)
@@ -387,15 +396,7 @@ def fuse_candidates(
         args = (point_ids, uv, radius, level, right, features, candidates)
         rows, kps = matching.fuse_pairs(tc, map_, *args, (CHI2_FUSE_STEREO, CHI2_FUSE_MONO), TH_LOW)
         return point_ids[rows], kps
-    gap, nearest = nearest_keypoints(
-        features.undistorted_px[candidates], uv, NEIGHBOURS, float(radius.max()), np.inf
-    )
-    found = (nearest < len(candidates)) & (gap < radius[:, None])
-    rows, cols = np.nonzero(found)
-    kps = candidates[nearest[rows, cols]]
-    kp_level = features.octaves[kps]
-    fits = (kp_level >= level[rows] - 1) & (kp_level <= level[rows])
-    rows, kps, kp_level = rows[fits], kps[fits], kp_level[fits]
+    rows, kps, kp_level = square_pairs(features, candidates, uv, radius, level, NEIGHBOURS)
     err = features.undistorted_px[kps] - uv[rows]
     e2 = np.einsum("ij,ij->i", err, err)
     ur_measured = features.right_px(tc.baseline_fx)[kps]
