@@ -122,6 +122,15 @@ def _work(root: Path, sequences: list[tuple[Path, str]], configs: int, detector:
     return work
 
 
+def _is_commit(rev: str) -> bool:
+    found = subprocess.run(
+        ["git", "-C", str(REPO), "rev-parse", "--verify", "--quiet", f"{rev}^{{commit}}"],
+        capture_output=True,
+        check=False,
+    )
+    return found.returncode == 0
+
+
 def _revision_tree(rev: str, root: Path) -> Path:
     """Revision ``rev``'s files under ``root``, laid out so that ``import depotbench`` finds
     them with ``root`` on PYTHONPATH: each subpackage its pyproject maps to a root folder
@@ -200,6 +209,9 @@ def main() -> None:
     )
     parser.add_argument("--on-sequences", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.baseline is not None and not _is_commit(args.baseline):
+        print(f"sweep.py: --baseline {args.baseline}: not a commit of this repository", file=sys.stderr)
+        sys.exit(2)  # before any sequence is generated
     if args.on_sequences is not None:
         _child(args)
         return

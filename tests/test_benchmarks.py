@@ -151,3 +151,10 @@ def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
     assert re.search(
         rf"^speed-up of cache \+ dedupe over revision {module.BEFORE_ISSUE_40}: \d+\.\d\dx", out, re.M
     )
+
+
+def test_sweep_benchmark_refuses_a_baseline_that_is_not_a_commit_in_one_line():
+    result = _run(str(BENCHMARKS / "sweep.py"), "--baseline", "no-such-revision")
+    assert result.returncode == 2
+    assert result.stderr.strip() == "sweep.py: --baseline no-such-revision: not a commit of this repository"
+    assert result.stdout == ""  # refused before any sequence is generated
