@@ -465,3 +465,14 @@ def test_keypoint_spreading_is_the_per_cell_round_robin_rule():
         per_level = rng.integers(0, 60, 8)
         expected = _spread_by_hand(cells, score, level, 20, per_level)
         assert spread(cells, score, level, 20, per_level).tolist() == expected
+
+
+def test_keypoint_spreading_refuses_scores_that_are_not_fast_scores():
+    """The packed sort keys hold a score in 8 bits: a fractional or out-of-range score would
+    silently reorder the candidates, so it is refused."""
+    from depotbench.slam.features import spread
+
+    cells, level, per_level = np.zeros(3, int), np.zeros(3, int), np.array([3])
+    for bad in ([7.5, 8.0, 9.0], [7.0, 300.0, 9.0], [-1.0, 8.0, 9.0]):
+        with pytest.raises(ValueError, match="FAST scores"):
+            spread(cells, np.array(bad, np.float32), level, 20, per_level)
