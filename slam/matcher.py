@@ -439,32 +439,74 @@ def search_for_triangulation(
     t21 = pose2_cw[:3, 3] - r21 @ pose1_cw[:3, 3]
     skew = np.array([[0, -t21[2], t21[1]], [t21[2], 0, -t21[0]], [-t21[1], t21[0], 0]])
     fundamental = k_inv.T @ skew @ r21 @ k_inv  # x2^T F x1 = 0
-    x1 = np.c_[features1.undistorted_px[idx1], np.ones(len(idx1))]
-    x2 = np.c_[features2.undistorted_px[idx2], np.ones(len(idx2))]
-    lines = x1 @ fundamental.T  # (n1, 3): epipolar lines in image 2
-    num = lines @ x2.T  # (n1, n2)
-    den = lines[:, 0] ** 2 + lines[:, 1] ** 2
+    px1, px2 = features1.undistorted_px[idx1], features2.undistorted_px[idx2]
     sigma2 = tc.scale_factor ** (2.0 * features2.octaves[idx2])
-    close = num**2 < EPIPOLAR_CHI2 * sigma2[None, :] * den[:, None]
-    # The epipole in image 2 (camera 1's centre seen from 2).
+    # The epipole in image 2 (camera 1's centre seen from 2); behind camera 2 it tests nothing.
     center1 = -pose1_cw[:3, :3].T @ pose1_cw[:3, 3]
     epipole_c = pose2_cw[:3, :3] @ center1 + pose2_cw[:3, 3]
+    near = np.zeros(len(idx2), bool)
     if epipole_c[2] > 1e-9:
         epipole = camera.matrix[:2, :2] @ (epipole_c[:2] / epipole_c[2]) + camera.matrix[:2, 2]
-        near = (
-            np.sum((features2.undistorted_px[idx2] - epipole) ** 2, axis=1)
-            < 100 * tc.scale_factor ** features2.octaves[idx2]
-        )
-        no_depth = (features1.depth_m[idx1] <= 0)[:, None] & (features2.depth_m[idx2] <= 0)[None, :]
-        close &= ~(no_depth & near[None, :])
+        near = np.sum((px2 - epipole) ** 2, axis=1) < 100 * tc.scale_factor ** features2.octaves[idx2]
+    args = (
+        fundamental,
+        np.ascontiguousarray(px1),
+        np.ascontiguousarray(px2),
+        sigma2,
+        near,
+        features1.depth_m[idx1] <= 0,
+        features2.depth_m[idx2] <= 0,
+        np.ascontiguousarray(features1.descriptors[idx1]),
+        np.ascontiguousarray(features2.descriptors[idx2]),
+        EPIPOLAR_CHI2,
+        TH_LOW,
+    )
+    if kernels.compiled():
+        from depotbench.slam.kernels import matching
+
+        rows, cols = matching.pair_triangulation(*args)
+    else:
+        rows, cols = triangulation_pairs(*args)
+    return idx1[rows], idx2[cols]
+
+
+def triangulation_pairs(
+    fundamental: np.ndarray,
+    px1: np.ndarray,
+    px2: np.ndarray,
+    sigma2: np.ndarray,
+    near: np.ndarray,
+    no_depth1: np.ndarray,
+    no_depth2: np.ndarray,
+    descriptors1: np.ndarray,
+    descriptors2: np.ndarray,
+    chi2: float,
+    max_hamming: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairing of ``search_for_triangulation`` (rows of 1, rows of 2; ascending in 2): a pair
+    lies within ``chi2`` sigma^2 of its epipolar line, is not ``near`` the epipole in 2 where
+    neither keypoint has depth, and its descriptors are within ``max_hamming``; each keypoint
+    of 1 takes its closest descriptor (the lower row of 2 among equals), then each of 2 keeps
+    the closest of those (the lower row of 1). The line and distance are written term by term
+    (no matrix product, whose summation order BLAS chooses) so the compiled kernel's
+    arithmetic is the same to the bit."""
+    f = fundamental
+    u1, v1 = px1[:, 0, None], px1[:, 1, None]
+    a = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]
+    b = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
+    c = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
+    num = a * px2[None, :, 0] + b * px2[None, :, 1] + c
+    den = a * a + b * b
+    close = num * num < chi2 * sigma2[None, :] * den
+    close &= ~(no_depth1[:, None] & no_depth2[None, :] & near[None, :])
     rows, cols = np.nonzero(close)
     if not len(rows):
         return _EMPTY, _EMPTY
-    dist = hamming(features1.descriptors[idx1[rows]], features2.descriptors[idx2[cols]])
-    good = dist <= TH_LOW
+    dist = hamming(descriptors1[rows], descriptors2[cols])
+    good = dist <= max_hamming
     rows, cols, dist = rows[good], cols[good], dist[good]
     order = np.lexsort((dist, rows))
     best = order[np.r_[True, np.diff(rows[order]) != 0]] if len(order) else order
     order = np.lexsort((dist[best], cols[best]))
     best = best[order[np.r_[True, np.diff(cols[best][order]) != 0]]] if len(order) else best
-    return idx1[rows[best]], idx2[cols[best]]
+    return rows[best], cols[best]

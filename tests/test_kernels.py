@@ -593,6 +593,61 @@ def test_fuse_candidates_equal_numpy(seed: int):
     assert fused > 150  # the draws do fuse (about 250 per seed)
 
 
+def _keyframe_pair(rng: np.random.Generator, n: int, forward: bool):
+    """Two keyframes seeing ``n`` points (half of each one's keypoints project from them, the
+    rest are clutter), descriptors a few to many bits apart, some keypoints without depth;
+    ``forward``: the second moved along the optical axis, its epipole inside the image."""
+    points = np.c_[rng.uniform(-2, 2, (n, 2)), rng.uniform(1, 6, n)]
+    step = np.r_[0.0, 0.0, 0.3] if forward else np.r_[rng.normal(0, 0.1, 2), rng.normal(0, 0.03)]
+    pose2 = exp_se3(np.r_[step, rng.normal(0, 0.02, 3)])
+    frames = []
+    base = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+    for pose in (np.eye(4), pose2):
+        pc = points @ pose[:3, :3].T + pose[:3, 3]
+        px = pc[:, :2] / pc[:, 2:] * CAMERA.fx + [CAMERA.cx, CAMERA.cy] + rng.normal(0, 0.7, (n, 2))
+        clutter = np.c_[rng.uniform(0, 640, n // 2), rng.uniform(0, 480, n // 2)]
+        px = np.r_[px, clutter]
+        descriptors = np.r_[base, rng.integers(0, 256, (n // 2, 32), dtype=np.uint8)]
+        flips = rng.uniform(size=descriptors.shape) < rng.uniform(0, 0.25, (len(px), 1))
+        descriptors ^= (flips * rng.integers(1, 256, descriptors.shape)).astype(np.uint8)
+        depth = np.r_[pc[:, 2], rng.uniform(0.5, 6, n // 2)] * (rng.uniform(size=len(px)) < 0.6)
+        frames.append(
+            FrameFeatures(
+                np.zeros((480, 640), np.uint8),
+                px.astype(np.float32),
+                px,
+                rng.integers(0, 4, len(px)),
+                descriptors,
+                depth,
+                np.zeros(len(px)),
+            )
+        )
+    return frames, pose2
+
+
+def test_triangulation_search_equals_numpy():
+    """search_for_triangulation on both paths: the same pairs in the same order, exactly, over
+    sideways and forward moves (the epipole in the image) and keypoints already taken."""
+    from depotbench.slam.matcher import search_for_triangulation
+
+    rng = np.random.default_rng(7)
+    tc = TrackingConfig()
+    paired = 0
+    for trial in range(60):
+        (f1, f2), pose2 = _keyframe_pair(rng, int(rng.integers(0, 500)), forward=trial % 3 == 0)
+        free1 = rng.uniform(size=len(f1)) < 0.8
+        free2 = rng.uniform(size=len(f2)) < 0.8
+        args = (tc, CAMERA, f1, free1, np.eye(4), f2, free2, pose2)
+        with kernels.using(Kernels.NUMPY):
+            expected = search_for_triangulation(*args)
+        with kernels.using(Kernels.NUMBA):
+            found = search_for_triangulation(*args)
+        for part_expected, part_found in zip(expected, found, strict=True):
+            np.testing.assert_array_equal(part_found, part_expected)
+        paired += len(expected[0])
+    assert paired > 3000  # the draws do pair
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

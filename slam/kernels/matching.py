@@ -485,3 +485,59 @@ def fuse_pairs(
         float(chi2[1]),
         int(max_hamming),
     )
+
+
+@jit
+def pair_triangulation(
+    fundamental: np.ndarray,
+    px1: np.ndarray,
+    px2: np.ndarray,
+    sigma2: np.ndarray,
+    near: np.ndarray,
+    no_depth1: np.ndarray,
+    no_depth2: np.ndarray,
+    descriptors1: np.ndarray,
+    descriptors2: np.ndarray,
+    chi2: float,
+    max_hamming: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``matcher.triangulation_pairs`` as one loop over the pairs: the same pairs in the same
+    order (ascending in 2), with its arithmetic term by term."""
+    f = fundamental
+    n1, n2 = len(px1), len(px2)
+    best2 = np.full(n1, -1, np.int64)
+    best_distance = np.zeros(n1, np.int64)
+    for i in range(n1):
+        u1, v1 = px1[i, 0], px1[i, 1]
+        a = f[0, 0] * u1 + f[0, 1] * v1 + f[0, 2]
+        b = f[1, 0] * u1 + f[1, 1] * v1 + f[1, 2]
+        c = f[2, 0] * u1 + f[2, 1] * v1 + f[2, 2]
+        den = a * a + b * b
+        for j in range(n2):
+            num = a * px2[j, 0] + b * px2[j, 1] + c
+            if not num * num < chi2 * sigma2[j] * den:
+                continue
+            if no_depth1[i] and no_depth2[j] and near[j]:
+                continue
+            distance = 0
+            for k in range(descriptors1.shape[1]):
+                distance += POPCOUNT[descriptors1[i, k] ^ descriptors2[j, k]]
+            if distance <= max_hamming and (best2[i] < 0 or distance < best_distance[i]):
+                best2[i], best_distance[i] = j, distance
+    owner = np.full(n2, -1, np.int64)
+    for i in range(n1):  # rows ascending: an equal distance keeps the lower row
+        j = best2[i]
+        if j >= 0 and (owner[j] < 0 or best_distance[i] < best_distance[owner[j]]):
+            owner[j] = i
+    count = 0
+    for j in range(n2):
+        if owner[j] >= 0:
+            count += 1
+    rows = np.empty(count, np.int64)
+    cols = np.empty(count, np.int64)
+    n = 0
+    for j in range(n2):
+        if owner[j] >= 0:
+            rows[n], cols[n] = owner[j], j
+            n += 1
+    return rows, cols
