@@ -99,11 +99,12 @@ class Tracking:
             return tracked, TrackingState.OK if tracked else TrackingState.NOT_INITIALIZED
         tracked = None
         state = TrackingState.LOST
+        self._outliers = (np.zeros(0, int), np.zeros(0, int))  # _track sets this frame's
         if self.state in (TrackingState.OK, TrackingState.RELOCALIZED):
             tracked = self._track(features, usable)
             state = TrackingState.OK if tracked else TrackingState.LOST
-        self._outliers = (np.zeros(0, int), np.zeros(0, int))
         if tracked is None:
+            self._outliers = (np.zeros(0, int), np.zeros(0, int))  # a relocalised frame has none
             tracked = relocalise(self.map, self.matcher, self.tc, self.camera, features, usable)
             if tracked is not None:
                 state = TrackingState.RELOCALIZED
