@@ -380,7 +380,8 @@ class LocalMapping:
         points take part held fixed, as does the first keyframe (it fixes the gauge). Without a
         fixed keyframe the adjustment is skipped, as ORB-SLAM3 aborts it. Observations the
         adjustment finds to be outliers (chi-square over 7.815, 5.991 without depth) are
-        dropped from the map."""
+        dropped from the map, and with them a point left seen by at most one keyframe with
+        depth (MapPoint::EraseObservation)."""
         local = np.r_[keyframe_id, map_.covisible(keyframe_id)]
         points = np.unique(np.concatenate([map_.keyframe(k).point_ids for k in local]))
         points = points[points >= 0]
@@ -418,5 +419,5 @@ class LocalMapping:
             map_.keyframe(int(involved[slot])).world_from_camera = invert(new_poses[slot])
         map_.positions[points] = new_points
         for k in np.flatnonzero(~inlier):
-            map_.forget(int(points[obs_point[k]]), int(obs_kf[k]))
+            map_.erase_observation(int(points[obs_point[k]]), int(obs_kf[k]))
         self._update_points(map_, points, descriptors=False)

@@ -155,9 +155,7 @@ class Map:
         children take its parent."""
         keyframe = self.all_keyframes[keyframe_id]
         for point in np.unique(keyframe.point_ids[keyframe.point_ids >= 0]):
-            self.forget(int(point), keyframe_id)
-            if self.alive[point] and self.observation_weight[point] <= 2:
-                self.cull_points(np.array([point]))
+            self.erase_observation(int(point), keyframe_id)
         keyframe.bad = True
         self._culled[keyframe_id] = True
         for kf in self.all_keyframes:
@@ -226,6 +224,13 @@ class Map:
             self.n_observations[point_id] -= 1
             self.observation_weight[point_id] -= self._weight(keyframe_id, keypoint)
             self.all_keyframes[keyframe_id].point_ids[keypoint] = -1
+
+    def erase_observation(self, point_id: int, keyframe_id: int) -> None:
+        """ORB-SLAM's MapPoint::EraseObservation: drop the observation, and cull the point when
+        at most one keyframe with depth sees it still (observation weight <= 2)."""
+        self.forget(point_id, keyframe_id)
+        if self.alive[point_id] and self.observation_weight[point_id] <= 2:
+            self.cull_points(np.array([point_id]))
 
     def cull_points(self, point_ids: np.ndarray) -> None:
         """Remove points with every observation of them."""

@@ -774,3 +774,21 @@ def test_a_keyframe_keeps_the_matches_its_frames_pose_optimisation_set_aside(tmp
         np.testing.assert_array_equal(keypoints, expected_keypoints)
         np.testing.assert_array_equal(point_ids, expected_ids)
         assert not set(made_keypoints.tolist()) & set(keypoints.tolist())
+
+
+def test_a_point_left_with_one_depth_observation_after_local_ba_is_culled():
+    """ORB-SLAM3's MapPoint::EraseObservation: the local BA drops outlier observations, and a
+    point then seen by at most one keyframe with depth (weight <= 2) is culled. Point 5 is seen
+    by keyframes 1 and 2 only, 60 px off in keyframe 2: the BA drops its observations and the
+    point goes with them (before, it stayed alive, seen by no keyframe). Every seen point
+    left alive has weight over 2; the points no observation of which was off all stay."""
+    visible = [np.arange(6, 80), np.arange(0, 80), np.arange(0, 80)]
+    map_, _, _ = synthetic_map([0.0, 0.2, 0.4], visible)
+    keypoint = map_.observations[5][2]
+    map_.all_keyframes[2].features.undistorted_px[keypoint, 0] += 60.0
+    LocalMapping(TrackingConfig(), CAMERA).local_bundle_adjustment(map_, 2)
+    assert not map_.alive[5] and 5 not in map_.observations
+    assert all((kf.point_ids != 5).all() for kf in map_.all_keyframes)
+    alive = np.flatnonzero(map_.alive[:80])  # points 80-119 are seen by no keyframe
+    assert (map_.observation_weight[alive] > 2).all()
+    assert map_.alive[6:80].all()

@@ -41,10 +41,15 @@ def crowd_seq(tmp_path_factory) -> Path:
     return _generate(tmp_path_factory, "crowd", 90)
 
 
+STATIC_ATE_M = 0.0063
+"""What the built-in may drift on ``static_seq``: 1.5x the worst of three ORB-SLAM3 runs on the
+same 90 frames (3.5, 4.1, 4.2 mm; the ratio issue 40 allows), the built-in 5.4 mm at 0.5.2."""
+
+
 def test_static_scene_is_tracked_to_millimetres(static_seq: Path, tmp_path: Path):
     metrics = run_sequence(static_seq, tmp_path / "run", "none", progress=False)
     assert metrics["lost_frames"] == 0 and metrics["tracked_frames"] == 90
-    assert metrics["ate_m"]["rmse"] <= 0.005
+    assert metrics["ate_m"]["rmse"] <= STATIC_ATE_M
     assert (tmp_path / "run" / "trajectory.txt").is_file()
     diagnostics = np.load(tmp_path / "run" / "diagnostics.npz")
     assert diagnostics["keypoint_counts"].sum() == len(diagnostics["rejection"]) == len(diagnostics["inlier"])
@@ -353,7 +358,7 @@ def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: P
         for mode in (False, True)
     }
     for mode in metrics.values():
-        assert mode["lost_frames"] == 0 and mode["ate_m"]["rmse"] <= 0.005
+        assert mode["lost_frames"] == 0 and mode["ate_m"]["rmse"] <= STATIC_ATE_M
 
 
 def _window(seed: int):
