@@ -481,3 +481,35 @@ def test_keypoint_spreading_refuses_scores_that_are_not_fast_scores():
     for bad in ([7.5, 8.0, 9.0], [7.0, 300.0, 9.0], [-1.0, 8.0, 9.0]):
         with pytest.raises(ValueError, match="FAST scores"):
             spread(cells, np.array(bad, np.float32), level, 20, per_level)
+
+
+def test_the_builtin_tracker_runs_with_one_blas_thread(static_seq: Path, monkeypatch):
+    """Tracking is sequential with small matrices: a BLAS pool of a thread per core spun
+    against other work (the local BA's solve took 20 ms instead of 0.4 on a busy 2-core
+    machine). Inside a run BLAS has one thread; after it, what it had before."""
+    from depotbench.eval.trackers.builtin import BuiltinTracker
+    from depotbench.eval.trackers.frames import FrameSource
+    from depotbench.slam.config import SlamConfig
+    from depotbench.slam.system import Slam
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> list[int]:
+        return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def first_frame(self, *args, **kwargs):
+        seen.append(blas_threads())
+        raise Stop
+
+    monkeypatch.setattr(Slam, "process", first_frame)
+    with threadpool_limits(2, user_api="blas"):
+        before = blas_threads()
+        with pytest.raises(Stop):
+            BuiltinTracker(SlamConfig()).run(FrameSource(Sequence.open(static_seq)), progress=False)
+        assert blas_threads() == before
+    assert seen and all(n == 1 for n in seen[0])
+    assert max(before) == 2  # the run did change something

@@ -15,8 +15,17 @@ from depotbench.slam.config import SlamConfig
 from depotbench.slam.rejection import box_classes, classify
 from depotbench.slam.system import Slam, seed_frame
 from depotbench.slam.types import Frame, FrameResult
+from threadpoolctl import threadpool_limits
 
 STAGES = ("extract", "reject", "track", "tracking_total", "mapping")
+
+
+def one_blas_thread() -> threadpool_limits:
+    """Track with one BLAS thread: the pipeline is sequential and its matrices small (the
+    local BA's reduced system is at most ~500 square). With OpenBLAS's thread per core, on a
+    2-core machine doing other work, that solve took 20 ms instead of 0.4 ms: the threads
+    spin against the other load. Sweep workers run with one already."""
+    return threadpool_limits(1, user_api="blas")
 
 
 def camera_of(sequence: Sequence) -> Intrinsics:
@@ -54,6 +63,10 @@ class BuiltinTracker:
         self._blank: tuple[np.ndarray, np.ndarray] | None = None
 
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
+        with one_blas_thread():
+            return self._run(frames, progress)
+
+    def _run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         sequence = frames.sequence
         started = time.perf_counter()
         slam = Slam(self.config, camera_of(sequence))
@@ -113,6 +126,12 @@ class BuiltinTracker:
         Its per-frame times are those of the shared run up to where it parted. Needs
         the cached stages.
         """
+        with one_blas_thread():
+            return self._run_tree(frames, configs, paths)
+
+    def _run_tree(
+        self, frames: FrameSource, configs: list[SlamConfig], paths: list[tuple[str, ...]]
+    ) -> list[TrackerRun]:
         if self.stages is None:
             raise ValueError("run_tree needs the cached stages")
         if len(configs) != len(paths) or any(len(p) != len(frames) for p in paths):
