@@ -648,6 +648,33 @@ def test_triangulation_search_equals_numpy():
     assert paired > 3000  # the draws do pair
 
 
+def test_keypoint_distribution_equals_numpy():
+    """The quadtree on both paths: the same keypoints, exactly, over levels of every shape,
+    spread and clustered corners, corners on one pixel, and budgets from none to all."""
+    from depotbench.slam.features import distribute_numpy
+    from depotbench.slam.kernels import features as compiled
+
+    rng = np.random.default_rng(11)
+    kept = 0
+    for trial in range(300):
+        n, width, height = int(rng.integers(0, 800)), int(rng.integers(20, 610)), int(rng.integers(20, 450))
+        if trial % 3 == 0:  # clustered, as corners on people and shelves
+            centres = rng.uniform(0, 1, (5, 2)) * [width, height]
+            px = centres[rng.integers(0, 5, n)] + rng.normal(0, 8, (n, 2))
+            px = np.clip(px, 0, [width - 1, height - 1])
+        else:
+            px = rng.uniform(0, 1, (n, 2)) * [width, height]
+        if trial % 5 == 0:
+            px = np.clip(np.round(px), 0, [width - 1, height - 1])  # several corners on one pixel
+        response = rng.integers(7, 60, n).astype(np.float64)
+        wanted = int(rng.integers(0, 300))
+        expected = distribute_numpy(px[:, 0], px[:, 1], response, width, height, wanted)
+        found = compiled.distribute(px[:, 0].copy(), px[:, 1].copy(), response, width, height, wanted)
+        np.testing.assert_array_equal(found, expected)
+        kept += len(expected)
+    assert kept > 20000  # the draws do keep
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

@@ -434,53 +434,52 @@ def test_local_bundle_adjustment_reaches_gtsams_minimum(seed: int):
     assert after < 0.5 * before
 
 
-def _spread_by_hand(cells, score, level, strong_score, per_level):
-    """The spreading rule written out with dictionaries and loops: a cell keeps its strong
-    corners where it has any, else all; a level takes its share round by round, each round
-    one corner from every cell that has one left, a round's corners by score (the earlier
-    cell, then the lower index among equals)."""
-    by_cell: dict[int, list[int]] = {}
-    for i in range(len(cells)):
-        by_cell.setdefault(int(cells[i]), []).append(i)
-    chosen = []
-    for lev in range(len(per_level)):
-        queues = []
-        for cell in sorted(c for c, members in by_cell.items() if level[members[0]] == lev):
-            members = by_cell[cell]
-            if any(score[i] >= strong_score for i in members):
-                members = [i for i in members if score[i] >= strong_score]
-            queues.append(sorted(members, key=lambda i: (-score[i], i)))
-        taken = []
-        for depth in range(max((len(q) for q in queues), default=0)):
-            round_ = [(q[depth], position) for position, q in enumerate(queues) if depth < len(q)]
-            taken += [i for i, _ in sorted(round_, key=lambda item: (-score[item[0]], item[1]))]
-        chosen += taken[: per_level[lev]]
-    return sorted(chosen)
-
-
-def test_keypoint_spreading_is_the_per_cell_round_robin_rule():
-    from depotbench.slam.features import spread
+def test_a_cell_keeps_its_strong_corners_where_it_has_any():
+    """ORB-SLAM's per-cell FAST: threshold 20, and 7 only in a cell that found nothing at 20;
+    against the rule written out with a dictionary."""
+    from depotbench.slam.features import strong_per_cell
 
     rng = np.random.default_rng(3)
-    for _ in range(150):
-        n = int(rng.integers(0, 600))
-        level = rng.integers(0, 8, n)
-        cells = level * 1_000_000 + rng.integers(0, 6, n) * 1000 + rng.integers(0, 8, n)
-        score = rng.integers(7, int(rng.choice([22, 60])), n).astype(np.float32)  # many equal scores
-        per_level = rng.integers(0, 60, 8)
-        expected = _spread_by_hand(cells, score, level, 20, per_level)
-        assert spread(cells, score, level, 20, per_level).tolist() == expected
+    for _ in range(100):
+        n = int(rng.integers(0, 400))
+        cells = rng.integers(0, 30, n)
+        score = rng.integers(7, int(rng.choice([22, 60])), n).astype(np.float32)
+        strong_cells = {int(c) for c, v in zip(cells, score, strict=True) if v >= 20}
+        expected = [bool(v >= 20 or int(c) not in strong_cells) for c, v in zip(cells, score, strict=True)]
+        assert strong_per_cell(cells, score, 20).tolist() == expected
 
 
-def test_keypoint_spreading_refuses_scores_that_are_not_fast_scores():
-    """The packed sort keys hold a score in 8 bits: a fractional or out-of-range score would
-    silently reorder the candidates, so it is refused."""
-    from depotbench.slam.features import spread
+def test_the_quadtree_keeps_the_strongest_corner_of_each_quadrant():
+    """Closed cases of ORB-SLAM's DistributeOctTree on a 64 x 64 level: 16 x 16 corners on a
+    grid, 4 wanted: one split into quadrants, each keeping its highest response; 16 wanted:
+    two splits, one per 16 x 16 square; as many wanted as there are corners, or more: all;
+    corners in one quadrant only: the first split adds no node, and ORB-SLAM stops when a
+    pass adds none, keeping the one strongest corner."""
+    from depotbench.slam.features import distribute_numpy
 
-    cells, level, per_level = np.zeros(3, int), np.zeros(3, int), np.array([3])
-    for bad in ([7.5, 8.0, 9.0], [7.0, 300.0, 9.0], [-1.0, 8.0, 9.0]):
-        with pytest.raises(ValueError, match="FAST scores"):
-            spread(cells, np.array(bad, np.float32), level, 20, per_level)
+    x, y = np.meshgrid(np.arange(2.0, 64.0, 4.0), np.arange(2.0, 64.0, 4.0))
+    xs, ys = x.ravel(), y.ravel()
+    response = np.random.default_rng(0).permutation(len(xs)).astype(np.float32)
+    for side in (32, 16):
+        kept = distribute_numpy(xs, ys, response, 64, 64, (64 // side) ** 2)
+        squares = (ys // side) * (64 // side) + xs // side
+        expected = [np.flatnonzero(squares == q)[np.argmax(response[squares == q])] for q in range(len(kept))]
+        assert kept.tolist() == sorted(expected), side
+    assert distribute_numpy(xs, ys, response, 64, 64, 256).tolist() == list(range(256))
+    assert distribute_numpy(xs, ys, response, 64, 64, 1000).tolist() == list(range(256))
+    corner = (xs < 32) & (ys < 32)  # a first split leaves one node: ORB-SLAM stops there
+    kept = distribute_numpy(xs[corner], ys[corner], response[corner], 64, 64, 4)
+    assert kept.tolist() == [int(np.argmax(response[corner]))]
+
+
+def test_each_level_wants_orb_slams_share():
+    """ORB-SLAM's mnFeaturesPerLevel for 1000 features, scale 1.2, 8 levels: 1000 (1 - 1/1.2)
+    / (1 - 1.2^-8) = 217.2 at level 0, each next 1/1.2 of the last, rounded, and the last
+    level what is left (60)."""
+    from depotbench.slam.features import features_per_level
+
+    assert features_per_level(1000, 1.2, 8).tolist() == [217, 181, 151, 126, 105, 87, 73, 60]
+    assert features_per_level(50, 2.0, 3).tolist() == [29, 14, 7]
 
 
 def test_the_builtin_tracker_runs_with_one_blas_thread(static_seq: Path, monkeypatch):
