@@ -116,10 +116,7 @@ def distribute(
                 node, ulx, uly, urx, bly, start, count, alive, perm, buffer, xs, ys, n_nodes
             )
             n_live += made - 1
-            for child in range(n_nodes - made, n_nodes):
-                if count[child] > 1:
-                    expand[n_expand] = child
-                    n_expand += 1
+            n_expand = _splittable(count, n_nodes - made, n_nodes, expand, n_expand)
         n_active = _gather(active, alive, n_nodes)
         if n_live >= wanted or n_live == previous:
             finished = True
@@ -138,10 +135,7 @@ def distribute(
                         node, ulx, uly, urx, bly, start, count, alive, perm, buffer, xs, ys, n_nodes
                     )
                     n_live += made - 1
-                    for child in range(n_nodes - made, n_nodes):
-                        if count[child] > 1:
-                            expand[n_expand] = child
-                            n_expand += 1
+                    n_expand = _splittable(count, n_nodes - made, n_nodes, expand, n_expand)
                     if n_live >= wanted:
                         break
                 if n_live >= wanted or n_live == previous:
@@ -156,6 +150,16 @@ def distribute(
                 best = perm[j]
         kept[i] = best
     return np.sort(kept)
+
+
+@jit
+def _splittable(count, first, last, expand, n_expand):
+    """Append the nodes first..last-1 holding more than one candidate to ``expand``."""
+    for node in range(first, last):
+        if count[node] > 1:
+            expand[n_expand] = node
+            n_expand += 1
+    return n_expand
 
 
 @jit

@@ -524,20 +524,5 @@ def pair_triangulation(
                 distance += POPCOUNT[descriptors1[i, k] ^ descriptors2[j, k]]
             if distance <= max_hamming and (best2[i] < 0 or distance < best_distance[i]):
                 best2[i], best_distance[i] = j, distance
-    owner = np.full(n2, -1, np.int64)
-    for i in range(n1):  # rows ascending: an equal distance keeps the lower row
-        j = best2[i]
-        if j >= 0 and (owner[j] < 0 or best_distance[i] < best_distance[owner[j]]):
-            owner[j] = i
-    count = 0
-    for j in range(n2):
-        if owner[j] >= 0:
-            count += 1
-    rows = np.empty(count, np.int64)
-    cols = np.empty(count, np.int64)
-    n = 0
-    for j in range(n2):
-        if owner[j] >= 0:
-            rows[n], cols[n] = owner[j], j
-            n += 1
+    cols, rows = _one_per_keypoint(best2, best_distance, n2)  # the lower row among equals
     return rows, cols
