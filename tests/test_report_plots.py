@@ -257,12 +257,20 @@ def test_the_sweep_writes_each_familys_runs_plot(sweep: Path):
 
 @pytest.mark.render
 def test_every_family_gets_its_section_with_every_run_and_its_best_run(page: str):
+    """Each family shows its best run, and beside it the baseline (none) run unless the best
+    run is that one (which of none and prior_flow wins a 10-frame family is the tracker's
+    business: at 0.5.2 none wins two of the four)."""
+    baselines = 0
     for count in COUNTS:
         family = _family(count)
         assert f"<h2>Family: {family}</h2>" in page
         assert f'alt="runs of {family}"' in page
-        assert f"<h2>{family}: best — builtin" in page
-        assert f"<h2>{family}: baseline (none) — builtin · none · groundtruth" in page
+        best = re.search(rf"<h2>{re.escape(family)}: best — builtin · (\w+)", page)
+        assert best, family
+        shown = f"<h2>{family}: baseline (none) — builtin · none · groundtruth" in page
+        assert shown == (best.group(1) != "none"), family
+        baselines += shown
+    assert baselines >= 1
     assert "Left out" not in page
     assert "http://" not in page and "https://" not in page and "<script" not in page
 
