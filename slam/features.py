@@ -8,8 +8,8 @@ leaves as keypoints wanted, and each leaf keeps its strongest corner. Here OpenC
 detects once at the low threshold with FAST scores; a cell keeps only its strong corners
 when it has any (the per-cell fallback), and the quadtree then picks the level's share.
 The quadtree spends keypoints where corners are dense but leaves no region without one:
-37 % of them lie closer than ThDepth on walking_xyz, as ORB-SLAM3's (a per-cell
-round-robin took 39-41 %, and the keyframe rule counts close points).
+37 % of them lie closer than ThDepth on walking_xyz, as ORB-SLAM3's, and the keyframe rule
+counts close points.
 """
 
 from __future__ import annotations

@@ -99,12 +99,11 @@ class Tracking:
             return tracked, TrackingState.OK if tracked else TrackingState.NOT_INITIALIZED
         tracked = None
         state = TrackingState.LOST
-        self._outliers = (np.zeros(0, int), np.zeros(0, int))  # _track sets this frame's
         if self.state in (TrackingState.OK, TrackingState.RELOCALIZED):
-            tracked = self._track(features, usable)
+            tracked = self._track(features, usable)  # sets the frame's set-aside matches
             state = TrackingState.OK if tracked else TrackingState.LOST
         if tracked is None:
-            self._outliers = (np.zeros(0, int), np.zeros(0, int))  # a relocalised frame has none
+            self._outliers = (np.zeros(0, int), np.zeros(0, int))  # only a tracked frame has some
             tracked = relocalise(self.map, self.matcher, self.tc, self.camera, features, usable)
             if tracked is not None:
                 state = TrackingState.RELOCALIZED
