@@ -4,18 +4,18 @@ ORB-SLAM detects FAST corners per pyramid level in ~30 px cells, each cell with 
 threshold of 20 that falls back to 7 where the cell has no corner, and distributes each
 level's share of the budget (shrinking with the level's area) with a quadtree
 (DistributeOctTree): the level's corners are split into quadrants until there are as many
-leaves as keypoints wanted, and each leaf keeps its strongest corner. Here OpenCV's ORB
-detects once at the low threshold with FAST scores; a cell keeps only its strong corners
-when it has any (the per-cell fallback), and the quadtree then picks the level's share.
-The quadtree spends keypoints where corners are dense but leaves no region without one:
-37 % of them lie closer than ThDepth on walking_xyz, as ORB-SLAM3's, and the keyframe rule
-counts close points.
+leaves as keypoints wanted, and each leaf keeps its strongest corner; only those are oriented
+and described. Here FAST runs once per level at the low threshold; a cell keeps only its
+strong corners when it has any (the per-cell fallback), and the quadtree then picks the
+level's share. The quadtree spends keypoints where corners are dense but leaves no region
+without one: 37 % of them lie closer than ThDepth on walking_xyz, as ORB-SLAM3's, and the
+keyframe rule counts close points. The pyramid, the corners before the per-cell selection,
+the orientations and the descriptors are OpenCV ORB's own (tests hold them equal).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from operator import attrgetter
 
 import cv2
 import numpy as np
@@ -24,13 +24,16 @@ from depotbench.slam import kernels
 from depotbench.slam.config import TrackingConfig
 
 CANDIDATE_FACTOR = 10
-"""OpenCV keeps this many times the budget of FAST candidates (best by score, per level) before
-the per-cell selection; ORB-SLAM keeps every corner. Weak corners (clothes, skin) are the
-first cut: keypoint density on people over the background's, median over 10 frames of
-walking_static, is 0.49 for ORB-SLAM3's own keypoints, 0.39 here with 5, 0.48 with 10 and
-0.53 with 20; 10 costs 1.5 ms a frame more than 5, 20 another 0.6 ms."""
-
-_RESPONSE, _OCTAVE, _ANGLE = attrgetter("response"), attrgetter("octave"), attrgetter("angle")
+"""Each level keeps this many times its share of the budget of FAST candidates (the best by
+score, as OpenCV's ORB does) before the per-cell selection; ORB-SLAM keeps every corner. Weak
+corners (clothes, skin) are the first cut: keypoint density on people over the background's,
+median over 10 frames of walking_static, is 0.49 for ORB-SLAM3's own keypoints, 0.39 here
+with 5, 0.48 with 10 and 0.53 with 20."""
+EDGE_PX = 19
+"""No corner closer than this to a level's edge (OpenCV ORB's edgeThreshold; ORB-SLAM's
+EDGE_THRESHOLD is 19 too): the 31 px patch and its rotation stay inside the image."""
+PATCH_PX = 31
+"""ORB's patch: the orientation disc's diameter and the descriptor's extent."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,21 +67,36 @@ class FeatureExtractor:
     def __init__(self, config: TrackingConfig) -> None:
         self.config = config
         self._orb = cv2.ORB_create(
-            nfeatures=CANDIDATE_FACTOR * config.n_features,
+            nfeatures=config.n_features,
             scaleFactor=config.scale_factor,
             nlevels=config.n_levels,
-            edgeThreshold=19,
-            patchSize=31,
-            fastThreshold=config.fast_threshold_min,
-            scoreType=cv2.ORB_FAST_SCORE,
-        )
-        self._per_level = features_per_level(config.n_features, config.scale_factor, config.n_levels)
+            edgeThreshold=EDGE_PX,
+            patchSize=PATCH_PX,
+        )  # describes the kept keypoints, on its own blurred pyramid
+        n_levels, factor = config.n_levels, config.scale_factor
+        self._per_level = features_per_level(config.n_features, factor, n_levels)
+        self._candidates = features_per_level(CANDIDATE_FACTOR * config.n_features, factor, n_levels)
+        self._scales = [np.float32(float(np.float32(factor)) ** level) for level in range(n_levels)]
+        """Each level's scale as OpenCV's ORB takes it (its factor is a float32), so that the
+        keypoints it describes land on the pixels they were found at."""
+        self._half_widths = disc_half_widths(PATCH_PX // 2)
 
     def extract(self, rgb: np.ndarray, depth_m: np.ndarray, camera: Intrinsics) -> FrameFeatures:
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
-        keypoints = self._spread(self._orb.detect(grey, None), grey.shape)
-        keypoints, descriptors = self._orb.compute(grey, keypoints)
-        if descriptors is None or not keypoints:
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else np.ascontiguousarray(rgb)
+        kept = self._keypoints(grey)
+        octaves = np.concatenate([np.full(len(xs), level) for level, (xs, *_) in enumerate(kept)])
+        scale = np.array(self._scales, np.float32)[octaves]  # level-0 pixels as OpenCV's ORB has them
+        xs, ys, scores, angles = (np.concatenate(part) for part in zip(*kept, strict=True))
+        pts = np.c_[xs.astype(np.float32) * scale, ys.astype(np.float32) * scale]
+        columns = (
+            *pts.T.tolist(),
+            (PATCH_PX * scale).tolist(),
+            angles.tolist(),
+            scores.tolist(),
+            octaves.tolist(),
+        )
+        keypoints = [cv2.KeyPoint(*keypoint) for keypoint in zip(*columns, strict=True)]
+        if not keypoints:
             return FrameFeatures(
                 grey,
                 np.zeros((0, 2), np.float32),
@@ -88,39 +106,57 @@ class FeatureExtractor:
                 np.zeros(0),
                 np.zeros(0),
             )
-        pts = cv2.KeyPoint_convert(keypoints).reshape(-1, 2).astype(np.float32, copy=False)
-        octaves = np.fromiter(map(_OCTAVE, keypoints), int, len(keypoints))
+        # keypoints sorted by level come back in their order, none dropped (all lie EDGE_PX inside
+        # their level): the arrays above stay theirs
+        described, descriptors = self._orb.compute(grey, keypoints)
+        if descriptors is None or len(described) != len(keypoints):
+            raise RuntimeError(f"ORB described {len(described)} of {len(keypoints)} keypoints")
+        angles = angles.astype(np.float64)
         h, w = depth_m.shape
         cols = np.clip(np.rint(pts[:, 0]).astype(int), 0, w - 1)
         rows = np.clip(np.rint(pts[:, 1]).astype(int), 0, h - 1)
         depth = depth_m[rows, cols].astype(np.float64)
         depth[(depth < self.config.min_depth_m) | (depth > self.config.max_depth_m)] = 0.0
-        angles = np.fromiter(map(_ANGLE, keypoints), np.float64, len(keypoints))
         return FrameFeatures(grey, pts, camera.undistort(pts), octaves, descriptors, depth, angles)
 
-    def _spread(self, keypoints: tuple, shape: tuple[int, ...]) -> list:
-        """Per cell, the strong corners where there are any; then per level the quadtree's
-        pick of the level's share (ORB-SLAM's ComputeKeyPointsOctTree)."""
-        if not keypoints:
-            return []
+    def pyramid(self, grey: np.ndarray) -> list[np.ndarray]:
+        """OpenCV ORB's pyramid: each level resized from the one above it, its size the image's
+        over the level's scale, rounded."""
+        height, width = grey.shape
+        levels = [grey]
+        for scale in self._scales[1:]:
+            size = (int(np.rint(np.float32(width) / scale)), int(np.rint(np.float32(height) / scale)))
+            levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR_EXACT))
+        return levels
+
+    def candidates(self, level_image: np.ndarray, level: int) -> tuple[np.ndarray, ...]:
+        """A level's FAST corners at the low threshold, the best CANDIDATE_FACTOR times its
+        share: columns, rows and scores, row by row (OpenCV's ORB keeps the same)."""
+        xs, ys, scores = corners(level_image, self.config.fast_threshold_min, EDGE_PX)
+        best = retain_best(scores, int(self._candidates[level]))
+        return xs[best], ys[best], scores[best]
+
+    def _keypoints(self, grey: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+        """Per level: the columns, rows (in the level's image), scores and orientations of the
+        keypoints kept, in the order ORB-SLAM would spread them (ComputeKeyPointsOctTree)."""
         c = self.config
-        pts = cv2.KeyPoint_convert(keypoints)
-        score = np.fromiter(map(_RESPONSE, keypoints), np.float32, len(keypoints))
-        level = np.fromiter(map(_OCTAVE, keypoints), np.int64, len(keypoints))
-        scale = c.scale_factor**level
-        size = c.grid_cell_px * scale  # a cell of the level's image, in level-0 pixels
-        cells = level * 1_000_000 + (pts[:, 1] // size).astype(int) * 1000 + (pts[:, 0] // size).astype(int)
-        strong = strong_per_cell(cells, score, c.fast_threshold)
-        level_px = pts / scale[:, None] - BORDER_PX  # in the level's image, from its border
-        chosen = []
-        for lev in range(c.n_levels):
-            rows = np.flatnonzero(strong & (level == lev))
-            width = round(shape[1] / c.scale_factor**lev) - 2 * BORDER_PX
-            height = round(shape[0] / c.scale_factor**lev) - 2 * BORDER_PX
-            if len(rows) and width > 0 and height > 0:
-                x, y = level_px[rows, 0], level_px[rows, 1]
-                chosen.append(rows[distribute(x, y, score[rows], width, height, self._per_level[lev])])
-        return [keypoints[i] for i in np.sort(np.concatenate(chosen))] if chosen else []
+        found = []
+        for level, level_image in enumerate(self.pyramid(grey)):
+            xs, ys, scores = self.candidates(level_image, level)
+            per_row = level_image.shape[1] // c.grid_cell_px + 1
+            strong = strong_per_cell(
+                (ys // c.grid_cell_px) * per_row + xs // c.grid_cell_px, scores, c.fast_threshold
+            )
+            xs, ys, scores = xs[strong], ys[strong], scores[strong]
+            inner_w, inner_h = level_image.shape[1] - 2 * BORDER_PX, level_image.shape[0] - 2 * BORDER_PX
+            if len(xs) and inner_w > 0 and inner_h > 0:
+                wanted = int(self._per_level[level])
+                kept = distribute(xs - BORDER_PX, ys - BORDER_PX, scores, inner_w, inner_h, wanted)
+                xs, ys, scores = xs[kept], ys[kept], scores[kept]
+            else:
+                xs, ys, scores = xs[:0], ys[:0], scores[:0]
+            found.append((xs, ys, scores, orientations(level_image, xs, ys, self._half_widths)))
+        return found
 
 
 BORDER_PX = 16
@@ -142,16 +178,91 @@ def features_per_level(n_features: int, scale_factor: float, n_levels: int) -> n
 
 def strong_per_cell(cells: np.ndarray, score: np.ndarray, strong_score: float) -> np.ndarray:
     """Which candidates a cell keeps: those scoring at least ``strong_score`` where the cell
-    has any, else all (ORB-SLAM's FAST at 20, again at 7 in a cell that found nothing)."""
+    has any, else all (ORB-SLAM's FAST at 20, again at 7 in a cell that found nothing).
+    Cells are numbered from 0."""
     if not len(cells):
         return np.zeros(0, bool)
-    order = np.argsort(cells, kind="stable")
-    by_cell = cells[order]
-    new_cell = np.r_[True, by_cell[1:] != by_cell[:-1]]
-    best = np.maximum.reduceat(score[order], np.flatnonzero(new_cell))[np.cumsum(new_cell) - 1]
-    keep = np.empty(len(cells), bool)
-    keep[order] = (score[order] >= strong_score) | (best < strong_score)
-    return keep
+    best = np.zeros(int(cells.max()) + 1, score.dtype)
+    np.maximum.at(best, cells, score)
+    return (score >= strong_score) | (best[cells] < strong_score)
+
+
+def corners(image: np.ndarray, threshold: int, border: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """FAST-9 corners of a uint8 image, ``border`` px inside its edges, after 3 x 3 non-maximum
+    suppression: columns, rows and scores (OpenCV's FAST score), row by row (compiled unless
+    ``DEPOTBENCH_KERNELS=numpy``; ``corners_opencv`` is the reference)."""
+    if not kernels.compiled():
+        return corners_opencv(image, threshold, border)
+    from depotbench.slam.kernels import features as compiled
+
+    return compiled.fast_corners(np.ascontiguousarray(image, np.uint8), int(threshold), int(border))
+
+
+def corners_opencv(
+    image: np.ndarray, threshold: int, border: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``corners`` by OpenCV's FAST detector (what OpenCV's ORB runs), in the same order."""
+    found = cv2.FastFeatureDetector_create(int(threshold), True).detect(image)
+    xy = np.rint(cv2.KeyPoint_convert(found)).astype(np.int64).reshape(-1, 2)
+    scores = np.array([k.response for k in found], np.int32)
+    h, w = image.shape
+    inside = (xy[:, 0] >= border) & (xy[:, 0] < w - border) & (xy[:, 1] >= border) & (xy[:, 1] < h - border)
+    xs, ys, scores = xy[inside, 0], xy[inside, 1], scores[inside]
+    order = np.lexsort((xs, ys))
+    return xs[order], ys[order], scores[order]
+
+
+def retain_best(scores: np.ndarray, n: int) -> np.ndarray:
+    """Which candidates a level keeps: the ``n`` best scores and every one tying the n-th
+    (OpenCV's KeyPointsFilter::retainBest, which its ORB applies per level)."""
+    if len(scores) <= n:
+        return np.ones(len(scores), bool)
+    if n <= 0:
+        return np.zeros(len(scores), bool)
+    return scores >= np.partition(scores, len(scores) - n)[len(scores) - n]
+
+
+def disc_half_widths(radius: int) -> np.ndarray:
+    """How far row v of ORB's orientation disc reaches either side of the centre, v = 0 ..
+    radius: the circle's width up to 45 degrees (plus one row), the rows beyond from the
+    columns' heights, so that the disc is the same after swapping x and y."""
+    widths = np.zeros(radius + 1, np.int64)
+    low = int(np.floor(radius * np.sqrt(2) / 2 + 1))
+    for v in range(low + 1):
+        widths[v] = int(np.rint(np.sqrt(radius * radius - v * v)))
+    column = 0
+    for v in range(radius, int(np.ceil(radius * np.sqrt(2) / 2)) - 1, -1):
+        while widths[column] == widths[column + 1]:
+            column += 1
+        widths[v] = column
+        column += 1
+    return widths
+
+
+def orientations(image: np.ndarray, xs: np.ndarray, ys: np.ndarray, half_widths: np.ndarray) -> np.ndarray:
+    """ORB's orientation of keypoints at integer (xs, ys), in degrees: the direction from each
+    to the intensity centroid of its disc, by OpenCV's arctangent (what its ORB uses; float32)."""
+    if not len(xs):
+        return np.zeros(0, np.float32)
+    if kernels.compiled():
+        from depotbench.slam.kernels import features as compiled
+
+        m10, m01 = compiled.moments(np.ascontiguousarray(image, np.uint8), xs, ys, half_widths)
+    else:
+        m10, m01 = moments_numpy(image, xs, ys, half_widths)
+    return cv2.phase(m10.astype(np.float32), m01.astype(np.float32), angleInDegrees=True).ravel()
+
+
+def moments_numpy(
+    image: np.ndarray, xs: np.ndarray, ys: np.ndarray, half_widths: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first moments (m10, m01) of each keypoint's disc, summed as integers."""
+    radius = len(half_widths) - 1
+    v, u = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    inside = np.abs(u) <= half_widths[np.abs(v)]
+    u, v = u[inside], v[inside]
+    values = image[ys[:, None] + v, xs[:, None] + u].astype(np.int64)
+    return values @ u, values @ v
 
 
 def distribute(

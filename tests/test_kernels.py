@@ -675,6 +675,64 @@ def test_keypoint_distribution_equals_numpy():
     assert kept > 20000  # the draws do keep
 
 
+def _textures(rng: np.random.Generator) -> list[np.ndarray]:
+    """Images FAST meets: blurred noise at two scales (dense weak corners, as cloth), boxes
+    and stripes (strong corners, as shelves), saturated black and white (the bounds clip at
+    0 and 255), flat, and images too small to hold any corner inside the border."""
+    smooth = cv2.GaussianBlur(rng.integers(0, 256, (240, 320)).astype(np.float32), (0, 0), 2.0)
+    fine = cv2.GaussianBlur(rng.integers(0, 256, (97, 131)).astype(np.float32), (0, 0), 0.8)
+    boxes = np.full((200, 260), 90, np.uint8)
+    for x, y, w, h in rng.integers(0, 200, (25, 4)):
+        boxes[y : y + h // 4 + 3, x : x + w // 4 + 3] = rng.integers(0, 256)
+    stripes = np.tile(((np.arange(120) // 5) % 2 * 255).astype(np.uint8), (90, 1))
+    saturated = np.where(rng.uniform(size=(80, 80)) < 0.5, 0, 255).astype(np.uint8)
+    return [
+        np.clip(smooth * 3 - 250, 0, 255).astype(np.uint8),
+        fine.astype(np.uint8),
+        boxes,
+        np.ascontiguousarray(stripes.T),
+        saturated,
+        np.full((60, 60), 128, np.uint8),
+        rng.integers(0, 256, (30, 30)).astype(np.uint8),
+        rng.integers(0, 256, (7, 400)).astype(np.uint8),
+    ]
+
+
+def test_fast_corners_equal_opencvs_detector():
+    """The compiled FAST against OpenCV's (the reference path): the same corners, scores and
+    order, on every texture and threshold, and at the borders ORB uses."""
+    from depotbench.slam.features import corners_opencv
+    from depotbench.slam.kernels import features as compiled
+
+    rng = np.random.default_rng(4)
+    found = 0
+    for image in _textures(rng) + _textures(rng):
+        for threshold in (1, 7, 20, 60):
+            for border in (3, 19):
+                expected = corners_opencv(image, threshold, border)
+                result = compiled.fast_corners(image, threshold, border)
+                for part_expected, part_found in zip(expected, result, strict=True):
+                    np.testing.assert_array_equal(part_found, part_expected)
+                found += len(expected[0])
+    assert found > 20000  # the textures do have corners
+
+
+def test_keypoint_moments_equal_numpy():
+    """ORB's intensity centroid on both paths: the same integer moments."""
+    from depotbench.slam.features import disc_half_widths, moments_numpy
+    from depotbench.slam.kernels import features as compiled
+
+    rng = np.random.default_rng(5)
+    half_widths = disc_half_widths(15)
+    for image in _textures(rng)[:5]:
+        h, w = image.shape
+        xs, ys = rng.integers(15, w - 15, 300), rng.integers(15, h - 15, 300)
+        expected = moments_numpy(image, xs, ys, half_widths)
+        result = compiled.moments(image, xs, ys, half_widths)
+        for part_expected, part_found in zip(expected, result, strict=True):
+            np.testing.assert_array_equal(part_found, part_expected)
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

@@ -15,7 +15,7 @@ from depotbench.eval.run.harness import camera_of, run_sequence
 from depotbench.scenes import library
 from depotbench.scenes.schema import to_scenario
 from depotbench.sim.sequence import Sequence
-from depotbench.slam.config import RejectionConfig, SlamConfig
+from depotbench.slam.config import RejectionConfig, SlamConfig, TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.rejection import STRATEGIES, classify, flow_to_previous, track_to_previous
 from depotbench.slam.system import Slam
@@ -470,6 +470,85 @@ def test_the_quadtree_keeps_the_strongest_corner_of_each_quadrant():
     corner = (xs < 32) & (ys < 32)  # a first split leaves one node: ORB-SLAM stops there
     kept = distribute_numpy(xs[corner], ys[corner], response[corner], 64, 64, 4)
     assert kept.tolist() == [int(np.argmax(response[corner]))]
+
+
+def _texture(seed: int) -> np.ndarray:
+    """A 640 x 480 image with corners of every strength: blurred noise, and boxes over it."""
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.integers(0, 256, (480, 640)).astype(np.float32), (0, 0), 1.5)
+    image = np.clip((noise - 128) * 4 + 128, 0, 255).astype(np.uint8)
+    for x, y, w, h in rng.integers(0, 600, (40, 4)):
+        image[y % 440 : y % 440 + h // 10 + 5, x : x + w // 10 + 5] = rng.integers(0, 256)
+    return image
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_extractor_keeps_orbs_own_candidates_and_orients_them_as_orb_does(seed: int):
+    """Against OpenCV's ORB detecting 10x the budget with FAST scores at threshold 7, level by
+    level: the same candidates (position in the level, score); and every keypoint kept sits
+    exactly where ORB puts it in the full image, with ORB's orientation (within its float32
+    arctangent) and the descriptor ORB computes there."""
+    from depotbench.core.camera import Intrinsics
+    from depotbench.slam.features import CANDIDATE_FACTOR, EDGE_PX, PATCH_PX, FeatureExtractor
+
+    config = TrackingConfig()
+    image = _texture(seed)
+    orb = cv2.ORB_create(
+        CANDIDATE_FACTOR * config.n_features, config.scale_factor, config.n_levels, EDGE_PX, 0, 2,
+        cv2.ORB_FAST_SCORE, PATCH_PX, config.fast_threshold_min,
+    )  # fmt: skip
+    detected = orb.detect(image, None)
+    extractor = FeatureExtractor(config)
+    for level, level_image in enumerate(extractor.pyramid(image)):
+        xs, ys, scores = extractor.candidates(level_image, level)
+        scale = 1.2**level
+        theirs = {
+            (round(k.pt[0] / scale), round(k.pt[1] / scale), k.response)
+            for k in detected
+            if k.octave == level
+        }
+        assert set(zip(xs.tolist(), ys.tolist(), scores.tolist(), strict=True)) == theirs, level
+        assert len(theirs) > 100
+    camera = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)
+    features = extractor.extract(np.repeat(image[..., None], 3, axis=2), np.ones(image.shape), camera)
+    assert len(features) > 900
+    by_place = {(k.pt, k.octave): k for k in detected}
+    found = [
+        by_place[((float(x), float(y)), int(o))]
+        for (x, y), o in zip(features.keypoints_px, features.octaves, strict=True)
+    ]
+    angles = np.array([k.angle for k in found])
+    gap = np.abs((features.angles_deg - angles + 180) % 360 - 180)
+    assert gap.max() < 1e-3
+    _, descriptors = orb.compute(image, found)
+    assert (descriptors != features.descriptors).any(
+        axis=1
+    ).sum() <= 2  # an angle within 1e-3 may round apart
+
+
+def test_a_level_keeps_its_best_candidates_and_every_tie():
+    """OpenCV's retainBest: the n highest scores, and all that tie the n-th."""
+    from depotbench.slam.features import retain_best
+
+    scores = np.array([9, 7, 12, 7, 30, 7, 8])
+    assert retain_best(scores, 3).tolist() == [True, False, True, False, True, False, False]
+    assert retain_best(scores, 5).tolist() == [True, True, True, True, True, True, True]  # 7 ties
+    assert retain_best(scores, 4).tolist() == [True, False, True, False, True, False, True]
+    assert retain_best(scores, 0).tolist() == [False] * 7
+    assert retain_best(scores, 9).all()
+
+
+def test_the_orientation_disc_is_round_and_symmetric():
+    """ORB's disc of radius 15: row v reaches round(sqrt(15^2 - v^2)) near the centre, and the
+    disc equals its transpose (its rows beyond 45 degrees come from its columns)."""
+    from depotbench.slam.features import disc_half_widths
+
+    widths = disc_half_widths(15)
+    assert widths[0] == 15 and widths[15] == 3
+    assert widths[:11].tolist() == [round(np.sqrt(225 - v * v)) for v in range(11)]
+    v, u = np.mgrid[-15:16, -15:16]
+    disc = np.abs(u) <= widths[np.abs(v)]
+    np.testing.assert_array_equal(disc, disc.T)
 
 
 def test_each_level_wants_orb_slams_share():

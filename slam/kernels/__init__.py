@@ -117,4 +117,7 @@ def warm_up() -> float:
     epipolar = (np.eye(3), uv, uv, ones, bools, bools, bools, descriptors, descriptors)
     matching.pair_triangulation(*epipolar, 3.84, 50)
     features.distribute(ones, ones, ones, 4, 4, 2)
+    image = np.zeros((40, 40), np.uint8)
+    features.fast_corners(image, 7, 19)
+    features.moments(image, index + 18, index + 18, np.ones(2, np.int64))
     return time.perf_counter() - started

@@ -1,9 +1,16 @@
-"""Compiled keypoint distribution: ORB-SLAM's DistributeOctTree as one loop
-(``depotbench.slam.features.distribute_numpy`` is the reference, equal to it index for index).
+"""Compiled keypoint detection: FAST corners, their orientation, and ORB-SLAM's quadtree.
 
-The level's candidates are split into a quadtree until it has as many leaves as the level
-wants keypoints, and each leaf keeps its strongest corner. The reference walks Python lists of
-nodes; here each node is a run of one index array, split in place, stable.
+- ``fast_corners``: FAST-9 on the 16-pixel circle with OpenCV's score and 3 x 3 non-maximum
+  suppression, returned as arrays. OpenCV's detector (the reference, ``features.corners``)
+  gives the same corners and scores, but as Python objects: 2.9 ms for the ~14,000 corners of
+  a 640 x 480 pyramid at threshold 7, twice what finding them costs here.
+- ``moments``: the intensity centroid of each kept keypoint's disc (ORB's orientation), for
+  the ~1,000 the quadtree keeps rather than the 10,000 candidates OpenCV's ORB orients.
+- ``distribute``: DistributeOctTree as one loop (``features.distribute_numpy`` is the
+  reference, equal to it index for index). The level's candidates are split into a quadtree
+  until it has as many leaves as the level wants keypoints, and each leaf keeps its strongest
+  corner. The reference walks Python lists of nodes; here each node is a run of one index
+  array, split in place, stable.
 """
 
 from __future__ import annotations
@@ -12,6 +19,13 @@ import math
 
 import numpy as np
 from depotbench.slam.kernels.jit import jit
+
+CIRCLE_DX = np.array([0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3, -3, -3, -2, -1], np.int64)
+CIRCLE_DY = np.array([-3, -3, -2, -1, 0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3], np.int64)
+"""FAST's circle: the 16 pixels at distance 3 (Bresenham), in order around it."""
+ARC = 9
+"""FAST-9: a corner has 9 circle pixels in a row all brighter (or all darker) than the centre
+by more than the threshold."""
 
 NODES_PER_CANDIDATE = 16
 """Room for nodes, per candidate: a pass makes at most one node per candidate it splits, and
@@ -171,3 +185,156 @@ def _gather(active, alive, n_nodes):
             active[n_active] = node
             n_active += 1
     return n_active
+
+
+@jit
+def fast_corners(image, threshold, border):
+    """FAST-9 corners of a uint8 image farther than ``border`` pixels from its edges, each kept
+    where its score beats its 8 neighbours' (a pixel that is no corner scores 0): columns,
+    rows and scores, row by row. The score is the largest threshold at which the pixel would
+    still be a corner, less 1 (OpenCV's, which ORB ranks by)."""
+    rows, cols = image.shape
+    score = np.zeros((rows, cols), np.int16)
+    x0, x1 = max(3, border - 1), min(cols - 3, cols - border + 1)  # scored: one more on each side
+    y0, y1 = max(3, border - 1), min(rows - 3, rows - border + 1)
+    n = max(x1 - x0, 0)
+    words = (n + 7) // 8  # the flags are scanned 8 at a time: most are 0
+    flags = np.zeros(8 * words, np.uint8)
+    brighter = np.zeros(n, np.uint8)
+    darker = np.zeros(n, np.uint8)
+    flat = image.ravel()
+    offsets = CIRCLE_DY * cols + CIRCLE_DX
+    d = np.empty(16, np.int32)
+    runs = np.empty((2, 16), np.int32)
+    corners = 0
+    for y in range(y0, y1):
+        _bounds(image[y, x0:x1], threshold, brighter, darker)
+        _row_flags(image[y - 3 : y + 4, x0 - 3 : x1 + 3], brighter, darker, flags[:n])
+        packed = flags.view(np.uint64)
+        for word in range(words):
+            if packed[word] == 0:
+                continue
+            for i in range(8 * word, 8 * word + 8):
+                if flags[i] == 0:
+                    continue
+                centre = y * cols + x0 + i
+                v = np.int32(flat[np.uint64(centre)])
+                sign = 1 if flags[i] == 2 else -1  # 2: the arc is darker than the centre
+                for k in range(16):
+                    d[k] = sign * (v - np.int32(flat[np.uint64(centre + offsets[k])]))
+                score[y, x0 + i] = _best_arc(d, runs) - 1
+                corners += 1
+    xs = np.empty(corners, np.int64)
+    ys = np.empty(corners, np.int64)
+    scores = np.empty(corners, np.int32)
+    m = max(cols - 2 * border, 0)
+    words = (m + 7) // 8
+    keep = np.zeros(8 * words, np.bool_)
+    found = 0
+    for y in range(border, rows - border):
+        _row_maxima(score[y - 1, border - 1 :], score[y, border - 1 :], score[y + 1, border - 1 :], keep[:m])
+        packed = keep.view(np.uint64)
+        for word in range(words):
+            if packed[word] == 0:
+                continue
+            for i in range(8 * word, 8 * word + 8):
+                if keep[i]:
+                    xs[found], ys[found], scores[found] = border + i, y, score[y, border + i]
+                    found += 1
+    return xs[:found], ys[:found], scores[:found]
+
+
+@jit
+def _bounds(row, threshold, brighter, darker):
+    """Per pixel, the values a circle pixel must exceed (or fall below) to count, saturated at
+    0 and 255 so that the comparisons stay in bytes."""
+    for i in range(len(row)):
+        v = np.int32(row[i])
+        brighter[i] = np.uint8(min(v + threshold, 255))
+        darker[i] = np.uint8(max(v - threshold, 0))
+
+
+@jit
+def _row_flags(window, brighter, darker, flags):
+    """One row's corner test, branch-free so that it runs 64 pixels a vector: bit 1 where 9
+    circle pixels in a row are brighter, bit 2 where 9 are darker. ``window`` holds the row
+    with 3 rows and 3 columns more on each side; pixel i sits at window[3, i + 3]."""
+    for i in range(len(flags)):
+        hi, lo = brighter[i], darker[i]
+        p0, p1, p2, p3 = window[0, i + 3], window[0, i + 4], window[1, i + 5], window[2, i + 6]
+        p4, p5, p6, p7 = window[3, i + 6], window[4, i + 6], window[5, i + 5], window[6, i + 4]
+        p8, p9, p10, p11 = window[6, i + 3], window[6, i + 2], window[5, i + 1], window[4, i]
+        p12, p13, p14, p15 = window[3, i], window[2, i], window[1, i + 1], window[0, i + 2]
+        bright = _nine_in_a_row(
+            p0 > hi, p1 > hi, p2 > hi, p3 > hi, p4 > hi, p5 > hi, p6 > hi, p7 > hi,
+            p8 > hi, p9 > hi, p10 > hi, p11 > hi, p12 > hi, p13 > hi, p14 > hi, p15 > hi,
+        )  # fmt: skip
+        dark = _nine_in_a_row(
+            p0 < lo, p1 < lo, p2 < lo, p3 < lo, p4 < lo, p5 < lo, p6 < lo, p7 < lo,
+            p8 < lo, p9 < lo, p10 < lo, p11 < lo, p12 < lo, p13 < lo, p14 < lo, p15 < lo,
+        )  # fmt: skip
+        flags[i] = np.uint8(bright) | (np.uint8(dark) << np.uint8(1))
+
+
+@jit
+def _nine_in_a_row(k0, k1, k2, k3, k4, k5, k6, k7, k8, k9, k10, k11, k12, k13, k14, k15):
+    """Whether 9 of the 16 flags around the circle are set in a row: pairs, then fours, then
+    eights of set flags, each eight followed by one more."""
+    c0, c1, c2, c3, c4, c5, c6, c7 = k0 & k1, k1 & k2, k2 & k3, k3 & k4, k4 & k5, k5 & k6, k6 & k7, k7 & k8
+    c8, c9, c10, c11 = k8 & k9, k9 & k10, k10 & k11, k11 & k12
+    c12, c13, c14, c15 = k12 & k13, k13 & k14, k14 & k15, k15 & k0
+    e0, e1, e2, e3, e4, e5, e6, e7 = c0 & c2, c1 & c3, c2 & c4, c3 & c5, c4 & c6, c5 & c7, c6 & c8, c7 & c9
+    e8, e9, e10, e11 = c8 & c10, c9 & c11, c10 & c12, c11 & c13
+    e12, e13, e14, e15 = c12 & c14, c13 & c15, c14 & c0, c15 & c1
+    return (
+        (e0 & e4 & k8) | (e1 & e5 & k9) | (e2 & e6 & k10) | (e3 & e7 & k11)
+        | (e4 & e8 & k12) | (e5 & e9 & k13) | (e6 & e10 & k14) | (e7 & e11 & k15)
+        | (e8 & e12 & k0) | (e9 & e13 & k1) | (e10 & e14 & k2) | (e11 & e15 & k3)
+        | (e12 & e0 & k4) | (e13 & e1 & k5) | (e14 & e2 & k6) | (e15 & e3 & k7)
+    )  # fmt: skip
+
+
+@jit
+def _best_arc(d, runs):
+    """The largest minimum over 9 circle values in a row (minima of 2, then 4, then 8 and one
+    more); ``runs`` is scratch."""
+    for k in range(16):
+        runs[0, k] = min(d[k], d[(k + 1) & 15])
+    for k in range(16):
+        runs[1, k] = min(runs[0, k], runs[0, (k + 2) & 15])
+    best = np.int32(-256)
+    for k in range(16):
+        best = max(best, min(runs[1, k], runs[1, (k + 4) & 15], d[(k + 8) & 15]))
+    return best
+
+
+@jit
+def _row_maxima(above, row, below, keep):
+    """keep[i]: row[i + 1] is a corner scoring more than each of its 8 neighbours (the three
+    rows start one column to the left)."""
+    for i in range(len(keep)):
+        s = row[i + 1]
+        keep[i] = (
+            (s > 0) & (s > above[i]) & (s > above[i + 1]) & (s > above[i + 2])
+            & (s > row[i]) & (s > row[i + 2]) & (s > below[i]) & (s > below[i + 1]) & (s > below[i + 2])
+        )  # fmt: skip
+
+
+@jit
+def moments(image, xs, ys, half_widths):
+    """ORB's intensity centroid: per keypoint, the first moments (m10, m01) of the disc whose
+    row v reaches ``half_widths[|v|]`` pixels either side of the centre."""
+    n, radius = len(xs), len(half_widths) - 1
+    m10 = np.zeros(n, np.int64)
+    m01 = np.zeros(n, np.int64)
+    for i in range(n):
+        x, y = xs[i], ys[i]
+        for u in range(-radius, radius + 1):
+            m10[i] += u * np.int64(image[y, x + u])
+        for v in range(1, radius + 1):
+            w = half_widths[v]
+            for u in range(-w, w + 1):
+                below, above = np.int64(image[y + v, x + u]), np.int64(image[y - v, x + u])
+                m10[i] += u * (below + above)
+                m01[i] += v * (below - above)
+    return m10, m01
