@@ -323,18 +323,24 @@ def _row_maxima(above, row, below, keep):
 @jit
 def moments(image, xs, ys, half_widths):
     """ORB's intensity centroid: per keypoint, the first moments (m10, m01) of the disc whose
-    row v reaches ``half_widths[|v|]`` pixels either side of the centre."""
+    row v reaches ``half_widths[|v|]`` pixels either side of the centre. Rows are taken as
+    views from their left end, so that every index is non-negative (Numba then neither
+    checks for negative indices nor stops vectorising)."""
     n, radius = len(xs), len(half_widths) - 1
     m10 = np.zeros(n, np.int64)
     m01 = np.zeros(n, np.int64)
     for i in range(n):
         x, y = xs[i], ys[i]
-        for u in range(-radius, radius + 1):
-            m10[i] += u * np.int64(image[y, x + u])
+        centre = image[y, x - radius : x + radius + 1]
+        a, b = 0, 0
+        for j in range(2 * radius + 1):
+            a += (j - radius) * np.int64(centre[j])
         for v in range(1, radius + 1):
             w = half_widths[v]
-            for u in range(-w, w + 1):
-                below, above = np.int64(image[y + v, x + u]), np.int64(image[y - v, x + u])
-                m10[i] += u * (below + above)
-                m01[i] += v * (below - above)
+            below, above = image[y + v, x - w : x + w + 1], image[y - v, x - w : x + w + 1]
+            for j in range(2 * w + 1):
+                p, q = np.int64(below[j]), np.int64(above[j])
+                a += (j - w) * (p + q)
+                b += v * (p - q)
+        m10[i], m01[i] = a, b
     return m10, m01
