@@ -121,11 +121,14 @@ class FeatureExtractor:
 
     def pyramid(self, grey: np.ndarray) -> list[np.ndarray]:
         """OpenCV ORB's pyramid: each level resized from the one above it, its size the image's
-        over the level's scale, rounded."""
+        over the level's scale, rounded; it stops at the first level too small to hold a
+        corner EDGE_PX inside its edges."""
         height, width = grey.shape
         levels = [grey]
         for scale in self._scales[1:]:
             size = (int(np.rint(np.float32(width) / scale)), int(np.rint(np.float32(height) / scale)))
+            if min(size) <= 2 * EDGE_PX:
+                break
             levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR_EXACT))
         return levels
 

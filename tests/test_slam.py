@@ -526,6 +526,22 @@ def test_the_extractor_keeps_orbs_own_candidates_and_orients_them_as_orb_does(se
     ).sum() <= 2  # an angle within 1e-3 may round apart
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (38, 38), (30, 500), (60, 80)])
+def test_an_image_too_small_for_the_pyramid_gives_what_fits(shape: tuple[int, int]):
+    """Levels that would be smaller than a corner's border are not built (a 1 x 1 image has no
+    level 4 to resize to): no keypoint where none fits, some on 60 x 80, every array aligned."""
+    from depotbench.core.camera import Intrinsics
+    from depotbench.slam.features import FeatureExtractor
+
+    h, w = shape
+    image = np.repeat(_texture(2)[:h, :w, None], 3, axis=2)
+    features = FeatureExtractor(TrackingConfig()).extract(
+        image, np.ones(shape), Intrinsics(50, 50, w / 2, h / 2, w, h)
+    )
+    assert len(features) == len(features.descriptors) == len(features.octaves) == len(features.depth_m)
+    assert (len(features) > 0) == (min(shape) > 2 * 19)
+
+
 def test_a_level_keeps_its_best_candidates_and_every_tie():
     """OpenCV's retainBest: the n highest scores, and all that tie the n-th."""
     from depotbench.slam.features import retain_best
