@@ -189,10 +189,10 @@ def _gather(active, alive, n_nodes):
 
 @jit
 def fast_corners(image, threshold, border):
-    """FAST-9 corners of a uint8 image ``border`` (at least 3) pixels or more inside its edges, each kept
-    where its score beats its 8 neighbours' (a pixel that is no corner scores 0): columns,
-    rows and scores, row by row. The score is the largest threshold at which the pixel would
-    still be a corner, less 1 (OpenCV's, which ORB ranks by)."""
+    """FAST-9 corners of a uint8 image at least ``border`` (3 or more) pixels inside its edges,
+    each kept where its score beats its 8 neighbours' (a pixel that is no corner scores 0):
+    columns, rows and scores, row by row. The score is the largest threshold at which the
+    pixel would still be a corner, less 1 (OpenCV's, which ORB ranks by)."""
     rows, cols = image.shape
     score = np.zeros((rows, cols), np.int16)
     x0, x1 = max(3, border - 1), min(cols - 3, cols - border + 1)  # scored: one more on each side
