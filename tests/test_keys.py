@@ -140,13 +140,14 @@ def test_every_file_kind_of_the_format_changes_the_key_and_the_stages_are_comput
         assert cache.misses == misses + 3, f"after editing {kind}, a stage came from the cache"
 
 
-def test_another_version_extracts_a_real_folders_features_again(generated: Path, tmp_path: Path, monkeypatch):
-    """A version's features are its own (0.5.3 found other keypoints than 0.5.2 on 2-3 % of a
+def test_another_version_computes_a_real_folders_stages_again(generated: Path, tmp_path: Path, monkeypatch):
+    """A version's stages are its own (0.5.3 found other keypoints than 0.5.2 on 2-3 % of a
     frame). A generated sequence's meta.json names the version that made it, a real folder's
-    files name none: its features cached by an older version were reused after an upgrade."""
+    files name none: its features and detections cached by an older version were reused after
+    an upgrade."""
     from depotbench.core import version
-    from depotbench.detectors.config import DetectorConfig, DetectorKind
-    from depotbench.eval.run import stages
+    from depotbench.detectors.config import parse_detector
+    from depotbench.eval.run import detections, stages
 
     seq = tmp_path / "real"
     shutil.copytree(generated, seq)
@@ -154,14 +155,18 @@ def test_another_version_extracts_a_real_folders_features_again(generated: Path,
     shutil.rmtree(seq / "gt")
     assert not Sequence.open(seq).is_generated
     cache = StageCache(tmp_path / "cache")
-    job = RunJob(seq, "none", DetectorConfig(DetectorKind.NONE))
+    job = RunJob(seq, "box_rule", parse_detector("onnx"))
+    folders = [tmp_path / "cache" / name for name in (stages.FEATURES_STAGE, detections.CACHE_STAGE)]
     track(job, cache)
-    entries = set((tmp_path / "cache" / stages.FEATURES_STAGE).iterdir())
+    entries = [set(folder.iterdir()) for folder in folders]
     track(job, cache)
-    assert set((tmp_path / "cache" / stages.FEATURES_STAGE).iterdir()) == entries  # the same version: reused
+    assert [set(folder.iterdir()) for folder in folders] == entries  # the same version: reused
     monkeypatch.setattr(version.metadata, "version", lambda _: "0.0.0-another")  # an upgrade
     track(job, cache)
-    assert len(set((tmp_path / "cache" / stages.FEATURES_STAGE).iterdir()) - entries) == 1
+    assert [len(set(folder.iterdir()) - before) for folder, before in zip(folders, entries, strict=True)] == [
+        1,
+        1,
+    ]
 
 
 def test_the_folder_is_part_of_the_key(generated: Path, tmp_path: Path):

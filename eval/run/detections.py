@@ -21,6 +21,7 @@ import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest
 from depotbench.core.progress import progress_bar
+from depotbench.core.version import generator_version
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import DetectorConfig, DetectorKind, check_model_file
 from depotbench.detectors.detection import Detection, Prior
@@ -109,7 +110,10 @@ def detect_sequence(
     # The ground-truth detector is cheap and refuses a sequence it cannot serve, so it is
     # built first; a network is loaded only when the cache does not have its boxes.
     detector = build_detector(base, sequence) if config.kind is DetectorKind.GROUNDTRUTH else None
-    key = content_hash(CACHE_FORMAT, sequence_fingerprint(sequence), base.key(), base.priors.overrides)
+    # this version's detections: a real folder's files, unlike a generated one's meta.json, name none
+    key = content_hash(
+        CACHE_FORMAT, generator_version(), sequence_fingerprint(sequence), base.key(), base.priors.overrides
+    )
     raw = _load(cache.get(CACHE_STAGE, key)) if cache is not None else None
     from_cache = raw is not None
     if raw is None:
