@@ -76,7 +76,7 @@ class FeatureExtractor:
         n_levels, factor = config.n_levels, config.scale_factor
         self._per_level = features_per_level(config.n_features, factor, n_levels)
         self._candidates = features_per_level(CANDIDATE_FACTOR * config.n_features, factor, n_levels)
-        self._scales = [np.float32(float(np.float32(factor)) ** level) for level in range(n_levels)]
+        self._scales = np.array([float(np.float32(factor)) ** level for level in range(n_levels)], np.float32)
         """Each level's scale as OpenCV's ORB takes it (its factor is a float32), so that the
         keypoints it describes land on the pixels they were found at."""
         self._half_widths = disc_half_widths(PATCH_PX // 2)
@@ -85,7 +85,7 @@ class FeatureExtractor:
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else np.ascontiguousarray(rgb)
         kept = self._keypoints(grey)
         octaves = np.concatenate([np.full(len(xs), level) for level, (xs, *_) in enumerate(kept)])
-        scale = np.array(self._scales, np.float32)[octaves]  # level-0 pixels as OpenCV's ORB has them
+        scale = self._scales[octaves]  # level-0 pixels as OpenCV's ORB has them
         xs, ys, scores, angles = (np.concatenate(part) for part in zip(*kept, strict=True))
         pts = np.c_[xs.astype(np.float32) * scale, ys.astype(np.float32) * scale]
         columns = (

@@ -23,9 +23,6 @@ from depotbench.slam.kernels.jit import jit
 CIRCLE_DX = np.array([0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3, -3, -3, -2, -1], np.int64)
 CIRCLE_DY = np.array([-3, -3, -2, -1, 0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3], np.int64)
 """FAST's circle: the 16 pixels at distance 3 (Bresenham), in order around it."""
-ARC = 9
-"""FAST-9: a corner has 9 circle pixels in a row all brighter (or all darker) than the centre
-by more than the threshold."""
 
 NODES_PER_CANDIDATE = 16
 """Room for nodes, per candidate: a pass makes at most one node per candidate it splits, and
