@@ -161,6 +161,7 @@ def test_a_misbehaving_program_is_a_failed_row_and_leaves_no_process(
             "  - {name: orb, kind: orbslam3, parameters: {nFeatures: 5}}\n",
             "unknown ORB-SLAM3 parameter 'nFeatures'",
         ),
+        ("  - {name: orb, kind: orbslam3, parameters: {pace: 11}}\n", "pace = 11 is out of range [0, 10]"),
     ],
 )
 def test_a_tracker_that_cannot_run_is_refused_before_any_run_naming_it(

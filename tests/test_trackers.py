@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -256,6 +258,49 @@ PEOPLE = """actors:
   - {kind: person, speed_mps: [0.3, 0.6], path: random_walk, waypoints: [[1.3, 0.4], [-1.2, 0.9]]}"""
 
 
+STUB_ORBSLAM3 = Path(__file__).parent / "programs" / "stub_orbslam3"
+"""A ``pyorbslam3`` with its interface and no SLAM, which notes when each frame reached it."""
+
+
+def test_the_orbslam3_worker_feeds_frames_no_faster_than_the_pace_allows(tmp_path: Path):
+    """``pace``, as ORB-SLAM3's rgbd_tum example feeds a TUM sequence: each frame is handed
+    over at least pace x the gap between its timestamp and the next one's after the one
+    before (here 2 x 33 ms; back to back the stub takes well under a millisecond a frame)."""
+    pace = 2.0
+    write_sequence(tmp_path / "seq", n=8, with_flow=False)
+    times = np.array([f.timestamp_s for f in Sequence.open(tmp_path / "seq").frames])
+    out = tmp_path / "out"
+    out.mkdir()
+    request = {"vocabulary": "-", "settings": "-", "sequence": str(tmp_path / "seq"), "intrinsics": None,
+               "out": str(out), "pace": pace}  # fmt: skip
+    (tmp_path / "request.json").write_text(json.dumps(request))
+    path = os.pathsep.join([str(STUB_ORBSLAM3), *filter(None, [os.environ.get("PYTHONPATH")])])
+    env = {**os.environ, "PYTHONPATH": path, "STUB_ORBSLAM3_CALLS": str(tmp_path / "calls.json")}
+    command = [
+        sys.executable,
+        "-m",
+        "depotbench.eval.trackers.orbslam3_worker",
+        str(tmp_path / "request.json"),
+    ]
+    subprocess.run(command, env=env, check=True, timeout=120, capture_output=True)
+    calls = np.array(json.loads((tmp_path / "calls.json").read_text()))
+    assert len(calls) == len(times) == len((out / "frames.jsonl").read_text().splitlines())
+    assert (np.diff(calls) >= pace * np.diff(times) - 1e-3).all(), (np.diff(calls), np.diff(times))
+
+
+@pytest.mark.parametrize(("pace", "needle"), [("-1", "pace = -1 is out of range [0, 10]"),
+                                               ("nan", "pace = nan is out of range"),
+                                               ("soon", "pace = 'soon' is not a number")])  # fmt: skip
+def test_an_orbslam3_pace_out_of_range_is_refused_before_any_run(
+    tmp_path: Path, capsys, pace: str, needle: str
+):
+    write_sequence(tmp_path / "seq", n=2)
+    code, _, err = cli(capsys, "run", tmp_path / "seq", "--slam", "orbslam3", "--param", f"pace={pace}",
+                       "-o", tmp_path / "out")  # fmt: skip
+    assert code == 2 and one_error_line(err) and needle in err, err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.render
 def test_orbslam3_runs_end_to_end_with_and_without_mask(tmp_path: Path, capsys):
     from depotbench.eval.trackers.orbslam3 import available
@@ -297,6 +342,7 @@ def test_orbslam3_runs_end_to_end_with_and_without_mask(tmp_path: Path, capsys):
                 "--map",
                 "-o",
                 out,
+                *(("--param", "pace=1") if name == "still" else ()),  # at the camera's rate
             )
             assert code == 0, err
             metrics = json.loads((out / "metrics.json").read_text())

@@ -403,11 +403,13 @@ def _parameter_defaults(entry: TrackerEntry) -> tuple[tuple[str, str], ...]:
         for name, value in entry.parameters.items()
     }
     if entry.kind == "orbslam3":
-        from depotbench.eval.trackers.orbslam3 import PARAMETERS, default_parameters
+        from depotbench.eval.trackers.orbslam3 import default_parameters, known_parameters
 
-        unknown = sorted(set(defaults) - set(PARAMETERS))
+        unknown = sorted(set(defaults) - set(known_parameters()))
         if unknown:
-            raise InputError(f"unknown ORB-SLAM3 parameter {unknown[0]!r}; known: {', '.join(PARAMETERS)}")
+            raise InputError(
+                f"unknown ORB-SLAM3 parameter {unknown[0]!r}; known: {', '.join(known_parameters())}"
+            )
         defaults = {name: setting_text(float(text)) for name, text in default_parameters().items()} | defaults
     return tuple(sorted(defaults.items()))
 

@@ -5,10 +5,12 @@ bench's own process. A fresh process per run also contains its faults: it calls
 ``exit()`` on a vocabulary it cannot read, leaks ~70 MB per instance, and prints
 to the C stdout, which goes to ``orbslam3.log`` beside the results.
 
-The request (JSON) names ``vocabulary``, ``settings``, ``sequence`` and ``out``. Each
-frame becomes one line of ``out/frames.jsonl``: timestamp, ORB-SLAM3's state, the
-pose (world_from_camera, the first frame's camera as world) when it has one, the
-milliseconds ``track_rgbd`` took and the number of tracked map points. The map points
+The request (JSON) names ``vocabulary``, ``settings``, ``sequence``, ``out`` and ``pace``
+(each frame takes at least pace x the gap to the next timestamp, as ORB-SLAM3's rgbd_tum
+example waits; 0: back to back). Each frame becomes one line of ``out/frames.jsonl``:
+timestamp, ORB-SLAM3's state, the pose (world_from_camera, the first frame's camera as
+world) when it has one, the milliseconds ``track_rgbd`` took and the number of tracked
+map points. The map points
 seen in tracked frames, each where it stood when last seen, go to ``out/map_points.npy``
 (its sparse map, for ``--map``). Progress goes to stderr as one frame count per line.
 """
@@ -32,6 +34,14 @@ def _quiet_native_stdout(log: Path) -> None:
     os.close(fd)
 
 
+def _gap(times: list[float], i: int) -> float:
+    """rgbd_tum.cc's wait for frame ``i``: the gap to the next timestamp (the last frame: to
+    the one before)."""
+    if i + 1 < len(times):
+        return times[i + 1] - times[i]
+    return times[i] - times[i - 1] if i else 0.0
+
+
 def main(request_path: str) -> int:
     from depotbench.core.camera import Intrinsics
     from depotbench.core.processes import exit_with_parent
@@ -49,11 +59,13 @@ def main(request_path: str) -> int:
     slam = pyorbslam3.Slam(
         request["vocabulary"], request["settings"], pyorbslam3.Sensor.RGBD, use_viewer=False
     )
+    pace = float(request.get("pace", 0.0))
+    times = [frame.timestamp_s for frame in sequence.frames]
     lines, seen = [], []
     for i in range(len(sequence)):
         rgb = sequence.rgb(i)  # RGB order, as the settings' Camera.RGB: 1 says
         depth = sequence.depth_raw(i).astype("float32")  # stored units; DepthMapFactor scales them
-        timestamp = sequence.frames[i].timestamp_s
+        timestamp = times[i]
         started = time.perf_counter()
         result = slam.track_rgbd(rgb, depth, timestamp)
         elapsed_ms = (time.perf_counter() - started) * 1e3
@@ -72,6 +84,10 @@ def main(request_path: str) -> int:
             )
         )
         print(i + 1, file=sys.stderr, flush=True)
+        if pace > 0:
+            left = pace * _gap(times, i) - (time.perf_counter() - started)
+            if left > 0:
+                time.sleep(left)
     slam.save_keyframe_trajectory_tum(str(out / "keyframes.txt"))
     if seen:  # a point seen in many frames once; one BA moved keeps each position it had
         points = np.unique(np.concatenate(seen), axis=0)
