@@ -127,6 +127,7 @@ def test_a_failed_run_ranks_worst_and_static_depot_is_judged_on_its_own_checks()
         (["--scenes", "nowhere"], "--scenes: nowhere not in the scene library"),
         (["--frames", "5"], "--frames: at least 10, got 5"),
         (["--orbslam3-runs", "0"], "--orbslam3-runs and --workers: at least 1"),
+        (["--orbslam3-pace", "-1"], "--orbslam3-pace: between 0 and 10, got -1"),
     ],
 )
 def test_bad_arguments_are_refused_in_one_line_before_any_work(tmp_path, args, message):
@@ -153,6 +154,7 @@ def test_a_small_run_reports_what_its_run_folders_hold(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     report = json.loads((out / "fidelity.json").read_text())
     assert report["meta"]["seed_set"] == "dev" and report["meta"]["frames"] == 20
+    assert report["meta"]["orbslam3_pace"] == 1  # at the camera's rate, as its rgbd_tum example
     for scene in ("walking_xyz", "static_depot"):
         names = sorted((out / "sequences" / scene).glob(f"{scene}-*"))
         seeds = report["scenes"][scene]["seeds"]
@@ -161,7 +163,7 @@ def test_a_small_run_reports_what_its_run_folders_hold(tmp_path):
         for row, sequence in zip(seeds, names, strict=True):
             meta = json.loads((sequence / "meta.json").read_text())
             assert row["seed"] == meta["seed"]
-            for tracker, key in (("builtin", "none"), ("orbslam3", None)):
+            for tracker, key in (("builtin", "none"), ("orbslam3-pace1", None)):
                 metrics = json.loads(
                     (out / "runs" / sequence.name / f"{tracker}-none-0" / "metrics.json").read_text()
                 )
