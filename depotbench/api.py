@@ -282,12 +282,13 @@ def compare(base: str | Path, *others: str | Path) -> dict[Path, SetComparison]:
     return {Path(other): compare_rows(rows, load_rows(Path(other))) for other in others}
 
 
-def report(source: str | Path, out: str | Path) -> Path:
+def report(source: str | Path, out: str | Path, workers: int = 1) -> Path:
     """The self-contained HTML page of a run folder or a sweep folder, written as
-    ``out``/index.html (a folder of depotbench reports, or a new or empty one); its path."""
+    ``out``/index.html (a folder of depotbench reports, or a new or empty one); its path.
+    ``workers``: processes that track a sweep's featured runs again (from 300 frames in all)."""
     from depotbench.eval.report.write import report_folder
 
-    return report_folder(Path(source), Path(out)).page
+    return report_folder(Path(source), Path(out), workers=workers).page
 
 
 def evaluate(

@@ -234,10 +234,16 @@ def test_rerun_on_a_full_disk_is_one_line_and_writes_nothing(copy: Path):
 # -- M8: a damaged source sequence ----------------------------------------------------------------
 
 
-def test_a_sweep_over_a_damaged_sequence_is_reported_from_the_database(copy: Path, capfd):
+@pytest.mark.parametrize("parallel_frames", [300, 0], ids=["in this process", "in two workers"])
+def test_a_sweep_over_a_damaged_sequence_is_reported_from_the_database(
+    copy: Path, capfd, monkeypatch, parallel_frames: int
+):
+    """The frame file that cannot be read is named whether the featured runs are tracked again
+    here or in worker processes (a FileError does not cross processes whole)."""
+    monkeypatch.setattr("depotbench.eval.report.html.PARALLEL_FRAMES", parallel_frames)
     set_rows(copy / "sw", str(copy / "seq"))
     (copy / "seq" / "depth" / "1.100000.png").unlink()
-    assert main(["report", str(copy / "sw"), "-o", str(copy / "out")]) == 0
+    assert main(["report", str(copy / "sw"), "-o", str(copy / "out"), "--workers", "2"]) == 0
     err = capfd.readouterr().err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "warning" in lines[0] and "Traceback" not in err, err

@@ -13,6 +13,7 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 from depotbench.eval.cli.main import main
 from depotbench.eval.metrics.record import RunRecord
@@ -273,6 +274,35 @@ def test_every_family_gets_its_section_with_every_run_and_its_best_run(page: str
     assert baselines >= 1
     assert "Left out" not in page
     assert "http://" not in page and "https://" not in page and "<script" not in page
+
+
+@pytest.mark.render
+def test_featured_runs_tracked_again_in_two_workers_equal_those_tracked_here(sweep: Path, monkeypatch):
+    """``--workers``: the runs a page tracks again are shared among processes (here from 0
+    frames, not 300), and come back with the same trajectories, states and keypoint decisions,
+    in the families' order."""
+    import depotbench.eval.report.html as html
+
+    seen: dict[int, list] = {1: [], 2: []}
+    view_of = html.view_of
+    for workers in (1, 2):
+
+        def capture(title, tracked, sequence, into=seen[workers]):
+            view = view_of(title, tracked, sequence)
+            into.append((title, view.estimate, view.states, view.diagnostics))
+            return view
+
+        monkeypatch.setattr(html, "view_of", capture)
+        monkeypatch.setattr(html, "PARALLEL_FRAMES", 0)
+        html.sweep_page(sweep, html.Notes(), workers=workers)
+    assert len(seen[1]) >= len(COUNTS) and [s[0] for s in seen[1]] == [s[0] for s in seen[2]]
+    for (_, estimate1, states1, kept1), (_, estimate2, states2, kept2) in zip(seen[1], seen[2], strict=True):
+        assert states1 == states2
+        np.testing.assert_array_equal(estimate1.positions_m, estimate2.positions_m)
+        np.testing.assert_array_equal(estimate1.rotations, estimate2.rotations)
+        assert kept1.keys() == kept2.keys()
+        for name in kept1.keys() - {"stage_ms"}:  # stage_ms: each run's own timings
+            np.testing.assert_array_equal(kept1[name], kept2[name], err_msg=name)
 
 
 @pytest.mark.render

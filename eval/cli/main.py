@@ -169,7 +169,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(format_report(report))
         write_text_atomic(out / "gates.xml", junit_xml(report))
         print("4/4 HTML report (plots, trajectories, frames with keypoints by decision)")
-        page = write_report(out, out / "report")
+        page = write_report(out, out / "report", args.workers)
     print(
         f"\ndone in {time.perf_counter() - started:.0f} s. Open {args.output / page.relative_to(out)}; "
         f"rows in {args.output / 'results.csv'}, JUnit in {args.output / 'gates.xml'}"

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
+
+from depotbench.eval.cli.args import workers
 
 
 def add_report(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +22,12 @@ def add_report(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.rrd",
         help="also write a Rerun recording of a run to scrub through (extra [viz])",
     )
+    p.add_argument(
+        "--workers",
+        type=workers,
+        default=max(1, os.cpu_count() or 1),
+        help="processes that track a sweep's featured runs again (used from 300 frames in all)",
+    )
     p.set_defaults(handler=_cmd_report)
 
 
@@ -26,7 +35,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from depotbench.eval.report.html import warn
     from depotbench.eval.report.write import report_folder
 
-    written = report_folder(args.source, args.output, args.rerun)
+    written = report_folder(args.source, args.output, args.rerun, args.workers)
     if written.recording is not None:
         print(f"wrote {written.recording} (open it with: rerun {written.recording})")
     path = written.page

@@ -1013,7 +1013,20 @@ def _missing_job(row: ScoredRun, fingerprint: str | None) -> str:
     return "its settings are not in the spec's grid (a search trial)"
 
 
-def _track_family(
+@dataclass(frozen=True)
+class _Wanted:
+    """A run of a family's section to track again, and how the section titles it."""
+
+    family: str
+    job: Any
+    """The ``SweepJob`` of the run."""
+    title: str
+    sequence: Sequence
+    recorded: str
+    """The sequence as the rows name it."""
+
+
+def _family_runs(
     family: str,
     config: dict,
     chosen: ScoredRun,
@@ -1022,11 +1035,9 @@ def _track_family(
     grid: _Grid,
     notes: Notes,
     role: str = "best",
-) -> list[RunView]:
+) -> list[_Wanted]:
     """The featured run of a family (its best configuration's, or ``role``) and its none run,
-    tracked again on ``sequence``."""
-    from depotbench.eval.run.cache import StageCache
-    from depotbench.eval.run.harness import track
+    to be tracked again on ``sequence``."""
     from depotbench.eval.sweep.engine import jobs_for
 
     found = jobs_for(
@@ -1047,14 +1058,13 @@ def _track_family(
         None,
     )
     wanted = [chosen] + ([baseline] if baseline is not None and baseline["key"] != chosen["key"] else [])
-    views = []
+    runs = []
     for row in wanted:
         label = role if row is chosen else "baseline (none)"
         job = jobs.get(row["key"]) or _job_of_row(row, grid, sequence, fingerprint)
         if job is None:
             notes.add(f"{family}: the {label} run is not tracked again: {_missing_job(row, fingerprint)}")
             continue
-        tracked = track(job.job, StageCache.from_env())
         shown = settings_text(config["settings"]) if row is chosen else ""
         tracker = job.job.tracker
         parameters = settings_text(dict(tracker.parameters)) if tracker.parameters else ""
@@ -1065,8 +1075,27 @@ def _track_family(
             title += f" (seed {seed})"
         if tracker.type.external:  # the bench's own tracker repeats itself bit for bit
             title += " (run again for this page: an external program may not repeat its stored figures)"
-        views.append(view_of(title, tracked, sequence))
-    return views
+        runs.append(_Wanted(family, job, title, sequence, row["sequence"]))
+    return runs
+
+
+PARALLEL_FRAMES = 300
+"""The runs a page tracks again are shared among worker processes only when they hold at least
+this many frames in all: a worker takes about 1.5 s to start (imports and compiled kernels),
+a frame 10-30 ms to track, so fewer frames finish sooner in this process."""
+
+
+def _track_again(index: int, job) -> tuple[int, Any, tuple[str, int | None, str] | None]:
+    """Worker entry point: the ``index``-th wanted run tracked again from the stage cache, or
+    the frame file that could not be read (path, line, problem: a FileError does not cross
+    processes whole)."""
+    from depotbench.eval.run.cache import StageCache
+    from depotbench.eval.run.harness import track
+
+    try:
+        return index, track(job, StageCache.from_env()), None
+    except FileError as exc:
+        return index, None, (str(exc.path), exc.line, exc.problem)
 
 
 def _featured_runs(
@@ -1075,9 +1104,12 @@ def _featured_runs(
     featured: dict[str, tuple[dict, str]],
     sequences: SweepSequences,
     notes: Notes,
+    workers: int = 1,
 ) -> dict[str, list[RunView]]:
     """Per family, the run of its featured configuration (``featured``: the configuration and
-    what it is, ``best``), and its none run, tracked again from the cache."""
+    what it is, ``best``), and its none run, tracked again from the cache, ``workers`` runs at
+    a time (the views come in the families' order whatever order the runs finish in)."""
+    from depotbench.core.executors import make_pool
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
 
     if not featured:
@@ -1103,7 +1135,7 @@ def _featured_runs(
         # keep (``onnx:models/x.onnx``): every result is still in the database.
         notes.add(f"run details: the sweep's spec cannot build its trackers and detectors again ({exc})")
         return {}
-    views: dict[str, list[RunView]] = {}
+    wanted: list[_Wanted] = []
     for family, (config, role) in sorted(featured.items()):
         chosen = _row_of(rows, family, config)
         if chosen is None:
@@ -1114,12 +1146,35 @@ def _featured_runs(
         sequence = sequences.get(chosen["sequence"])
         if sequence is None:
             continue  # noted by ``sequences``
-        try:
-            views[family] = _track_family(family, config, chosen, rows, sequence, grid, notes, role)
-        except FileError as exc:  # a frame file that cannot be read: the sequence is damaged
-            if not _inside(exc.path, sequence.root):
-                raise
-            sequences.damaged(chosen["sequence"], exc)
+        wanted += _family_runs(family, config, chosen, rows, sequence, grid, notes, role)
+    tracked: dict[int, tuple] = {}
+    frames = sum(len(w.sequence) for w in wanted)
+    pool = make_pool("local", max(1, min(workers, len(wanted))) if frames >= PARALLEL_FRAMES else 1)
+    failed = True
+    try:
+        for _, (index, *answer) in pool.map_unordered(
+            _track_again, [(i, w.job.job) for i, w in enumerate(wanted)]
+        ):
+            tracked[index] = answer
+        failed = False
+    finally:
+        pool.close(failed)
+    views: dict[str, list[RunView]] = {}
+    damaged: set[str] = set()
+    for index, run in enumerate(wanted):
+        result, unreadable = tracked[index]
+        if run.recorded in damaged:
+            views.pop(run.family, None)  # left out from the first bad frame file on
+            continue
+        if unreadable is not None:  # a frame file that cannot be read: the sequence is damaged
+            exc = FileError(*unreadable)
+            if not _inside(exc.path, run.sequence.root):
+                raise exc
+            sequences.damaged(run.recorded, exc)
+            damaged.add(run.recorded)
+            views.pop(run.family, None)
+            continue
+        views.setdefault(run.family, []).append(view_of(run.title, result, run.sequence))
     return views
 
 
@@ -1248,8 +1303,9 @@ def _family_section(
     )
 
 
-def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) -> str:
-    """The sweep's page; ``featured``: how many families (sorted by name) get a section."""
+def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, workers: int = 1) -> str:
+    """The sweep's page; ``featured``: how many families (sorted by name) get a section;
+    ``workers``: processes that track the featured runs again."""
     from depotbench.eval.sweep.store import ResultStore
 
     summary = read_summary(folder / "summary.json")
@@ -1325,7 +1381,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS) 
             f"{featured} families, the first by name; the tables hold them all): {', '.join(left)}"
         )
     chosen = {family: _featured_configuration(family, configs, best) for family in shown}
-    views = _featured_runs(folder, rows, {f: c for f, c in chosen.items() if c is not None}, sequences, notes)
+    shown = {f: c for f, c in chosen.items() if c is not None}
+    views = _featured_runs(folder, rows, shown, sequences, notes, workers)
     strips = {
         family: figure_png(fig) for family, _, fig in strip_figures(configs, rows, rule, only=set(shown))
     }
@@ -1398,13 +1455,14 @@ def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> str:
     return table(header, table_rows)
 
 
-def render_report(source: Path) -> Rendered:
-    """The page for a run folder or a sweep folder, and what it leaves out."""
+def render_report(source: Path, workers: int = 1) -> Rendered:
+    """The page for a run folder or a sweep folder, and what it leaves out (``workers``: the
+    processes a sweep's page tracks its featured runs again in)."""
     notes = Notes()
     # lexists: a summary.json or metrics.json that is a device or a dangling link is refused
     # by name when read, not mistaken for no file at all.
     if (source / "results.sqlite").is_file() and os.path.lexists(source / "summary.json"):
-        return Rendered(sweep_page(source, notes), notes)
+        return Rendered(sweep_page(source, notes, workers=workers), notes)
     if os.path.lexists(source / "metrics.json"):
         view = load_run(source, notes)
         return Rendered(run_page(view, notes), notes, view)
@@ -1419,12 +1477,12 @@ def warn(notes: Notes) -> None:
         LOG.warning(line)
 
 
-def write_report(source: Path, out: Path) -> Path:
+def write_report(source: Path, out: Path, workers: int = 1) -> Path:
     """The page written atomically as OUT/index.html (OUT: a folder the caller owns); what it
     leaves out is warned about on stderr."""
     from depotbench.core.output import write_text_atomic
 
-    rendered = render_report(source)
+    rendered = render_report(source, workers)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "index.html"
     write_text_atomic(path, rendered.text)

@@ -37,14 +37,15 @@ def _check_rerun(source: Path, output: Path, rerun: Path) -> None:
         raise InputError(f"--rerun: {rerun} lies inside the report folder {output}; give a path outside it")
 
 
-def report_folder(source: Path, output: Path, rerun: Path | None = None) -> Written:
+def report_folder(source: Path, output: Path, rerun: Path | None = None, workers: int = 1) -> Written:
     """The page of the run or sweep folder ``source`` as ``output``/index.html, and with
-    ``rerun`` a Rerun recording of a run (extra [viz])."""
+    ``rerun`` a Rerun recording of a run (extra [viz]); ``workers``: processes that track a
+    sweep's featured runs again."""
     if not source.is_dir():
         raise InputError(f"{source}: no such folder")
     if rerun is not None:
         _check_rerun(source, output, rerun)
-    rendered = render_report(source)
+    rendered = render_report(source, workers)
     if rerun is not None and rendered.run is None:
         raise InputError(f"--rerun: {source} is not a run folder (metrics.json)")
     recording = contextlib.nullcontext()
