@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 from itertools import chain
 
 import numpy as np
+from depotbench.slam import kernels
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import POPCOUNT
 
@@ -327,17 +328,18 @@ class Map:
         self.min_distance[ref] = self.max_distance[ref] / scale_factor ** (n_levels - 1)
         if not descriptors:
             return
-        # Distinctive descriptors, points grouped by their number of observations.
         order = np.lexsort((kfs, index))
         values = self.keypoint_values("descriptors", kfs[order], kps[order])
         counts = np.bincount(index, minlength=len(point_ids))
         starts = np.r_[0, np.cumsum(counts)[:-1]]
-        for n in np.unique(counts[counts >= 2]):
-            which = np.flatnonzero(counts == n)
-            group = values[starts[which][:, None] + np.arange(n)]  # (points, n, 32)
-            median = np.sort(_pairwise(group), axis=2)[:, :, (n - 1) // 2]
-            best = np.argmin(median, axis=1)
-            self.descriptors[point_ids[which]] = group[np.arange(len(which)), best]
+        if kernels.compiled():
+            from depotbench.slam.kernels import matching
+
+            best = matching.distinctive(values, starts, counts)
+        else:
+            best = distinctive(values, starts, counts)
+        many = counts >= 2
+        self.descriptors[point_ids[many]] = values[starts[many] + best[many]]
 
     def copy(self) -> Map:
         """An independent copy (features are shared: nothing changes them)."""
@@ -368,6 +370,21 @@ class Map:
         removed = candidates[bad]
         self.cull_points(removed)
         return len(removed)
+
+
+def distinctive(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """ORB-SLAM's ComputeDistinctiveDescriptors for points whose descriptors are
+    ``values[starts[p]:starts[p] + counts[p]]``: per point, the index within its own of the
+    descriptor with the least median Hamming distance to the others (the lower median; the
+    first on a tie), -1 for a point seen fewer than twice. Points are grouped by their
+    number of observations, one array operation per group."""
+    best = np.full(len(counts), -1)
+    for n in np.unique(counts[counts >= 2]):
+        which = np.flatnonzero(counts == n)
+        group = values[starts[which][:, None] + np.arange(n)]  # (points, n, 32)
+        median = np.sort(_pairwise(group), axis=2)[:, :, (n - 1) // 2]
+        best[which] = np.argmin(median, axis=1)
+    return best
 
 
 def _pairwise(group: np.ndarray) -> np.ndarray:

@@ -733,6 +733,25 @@ def test_keypoint_moments_equal_numpy():
             np.testing.assert_array_equal(part_found, part_expected)
 
 
+def test_distinctive_descriptors_equal_numpy():
+    """ComputeDistinctiveDescriptors on points seen 0 to 40 times: random descriptors, near
+    copies of one (medians tie, the first wins) and a point whose descriptors are all equal."""
+    from depotbench.slam.map import distinctive
+
+    rng = np.random.default_rng(3)
+    counts = np.r_[0, 1, 2, 2, 3, 4, 5, 7, 8, 12, 20, 40, rng.integers(0, 15, 200)]
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    values = rng.integers(0, 256, (int(counts.sum()), 32), dtype=np.uint8)
+    base = values[starts[12]].copy()
+    for k in range(counts[12]):  # near copies: few distinct distances, many ties
+        values[starts[12] + k] = base ^ (rng.random(32) < 0.02).astype(np.uint8)
+    values[starts[10] : starts[10] + counts[10]] = values[starts[10]]  # all equal
+    reference = distinctive(values, starts, counts)
+    assert (reference[counts < 2] == -1).all() and (reference[counts >= 2] >= 0).all()
+    np.testing.assert_array_equal(matching.distinctive(values, starts, counts), reference)
+    assert reference[10] == 0  # all equal: the first
+
+
 def test_hamming_and_rotation_checks_equal_numpy():
     rng = np.random.default_rng(2)
     for _ in range(200):

@@ -526,3 +526,42 @@ def pair_triangulation(
                 best2[i], best_distance[i] = j, distance
     cols, rows = _one_per_keypoint(best2, best_distance, n2)  # the lower row among equals
     return rows, cols
+
+
+@jit
+def distinctive(values: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``map.distinctive``: per point, the index within its descriptors (``values[starts[p]:
+    starts[p] + counts[p]]``) of the one with the least lower-median Hamming distance to the
+    others, the first on a tie; -1 below two descriptors. Integers: equal to NumPy's."""
+    best = np.full(len(counts), -1)
+    largest = 0
+    for p in range(len(counts)):
+        largest = max(largest, counts[p])
+    distances = np.zeros((largest, largest), np.int64)
+    row = np.empty(largest, np.int64)
+    for p in range(len(counts)):
+        n, first = counts[p], starts[p]
+        if n < 2:
+            continue
+        for i in range(n):
+            distances[i, i] = 0
+            for j in range(i + 1, n):
+                total = 0
+                for b in range(values.shape[1]):
+                    total += POPCOUNT[values[first + i, b] ^ values[first + j, b]]
+                distances[i, j] = total
+                distances[j, i] = total
+        lowest = -1
+        for i in range(n):
+            for j in range(n):  # insertion sort in place: n is a few dozen at most
+                value = distances[i, j]
+                k = j
+                while k > 0 and row[k - 1] > value:
+                    row[k] = row[k - 1]
+                    k -= 1
+                row[k] = value
+            median = row[(n - 1) // 2]
+            if lowest < 0 or median < lowest:
+                lowest = median
+                best[p] = i
+    return best
