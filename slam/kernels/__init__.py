@@ -1,10 +1,11 @@
 """Compiled hot paths of tracking and mapping, and the one switch between them and NumPy.
 
 Pose refinement, the searches by projection, the Schur-complement local bundle adjustment, the
-map points' distinctive descriptors and method 3's epipolar and flow tests run on a few hundred to a few thousand points per call,
-several times per frame: in NumPy each call pays ~10 us per array operation whatever the size
-(pose refinement, 40 Gauss-Newton steps of ~15 operations, cost 2.6 ms of a 15 ms frame on
-walking_xyz). Compiled with Numba each is one loop over the points.
+map points' distinctive descriptors and method 3's epipolar and flow tests run on a few hundred
+to a few thousand points per call, several times per frame: in NumPy each call pays ~10 us per
+array operation whatever the size (pose refinement, 40 Gauss-Newton steps of ~15 operations,
+cost 2.6 ms of a 15 ms frame on walking_xyz). Compiled with Numba each is one loop over the
+points.
 
 The NumPy functions stay the reference: each compiled kernel (``kernels.optimize`` for pose
 refinement and local BA, ``kernels.matching``, ``kernels.rejection``) takes and returns what its
