@@ -77,6 +77,19 @@ def test_vocabulary_text_is_dbow2s_and_reads_back(tmp_path: Path):
     assert max(depth) == 3 and all(depth[n] == 3 for n in range(len(depth)) if vocabulary.leaf[n])
 
 
+@pytest.mark.render
+def test_a_vocabulary_built_in_two_workers_is_the_one_built_in_one_process(tmp_path: Path):
+    """``--workers``: each training scene is rendered and extracted in a worker of its own and
+    the descriptors come back in the scenes' order, so the file is the same bytes."""
+    from depotbench.eval.trackers.vocabulary import VocabularySpec, build_file
+
+    spec = VocabularySpec(branching=4, levels=2, scenes=("smoke", "pig_pen", "crowd"), frames=2)
+    for workers in (1, 2):
+        build_file(spec, tmp_path / f"voc-{workers}.txt", progress=False, workers=workers)
+    one = (tmp_path / "voc-1.txt").read_bytes()
+    assert one == (tmp_path / "voc-2.txt").read_bytes() and one.count(b"\n") > 4
+
+
 def test_kmajority_needs_no_more_clusters_than_distinct_descriptors():
     same = np.zeros((50, 4), np.uint64)
     centres, labels = kmajority(same, 5, np.random.default_rng(0))

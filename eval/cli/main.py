@@ -528,6 +528,9 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=default["frames"], help="frames rendered per scene")
     p.add_argument("--seed", type=int, default=default["seed"], help="seed of the training scenes")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    p.add_argument(
+        "--workers", type=workers, default=max(1, os.cpu_count() or 1), help="scenes rendered at a time"
+    )
     p.set_defaults(handler=_cmd_vocab)
 
 
@@ -540,11 +543,11 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
         library.get(name)  # refuses an unknown scene by name, before any work
     spec = VocabularySpec(args.branching, args.levels, tuple(args.scenes), args.frames, args.seed)
     if args.output is None:
-        path = default_vocabulary(progress=True, spec=spec)
+        path = default_vocabulary(progress=True, spec=spec, workers=args.workers)
     else:
         check_output_file(args.output, overwrite=args.overwrite, option="-o")
         path = args.output
-        build_file(spec, path, progress=True)
+        build_file(spec, path, progress=True, workers=args.workers)
     words = read_text(path).words
     print(f"{path}: {words} words (k={spec.branching}, L={spec.levels})")
     return 0
