@@ -1,7 +1,7 @@
 """What the test workers share, built once before they start (``make test`` runs this).
 
 Without it the first workers build them side by side inside the timed run: the default ORB
-vocabulary (minutes from an empty cache; the tests share the user's, see conftest.py) and
+vocabulary (a minute from an empty cache; the tests share the user's, see conftest.py) and
 the compiled kernels (Numba's cache beside the package: 14 s a process to compile, 0.5 s to
 load). Where the user's vocabulary cache is off, the tests build a private one, as before.
 """

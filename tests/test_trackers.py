@@ -90,6 +90,29 @@ def test_a_vocabulary_built_in_two_workers_is_the_one_built_in_one_process(tmp_p
     assert one == (tmp_path / "voc-2.txt").read_bytes() and one.count(b"\n") > 4
 
 
+def test_the_compiled_clustering_builds_the_numpy_paths_vocabulary():
+    """``eval.trackers.clustering`` against the NumPy functions it replaces: the same text from
+    descriptors around 12 centres (bits flipped at 5 %), with exact duplicates and a frame of
+    one descriptor repeated (ties in distance and in the majority vote)."""
+    from depotbench.slam import kernels
+
+    rng = np.random.default_rng(11)
+    cores = rng.integers(0, 256, (12, 32), dtype=np.uint8)
+    images = []
+    for _ in range(30):
+        around = cores[rng.integers(0, 12, 300)]
+        flips = np.packbits(rng.random((300, 256)) < 0.05, axis=1)
+        images.append(around ^ flips)
+    images.append(np.repeat(cores[:1], 40, axis=0))
+    images.append(images[0][:50].copy())
+    texts = {}
+    for path in (kernels.Kernels.NUMPY, kernels.Kernels.NUMBA):
+        with kernels.using(path):
+            texts[path] = build(images, branching=5, levels=3, seed=4).to_text()
+    assert texts[kernels.Kernels.NUMPY] == texts[kernels.Kernels.NUMBA]
+    assert texts[kernels.Kernels.NUMPY].count("\n") > 50
+
+
 def test_kmajority_needs_no_more_clusters_than_distinct_descriptors():
     same = np.zeros((50, 4), np.uint64)
     centres, labels = kmajority(same, 5, np.random.default_rng(0))

@@ -16,7 +16,7 @@ for an empty node).
 The default vocabulary is trained on library scenes the fidelity benchmark does
 not evaluate, rendered with their own seed, and cached by content in the ``vocabulary``
 folder of the cache root (``depotbench.core.cache_home``). With that cache switched off
-(``DEPOTBENCH_CACHE=off``) it is refused, not built: building takes minutes, and built
+(``DEPOTBENCH_CACHE=off``) it is refused, not built: building takes a minute, and built
 in a temporary folder it would be built again by every process, each worker of a sweep
 too; off means that nothing is written beside the outputs a command names.
 """
@@ -128,28 +128,46 @@ def _majority(descriptors: np.ndarray) -> np.ndarray:
     return centre.view(np.uint64)
 
 
+def _centres(descriptors: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The majority centre of each label that has members, in label order, and the labels
+    renumbered to index them."""
+    kept = np.unique(labels)
+    return np.stack([_majority(descriptors[labels == c]) for c in kept]), np.searchsorted(kept, labels)
+
+
 def kmajority(descriptors: np.ndarray, k: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """k-means on packed binary descriptors: (centres (k', 4), labels); k' <= k (no empty cluster)."""
+    """k-means on packed binary descriptors: (centres (k', 4), labels); k' <= k (no empty cluster).
+    Compiled (``clustering``) or in NumPy by ``depotbench.slam.kernels``' switch: the same
+    integers, so the same vocabulary."""
+    from depotbench.slam import kernels
+
+    distance, centres_of = _distances, _centres
+    if kernels.compiled():
+        from depotbench.eval.trackers import clustering
+
+        def centres_of(descriptors: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            as_bytes = descriptors.view(np.uint8).reshape(len(descriptors), DESCRIPTOR_BYTES)
+            centres, labels = clustering.majority_centres(as_bytes, labels, int(labels.max()) + 1)
+            return centres.view(np.uint64), labels
+
+        distance = clustering.distances
     n = len(descriptors)
     chosen = [int(rng.integers(n))]
-    nearest = _distances(descriptors, descriptors[chosen]).min(axis=1).astype(np.float64)
+    nearest = distance(descriptors, descriptors[chosen]).min(axis=1).astype(np.float64)
     while len(chosen) < k:  # k-means++ seeding, by distance
         total = nearest.sum()
         if total == 0:
             break  # fewer distinct descriptors than k
         pick = int(rng.choice(n, p=nearest / total))
         chosen.append(pick)
-        nearest = np.minimum(nearest, _distances(descriptors, descriptors[[pick]])[:, 0])
+        nearest = np.minimum(nearest, distance(descriptors, descriptors[[pick]])[:, 0])
     centres = descriptors[chosen]
     labels = np.full(n, -1)
     for _ in range(KMEANS_ITERATIONS):
-        new_labels = np.argmin(_distances(descriptors, centres), axis=1)
+        new_labels = np.argmin(distance(descriptors, centres), axis=1)
         if np.array_equal(new_labels, labels):
             break
-        labels = new_labels
-        kept = np.unique(labels)
-        centres = np.stack([_majority(descriptors[labels == c]) for c in kept])
-        labels = np.searchsorted(kept, labels)
+        centres, labels = centres_of(descriptors, new_labels)
     return centres, labels
 
 
@@ -313,7 +331,7 @@ def default_vocabulary(
     if folder is None:
         raise InputError(
             f"{switched_off_by(CACHE)}: the ORB vocabulary cache is off, and building a vocabulary takes "
-            "minutes: build one once with `depotbench vocab -o FILE` and pass --vocabulary FILE"
+            "a minute or more: build one once with `depotbench vocab -o FILE` and pass --vocabulary FILE"
         )
     path = folder / cached_name(spec)
     if path.is_file():
@@ -329,6 +347,6 @@ def default_vocabulary(
     with OutputLock(path, wait=True):  # one builder at a time; the others then find it built
         if not path.is_file():
             if progress:
-                LOG.info(f"building the ORB vocabulary once into {path} (a few minutes)")
+                LOG.info(f"building the ORB vocabulary once into {path} (about a minute)")
             build_file(spec, path, progress, build_workers() if workers is None else workers)
     return path
