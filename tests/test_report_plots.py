@@ -306,6 +306,25 @@ def test_featured_runs_tracked_again_in_two_workers_equal_those_tracked_here(swe
 
 
 @pytest.mark.render
+def test_a_family_whose_every_run_failed_keeps_its_section(sweep: Path, monkeypatch):
+    """Such a family has no run to track again, but its section still says why (a rename in
+    the page's code once left it out, with its runs' strip)."""
+    import depotbench.eval.report.html as html
+
+    failed = _family(COUNTS[0])
+    featured = html._featured_configuration
+
+    def none_for_one(family, configs, best):
+        return None if family == failed else featured(family, configs, best)
+
+    monkeypatch.setattr(html, "_featured_configuration", none_for_one)
+    page = html.sweep_page(sweep, html.Notes())
+    section = _section(page, f"Family: {failed}")
+    assert "Every run of every configuration failed" in section and f'alt="runs of {failed}"' in section
+    assert f"<h2>Family: {_family(COUNTS[1])}</h2>" in page
+
+
+@pytest.mark.render
 def test_tables_show_the_interval_n_and_the_runs_held(page: str):
     best = _section(page, "Best configuration per family")
     assert "<th>runs held</th>" in best and best.count("<td>2/2</td>") == len(COUNTS)

@@ -1381,8 +1381,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
             f"{featured} families, the first by name; the tables hold them all): {', '.join(left)}"
         )
     chosen = {family: _featured_configuration(family, configs, best) for family in shown}
-    shown = {f: c for f, c in chosen.items() if c is not None}
-    views = _featured_runs(folder, rows, shown, sequences, notes, workers)
+    trackable = {f: c for f, c in chosen.items() if c is not None}
+    views = _featured_runs(folder, rows, trackable, sequences, notes, workers)
     strips = {
         family: figure_png(fig) for family, _, fig in strip_figures(configs, rows, rule, only=set(shown))
     }
