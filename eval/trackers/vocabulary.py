@@ -251,17 +251,22 @@ def training_descriptors(spec: VocabularySpec, progress: bool, workers: int = 1)
     from depotbench.core.executors import make_pool
 
     workers = max(1, min(workers, len(spec.scenes)))
-    per_scene: dict[str, list[np.ndarray]] = {}
+    items = [(name, spec.frames, spec.seed, progress and workers == 1) for name in spec.scenes]
+    slot = {id(item): i for i, item in enumerate(items)}  # a scene named twice is rendered twice
+    per_scene: list[list[np.ndarray]] = [[] for _ in items]
     pool = make_pool("local", workers)
     failed = True
+    # One process shows each scene's frames; workers show the scenes as they finish.
+    bar = progress_bar(total=len(items), desc="scenes", unit="scene", disable=not progress or workers == 1)
     try:
-        items = [(name, spec.frames, spec.seed, progress and workers == 1) for name in spec.scenes]
-        for (name, *_), images in pool.map_unordered(_scene_descriptors, items):
-            per_scene[name] = images
+        with bar:
+            for item, images in pool.map_unordered(_scene_descriptors, items):
+                per_scene[slot[id(item)]] = images
+                bar.update(1)
         failed = False
     finally:
         pool.close(failed)
-    return [image for name in spec.scenes for image in per_scene[name]]
+    return [image for images in per_scene for image in images]
 
 
 def build_file(
