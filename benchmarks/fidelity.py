@@ -120,11 +120,12 @@ def _run(job: Job) -> tuple[Job, dict[str, dict], float, int]:
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import run_sequence
     from depotbench.eval.trackers.base import TrackerError
+    from depotbench.eval.trackers.orbslam3 import PACE
     from depotbench.eval.trackers.registry import TrackerConfig
 
     started = time.perf_counter()
     cache = StageCache(job.stages) if job.stages is not None else None
-    parameters = (("pace", repr(job.pace)),) if job.pace else ()
+    parameters = ((PACE, repr(job.pace)),) if job.pace else ()
     config = TrackerConfig(job.tracker, vocabulary=job.vocabulary, parameters=parameters)
     out, resumed = {}, 0
     for strategy in job.strategies:
@@ -552,8 +553,11 @@ def main() -> None:
         parser.error(f"--frames: at least 10, got {args.frames}")
     if args.orbslam3_runs < 1 or args.workers < 1:
         parser.error("--orbslam3-runs and --workers: at least 1")
-    if not 0 <= args.orbslam3_pace <= 10:
-        parser.error(f"--orbslam3-pace: between 0 and 10, got {args.orbslam3_pace:g}")
+    from depotbench.eval.trackers.orbslam3 import PACE_RANGE
+
+    low, high = PACE_RANGE  # the tracker's own bounds on its pace parameter
+    if not low <= args.orbslam3_pace <= high:
+        parser.error(f"--orbslam3-pace: between {low:g} and {high:g}, got {args.orbslam3_pace:g}")
 
     from depotbench.eval.trackers.orbslam3 import available
     from depotbench.eval.trackers.vocabulary import default_vocabulary

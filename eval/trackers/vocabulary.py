@@ -135,6 +135,15 @@ def _centres(descriptors: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, n
     return np.stack([_majority(descriptors[labels == c]) for c in kept]), np.searchsorted(kept, labels)
 
 
+def _compiled_centres(descriptors: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_centres`` by the compiled kernel (``clustering.majority_centres``)."""
+    from depotbench.eval.trackers import clustering
+
+    as_bytes = descriptors.view(np.uint8).reshape(len(descriptors), DESCRIPTOR_BYTES)
+    centres, labels = clustering.majority_centres(as_bytes, labels, int(labels.max()) + 1)
+    return centres.view(np.uint64), labels
+
+
 def kmajority(descriptors: np.ndarray, k: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """k-means on packed binary descriptors: (centres (k', 4), labels); k' <= k (no empty cluster).
     Compiled (``clustering``) or in NumPy by ``depotbench.slam.kernels``' switch: the same
@@ -145,12 +154,7 @@ def kmajority(descriptors: np.ndarray, k: int, rng: np.random.Generator) -> tupl
     if kernels.compiled():
         from depotbench.eval.trackers import clustering
 
-        def centres_of(descriptors: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            as_bytes = descriptors.view(np.uint8).reshape(len(descriptors), DESCRIPTOR_BYTES)
-            centres, labels = clustering.majority_centres(as_bytes, labels, int(labels.max()) + 1)
-            return centres.view(np.uint64), labels
-
-        distance = clustering.distances
+        distance, centres_of = clustering.distances, _compiled_centres
     n = len(descriptors)
     chosen = [int(rng.integers(n))]
     nearest = distance(descriptors, descriptors[chosen]).min(axis=1).astype(np.float64)
