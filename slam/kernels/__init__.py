@@ -117,6 +117,7 @@ def warm_up() -> float:
     bools = np.zeros(n, np.bool_)
     epipolar = (np.eye(3), uv, uv, ones, bools, bools, bools, descriptors, descriptors)
     matching.pair_triangulation(*epipolar, 3.84, 50)
+    matching.distinctive(descriptors, index, np.ones(n, np.int64))
     features.distribute(ones, ones, ones, 4, 4, 2)
     image = np.zeros((40, 40), np.uint8)
     features.fast_corners(image, 7, 19)
