@@ -109,7 +109,10 @@ $(VENV)/.installed: pyproject.toml | system-deps
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@# uv resolves the same versions as pip and installs them in a fifth of the time (20 s
 	@# against 97 s from a clean clone, no cache: docs/performance.md); pip where uv cannot.
-	$(BIN)/python -m pip install -q uv && $(BIN)/uv pip install -q --python $(BIN)/python $(PACKAGE) \
+	@# Bytecode is compiled at install, as pip does (uv does not): where PYTHONDONTWRITEBYTECODE
+	@# is set, as in CI and container images, each process otherwise compiles every module it
+	@# imports, ~1 s a process here (the test run spawns hundreds).
+	$(BIN)/python -m pip install -q uv && $(BIN)/uv pip install -q --compile-bytecode --python $(BIN)/python $(PACKAGE) \
 		|| $(BIN)/python -m pip install -q $(PACKAGE)
 	touch $@
 
