@@ -121,11 +121,11 @@ def _run(job: Job) -> tuple[Job, dict[str, dict], float, int]:
     from depotbench.eval.run.harness import run_sequence
     from depotbench.eval.trackers.base import TrackerError
     from depotbench.eval.trackers.orbslam3 import PACE
-    from depotbench.eval.trackers.registry import TrackerConfig
+    from depotbench.eval.trackers.registry import TrackerConfig, tracker_parameters
 
     started = time.perf_counter()
     cache = StageCache(job.stages) if job.stages is not None else None
-    parameters = ((PACE, repr(job.pace)),) if job.pace else ()
+    parameters = tracker_parameters(job.tracker, {PACE: str(job.pace)} if job.pace else {})
     config = TrackerConfig(job.tracker, vocabulary=job.vocabulary, parameters=parameters)
     out, resumed = {}, 0
     for strategy in job.strategies:

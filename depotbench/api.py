@@ -103,7 +103,7 @@ def _detector(detector: DetectorConfig | str) -> DetectorConfig:
 
 def _tracker(tracker: TrackerConfig | str, parameters: Mapping[str, Setting]) -> TrackerConfig:
     from depotbench.core.errors import InputError
-    from depotbench.eval.trackers.registry import TrackerConfig, default_parameters, tracker_type
+    from depotbench.eval.trackers.registry import TrackerConfig, tracker_parameters, tracker_type
     from depotbench.eval.trackers.registry import check as check_tracker
 
     if isinstance(tracker, str):
@@ -111,9 +111,7 @@ def _tracker(tracker: TrackerConfig | str, parameters: Mapping[str, Setting]) ->
         if parameters and not kind.parameters:
             raise InputError(f"parameters: tracker {kind.name} takes settings, not parameters")
         given = {name: str(value) for name, value in parameters.items()}
-        tracker = TrackerConfig(
-            kind.name, parameters=tuple(sorted((default_parameters(kind.name) | given).items()))
-        )
+        tracker = TrackerConfig(kind.name, parameters=tracker_parameters(kind.name, given))
     elif parameters:
         raise InputError("parameters: give them in the TrackerConfig")
     check_tracker(tracker)

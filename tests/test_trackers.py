@@ -337,6 +337,41 @@ def test_an_orbslam3_pace_out_of_range_is_refused_before_any_run(
     assert not (tmp_path / "out").exists()
 
 
+def test_one_orbslam3_run_has_one_key_however_its_numbers_are_spelled(
+    tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
+):
+    """ORB-SLAM3's parameters are numbers, so spellings of one value are one run with one
+    key: ``--param pace=1.0`` and the API's ``pace=1``, with the defaults each fills in
+    (ThDepth was "40.0" from both, and "40" when given so), and a spec's ``pace: '1.00'``
+    and ``pace: 1``. Each runs the stand-in wheel on 4 frames."""
+    from depotbench.eval.sweep.store import ResultStore
+
+    import depotbench
+
+    path = os.pathsep.join([str(STUB_ORBSLAM3), *filter(None, [os.environ.get("PYTHONPATH")])])
+    monkeypatch.setenv("PYTHONPATH", path)
+    monkeypatch.setenv("STUB_ORBSLAM3_CALLS", str(tmp_path / "calls.json"))
+    write_sequence(tmp_path / "seq", n=4, with_flow=False)
+    code, _, err = cli(capsys, "run", tmp_path / "seq", "--slam", "orbslam3", "--param", "pace=1.0",
+                       "--param", "ThDepth=40", "-o", tmp_path / "cli")  # fmt: skip
+    assert code == 0, err
+    by_cli = json.loads((tmp_path / "cli" / "record.json").read_text())["key"]
+    assert depotbench.run(tmp_path / "seq", tracker="orbslam3", parameters={"pace": 1}).key == by_cli
+    rows = []
+    for name, parameters in (("text", "{pace: '1.00', ThDepth: '4.0e1'}"), ("numbers", "{pace: 1}")):
+        spec = tmp_path / f"{name}.yaml"
+        spec.write_text(
+            f"sweep: {name}\nsequences: [{tmp_path / 'seq'}]\nstrategies: [none]\n"
+            f"trackers:\n  - {{name: orb, kind: orbslam3, parameters: {parameters}}}\n"
+        )
+        code, _, err = cli(capsys, "sweep", spec, "-o", tmp_path / name)
+        assert code == 0, err
+        with ResultStore(tmp_path / name / "results.sqlite", readonly=True) as store:
+            rows += store.records()
+    assert rows[0].key == rows[1].key and rows[0].parameters == rows[1].parameters
+    assert json.loads(rows[0].parameters)["pace"] == 1 and json.loads(rows[0].parameters)["ThDepth"] == 40
+
+
 @pytest.mark.render
 def test_orbslam3_runs_end_to_end_with_and_without_mask(tmp_path: Path, capsys):
     from depotbench.eval.trackers.orbslam3 import available

@@ -403,7 +403,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import run_sequence
-    from depotbench.eval.trackers.registry import TRACKERS, TrackerConfig, default_parameters, tracker_type
+    from depotbench.eval.trackers.registry import TRACKERS, TrackerConfig, tracker_parameters, tracker_type
     from depotbench.eval.trackers.registry import check as check_tracker
     from depotbench.slam.config import ConfigError, parse_settings
 
@@ -427,14 +427,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         )
     if args.settings_template is not None and not kind.command:
         raise InputError(f"--settings-template applies to --slam {takers('command')} only")
-    parameters = pairs(args.param, "--param")
-    parameters = default_parameters(kind.name) | parameters
     tracker = TrackerConfig(
         kind.name,
         args.command,
         args.vocabulary,
         args.timeout,
-        parameters=tuple(sorted(parameters.items())),
+        parameters=tracker_parameters(kind.name, pairs(args.param, "--param")),
         settings_template=args.settings_template,
     )
     check_tracker(tracker)

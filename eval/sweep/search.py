@@ -33,12 +33,11 @@ from depotbench.eval.sweep.spec import (
     Variant,
     check_variants,
     detector_configs,
-    setting_text,
     threshold_value,
     tracker_configs,
 )
 from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
-from depotbench.eval.trackers.registry import TrackerConfig
+from depotbench.eval.trackers.registry import TrackerConfig, parameter_text
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.sim.sequence import Sequence
 
@@ -135,7 +134,7 @@ def _trial_jobs(
             check_variants(spec, [variant], trackers, source)
         return jobs_for([variant], trackers, detectors, sequences, anchor, spec.dense_map)
     base = next(t for t in trackers if t.label == search.tracker)
-    settings = {n: setting_text(v) for n, v in values.items()}  # a program's parameters are text
+    settings = {n: parameter_text(v) for n, v in values.items()}  # a program's parameters are text
     tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | settings).items())))
     if source is not None:
         try:
@@ -184,7 +183,7 @@ def run_search(
         value = objective([r for r in store.records() if r.key in keys], search)
         study.tell(trial, value)
         if progress:
-            shown = {n: setting_text(v) for n, v in sorted(values.items())}
+            shown = {n: parameter_text(v) for n, v in sorted(values.items())}
             LOG.info(f"trial {trial.number}: {shown} -> {search.objective} {value:.5f}")
     best = study.best_trial
     return {
@@ -192,7 +191,7 @@ def run_search(
         "tracker": search.tracker,
         "objective": search.objective,
         "value": best.value,
-        "settings": {n: setting_text(v) for n, v in sorted(best.params.items())},
+        "settings": {n: parameter_text(v) for n, v in sorted(best.params.items())},
         "trials": len(study.get_trials(deepcopy=False, states=(complete,))),
         "families": families,
     }

@@ -41,7 +41,13 @@ from depotbench.detectors.config import (
     parse_detector,
 )
 from depotbench.eval.run.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, slam_config
-from depotbench.eval.trackers.registry import EXTERNAL, TRACKERS, TrackerConfig
+from depotbench.eval.trackers.registry import (
+    EXTERNAL,
+    TRACKERS,
+    TrackerConfig,
+    parameter_text,
+    tracker_parameters,
+)
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError, Strict, load_model
 from depotbench.slam.config import ConfigError, Setting, setting_value
@@ -252,13 +258,6 @@ class Variant:
     """Threshold values by name, typed as their fields are (``threshold_value``)."""
 
 
-def setting_text(value: float) -> str:
-    """A number as an external tracker's parameter text: integers without a point (a
-    program's integer field refuses '2.0')."""
-    v = float(value)
-    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
-
-
 def threshold_value(name: str, value: float) -> Setting:
     """A spec's number for threshold ``name`` as its field holds it (8.0 for a whole-number
     field is 8). A name or value the field refuses stays as given: ``check_variants`` names
@@ -398,20 +397,19 @@ def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
 
 
 def _parameter_defaults(entry: TrackerEntry) -> tuple[tuple[str, str], ...]:
-    defaults = {
-        name: value if isinstance(value, str) else setting_text(value)
+    given = {
+        name: value if isinstance(value, str) else parameter_text(value)
         for name, value in entry.parameters.items()
     }
     if entry.kind == "orbslam3":
-        from depotbench.eval.trackers.orbslam3 import default_parameters, known_parameters
+        from depotbench.eval.trackers.orbslam3 import known_parameters
 
-        unknown = sorted(set(defaults) - set(known_parameters()))
+        unknown = sorted(set(given) - set(known_parameters()))
         if unknown:
             raise InputError(
                 f"unknown ORB-SLAM3 parameter {unknown[0]!r}; known: {', '.join(known_parameters())}"
             )
-        defaults = {name: setting_text(float(text)) for name, text in default_parameters().items()} | defaults
-    return tuple(sorted(defaults.items()))
+    return tracker_parameters(entry.kind, given)
 
 
 def _program_beside(folder: Path, command: str) -> str:
@@ -434,8 +432,9 @@ def tracker_variants(spec: SweepSpec, trackers: list[TrackerConfig], source: str
         axes = spec.parameters.get(config.label, {})
         names = sorted(axes)
         for combo in itertools.product(*(_values(axes[n]) for n in names)) if names else [()]:
-            values = dict(config.parameters) | {n: setting_text(v) for n, v in zip(names, combo, strict=True)}
-            variant = replace(config, parameters=tuple(sorted(values.items())))
+            swept = {n: parameter_text(v) for n, v in zip(names, combo, strict=True)}
+            parameters = tracker_parameters(config.kind, dict(config.parameters) | swept)
+            variant = replace(config, parameters=parameters)
             if names:
                 try:
                     check_tracker(variant)
@@ -476,7 +475,7 @@ def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) ->
             if base.type.command and name not in dict(base.parameters):
                 raise SpecError(f"{source}: search.space.{name}: not a parameter of {base.label}")
             for value in (interval.low, interval.high):
-                values = dict(base.parameters) | {name: setting_text(value)}
+                values = dict(base.parameters) | {name: parameter_text(value)}
                 try:
                     check_tracker(replace(base, parameters=tuple(sorted(values.items()))))
                 except InputError as exc:

@@ -11,6 +11,7 @@ import dataclasses
 import importlib.util
 import json
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.external import run_child
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.reaper import Scratch
+from depotbench.eval.trackers.registry import parameter_text
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.slam.types import TrackingState
 
@@ -90,7 +92,20 @@ def pace_of(parameters: tuple[tuple[str, str], ...]) -> float:
 def default_parameters() -> dict[str, str]:
     """The parameters' values in the settings the bench writes (``OrbSlamSettings``)."""
     defaults = OrbSlamSettings()
-    return {name: repr(getattr(defaults, field)) for name, (field, _, _, _) in PARAMETERS.items()}
+    return {name: parameter_text(getattr(defaults, field)) for name, (field, _, _, _) in PARAMETERS.items()}
+
+
+def canonical_parameters(values: Mapping[str, str]) -> dict[str, str]:
+    """Each number in one spelling (``parameter_text``): its parameters are numbers, so 1,
+    1.0 and 1e0 are one run with one key. Text that is no number is left as given, for
+    ``orbslam_settings`` and ``pace_of`` to refuse by name."""
+    out = {}
+    for name, text in values.items():
+        try:
+            out[name] = parameter_text(float(text))
+        except ValueError:
+            out[name] = text
+    return out
 
 
 def orbslam_settings(sequence_fps: float, parameters: tuple[tuple[str, str], ...]) -> OrbSlamSettings:

@@ -9,6 +9,7 @@ stays fast, and ORB-SLAM3's wheel is only touched when it runs.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,9 @@ class TrackerType:
     """The kind as specs and ``--slam`` name it."""
     module: str
     """The module holding ``build(tracker, config, progress, stages)`` and
-    ``check(tracker, camera_sequence)`` (and ``default_parameters()`` when it has any)."""
+    ``check(tracker, camera_sequence)`` (and, when it has parameters of its own,
+    ``default_parameters()`` and ``canonical_parameters(values)`` where a value has more
+    than one spelling)."""
     summary: str
     per_keypoint: bool
     """It is the bench's own pipeline: it decides per keypoint, so it takes every rejection
@@ -134,7 +137,20 @@ def check(tracker: TrackerConfig, camera_sequence: Any = None) -> None:
     _module(tracker).check(tracker, camera_sequence)
 
 
-def default_parameters(kind: str) -> dict[str, str]:
-    """The parameters a tracker kind runs with unless told otherwise."""
+def parameter_text(value: float) -> str:
+    """A number as a tracker parameter's text: integers without a point (a program's integer
+    field refuses '2.0'), others as ``repr`` gives them."""
+    v = float(value)
+    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
+
+
+def tracker_parameters(kind: str, given: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
+    """A run's parameters, sorted: the kind's defaults overridden by ``given``, each spelled
+    as the kind keys it. ORB-SLAM3's are numbers, so ``pace=1``, ``pace=1.0`` and a spec's
+    ``pace: 1`` are one value and one run; a program's (``cmd``) are its own text."""
     module = importlib.import_module(tracker_type(kind).module)
-    return dict(module.default_parameters()) if hasattr(module, "default_parameters") else {}
+    values = dict(module.default_parameters()) if hasattr(module, "default_parameters") else {}
+    values |= given
+    if hasattr(module, "canonical_parameters"):
+        values = module.canonical_parameters(values)
+    return tuple(sorted(values.items()))
