@@ -2,15 +2,19 @@
 
 Usage: python benchmarks/tracking.py [--scenario walking_xyz] [--frames 150] [--seed 11 ...]
        [--strategy none ...] [--kernels numpy|numba|both] [--set NAME=VALUE ...]
-       [--vocabulary FILE] [--no-orbslam3]
+       [--vocabulary FILE] [--orbslam3-pace P ...] [--no-orbslam3]
 
 Generates the scenario once per seed (into a temporary folder), then, on that sequence in
 this run: the built-in pipeline with each strategy pinned to one core (tracking as ORB-SLAM
 reports it: extraction + rejection + tracking; local mapping runs synchronously and is
 reported apart), and ORB-SLAM3 (if the orbslam3 extra is installed) with its local-mapping
 thread on the other core, as it is built to run: its time is that of ``track_rgbd``, and its
-tracked frames are printed beside it. Mean and median milliseconds per frame; per seed and
-over the seeds, each strategy's median over ORB-SLAM3's (issue 40's speed criterion).
+tracked frames are printed beside it. ORB-SLAM3 is fed at the camera's rate (``pace`` 1), as
+its own ``rgbd_tum`` example feeds a sequence and times ``TrackRGBD``: fed back to back
+(``--orbslam3-pace 0``), its mapping thread competes with tracking for the cores. Several
+paces run one after the other on the same sequence. Mean and median milliseconds per frame;
+per seed and over the seeds, each strategy's median over ORB-SLAM3's (issue 40's speed
+criterion), for each pace.
 
 ``--kernels both`` tracks each strategy on the NumPy reference path and on the compiled
 kernels (``DEPOTBENCH_KERNELS``, ``depotbench.slam.kernels``) in the order numpy, numba,
@@ -38,6 +42,8 @@ from depotbench.detectors.config import DetectorConfig  # noqa: E402
 from depotbench.eval.run.detections import detect_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
+from depotbench.eval.trackers.orbslam3 import PACE, PACE_RANGE  # noqa: E402
+from depotbench.eval.trackers.registry import tracker_parameters  # noqa: E402
 from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
 from depotbench.sim.generate import generate  # noqa: E402
@@ -104,12 +110,25 @@ def main() -> None:
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a SLAM setting")
     parser.add_argument("--vocabulary", type=Path, help="ORB-SLAM3's vocabulary (default: the bench's)")
+    parser.add_argument(
+        "--orbslam3-pace",
+        type=float,
+        nargs="+",
+        default=[1.0],
+        metavar="P",
+        help="how ORB-SLAM3 is fed: P x the frames' gaps (1: the camera's rate, 0: back to back); "
+        "several run one after the other (default: 1)",
+    )
     parser.add_argument("--no-orbslam3", action="store_true", help="the built-in pipeline only")
     args = parser.parse_args()
     try:
         settings = parse_settings(args.set)
     except ConfigError as exc:
         parser.error(f"--set: {exc}")
+    low, high = PACE_RANGE
+    for pace in args.orbslam3_pace:
+        if not low <= pace <= high:  # also refuses nan
+            parser.error(f"--orbslam3-pace {pace:g} is out of range [{low:g}, {high:g}]")
     paths: tuple[Kernels | None, ...] = (None,)
     if args.kernels == "both":
         paths = ORDER
@@ -123,7 +142,7 @@ def main() -> None:
         kernels.warm_up()
     every_core = os.sched_getaffinity(0)
     ratios: dict[str, list[float]] = {s: [] for s in strategies}
-    to_orbslam3: dict[str, list[float]] = {s: [] for s in strategies}
+    to_orbslam3: dict[tuple[str, float], list[float]] = {}
     for seed in args.seed or [None]:
         with tempfile.TemporaryDirectory() as tmp:
             update = {"frames": args.frames, "duration_s": None}
@@ -158,30 +177,32 @@ def main() -> None:
                         f"{'  numpy / numba, medians':32s} " + " ".join(f"{ratio[s]:>23.2f}x" for s in STAGES)
                     )
             os.sched_setaffinity(0, every_core)
-            orbslam3_ms = None if args.no_orbslam3 else _orbslam3(args, seq)
-            if orbslam3_ms is not None:
+            for pace in () if args.no_orbslam3 else args.orbslam3_pace:
+                orbslam3_ms = _orbslam3(args, seq, pace)
+                if orbslam3_ms is None:
+                    break
                 for strategy, total in totals.items():
-                    to_orbslam3[strategy].append(total / orbslam3_ms)
+                    to_orbslam3.setdefault((strategy, pace), []).append(total / orbslam3_ms)
                 print(
-                    f"{'  built-in / orbslam3, medians':32s} "
-                    + " ".join(f"{s} {to_orbslam3[s][-1]:.2f}x" for s in strategies)
+                    f"{f'  built-in / orbslam3 pace {pace:g}':32s} "
+                    + " ".join(f"{s} {to_orbslam3[s, pace][-1]:.2f}x" for s in strategies)
                 )
     if args.kernels == "both":
         print("numpy / numba, median tracking_total per frame, by seed:")
         for strategy, values in ratios.items():
             print(f"  {strategy:20s} " + " ".join(f"{v:.2f}x" for v in values))
-    if any(to_orbslam3.values()):
+    if to_orbslam3:
         print("built-in / orbslam3, median tracking_total per frame, by seed; median over seeds:")
-        for strategy, values in to_orbslam3.items():
+        for (strategy, pace), values in to_orbslam3.items():
             line = " ".join(f"{v:.2f}x" for v in values)
-            print(f"  {strategy:20s} {line}; {float(np.median(values)):.2f}x")
+            print(f"  {strategy:20s} pace {pace:<4g} {line}; {float(np.median(values)):.2f}x")
     print("built-in: tracking_total = extract + reject + track; mapping (synchronous) apart, per frame")
     print("orbslam3: track_rgbd per frame (extraction and tracking; mapping in its own thread)")
 
 
-def _orbslam3(args: argparse.Namespace, seq: Sequence) -> float | None:
-    """ORB-SLAM3's median ms per frame (None where it is not installed). Its tracked frames are
-    printed beside it: a run that got lost tracks nothing and looks fast."""
+def _orbslam3(args: argparse.Namespace, seq: Sequence, pace: float) -> float | None:
+    """ORB-SLAM3's median ms per frame, fed at ``pace`` (None where it is not installed). Its
+    tracked frames are printed beside it: a run that got lost tracks nothing and looks fast."""
     from depotbench.eval.trackers.orbslam3 import Orbslam3Tracker, available
 
     if not available():
@@ -190,10 +211,11 @@ def _orbslam3(args: argparse.Namespace, seq: Sequence) -> float | None:
     from depotbench.eval.trackers.vocabulary import default_vocabulary
 
     vocabulary = args.vocabulary or default_vocabulary()
-    run = Orbslam3Tracker(vocabulary).run(FrameSource(seq), progress=False)
+    parameters = tracker_parameters("orbslam3", {PACE: str(pace)})
+    run = Orbslam3Tracker(vocabulary, parameters=parameters).run(FrameSource(seq), progress=False)
     tracked = sum(state in TRACKED for state in run.states)
     print(
-        f"{'orbslam3 none':32s} {'':>24s} {'':>24s} {'':>24s} {_cell(run.track_ms):>24s}"
+        f"{f'orbslam3 none pace {pace:g}':32s} {'':>24s} {'':>24s} {'':>24s} {_cell(run.track_ms):>24s}"
         f"   tracked {tracked}/{len(run.states)} frames"
     )
     return float(np.median(run.track_ms))

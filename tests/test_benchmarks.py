@@ -119,6 +119,28 @@ def test_the_strategies_table_takes_settings_as_the_command_line_does(tmp_path):
     assert bad.stderr.strip().splitlines()[-1].endswith("--set: setting k='wide' is not a number")
 
 
+@pytest.mark.render
+def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_one(tmp_path):
+    """benchmarks/tracking.py feeds ORB-SLAM3 at each ``--orbslam3-pace`` in turn, here the
+    stand-in wheel (tests/programs/stub_orbslam3) on 4 frames: a row and a ratio per pace."""
+    import os
+
+    stub = REPO / "tests" / "programs" / "stub_orbslam3"
+    path = os.pathsep.join([str(stub), *filter(None, [os.environ.get("PYTHONPATH")])])
+    env = {**os.environ, "PYTHONPATH": path, "STUB_ORBSLAM3_CALLS": str(tmp_path / "calls.json")}
+    args = ("--frames", "4", "--strategy", "none", "--orbslam3-pace", "0", "1")
+    result = subprocess.run([sys.executable, str(BENCHMARKS / "tracking.py"), *args], cwd=REPO, env=env,
+                            capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    for pace in ("0", "1"):
+        assert re.search(rf"^orbslam3 none pace {pace}\s.*tracked 0/4 frames$", result.stdout, re.M)
+        assert re.search(rf"^  none\s+pace {pace}\s+[\d.]+x; [\d.]+x$", result.stdout, re.M), result.stdout
+    bad = _run(str(BENCHMARKS / "tracking.py"), "--orbslam3-pace", "11")
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
+        "--orbslam3-pace 11 is out of range [0, 10]"
+    )
+
+
 def _has_commit(rev: str) -> bool:
     return (
         subprocess.run(
