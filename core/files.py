@@ -23,9 +23,9 @@ import numpy as np
 from depotbench.core.errors import FileError
 
 DEFAULT_PNG_COMPRESSION = 1
-"""zlib level (0-9) of the PNGs a sequence is written with. Level 1 makes a frame's files
-about 0.3 of level 0's size and, with ISA-L's deflate (sim/png.py), encodes nearly as
-fast; levels 4-9 use zlib and are several times slower for a few percent less."""
+"""zlib level (0-9) of the PNGs a sequence is written with (libdeflate, sim/png.py). Level 1
+makes a frame's files about 0.3 of level 0's size and encodes nearly as fast; higher
+levels are slower for a few percent less."""
 KIB = 1024
 MIB = 1024 * KIB
 

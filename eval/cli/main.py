@@ -215,8 +215,8 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
         type=_png_level,
         default=DEFAULT_PNG_COMPRESSION_LEVEL,
         metavar="0-9",
-        help="deflate level of the PNGs: 0 stores (files about 3.6x larger), 1-3 use ISA-L (fast), "
-        "4-9 zlib (several times slower, a few percent smaller); the same pixels at every level "
+        help="deflate level of the PNGs (libdeflate): 0 stores (files about 3.6x larger), 1 is fast, "
+        "higher levels are slower for a few percent smaller files; the same pixels at every level "
         "(default: %(default)s)",
     )
     p.set_defaults(handler=_cmd_generate)
