@@ -917,67 +917,6 @@ def test_warm_up_compiles_every_kernel_a_run_calls(walking_seq: Path):
     assert compiled_later == "[]"
 
 
-COUNTS = """
-import importlib, sys
-from numba.core.registry import CPUDispatcher
-from depotbench.slam import kernels
-step = sys.argv[1]
-if step == "fill":
-    print(kernels.ready_for_workers(1), kernels.ready_for_workers(2) > 0)
-else:
-    print(kernels.ready_for_workers(2) if step == "in memory" else kernels.warm_up() >= 0, end=" ")
-    hits = misses = compiled = 0
-    for name in ("features", "matching", "optimize", "rejection"):
-        module = importlib.import_module("depotbench.slam.kernels." + name)
-        for value in vars(module).values():
-            if isinstance(value, CPUDispatcher) and value.__module__ == module.__name__:
-                hits += sum(value.stats.cache_hits.values())
-                misses += sum(value.stats.cache_misses.values())
-                compiled += len(value.signatures)
-    print(hits, misses, compiled)
-"""
-
-
-@pytest.mark.slow  # 23 s: every kernel compiled into an empty cache
-def test_kernels_readied_for_workers_are_loaded_by_each_worker_not_compiled(tmp_path: Path):
-    """A sweep readies the kernels before its workers start: on an empty cache the parent
-    compiles them once, and a worker started after it loads every kernel it warms up from the
-    cache (hits, no misses) instead of compiling its own copy beside the others. One worker,
-    or kernels compiled in memory (nothing to share), costs nothing."""
-    env = {**_environment(), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
-
-    def child(step: str, **extra: str) -> list[str]:
-        result = subprocess.run([sys.executable, "-c", COUNTS, step], capture_output=True, text=True,
-                                timeout=300, check=False, cwd=REPO, env={**env, **extra})  # fmt: skip
-        assert result.returncode == 0, result.stderr[-2000:]
-        return result.stdout.split()
-
-    assert child("fill") == ["0.0", "True"]
-    ready, hits, misses, compiled = child("worker")
-    assert ready == "True" and int(hits) >= 15 and int(misses) == 0 and int(compiled) == int(hits)
-    in_memory = child("in memory", NUMBA_CACHE_LOCATOR_CLASSES="IPythonCacheLocator")
-    assert in_memory == ["0.0", "0", "0", "0"]
-
-
-def test_a_sweep_with_workers_readies_the_kernels_before_they_start(tmp_path: Path, monkeypatch, capsys):
-    """The sweep engine asks for the kernels before its pool starts (the pool here runs in
-    this process, so nothing is spawned), with the number of workers it was given."""
-    from depotbench.core.executors import LocalPool
-    from depotbench.eval.cli.main import main
-    from depotbench.eval.sweep import engine
-
-    from tests.sequences import write_sequence
-
-    asked = []
-    monkeypatch.setattr(kernels, "ready_for_workers", lambda workers: asked.append(workers) or 0.0)
-    monkeypatch.setattr(engine, "make_pool", lambda backend, workers, address=None: LocalPool(1))
-    write_sequence(tmp_path / "seq", n=4)
-    spec = tmp_path / "sweep.yaml"
-    spec.write_text(f"sweep: ready\nsequences: [{tmp_path / 'seq'}]\nstrategies: [none, box_rule]\n")
-    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "3"]) == 0
-    assert asked == [3]
-
-
 @pytest.mark.render
 def test_a_run_with_a_bad_switch_stops_in_one_line(walking_seq: Path, tmp_path: Path, path, capsys):
     from depotbench.eval.cli.main import main

@@ -1111,7 +1111,6 @@ def _featured_runs(
     a time (the views come in the families' order whatever order the runs finish in)."""
     from depotbench.core.executors import make_pool
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
-    from depotbench.slam import kernels
 
     if not featured:
         return {}
@@ -1150,10 +1149,7 @@ def _featured_runs(
         wanted += _family_runs(family, config, chosen, rows, sequence, grid, notes, role)
     tracked: dict[int, tuple] = {}
     frames = sum(len(w.sequence) for w in wanted)
-    processes = max(1, min(workers, len(wanted))) if frames >= PARALLEL_FRAMES else 1
-    if any(w.job.job.tracker.type.per_keypoint for w in wanted):
-        kernels.ready_for_workers(processes)  # compiled once here, loaded by each worker
-    pool = make_pool("local", processes)
+    pool = make_pool("local", max(1, min(workers, len(wanted))) if frames >= PARALLEL_FRAMES else 1)
     failed = True
     try:
         for _, (index, *answer) in pool.map_unordered(

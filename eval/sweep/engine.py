@@ -59,7 +59,6 @@ from depotbench.eval.trackers.registry import TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
 from depotbench.sim.sequence import Sequence
-from depotbench.slam import kernels
 from depotbench.slam.config import TrackingConfig
 
 DATABASE = "results.sqlite"
@@ -444,8 +443,6 @@ def run_jobs(
     pending = [j for j in jobs if j.key not in done]
     by_key = {j.key: j for j in pending}
     version = generator_version()
-    if backend == "local" and any(j.job.tracker.type.per_keypoint for j in pending):
-        kernels.ready_for_workers(workers)  # compiled once here, loaded by each worker
     pool = make_pool(backend, workers, address)
     failed = True
     try:

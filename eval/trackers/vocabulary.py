@@ -253,10 +253,8 @@ def training_descriptors(spec: VocabularySpec, progress: bool, workers: int = 1)
     is rendered and extracted on its own, ``workers`` scenes at a time (the same bytes from
     any process: rendering and extraction are deterministic)."""
     from depotbench.core.executors import make_pool
-    from depotbench.slam import kernels
 
     workers = max(1, min(workers, len(spec.scenes)))
-    kernels.ready_for_workers(workers)  # extraction's kernels compiled once here, loaded by each worker
     items = [(name, spec.frames, spec.seed, progress and workers == 1) for name in spec.scenes]
     slot = {id(item): i for i, item in enumerate(items)}  # a scene named twice is rendered twice
     per_scene: list[list[np.ndarray]] = [[] for _ in items]

@@ -84,21 +84,6 @@ def using(path: Kernels) -> Iterator[None]:
         kernels.cache_clear()
 
 
-def ready_for_workers(workers: int) -> float:
-    """Compile the kernels into Numba's cache here, before ``workers`` processes start, so
-    that each loads them instead of compiling its own copy side by side with the others; returns
-    the seconds it took. Only a cold cache (a fresh install, edited kernels) makes a
-    difference: the demo after a fresh install took 50 s against 32 s with the cache filled,
-    with its 2 workers compiling at once on 2 cores, and N workers on fewer cores wait N/cores
-    times as long. A filled cache costs this process 0.5 s. Nothing is done for one worker,
-    on the NumPy path, or where kernels compile in memory (nothing to share)."""
-    if workers <= 1 or not compiled():
-        return 0.0
-    from depotbench.slam.kernels import features, jit, matching, optimize, rejection  # noqa: F401
-
-    return 0.0 if jit.IN_MEMORY else warm_up()
-
-
 def warm_up() -> float:
     """Compile every kernel now (or load it from Numba's cache), on tiny inputs of the types
     the pipeline passes; returns the seconds it took. A timed run calls it first so that no

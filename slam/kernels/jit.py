@@ -12,9 +12,6 @@ OPTIONS = {"fastmath": False, "parallel": False, "error_model": "numpy", "nogil"
 
 _log = logging.getLogger(__name__)
 F = TypeVar("F", bound=Callable)
-IN_MEMORY: set[str] = set()
-"""Kernels compiled in memory in this process (no writable cache folder): nothing compiled
-here reaches another process."""
 
 
 def jit(function: F) -> F:
@@ -33,5 +30,4 @@ def jit(function: F) -> F:
         if "no locator available" not in str(error):
             raise
         _log.warning("numba: no writable cache folder for %s; compiling in memory", function.__name__)
-        IN_MEMORY.add(function.__name__)
         return numba.njit(cache=False, **OPTIONS)(function)
