@@ -37,7 +37,7 @@ from depotbench.eval.sweep.spec import (
     tracker_configs,
 )
 from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
-from depotbench.eval.trackers.registry import TrackerConfig, parameter_text
+from depotbench.eval.trackers.registry import TrackerConfig, parameter_text, tracker_parameters
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.sim.sequence import Sequence
 
@@ -135,7 +135,7 @@ def _trial_jobs(
         return jobs_for([variant], trackers, detectors, sequences, anchor, spec.dense_map)
     base = next(t for t in trackers if t.label == search.tracker)
     settings = {n: parameter_text(v) for n, v in values.items()}  # a program's parameters are text
-    tracker = replace(base, parameters=tuple(sorted((dict(base.parameters) | settings).items())))
+    tracker = replace(base, parameters=tracker_parameters(base.kind, dict(base.parameters) | settings))
     if source is not None:
         try:
             check_tracker(tracker)

@@ -477,7 +477,7 @@ def check_search(spec: SweepSpec, trackers: list[TrackerConfig], source: str) ->
             for value in (interval.low, interval.high):
                 values = dict(base.parameters) | {name: parameter_text(value)}
                 try:
-                    check_tracker(replace(base, parameters=tuple(sorted(values.items()))))
+                    check_tracker(replace(base, parameters=tracker_parameters(base.kind, values)))
                 except InputError as exc:
                     raise SpecError(f"{source}: search.space.{name}: {exc}") from None
         return
