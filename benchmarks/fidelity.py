@@ -553,11 +553,14 @@ def main() -> None:
         parser.error(f"--frames: at least 10, got {args.frames}")
     if args.orbslam3_runs < 1 or args.workers < 1:
         parser.error("--orbslam3-runs and --workers: at least 1")
-    from depotbench.eval.trackers.orbslam3 import PACE_RANGE
+    from depotbench.core.errors import InputError
+    from depotbench.eval.trackers.orbslam3 import PACE, pace_of
+    from depotbench.eval.trackers.registry import parameter_text
 
-    low, high = PACE_RANGE  # the tracker's own bounds on its pace parameter
-    if not low <= args.orbslam3_pace <= high:
-        parser.error(f"--orbslam3-pace: between {low:g} and {high:g}, got {args.orbslam3_pace:g}")
+    try:  # checked as the tracker checks its pace parameter
+        pace_of(((PACE, parameter_text(args.orbslam3_pace)),))
+    except InputError as exc:
+        parser.error(f"--orbslam3-pace: {exc}")
 
     from depotbench.eval.trackers.orbslam3 import available
     from depotbench.eval.trackers.vocabulary import default_vocabulary

@@ -38,12 +38,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from depotbench.core.errors import InputError  # noqa: E402
 from depotbench.detectors.config import DetectorConfig  # noqa: E402
 from depotbench.eval.run.detections import detect_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
-from depotbench.eval.trackers.orbslam3 import PACE, PACE_RANGE  # noqa: E402
-from depotbench.eval.trackers.registry import tracker_parameters  # noqa: E402
+from depotbench.eval.trackers.orbslam3 import PACE, pace_of  # noqa: E402
+from depotbench.eval.trackers.registry import parameter_text, tracker_parameters  # noqa: E402
 from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
 from depotbench.sim.generate import generate  # noqa: E402
@@ -125,10 +126,11 @@ def main() -> None:
         settings = parse_settings(args.set)
     except ConfigError as exc:
         parser.error(f"--set: {exc}")
-    low, high = PACE_RANGE
     for pace in args.orbslam3_pace:
-        if not low <= pace <= high:  # also refuses nan
-            parser.error(f"--orbslam3-pace {pace:g} is out of range [{low:g}, {high:g}]")
+        try:  # checked as the tracker checks its pace parameter
+            pace_of(((PACE, parameter_text(pace)),))
+        except InputError as exc:
+            parser.error(f"--orbslam3-pace: {exc}")
     paths: tuple[Kernels | None, ...] = (None,)
     if args.kernels == "both":
         paths = ORDER

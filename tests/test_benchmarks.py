@@ -137,7 +137,7 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
         assert re.search(rf"^  none\s+pace {pace}\s+[\d.]+x; [\d.]+x$", result.stdout, re.M), result.stdout
     bad = _run(str(BENCHMARKS / "tracking.py"), "--orbslam3-pace", "11")
     assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
-        "--orbslam3-pace 11 is out of range [0, 10]"
+        "--orbslam3-pace: orbslam3: pace = 11 is out of range [0, 10]"
     )
 
 

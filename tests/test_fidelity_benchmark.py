@@ -127,7 +127,7 @@ def test_a_failed_run_ranks_worst_and_static_depot_is_judged_on_its_own_checks()
         (["--scenes", "nowhere"], "--scenes: nowhere not in the scene library"),
         (["--frames", "5"], "--frames: at least 10, got 5"),
         (["--orbslam3-runs", "0"], "--orbslam3-runs and --workers: at least 1"),
-        (["--orbslam3-pace", "-1"], "--orbslam3-pace: between 0 and 10, got -1"),
+        (["--orbslam3-pace", "-1"], "--orbslam3-pace: orbslam3: pace = -1 is out of range [0, 10]"),
     ],
 )
 def test_bad_arguments_are_refused_in_one_line_before_any_work(tmp_path, args, message):
