@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
 
 def finite_float(text: str) -> float:
@@ -22,6 +23,11 @@ def positive_float(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
+
+
+def one_per_core() -> int:
+    """The default number of workers: one per core the OS reports, at least one."""
+    return max(1, os.cpu_count() or 1)
 
 
 def workers(text: str) -> int:

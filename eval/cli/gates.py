@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from depotbench.eval.cli.args import workers
+from depotbench.eval.cli.args import one_per_core, workers
 
 EXIT_FAILED = 1
 
@@ -32,7 +31,7 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="the run matrix's folder, resumed if it exists (default: runs/check-NAME)",
     )
-    p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1), help="worker processes")
+    p.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
     p.add_argument("--backend", choices=("local", "ray"), default="local", help="where runs execute")
     p.add_argument(
         "--json", action="store_true", help="print the verdicts as JSON (each run's budgets, the failures)"

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from depotbench.eval.metrics.evaluate import Comparison
 
 from depotbench.eval.cli import choices
-from depotbench.eval.cli.args import finite_float, positive_float, workers
+from depotbench.eval.cli.args import finite_float, one_per_core, positive_float, workers
 
 EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
@@ -141,7 +141,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         help="the main job in small: generate a suite, sweep every strategy, gate, write the HTML report",
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1))
+    p.add_argument("--workers", type=workers, default=one_per_core())
     p.set_defaults(handler=_cmd_demo)
 
 
@@ -200,7 +200,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers",
         type=workers,
-        default=max(1, os.cpu_count() or 1),
+        default=one_per_core(),
         help="parallel worker processes for a suite (default: one per core)",
     )
     p.add_argument(
@@ -526,9 +526,7 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=default["frames"], help="frames rendered per scene")
     p.add_argument("--seed", type=int, default=default["seed"], help="seed of the training scenes")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
-    p.add_argument(
-        "--workers", type=workers, default=max(1, os.cpu_count() or 1), help="scenes rendered at a time"
-    )
+    p.add_argument("--workers", type=workers, default=one_per_core(), help="scenes rendered at a time")
     p.set_defaults(handler=_cmd_vocab)
 
 

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
-from depotbench.eval.cli.args import workers
+from depotbench.eval.cli.args import one_per_core, workers
 
 
 def add_report(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +24,7 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers",
         type=workers,
-        default=max(1, os.cpu_count() or 1),
+        default=one_per_core(),
         help="processes that track a sweep's featured runs again (used from 300 frames in all)",
     )
     p.set_defaults(handler=_cmd_report)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 
 from depotbench.core.errors import InputError
-from depotbench.eval.cli.args import workers
+from depotbench.eval.cli.args import one_per_core, workers
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
@@ -17,7 +16,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("spec", type=Path, help="the sweep spec (see assets/sweeps/)")
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
-    p.add_argument("--workers", type=workers, default=max(1, os.cpu_count() or 1), help="worker processes")
+    p.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
     p.add_argument(
         "--backend",
         choices=("local", "ray"),
