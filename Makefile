@@ -111,7 +111,7 @@ $(VENV)/.installed: pyproject.toml | system-deps
 	@# against 97 s from a clean clone, no cache: docs/performance.md); pip where uv cannot.
 	@# Bytecode is compiled at install, as pip does (uv does not): where PYTHONDONTWRITEBYTECODE
 	@# is set, as in CI and container images, each process otherwise compiles every module it
-	@# imports, ~1 s a process here (the test run spawns hundreds).
+	@# imports, ~1 s a process on 2 cores (the test run starts hundreds).
 	$(BIN)/python -m pip install -q uv && $(BIN)/uv pip install -q --compile-bytecode --python $(BIN)/python $(PACKAGE) \
 		|| $(BIN)/python -m pip install -q $(PACKAGE)
 	touch $@

@@ -8,10 +8,9 @@ rendering. No maintained PNG writer on PyPI uses it, so the container is written
 it is the small part: a signature, IHDR, one IDAT and IEND, each with its CRC. Rows use
 PNG's Sub filter, as the libpng writer did.
 
-The same image gives the same bytes in every process and thread (a sequence's bytes are
-its spec and seed's; libdeflate's output is fixed for a given version). ISA-L, used
-before, did not: in a long-lived process two writes of one depth frame once deflated
-to 6232 and 6233 bytes, the same pixels.
+The same image gives the same bytes in every process and thread: a sequence's bytes are
+its spec and seed's, and libdeflate's output is fixed for a given version (a faster
+deflate that kept state between calls wrote one frame two ways: docs/performance.md).
 """
 
 from __future__ import annotations
