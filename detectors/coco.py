@@ -10,7 +10,9 @@ model's person is another id in every export. So:
   go through it, so 'dining table', 'diningtable' and 'desk' are one class everywhere;
 - ``coco_name`` is the other way, for the bench's classes COCO has (all but the pig);
 - ``EXPORT_CLASSES`` is the export's class numbering: COCO's 80 by their index (as
-  Ultralytics' coco.yaml numbers them, 0..79), then ``BENCH_ONLY`` from 80 on.
+  Ultralytics' coco.yaml numbers them, 0..79), then ``BENCH_ONLY`` from 80 on;
+- ``EXPORT_CATEGORY_IDS`` is the same classes' numbering in COCO json, which is not the
+  index: COCO's own category ids (1..90 with gaps), then ``BENCH_ONLY`` from 91 on.
 """
 
 from __future__ import annotations
@@ -29,6 +31,16 @@ COCO_CLASSES: tuple[str, ...] = (
 )  # fmt: skip
 """COCO 2017's 80 detection classes in index order 0..79, spelled as Ultralytics' coco.yaml
 spells them (tests hold this against that file and the shipped Darknet coco.names)."""
+
+COCO_CATEGORY_IDS: tuple[int, ...] = (
+    1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 27, 28,
+    31, 32, 33, 34, 35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 46, 47, 48, 49, 50, 51, 52, 53, 54, 55,
+    56, 57, 58, 59, 60, 61, 62, 63, 64, 65, 67, 70, 72, 73, 74, 75, 76, 77, 78, 79, 80, 81, 82, 84,
+    85, 86, 87, 88, 89, 90,
+)  # fmt: skip
+"""COCO's own ``category_id`` of each of ``COCO_CLASSES``, in the same order: the 2014 paper
+numbered 91 categories and the detection set keeps 80 of them with their ids, so ids run 1..90
+with 10 gaps (person 1, cat 17, dog 18, dining table 67, tv 72), not index + 1."""
 
 DARKNET_SPELLINGS: dict[str, str] = {
     "tvmonitor": "tv",
@@ -50,6 +62,15 @@ new one at the end, never reorder, so an id once exported keeps its meaning."""
 
 EXPORT_CLASSES: tuple[str, ...] = COCO_CLASSES + BENCH_ONLY
 """The export's class names in id order (data.yaml's ``names``)."""
+
+FIRST_BENCH_CATEGORY_ID = max(COCO_CATEGORY_IDS) + 1
+"""COCO json ``category_id`` of the first class COCO lacks (pig 91): after COCO's highest, 90,
+so no id of a COCO-trained model's table means a bench class."""
+
+EXPORT_CATEGORY_IDS: tuple[int, ...] = COCO_CATEGORY_IDS + tuple(
+    range(FIRST_BENCH_CATEGORY_ID, FIRST_BENCH_CATEGORY_ID + len(BENCH_ONLY))
+)
+"""The COCO json ``category_id`` of each of ``EXPORT_CLASSES``, in the same order."""
 
 _BENCH_OF_COCO = {coco: bench for bench, coco in COCO_OF_BENCH.items()}
 

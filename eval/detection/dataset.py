@@ -13,9 +13,11 @@ image folder serves both formats:
 Boxes are the true visible boxes (``gt/objects.jsonl``); objects with fewer than
 ``min_visible_pixels`` visible pixels are left out.
 
-Class ids are COCO's (``depotbench.detectors.coco``: person 0, the desk as dining table 60,
-tv 62), then the bench's classes COCO lacks (pig 80): the same class has the same id in
-every export, whatever its scenes hold, and a COCO-trained model's ids mean the same.
+Class ids are COCO's (``depotbench.detectors.coco``): in YOLO labels the index (person 0, the
+desk as dining table 60, tv 62), in COCO json COCO's own category ids (person 1, dining table
+67, tv 72: 1..90 with gaps), then the bench's classes COCO lacks (pig: 80 in YOLO, 91 in COCO
+json). The same class has the same id in every export, whatever its scenes hold, and a
+COCO-trained model's ids mean the same.
 ``data.yaml`` gives the folder's absolute ``path``: Ultralytics reads a relative one
 against the working directory (or its datasets folder), not against the file.
 """
@@ -38,7 +40,7 @@ from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_IMAGE_BYTES, dumps_json
 from depotbench.core.output import OutputError, OutputKind, StagedOutput
 from depotbench.core.progress import progress_bar
-from depotbench.detectors.coco import EXPORT_CLASSES, bench_name, export_name
+from depotbench.detectors.coco import EXPORT_CATEGORY_IDS, EXPORT_CLASSES, bench_name, export_name
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import Sequence, timestamp_name
 
@@ -58,6 +60,9 @@ class ClassTable:
     e.g. a kind registered at run time): their ids depend on what this export holds."""
     names_file: str | None = None
     """Where the numbering came from: a ``--names`` file, or None for COCO's."""
+    category_ids: tuple[int, ...] = ()
+    """COCO json's ``category_id`` of each of ``names``, in order: COCO's own ids for COCO's
+    table (not the index + 1, which made the dog COCO's cat), line number for a names file."""
 
     @classmethod
     def coco(cls, present: set[str]) -> ClassTable:
@@ -67,7 +72,9 @@ class ClassTable:
         ids = {c: index[name] for c in present if (name := export_name(c)) is not None}
         appended = tuple(sorted(c for c in present if c not in ids))
         ids |= {c: len(EXPORT_CLASSES) + k for k, c in enumerate(appended)}
-        return cls(EXPORT_CLASSES + appended, tuple(sorted(ids.items())), appended)
+        after = max(EXPORT_CATEGORY_IDS) + 1
+        category_ids = EXPORT_CATEGORY_IDS + tuple(range(after, after + len(appended)))
+        return cls(EXPORT_CLASSES + appended, tuple(sorted(ids.items())), appended, None, category_ids)
 
     @classmethod
     def from_names(cls, names: list[str], shown: str) -> ClassTable:
@@ -83,7 +90,8 @@ class ClassTable:
                 same = "given twice" if first == name else f"the bench's {bench!r}, as {first!r} is"
                 raise InputError(f"{shown}: needs distinct class names, one a line; {name!r} is {same}")
             ids[bench] = i
-        return cls(tuple(names), tuple(sorted(ids.items())), names_file=shown)
+        category_ids = tuple(range(1, len(names) + 1))  # COCO json's ids start at 1
+        return cls(tuple(names), tuple(sorted(ids.items())), names_file=shown, category_ids=category_ids)
 
 
 @dataclass(frozen=True)
@@ -199,7 +207,7 @@ class _Exporter:
         self.options = options
         self.root = root
         self.skipped: dict[str, int] = {}
-        categories = [{"id": i + 1, "name": c} for i, c in enumerate(table.names)]
+        categories = [{"id": i, "name": c} for i, c in zip(table.category_ids, table.names, strict=True)]
         self.coco = {part: {"images": [], "annotations": [], "categories": categories} for part in PARTS}
         self.counts = {part: {"images": 0, "boxes": 0} for part in PARTS}
         files.mkdirs(*(f"{kind}/{part}" for kind in ("images", "labels") for part in PARTS), "annotations")
@@ -245,7 +253,7 @@ class _Exporter:
                 {
                     "id": len(self.coco[part]["annotations"]) + 1,
                     "image_id": image_id,
-                    "category_id": c + 1,
+                    "category_id": self.table.category_ids[c],
                     "bbox": [x0, y0, x1 - x0, y1 - y0],
                     "area": o.visible_pixels,
                     "iscrowd": 0,
