@@ -62,11 +62,14 @@ from depotbench.core.errors import InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
 from depotbench.eval.metrics.record import typed
 from depotbench.eval.metrics.trajectory import read_tum
+from depotbench.eval.trackers import sandbox
 from depotbench.eval.trackers.base import TrackerError, TrackerRun
+from depotbench.eval.trackers.evidence import collect
 from depotbench.eval.trackers.external import poses_by_frame, run_child, write_settings
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.protocol import read_keypoints, read_map, write_detections
 from depotbench.eval.trackers.reaper import Scratch
+from depotbench.eval.trackers.sequence_view import SequenceGuard
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence, timestamp_name
 from depotbench.slam.types import TrackingState
@@ -232,28 +235,41 @@ class CommandTracker:
             argv = [self.program, *(self._word(word, values) for word in self.words[1:])]
             if _placeholder(self.words[0], self.known) is not None:
                 argv[0] = values[_placeholder(self.words[0], self.known)]
-            child = run_child(
-                argv,
-                what=what,
-                cwd=scratch.path,
-                timeout_s=self.timeout_s,
-                frames=len(sequence),
-                progress=progress,
-                env=self._environment(values),
-                group=scratch.group,
-                program=self.shown,
-            )
-            trajectory = Path(values["trajectory"])
-            if not trajectory.is_file():
-                raise TrackerError(f"{what}: wrote no trajectory ({trajectory.name})", child.log)
+            env = self._environment(values)
+            guard = SequenceGuard.before(sequence, Path(values["sequence"]))
+            changed = None
             try:
-                stamps, poses = _estimate(trajectory)
-                keypoints = Path(values["keypoints"])
-                decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
-                drawn = Path(values["map"])
-                cloud = read_map(drawn) if os.path.lexists(drawn) else None
-            except InputError as exc:  # what the program wrote cannot be read: its failure, named
-                raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
+                try:
+                    child = run_child(
+                        argv,
+                        what=what,
+                        cwd=scratch.path,
+                        timeout_s=self.timeout_s,
+                        frames=len(sequence),
+                        progress=progress,
+                        env=env,
+                        group=scratch.group,
+                        program=self.shown,
+                    )
+                finally:  # a failed program may have changed it too
+                    changed = guard.change(what)
+                if changed is not None:
+                    raise TrackerError(changed, child.log)
+                trajectory = Path(values["trajectory"])
+                if not trajectory.is_file():
+                    raise TrackerError(f"{what}: wrote no trajectory ({trajectory.name})", child.log)
+                try:
+                    stamps, poses = _estimate(trajectory)
+                    keypoints = Path(values["keypoints"])
+                    decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
+                    drawn = Path(values["map"])
+                    cloud = read_map(drawn) if os.path.lexists(drawn) else None
+                except InputError as exc:  # what the program wrote cannot be read: its failure, named
+                    raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
+            except TrackerError as exc:  # kept now: the scratch folder goes with the run
+                reason = str(exc) if changed is None or changed == str(exc) else f"{exc}; {changed}"
+                evidence = collect(scratch.path, argv, self._set_here(env))
+                raise TrackerError(reason, exc.log, evidence) from None
         run = _tracker_run(frames, stamps, poses, child.wall_s)
         return dataclasses.replace(
             run,
@@ -308,6 +324,14 @@ class CommandTracker:
             values["vocabulary"] = str(self.vocabulary().resolve())
         return values | self.parameters
 
+    def _set_here(self, env: dict[str, str]) -> dict[str, str]:
+        """What of ``env`` the bench set: the tracker's own variables and the values."""
+        return {
+            name: value
+            for name, value in env.items()
+            if name in self.env or (name.startswith(ENVIRONMENT_PREFIX) and os.environ.get(name) != value)
+        }
+
     def _environment(self, values: dict[str, str]) -> dict[str, str]:
         """depotbench's environment, the tracker's own variables, and the values as
         ``DEPOTBENCH_SEQUENCE`` and so on (one left unset when it has none, so that a
@@ -349,33 +373,27 @@ class SettingsTemplate:
     """A Jinja2 template of a program's settings file, rendered per run with the camera
     (``camera``), the run's parameters (``params``) and ORB-SLAM's camera block and whole
     default file (``orbslam_camera``, ``orbslam_settings``). Names it is not given are
-    errors (``StrictUndefined``): a misspelt one would otherwise render as nothing."""
+    errors (``StrictUndefined``): a misspelt one would otherwise render as nothing.
 
-    def __init__(self, path: Path, text: str) -> None:
-        import jinja2
+    It is compiled and rendered only in Jinja2's sandbox, in a child process with bounded
+    memory, time and output (``depotbench.eval.trackers.sandbox``): a settings file is
+    data, and nothing in it may reach the bench's host. Every failure is one line naming
+    the tracker (``label``) and the file."""
 
+    def __init__(self, path: Path, text: str, label: str = "cmd") -> None:
         self.path = path
         self.text = text
-        environment = jinja2.Environment(
-            undefined=jinja2.StrictUndefined, keep_trailing_newline=True, autoescape=False
-        )
-        try:
-            self._template = environment.from_string(text)
-        except jinja2.TemplateSyntaxError as exc:
-            raise InputError(
-                f"{path}:{exc.lineno}: the settings template does not parse: {exc.message}"
-            ) from None
+        self.label = label
+        self._render(None, "does not parse")
 
     @classmethod
-    def load(cls, path: Path) -> SettingsTemplate:
+    def load(cls, path: Path, label: str = "cmd") -> SettingsTemplate:
         try:
-            return cls(path, read_text(path, MAX_SPEC_BYTES, "settings template"))
+            return cls(path, read_text(path, MAX_SPEC_BYTES, "settings template"), label)
         except FileNotFoundError:
-            raise InputError(f"{path}: the settings template does not exist") from None
+            raise InputError(f"{label}: {path}: the settings template does not exist") from None
 
     def render(self, sequence: Sequence, parameters: dict[str, str]) -> str:
-        import jinja2
-
         k = sequence.intrinsics
         whole = orbslam_yaml(k, OrbSlamSettings(fps=sequence.fps)).splitlines()
         camera_block = [line for line in whole if line.startswith(("Camera.", "DepthMapFactor"))]
@@ -395,10 +413,17 @@ class SettingsTemplate:
             "orbslam_camera": "\n".join(camera_block),
             "orbslam_settings": "\n".join(line for line in whole if not line.startswith("%YAML")),
         }
+        return self._render(variables, "cannot be rendered")
+
+    def _render(self, variables: dict | None, failing: str) -> str:
+        """The output, capped like a spec file (``MAX_SPEC_BYTES``): the program reads it."""
         try:
-            return self._template.render(**variables)
-        except jinja2.TemplateError as exc:
-            raise InputError(f"{self.path}: the settings template cannot be rendered: {exc}") from None
+            return sandbox.render(self.text, variables, MAX_SPEC_BYTES)
+        except sandbox.TemplateRefused as exc:
+            where = f"{self.path}:{exc.line}" if exc.line else str(self.path)
+            raise InputError(
+                f"{self.label}: {where}: the settings template {failing}: {exc.reason}"
+            ) from None
 
 
 def _write_associations(frames: FrameSource, path: Path) -> Path:
@@ -443,7 +468,9 @@ def build(tracker, config, progress: bool, stages: list | None = None) -> Comman
 
     if not tracker.command:
         raise InputError("--slam cmd needs --command TEMPLATE")
-    settings = SettingsTemplate.load(tracker.settings_template) if tracker.settings_template else None
+    settings = (
+        SettingsTemplate.load(tracker.settings_template, tracker.label) if tracker.settings_template else None
+    )
     return CommandTracker(
         tracker.command,
         (lambda: tracker.vocabulary or default_vocabulary(progress)),

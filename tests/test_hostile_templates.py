@@ -1,0 +1,196 @@
+"""A user's settings and command templates against a hostile author (issue 50).
+
+A settings template is data: it renders in Jinja2's immutable sandbox, in a child with
+bounded memory, time and output, and every failure is one line naming the tracker and
+the file (N1, O1, O9, N12, N21), under the template directly, ``validate``, ``run`` and
+the pytest plugin. A shell's script is never a placeholder, however the shell is
+reached (N2, S3). The probe's findings are in ../shared/reliability-probe-2.md.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+from depotbench.core.errors import InputError
+from depotbench.eval.trackers.command import SettingsTemplate
+from depotbench.sim.sequence import Sequence
+
+from tests.sequences import write_sequence
+from tests.test_output import cli, one_error_line
+
+HANG_GUARD_S = 10.0
+"""A hostile template is refused in about 0.5 s (a child's start); this only catches a hang."""
+TOUCH = "touch {mark}"
+
+
+def hostile(mark: Path) -> dict[str, str]:
+    """The probe's hostile templates; those that reach the host would create ``mark``."""
+    touch = TOUCH.format(mark=mark)
+    return {
+        "cycler": f"{{{{ cycler.__init__.__globals__.os.popen('{touch}').read() }}}}",
+        "self": f"{{{{ self.__init__.__globals__.__builtins__.__import__('os').system('{touch}') }}}}",
+        "lipsum": f"{{{{ lipsum.__globals__['os'].popen('{touch}').read() }}}}",
+        "joiner": f"{{{{ joiner.__init__.__globals__.os.popen('{touch}').read() }}}}",
+        "namespace": f"{{{{ namespace.__init__.__globals__.os.popen('{touch}').read() }}}}",
+        "attr": "{{ ''|attr('__class__') }}",
+        "include": "{% include 'x' %}",
+        "import": "{% import 'x' as y %}",
+        "extends": "{% extends 'x' %}",
+        "format": "{{ '{0.__class__.__mro__}'.format(1) }}",
+        "recursion": "{% macro f(n) %}{{ f(n) }}{% endmacro %}{{ f(1) }}",
+        "string-bomb": "{{ 'x' * 4000000000 }}",
+        "power-bomb": "{{ 10 ** (10 ** 9) }}",
+        "range-bomb": "{{ range(100000000)|list }}",
+        "loop-bomb": "{% for i in range(10**6) %}{{ 'y' * 1000 }}{% endfor %}",
+        "output-bomb": "{% for i in range(100000) %}{{ 'y' * 1000 }}{% endfor %}",
+        "concat-bomb": "{% set x = 'x' * 1000000 %}" + "{% set x = x ~ x %}" * 12 + "{{ x|length }}",
+        "width-bomb": "{{ 'x'|center(4000000000) }}",
+        "spin": "{% for i in range(100000) %}{% for j in range(100000) %}{% endfor %}{% endfor %}",
+        "zero": "{{ 1 / 0 }}",
+    }
+
+
+HOSTILE = tuple(hostile(Path("/x")))
+
+
+@pytest.fixture(scope="module")
+def camera_sequence(tmp_path_factory: pytest.TempPathFactory) -> Sequence:
+    root = tmp_path_factory.mktemp("camera") / "seq"
+    write_sequence(root, n=2, with_flow=False)
+    return Sequence.open(root)
+
+
+@pytest.mark.parametrize("name", HOSTILE)
+def test_a_hostile_settings_template_is_one_line_and_reaches_nothing(
+    name: str, camera_sequence: Sequence, tmp_path: Path
+):
+    """N1/O1/O9/N12/N21: a plain jinja2.Environment ran ``os.popen`` from ``cycler``,
+    raised TypeError (include), RecursionError, MemoryError, took 20 s for a range, and
+    rendered a 100 MB loop; each is now refused in one line naming tracker and file."""
+    mark = tmp_path / "X"
+    path = tmp_path / f"{name}.j2"
+    started = time.monotonic()
+    with pytest.raises(InputError) as refused:
+        SettingsTemplate(path, hostile(mark)[name], "mine").render(camera_sequence, {})
+    elapsed = time.monotonic() - started
+    print(f"{name}: refused in {elapsed:.2f} s: {refused.value}")
+    assert elapsed < HANG_GUARD_S
+    line = str(refused.value)
+    assert "\n" not in line and "Traceback" not in line
+    assert line.startswith(f"mine: {path}") and "the settings template" in line
+    assert not mark.exists()
+
+
+@pytest.mark.parametrize(
+    "text, why",
+    [
+        ("a: 1\n{% for %}\n", ":2: the settings template does not parse"),
+        ("{{ nothing }}", "'nothing' is undefined"),
+        ("{{ camera.fx.real.__class__ }}", "unsafe"),
+    ],
+)
+def test_a_template_error_names_the_tracker_the_file_and_the_line(
+    text: str, why: str, camera_sequence: Sequence, tmp_path: Path
+):
+    with pytest.raises(InputError, match="^mine: ") as refused:
+        SettingsTemplate(tmp_path / "t.j2", text, "mine").render(camera_sequence, {})
+    assert why in str(refused.value) and str(tmp_path / "t.j2") in str(refused.value)
+
+
+def test_a_sandboxed_template_still_renders_what_a_settings_file_needs(
+    camera_sequence: Sequence, tmp_path: Path
+):
+    text = (
+        "fx: {{ camera.fx }}\n{% for name, v in camera.distortion.items() %}{{ name }}={{ v }} {% endfor %}\n"
+        "{% set ns = namespace(n=0) %}{% for i in range(3) %}{% set ns.n = ns.n + i %}{% endfor %}"
+        "n: {{ ns.n }} {{ params.alpha * 2 }} {{ 'ab' * 2 }} {{ 2 ** 10 }}\n{{ orbslam_camera }}\n"
+    )
+    out = SettingsTemplate(tmp_path / "t.j2", text).render(camera_sequence, {"alpha": "1.5"})
+    k = camera_sequence.intrinsics
+    assert out.startswith(f"fx: {k.fx}\nk1=") and "n: 3 3.0 abab 1024\n" in out
+    assert f"Camera.fx: {k.fx}" in out.replace(".0\n", "\n") or f"Camera.fx: {k.fx:g}" in out
+
+
+# -- the entry points: validate (a child process), run, the pytest plugin ---------------------
+
+
+def _spec(folder: Path, template: Path, sequence: Path) -> Path:
+    spec = folder / "spec.yaml"
+    spec.write_text(
+        f"sweep: hostile\nsequences: [{sequence}]\nstrategies: [none]\ntrackers:\n"
+        f"  - name: mine\n    command: 'true {{sequence}}'\n    settings: {template.name}\n"
+    )
+    return spec
+
+
+def test_validate_of_a_sweep_with_a_hostile_template_runs_nothing(camera_sequence: Sequence, tmp_path: Path):
+    """O1: ``depotbench validate`` created X from the cycler template."""
+    mark = tmp_path / "X"
+    template = tmp_path / "hostile.j2"
+    template.write_text(hostile(mark)["cycler"])
+    spec = _spec(tmp_path, template, camera_sequence.root)
+    done = subprocess.run(
+        [sys.executable, "-m", "depotbench.eval.cli.main", "validate", str(spec)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode != 0, done.stdout
+    one_error_line(done.stderr, "mine", str(template), "__init__", "unsafe")
+    assert not mark.exists()
+
+
+def test_run_with_a_hostile_template_runs_nothing_and_writes_nothing(
+    camera_sequence: Sequence, tmp_path: Path, capsys
+):
+    mark = tmp_path / "X"
+    template = tmp_path / "hostile.j2"
+    template.write_text(hostile(mark)["lipsum"])
+    out = tmp_path / "r"
+    code, _, err = cli(
+        capsys,
+        "run",
+        camera_sequence.root,
+        "-o",
+        out,
+        "--slam",
+        "cmd",
+        "--command",
+        "true {sequence}",
+        "--settings-template",
+        template,
+    )
+    assert code == 2
+    one_error_line(err, str(template), "__globals__", "unsafe")
+    assert not mark.exists() and not out.exists()
+
+
+@pytest.mark.render
+@pytest.mark.slow  # 13 s: it generates a sequence
+def test_the_pytest_plugin_refuses_a_hostile_template_in_one_line(pytester, tmp_path: Path):
+    mark = tmp_path / "X"
+    (pytester.path / "hostile.j2").write_text(hostile(mark)["namespace"])
+    tracker = {"name": "mine", "command": "true {sequence}", "settings": "hostile.j2"}
+    pytester.makepyfile(
+        textwrap.dedent(
+            f"""
+            import pytest
+            from depotbench.core.errors import InputError
+
+            def test_refused(depotbench_run):
+                with pytest.raises(InputError) as caught:
+                    depotbench_run("smoke", strategy="none", frames=3, tracker={tracker!r})
+                print("REFUSED:", caught.value)
+                assert "\\n" not in str(caught.value)
+            """
+        )
+    )
+    result = pytester.runpytest_subprocess("--depotbench-workers=1", "-p", "no:cacheprovider", "-s")
+    result.assert_outcomes(passed=1)
+    result.stdout.fnmatch_lines(["*REFUSED: *mine*hostile.j2*the settings template*unsafe*"])
+    assert not mark.exists()
