@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from depotbench.eval.cli.camera import add_camera_options, camera_from_args
+
 STORAGES = ("mcap", "sqlite3")
 """``depotbench.eval.export.rosbag.BagStorage``."""
 DEPTHS = ("m", "mm", "raw")
@@ -48,6 +50,7 @@ def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--compress", action="store_true", help="zstd-compress the MCAP chunks (mcap only)")
     p.add_argument("--overwrite", action="store_true", help="replace a bag depotbench wrote")
+    add_camera_options(p)
     p.set_defaults(handler=_cmd_export_rosbag)
 
 
@@ -63,6 +66,7 @@ def _cmd_export_rosbag(args: argparse.Namespace) -> int:
         namespace=args.namespace,
         compress=args.compress,
         overwrite=args.overwrite,
+        camera=camera_from_args(args),
     )
     messages = sum(t.count for t in summary.topics)
     print(

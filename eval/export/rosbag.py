@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+from depotbench.core.camera import FALLBACKS, CameraOverride, CameraSource
 from depotbench.core.errors import InputError
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.progress import progress_bar
@@ -263,13 +264,18 @@ def write_bag(
     compress: bool = False,
     overwrite: bool = False,
     progress: bool = True,
+    camera: CameraOverride | None = None,
 ) -> BagSummary:
     """Write the sequence at ``sequence_path`` as a rosbag2 folder at ``bag_path``.
 
     A real TUM folder exports too: its ground truth (100 Hz motion capture) goes in at its own
     timestamps, a folder without ``groundtruth.txt`` gets no pose topics, and ``detections``
-    is refused (it has no ground-truth boxes). ``compress`` zstd-compresses MCAP chunks, which
-    every MCAP reader undoes; SQLite bags are written plain.
+    is refused (it has no ground-truth boxes). Its camera is its ``camera.yaml`` or ``camera``
+    (as ``run`` takes one); with neither it is refused, not guessed as ``run`` guesses (with a
+    warning): CameraInfo carries the guess into every node that plays the bag, with no
+    warning there (the ROS default's fx 525 against a true 400 is 31 % off).
+    ``compress`` zstd-compresses MCAP chunks, which every MCAP reader undoes; SQLite bags are
+    written plain.
     """
     storage = parse_choice(BagStorage, storage, "storage")
     depth = parse_choice(DepthUnit, depth, "depth")
@@ -278,7 +284,8 @@ def write_bag(
     if compress and storage is not BagStorage.MCAP:
         raise InputError("compression applies to MCAP bags (zstd chunks); drop it or use storage mcap")
     sequence_path, bag_path = Path(sequence_path), Path(bag_path)
-    sequence = Sequence.open(sequence_path)
+    sequence = Sequence.open(sequence_path, camera=camera)
+    _check_camera(sequence)
     objects = None
     if detections:
         if not sequence.is_generated:
@@ -288,6 +295,11 @@ def write_bag(
             )
         objects = sequence.objects()
     notes = []
+    if sequence.camera_source.depth_factor_source in FALLBACKS:
+        notes.append(
+            f"depth factor {sequence.intrinsics.depth_scale:g} per metre, TUM's (no camera.yaml): "
+            "give --depth-factor F for a folder whose depth PNGs use another"
+        )
     if sequence.groundtruth is None:
         notes.append(f"no groundtruth.txt: no {names.tf}, {names.pose} or {names.path}")
     store = typestore(detections)
@@ -309,6 +321,27 @@ def write_bag(
     return BagSummary(bag_path, storage, depth, len(sequence), topics, size, tuple(notes))
 
 
+def _check_camera(sequence: Sequence) -> None:
+    """Refuse a real folder whose calibration would be a guess from its name; where the name
+    names a TUM sensor, the line spells out that sensor's published calibration as flags."""
+    source = sequence.camera_source
+    if not source.fallback:
+        return
+    hint = ""
+    if source.source is CameraSource.TUM:
+        k = sequence.intrinsics
+        numbers = " ".join(f"{v:g}" for v in (k.fx, k.fy, k.cx, k.cy))
+        distortion = " ".join(f"{v:g}" for v in k.distortion) if any(k.distortion) else ""
+        hint = f" (for {source.detail}: --intrinsics {numbers}" + (
+            f" --distortion {distortion})" if distortion else ")"
+        )
+    raise InputError(
+        f"{sequence.root}: no camera.yaml and no camera given, and a bag's CameraInfo must hold "
+        "the folder's own calibration, not a guess; give --camera FILE (an ORB-SLAM settings "
+        f"file) or --intrinsics FX FY CX CY [--distortion K1 K2 P1 P2 [K3]] [--depth-factor F]{hint}"
+    )
+
+
 def typestore(detections: bool = False) -> Typestore:
     """Humble's message types, with vision_msgs' when detections are written."""
     store = get_typestore(TYPESTORE)
@@ -327,6 +360,7 @@ def _custom_data(sequence: Sequence, form: DepthForm, names: TopicNames) -> dict
         "depotbench.sequence": sequence.root.resolve().name,
         "depotbench.depth": form.meaning,
         "depotbench.depth_scale": f"{sequence.intrinsics.depth_scale:g}",
+        "depotbench.camera": f"{sequence.camera_source.source.value}: {sequence.camera_source.detail}",
         "depotbench.poses": (
             f"{names.tf} {WORLD_FRAME} -> {names.optical_frame} and {names.pose}: groundtruth.txt's "
             "camera-to-world pose of the optical frame (x right, y down, z forward)"
