@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 from depotbench.core.errors import InputError
-from depotbench.eval.trackers.command import SettingsTemplate
+from depotbench.eval.trackers.command import SettingsTemplate, parse_template
 from depotbench.sim.sequence import Sequence
 
 from tests.sequences import write_sequence
@@ -194,3 +194,70 @@ def test_the_pytest_plugin_refuses_a_hostile_template_in_one_line(pytester, tmp_
     result.assert_outcomes(passed=1)
     result.stdout.fnmatch_lines(["*REFUSED: *mine*hostile.j2*the settings template*unsafe*"])
     assert not mark.exists()
+
+
+# -- N2/S3: a placeholder is never an interpreter's code ----------------------------------------
+
+
+@pytest.mark.parametrize(
+    "template",
+    [
+        "sh -c -- {sequence}",
+        "bash -c -- {sequence}",
+        "sh -c -x {sequence}",
+        "env -- sh -c -- {sequence}",
+        "env A=B sh -c {sequence}",
+        "/usr/bin/env sh -c {sequence}",
+        "busybox sh -c {sequence}",
+        "nice sh -c {sequence}",
+        "timeout 5 sh -c {sequence}",
+        "sh -xc {sequence}",
+        "bash -o errexit -c {sequence}",
+        "bash +o posix -e -c -- {settings}",
+        "bash --rcfile /dev/null -c {sequence}",
+        "python3 -c {sequence}",
+        "python3.11 -W ignore -c {sequence}",
+        "perl -e 1 -e {sequence}",
+    ],
+)
+def test_a_placeholder_is_never_the_script_of_an_interpreter(template: str):
+    """N2: options between -c and the script, ``--``, and a shell behind env, nice,
+    timeout or busybox slipped past the check of the word right after ``-c``."""
+    with pytest.raises(InputError, match="would run its value as commands") as refused:
+        parse_template(template)
+    assert "{sequence}" in str(refused.value) or "{settings}" in str(refused.value)
+
+
+@pytest.mark.parametrize(
+    "template",
+    [
+        "sh -c 'exec slam \"$1\"' sh {sequence}",
+        "sh -c -- 'exec slam \"$1\"' sh {sequence}",
+        "bash -o errexit my_slam.sh {sequence}",
+        "python3 my_slam.py -c {settings}",
+        "python3 -m my_slam -c {settings}",
+        "slam -c {settings}",
+    ],
+)
+def test_a_placeholder_as_an_argument_of_an_interpreter_is_fine(template: str):
+    assert parse_template(template)
+
+
+def test_a_hostile_folder_name_reaches_no_shell_through_env_and_options(tmp_path: Path, capsys):
+    """N2 end to end: ``env -- sh -c -- {sequence}`` ran a folder's name as commands."""
+    hostile_folder = tmp_path / "s;touch X;"
+    write_sequence(hostile_folder, n=2, with_flow=False)
+    code, _, err = cli(
+        capsys,
+        "run",
+        hostile_folder,
+        "-o",
+        tmp_path / "r",
+        "--slam",
+        "cmd",
+        "--command",
+        "env -- sh -c -- {sequence}",
+    )
+    assert code == 2
+    one_error_line(err, "{sequence} is the script of sh -c", "a shell would run its value as commands")
+    assert not (tmp_path / "X").exists() and not Path("X").exists() and not (tmp_path / "r").exists()

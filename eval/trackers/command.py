@@ -35,7 +35,8 @@ every value is also in ``DEPOTBENCH_SEQUENCE``, ``DEPOTBENCH_ASSOCIATIONS``,
 ``DEPOTBENCH_KEYPOINTS``, ``DEPOTBENCH_PARAMETERS``, ``DEPOTBENCH_PARAM_NAME`` for each
 parameter and, when the template names ``{vocabulary}`` or ``DEPOTBENCH_VOCABULARY``
 (building one takes minutes), ``DEPOTBENCH_VOCABULARY``. For the same reason a
-placeholder may not be the script of a shell (``sh -c {sequence}``).
+placeholder may not be the code of an interpreter (``sh -c -x -- {sequence}``,
+``python3 -c {sequence}``: ``INTERPRETERS``).
 
 The program runs in a scratch folder (its working directory) in ``$TMPDIR``; a
 program word with a slash (``./my_slam.sh``) is found from the folder depotbench was
@@ -55,19 +56,19 @@ import shlex
 import shutil
 import string
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
 from depotbench.eval.metrics.record import typed
-from depotbench.eval.metrics.trajectory import read_tum
 from depotbench.eval.trackers import sandbox
 from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.evidence import collect
-from depotbench.eval.trackers.external import poses_by_frame, run_child, write_settings
+from depotbench.eval.trackers.external import run_child, write_settings
 from depotbench.eval.trackers.frames import FrameSource
-from depotbench.eval.trackers.protocol import read_keypoints, read_map, write_detections
+from depotbench.eval.trackers.protocol import read_keypoints, read_map, read_trajectory, write_detections
 from depotbench.eval.trackers.reaper import Scratch
 from depotbench.eval.trackers.sequence_view import SequenceGuard
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
@@ -89,9 +90,39 @@ PARAMETER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.]{0,63}")
 """A parameter's name: also a placeholder, and ``DEPOTBENCH_PARAM_`` + its upper case."""
 DEFAULT_TRAJECTORY = "CameraTrajectory.txt"
 ENVIRONMENT_PREFIX = "DEPOTBENCH_"
-SHELLS = frozenset({"sh", "bash", "dash", "zsh", "ksh", "mksh", "ash", "yash", "fish", "busybox"})
-SCRIPT_OPTION = re.compile(r"-[A-Za-z]*c[A-Za-z]*")
-"""``-c`` and clusters holding it (``-ec``, ``-lc``): the next word is a shell's script."""
+
+
+@dataclass(frozen=True)
+class Interpreter:
+    """How a program that runs code from its command line is told that code, so that a
+    placeholder as that code can be refused: a shell's ``-c`` is a flag (its script is the
+    first word after all its options: ``sh -c -x -- SCRIPT``); python's ``-c`` and perl's
+    ``-e`` take the next word as the script."""
+
+    script: str
+    """Option letters that give a script (``-c``, clusters such as ``-ec`` included)."""
+    flag: bool
+    """The script is the first word after the options (a shell), not the option's value."""
+    takes: str = ""
+    """Option letters that take the next word as their value (``sh -o errexit``)."""
+    long_takes: frozenset[str] = frozenset()
+    """Long options that take the next word (``bash --rcfile FILE``)."""
+    ends: str = ""
+    """Option letters after which the words are another program's (``python -m MODULE``)."""
+
+
+SHELL = Interpreter("c", flag=True, takes="oO", long_takes=frozenset({"--rcfile", "--init-file"}))
+SHELLS = frozenset({"sh", "bash", "dash", "zsh", "ksh", "mksh", "ash", "yash", "fish", "busybox", "su"})
+INTERPRETERS: dict[str, Interpreter] = {
+    **dict.fromkeys(SHELLS, SHELL),
+    "python": Interpreter("c", flag=False, takes="WX", ends="m"),
+    "perl": Interpreter("eE", flag=False),
+    "ruby": Interpreter("e", flag=False),
+    "node": Interpreter("ep", flag=False, takes="r"),
+}
+"""Programs that run a word of their command line as code, by name (a version suffix,
+``python3.11``, ``bash5``, and a folder are ignored). Which other programs parse a value
+again (``ssh``, ``make``) cannot be told from here: for them the rule is the environment."""
 
 
 def parse_template(template: str, parameters: tuple[str, ...] = ()) -> list[str]:
@@ -145,16 +176,59 @@ def _check_word(word: str, known: tuple[str, ...]) -> None:
 
 
 def _refuse_shell_scripts(words: list[str], known: tuple[str, ...]) -> None:
-    """``sh -c {sequence}`` would run a folder's name as shell commands."""
-    shell = None
-    for option, word in zip(words, words[1:], strict=False):
-        if Path(option).name in SHELLS:
-            shell = Path(option).name
-        elif shell and SCRIPT_OPTION.fullmatch(option) and _placeholder(word, known):
-            raise InputError(
-                f"--command: {word} is the script of {shell} {option}: a shell would run "
-                f"its value as commands; pass it as an argument (sh -c 'cd \"$1\" && ...' sh {word})"
-            )
+    """``sh -c {sequence}`` would run a folder's name as shell commands: a placeholder is
+    never the code of an interpreter anywhere in the command (``env A=B sh -c -- {x}``,
+    ``timeout 5 bash -o errexit -c {x}``, ``busybox sh -xc {x}``, ``python3 -c {x}``)."""
+    for at, program in enumerate(words):
+        interpreter = INTERPRETERS.get(_interpreter_name(program))
+        if interpreter is None:
+            continue
+        for index, option in _scripts(words, at, interpreter):
+            if _placeholder(words[index], known):
+                name = Path(program).name
+                raise InputError(
+                    f"--command: {words[index]} is the script of {name} {option}: "
+                    f"{'a shell' if interpreter.flag else name} would run its value as commands; "
+                    f"pass it as an argument (sh -c 'cd \"$1\" && ...' sh {words[index]}) or "
+                    f"from the environment (${ENVIRONMENT_PREFIX}{words[index][1:-1].upper()})"
+                )
+
+
+def _interpreter_name(word: str) -> str:
+    return re.sub(r"[0-9.]+$", "", Path(word).name)
+
+
+def _scripts(words: list[str], at: int, interpreter: Interpreter) -> list[tuple[int, str]]:
+    """The indexes of the words the interpreter ``words[at]`` runs as code, with the option
+    that says so."""
+    found: list[tuple[int, str]] = []
+    flagged = None
+    i = at + 1
+    while i < len(words):
+        word = words[i]
+        if word == "--":
+            i += 1
+            break
+        if len(word) < 2 or word[0] not in "-+":
+            break  # the first word that is no option: a script file, or the script
+        i += 1
+        if word.startswith("--"):
+            i += word in interpreter.long_takes
+            continue
+        for k, letter in enumerate(word[1:], start=1):
+            last = k == len(word) - 1
+            if letter in interpreter.ends:
+                return found
+            if letter in interpreter.script and interpreter.flag:
+                flagged = word
+            elif letter in interpreter.script or letter in interpreter.takes:
+                if last and letter in interpreter.script and i < len(words):
+                    found.append((i, word))
+                i += last  # the value is the next word, or the rest of this one
+                break
+    if flagged is not None and i < len(words):
+        found.append((i, flagged))
+    return found
 
 
 def _placeholder(word: str, known: tuple[str, ...] = PLACEHOLDERS) -> str | None:
@@ -256,12 +330,12 @@ class CommandTracker:
                 if changed is not None:
                     raise TrackerError(changed, child.log)
                 trajectory = Path(values["trajectory"])
-                if not trajectory.is_file():
+                if not os.path.lexists(trajectory):
                     raise TrackerError(f"{what}: wrote no trajectory ({trajectory.name})", child.log)
                 try:
-                    stamps, poses = _estimate(trajectory)
+                    poses = read_trajectory(trajectory, sequence)
                     keypoints = Path(values["keypoints"])
-                    decisions = read_keypoints(keypoints, sequence) if keypoints.is_file() else None
+                    decisions = read_keypoints(keypoints, sequence) if os.path.lexists(keypoints) else None
                     drawn = Path(values["map"])
                     cloud = read_map(drawn) if os.path.lexists(drawn) else None
                 except InputError as exc:  # what the program wrote cannot be read: its failure, named
@@ -270,7 +344,7 @@ class CommandTracker:
                 reason = str(exc) if changed is None or changed == str(exc) else f"{exc}; {changed}"
                 evidence = collect(scratch.path, argv, self._set_here(env))
                 raise TrackerError(reason, exc.log, evidence) from None
-        run = _tracker_run(frames, stamps, poses, child.wall_s)
+        run = _tracker_run(frames, poses, child.wall_s)
         return dataclasses.replace(
             run,
             decisions=decisions,
@@ -346,21 +420,6 @@ class CommandTracker:
             else:
                 env.pop(variable, None)
         return env
-
-
-def _estimate(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The trajectory's timestamps and poses; a file with no pose line is a run that tracked
-    no frame (a row with no ATE), not an unreadable one."""
-    if not any(line.strip() and not line.lstrip().startswith("#") for line in _head_lines(path)):
-        return np.zeros(0), np.zeros((0, 4, 4))
-    estimate = read_tum(path)
-    return estimate.timestamps_s, estimate.poses
-
-
-def _head_lines(path: Path, limit: int = 1 << 16) -> list[str]:
-    """The first lines of a file (enough to see whether it holds a pose line)."""
-    with path.open("rb") as handle:
-        return handle.read(limit).decode("utf-8", "replace").splitlines()
 
 
 def _relative(exc: InputError, scratch: Path) -> str:
@@ -439,11 +498,8 @@ def _write_associations(frames: FrameSource, path: Path) -> Path:
     return path
 
 
-def _tracker_run(
-    frames: FrameSource, timestamps_s: np.ndarray, poses_in: np.ndarray, total_s: float
-) -> TrackerRun:
+def _tracker_run(frames: FrameSource, poses: tuple[np.ndarray | None, ...], total_s: float) -> TrackerRun:
     sequence = frames.sequence
-    poses = poses_by_frame(sequence, timestamps_s, poses_in)
     first = next((i for i, pose in enumerate(poses) if pose is not None), len(poses))
     states = tuple(
         TrackingState.OK
