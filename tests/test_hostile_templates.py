@@ -261,3 +261,28 @@ def test_a_hostile_folder_name_reaches_no_shell_through_env_and_options(tmp_path
     assert code == 2
     one_error_line(err, "{sequence} is the script of sh -c", "a shell would run its value as commands")
     assert not (tmp_path / "X").exists() and not Path("X").exists() and not (tmp_path / "r").exists()
+
+
+# -- N22: a NUL byte never reaches a program ------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "entry, field",
+    [
+        ('    command: "true {sequence}"\n    env: {A: "a\\0b"}\n', "env: 'A'"),
+        ('    command: "true\\0x {sequence}"\n', "command"),
+        ('    command: "true {sequence}"\n    parameters: {p: "a\\0b"}\n', "parameter 'p'"),
+    ],
+)
+def test_a_nul_byte_in_a_trackers_fields_is_refused_by_validate(
+    entry: str, field: str, camera_sequence: Sequence, tmp_path: Path, capsys
+):
+    """N22: validate said ok, then the sweep died with ``ValueError: embedded null byte``."""
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(
+        f"sweep: nul\nsequences: [{camera_sequence.root}]\nstrategies: [none]\n"
+        f"trackers:\n  - name: mine\n{entry}"
+    )
+    code, _, err = cli(capsys, "validate", spec)
+    assert code == 2
+    one_error_line(err, "trackers.0 (mine)", field, "NUL byte")

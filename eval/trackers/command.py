@@ -524,6 +524,7 @@ def build(tracker, config, progress: bool, stages: list | None = None) -> Comman
 
     if not tracker.command:
         raise InputError("--slam cmd needs --command TEMPLATE")
+    _refuse_nul(tracker)
     settings = (
         SettingsTemplate.load(tracker.settings_template, tracker.label) if tracker.settings_template else None
     )
@@ -536,6 +537,22 @@ def build(tracker, config, progress: bool, stages: list | None = None) -> Comman
         settings=settings,
         env=tracker.env,
     )
+
+
+def _refuse_nul(tracker) -> None:
+    """A NUL byte ends a string on its way to a program (``execve``): one in the command,
+    the environment or a parameter ended a whole sweep with ``ValueError: embedded null
+    byte``; it is refused here, naming the field."""
+    fields = [
+        ("command", tracker.command),
+        *((f"env: {name!r}", f"{name}={value}") for name, value in tracker.env),
+        *((f"parameter {name!r}", value) for name, value in tracker.parameters),
+        ("settings", str(tracker.settings_template or "")),
+        ("vocabulary", str(tracker.vocabulary or "")),
+    ]
+    for field, text in fields:
+        if "\0" in text:
+            raise InputError(f"{field}: holds a NUL byte, which cannot reach a program")
 
 
 def check(tracker, camera_sequence: Sequence | None = None) -> None:
