@@ -22,14 +22,14 @@ DEPTH_RAW = 6000
 """Every depth pixel's PNG value: 1.2 m at TUM's 5000 per metre, 6 m at 1000."""
 
 
-def tum_folder(root: Path, width: int, height: int, frames: int = 3) -> Path:
+def tum_folder(root: Path, width: int, height: int, frames: int = 3, start_s: float = 1.0) -> Path:
     """A real TUM-layout folder with no camera.yaml: flat images (a few kB each), depth
-    ``DEPTH_RAW`` everywhere, ground truth at the frames' times."""
+    ``DEPTH_RAW`` everywhere, ground truth at the frames' times (30 Hz from ``start_s``)."""
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
     rgb_lines, depth_lines, gt_lines = [], [], []
     for k in range(frames):
-        t = f"{1.0 + k / 30:.6f}"
+        t = f"{start_s + k / 30:.6f}"
         cv2.imwrite(str(root / "rgb" / f"{t}.png"), np.full((height, width, 3), 40 * k, np.uint8))
         cv2.imwrite(str(root / "depth" / f"{t}.png"), np.full((height, width), DEPTH_RAW, np.uint16))
         rgb_lines.append(f"{t} rgb/{t}.png")

@@ -144,6 +144,15 @@ vision_msgs, so the definitions are registered from their text."""
 
 NAME_PATTERN = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 """A ROS 2 namespace: absolute, tokens of letters, digits and underscores, none starting with a digit."""
+TOPIC_MAX_CHARS = 255 - 8
+"""rmw's ``RMW_TOPIC_MAX_NAME_LENGTH``: a fully qualified topic name of more characters cannot
+be created (DDS topic names end at 256, and ROS 2 keeps 8 for its ``rt/`` style prefixes)."""
+TIME_MAX_S = 2**31
+"""``builtin_interfaces/msg/Time`` holds ``int32 sec`` (and ``uint32 nanosec``): header stamps
+from 0 up to, not including, 2^31 s (2038-01-19)."""
+DATA_STEM = "bag"
+"""The data file's name (``bag.mcap``) where the bag folder's own name leaves no room for the
+suffix: rosbags names the file after its folder, which fails for names of 251-255 bytes."""
 
 
 def _qos(durability: QosDurability, depth: int) -> list[Qos]:
@@ -187,13 +196,18 @@ class TopicNames:
 
     @classmethod
     def under(cls, namespace: str, depth: DepthForm) -> TopicNames:
+        if len(namespace) > TOPIC_MAX_CHARS:  # before the pattern: a 5000-character name is not echoed
+            raise InputError(
+                f"--namespace of {len(namespace)} characters makes topics ROS 2 cannot create "
+                f"(at most {TOPIC_MAX_CHARS} characters a topic); give one like /camera"
+            )
         if not NAME_PATTERN.fullmatch(namespace) or namespace == GROUND_TRUTH_NAMESPACE:
             raise InputError(
                 f"namespace {namespace!r} is not a ROS 2 namespace like /camera "
                 f"(absolute, letters, digits and _, and not {GROUND_TRUTH_NAMESPACE})"
             )
         prefix = namespace.strip("/").replace("/", "_")
-        return cls(
+        names = cls(
             namespace=namespace,
             color_image=f"{namespace}/color/image_raw",
             color_info=f"{namespace}/color/camera_info",
@@ -202,6 +216,28 @@ class TopicNames:
             detections=f"{namespace}/detections",
             optical_frame=f"{prefix}_color_optical_frame",
             body_frame=f"{prefix}_link",
+        )
+        longest = max(names.topics, key=len)
+        if len(longest) > TOPIC_MAX_CHARS:
+            raise InputError(
+                f"--namespace of {len(namespace)} characters makes the topic {longest[len(namespace) :]!r} "
+                f"{len(longest)} characters long; ROS 2 creates at most {TOPIC_MAX_CHARS}, so give at "
+                f"most {TOPIC_MAX_CHARS - len(longest) + len(namespace)}"
+            )
+        return names
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        return (
+            self.color_image,
+            self.color_info,
+            self.depth_image,
+            self.depth_info,
+            self.detections,
+            self.tf,
+            self.tf_static,
+            self.pose,
+            self.path,
         )
 
 
@@ -286,6 +322,7 @@ def write_bag(
     sequence_path, bag_path = Path(sequence_path), Path(bag_path)
     sequence = Sequence.open(sequence_path, camera=camera)
     _check_camera(sequence)
+    _check_times(sequence)
     objects = None
     if detections:
         if not sequence.is_generated:
@@ -304,7 +341,7 @@ def write_bag(
         notes.append(f"no groundtruth.txt: no {names.tf}, {names.pose} or {names.path}")
     store = typestore(detections)
     with StagedOutput(bag_path, OutputKind.ROSBAG, overwrite=overwrite, inputs=(sequence_path,)) as staged:
-        inner = staged.path / staged.target.name  # rosbags names the data file after its folder
+        inner = staged.path / _data_stem(staged.path, staged.target.name)  # rosbags names the file after it
         writer = Writer(inner, version=BAG_VERSION, storage_plugin=STORAGE_PLUGINS[storage])
         if compress:
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
@@ -340,6 +377,46 @@ def _check_camera(sequence: Sequence) -> None:
         "the folder's own calibration, not a guess; give --camera FILE (an ORB-SLAM settings "
         f"file) or --intrinsics FX FY CX CY [--distortion K1 K2 P1 P2 [K3]] [--depth-factor F]{hint}"
     )
+
+
+def _check_times(sequence: Sequence) -> None:
+    """Refuse a timestamp a header stamp cannot hold (``TIME_MAX_S``), naming its file and line;
+    ``run`` takes such a folder, so the reader does not refuse it."""
+    for frame in sequence.frames:
+        for kind, t in (("", frame.timestamp_s), ("depth ", frame.depth_timestamp_s)):
+            if not 0 <= t < TIME_MAX_S:
+                _refuse_time(frame.list_path, frame.list_line, f"{kind}timestamp {_seconds(t)}")
+    gt = sequence.groundtruth
+    if gt is not None:
+        outside = np.flatnonzero(~((gt.timestamps_s >= 0) & (gt.timestamps_s < TIME_MAX_S)))
+        if outside.size:
+            row = int(outside[0])
+            path = sequence.root / "groundtruth.txt"
+            _refuse_time(path, gt.lines[row], f"timestamp {_seconds(float(gt.timestamps_s[row]))}")
+
+
+def _seconds(t: float) -> str:
+    """A timestamp as the files write it (6 decimals), or short where that runs to 300 digits."""
+    return f"{t:.6f}" if abs(t) < 1e15 else f"{t:.6g}"
+
+
+def _refuse_time(path: Path, line: int | None, what: str) -> None:
+    where = path if line is None else f"{path}:{line}"
+    raise InputError(
+        f"{where}: {what} s is outside what a ROS 2 header stamp holds (int32 seconds: 0 to "
+        f"2^31 s); shift the folder's times to export it"
+    )
+
+
+def _data_stem(staging: Path, name: str) -> str:
+    """The bag folder's own name where ``name.mcap`` fits the file system, else ``DATA_STEM``;
+    metadata.yaml lists the file, so players find it by either name."""
+    try:
+        limit = os.pathconf(staging, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    longest = max(len(os.fsencode(f"{name}.{ext}")) for ext in ("mcap", "db3"))
+    return name if longest <= limit else DATA_STEM
 
 
 def typestore(detections: bool = False) -> Typestore:
