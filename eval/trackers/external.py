@@ -1,5 +1,5 @@
-"""What the trackers that run as other programs share: settings files, child processes
-with a time limit and a progress bar, and reading their trajectories back."""
+"""What the trackers that run as other programs share: settings files and child processes
+with a time limit and a progress bar (their output files are read by ``protocol``)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 from depotbench.core.progress import progress_bar
 from depotbench.eval.trackers.base import TrackerError
 from depotbench.eval.trackers.watcher import kill_group
@@ -282,21 +281,3 @@ class StderrTail:
         if cut or len(text) > self.line_chars:
             text = text[: self.line_chars] + "\u2026"
         self.lines.append(text)
-
-
-def poses_by_frame(
-    sequence: Sequence, timestamps_s: np.ndarray, poses: np.ndarray, tolerance_s: float = 1e-3
-) -> list[np.ndarray | None]:
-    """Each frame's pose from a trajectory keyed by timestamp (None where it has none)."""
-    by_frame: list[np.ndarray | None] = [None] * len(sequence)
-    if len(timestamps_s) == 0:
-        return by_frame
-    order = np.argsort(timestamps_s)
-    stamps = timestamps_s[order]
-    for i, frame in enumerate(sequence.frames):
-        k = int(np.searchsorted(stamps, frame.timestamp_s))
-        for j in (k - 1, k):
-            if 0 <= j < len(stamps) and abs(stamps[j] - frame.timestamp_s) <= tolerance_s:
-                by_frame[i] = poses[order[j]]
-                break
-    return by_frame

@@ -14,9 +14,12 @@ from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import FileError
-from depotbench.core.files import MIB, read_text
+from depotbench.core.files import MAX_TEXT_BYTES, MIB, read_text
 from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.trackers.columns import WHITESPACE, Fields, blocks
 from depotbench.sim.sequence import Sequence, timestamp_name
+from depotbench.sim.tum_files import MAX_ABS_POSITION_M, QUATERNION_NORM_TOLERANCE
+from scipy.spatial.transform import Rotation
 
 DETECTIONS_HEADER = "# depotbench detections 1\n# timestamp x0 y0 x1 y1 prior confidence class\n"
 KEYPOINTS_HEADER = "# depotbench keypoints 1\n# timestamp x y kept [reason]\n"
@@ -79,7 +82,16 @@ class KeypointDecisions:
     keypoints_px: tuple[np.ndarray, ...]
     """Per frame, (N, 2) pixel positions (x right, y down; pixel centres at integers)."""
     kept: tuple[np.ndarray, ...]
-    reasons: tuple[tuple[str, ...], ...]
+    reason_codes: tuple[np.ndarray, ...]
+    """Per frame, each keypoint's reason as an index into ``reason_names``: a code of 2
+    bytes where a string object per keypoint took 8 bytes more and a 330 MB file holds 10M."""
+    reason_names: tuple[str, ...] = ("",)
+    """The reason words; the first, ``""``, is "none given"."""
+
+    @property
+    def reasons(self) -> tuple[tuple[str, ...], ...]:
+        """Per frame, each keypoint's reason word (``""`` for none)."""
+        return tuple(tuple(self.reason_names[c] for c in codes.tolist()) for codes in self.reason_codes)
 
 
 def write_keypoints(
@@ -107,41 +119,119 @@ def write_keypoints(
 
 
 def read_keypoints(path: Path, sequence: Sequence) -> KeypointDecisions:
-    """A keypoint file, each line checked: a timestamp of a frame, a finite position inside
-    the image, a kept flag of 0 or 1. A frame with no line has no keypoints."""
+    """A keypoint file, each line checked: the header line first, then per line a timestamp
+    of a frame, a finite position inside the image, a kept flag of 0 or 1. A frame with no
+    line has no keypoints. Read a block at a time (``columns``): the file may be 1 GiB."""
     index = _frame_index(sequence)
+    pieces: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in sequence.frames]
+    names: dict[bytes, int] = {b"": 0}
+    header = False
+    try:
+        for fields in blocks(path, MAX_KEYPOINTS_BYTES, "keypoint file"):
+            if not header:
+                _check_header(path, fields.data)
+                header = True
+            if len(fields):
+                _keypoint_block(fields, sequence, index, names, pieces)
+    except FileNotFoundError:
+        raise ProtocolError(path, None, "the keypoint file is missing") from None
+    except ProtocolError:
+        raise
+    except FileError as exc:
+        raise ProtocolError(path, exc.line, exc.problem) from None
+    if not header:
+        raise ProtocolError(
+            path, None, f"is empty: a keypoint file begins with {KEYPOINTS_HEADER.splitlines()[0]!r}"
+        )
+    points, kept, codes = [], [], []
+    for k, frame in enumerate(pieces):
+        # One frame at a time, each frame's blocks let go as it is joined: the whole file's
+        # arrays are never held twice.
+        parts, pieces[k] = frame, []
+        if len(parts) == 1:
+            points.append(parts[0][0]), kept.append(parts[0][1]), codes.append(parts[0][2])
+        else:
+            points.append(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 2)))
+            kept.append(np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, bool))
+            codes.append(np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.uint16))
+    reason_names = tuple(word.decode("utf-8") for word in sorted(names, key=names.__getitem__))
+    return KeypointDecisions(tuple(points), tuple(kept), tuple(codes), reason_names)
+
+
+def _check_header(path: Path, data: bytes) -> None:
+    """The first line names the format and its version: a file of another version (or
+    none) read as this one would be scored wrong without a word."""
+    end = data.find(b"\n")
+    first = data[: end if end >= 0 else len(data)].decode("utf-8", "replace").strip()
+    expected = KEYPOINTS_HEADER.splitlines()[0]
+    if first == expected:
+        return
+    words = first.split()
+    if words[:3] == ["#", "depotbench", "keypoints"]:
+        version = " ".join(words[3:]) or "(none)"
+        raise ProtocolError(
+            path, 1, f"keypoint file version {version} is unknown: this bench reads {expected!r}"
+        )
+    raise ProtocolError(path, 1, f"the first line must be {expected!r}, not {first[:60]!r}")
+
+
+def _keypoint_block(
+    fields: Fields,
+    sequence: Sequence,
+    index: tuple[np.ndarray, np.ndarray],
+    names: dict[bytes, int],
+    pieces: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]],
+) -> None:
+    """One block's lines checked and added to their frames' pieces."""
     width, height = sequence.intrinsics.width, sequence.intrinsics.height
-    points: list[list[tuple[float, float]]] = [[] for _ in sequence.frames]
-    flags: list[list[bool]] = [[] for _ in sequence.frames]
-    reasons: list[list[str]] = [[] for _ in sequence.frames]
-    for number, fields in _data_lines(path, MAX_KEYPOINTS_BYTES, "keypoint file", maxsplit=4):
-        if len(fields) not in (4, 5):
-            raise ProtocolError(
-                path, number, f"expected timestamp x y kept [reason], found {len(fields)} fields"
-            )
-        frame = _frame_of(path, number, fields[0], index)
-        try:
-            x, y = float(fields[1]), float(fields[2])
-        except ValueError:
-            raise ProtocolError(
-                path, number, f"position {fields[1]!r} {fields[2]!r} is not two numbers"
-            ) from None
-        if not (
-            math.isfinite(x) and math.isfinite(y) and -0.5 <= x < width - 0.5 and -0.5 <= y < height - 0.5
-        ):
-            raise ProtocolError(
-                path, number, f"keypoint ({fields[1]}, {fields[2]}) is not inside the {width}x{height} image"
-            )
-        if fields[3] not in ("0", "1"):
-            raise ProtocolError(path, number, f"kept must be 1 or 0, got {fields[3]!r}")
-        points[frame].append((x, y))
-        flags[frame].append(fields[3] == "1")
-        reasons[frame].append(fields[4].strip() if len(fields) == 5 else "")
-    return KeypointDecisions(
-        tuple(np.array(p, np.float64).reshape(-1, 2) for p in points),
-        tuple(np.array(f, bool) for f in flags),
-        tuple(tuple(r) for r in reasons),
-    )
+    bad = np.flatnonzero((fields.counts < 4) | (fields.counts > 5))
+    if bad.size:
+        raise fields.fail(
+            bad[0], f"expected timestamp x y kept [reason], found {fields.counts[bad[0]]} fields"
+        )
+    frames = _frames_of(fields, index)
+    x, y = fields.numbers(1, "x"), fields.numbers(2, "y")
+    with np.errstate(invalid="ignore"):
+        inside = np.isfinite(x) & np.isfinite(y) & (x >= -0.5) & (x < width - 0.5)
+        inside &= (y >= -0.5) & (y < height - 0.5)
+    if not inside.all():
+        row = int(np.flatnonzero(~inside)[0])
+        shown = " ".join(fields.text(j)[row].decode("utf-8", "replace") for j in (1, 2))
+        raise fields.fail(
+            row, f"keypoint ({shown.replace(' ', ', ')}) is not inside the {width}x{height} image"
+        )
+    flag = fields.text(3)
+    kept = flag == b"1"
+    wrong = ~kept & (flag != b"0")
+    if wrong.any():
+        row = int(np.flatnonzero(wrong)[0])
+        raise fields.fail(row, f"kept must be 1 or 0, got {flag[row].decode('utf-8', 'replace')!r}")
+    codes = np.zeros(len(fields), np.uint16)
+    worded = np.flatnonzero(fields.counts == 5)
+    if worded.size:
+        words, inverse = np.unique(fields.text(4, worded), return_inverse=True)
+        for word in words.tolist():
+            if word not in names:
+                try:
+                    word.decode("utf-8")
+                except UnicodeDecodeError:
+                    row = int(worded[np.flatnonzero(fields.text(4, worded) == word)[0]])
+                    raise fields.fail(row, "the reason is not UTF-8 text") from None
+                if len(names) > MAX_REASONS:
+                    raise fields.fail(int(worded[0]), f"more than {MAX_REASONS} different reasons")
+                names[word] = len(names)
+        codes[worded] = np.array([names[w] for w in words.tolist()], np.uint16)[inverse]
+    points = np.stack([x, y], axis=1)
+    order = np.argsort(frames, kind="stable")
+    sorted_frames = frames[order]
+    cuts = np.flatnonzero(np.diff(sorted_frames)) + 1
+    for run in np.split(np.arange(len(order)), cuts):
+        rows = order[run]
+        pieces[int(sorted_frames[run[0]])].append((points[rows], kept[rows], codes[rows]))
+
+
+MAX_REASONS = 65535
+"""Different reason words in one file: a reason's code is 2 bytes."""
 
 
 def _frame_index(sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +240,28 @@ def _frame_index(sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
     return stamps[order], order
 
 
+def _frames_of(fields: Fields, index: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Each line's frame, from its timestamp (within ``TIMESTAMP_TOLERANCE_S``); the first
+    that is not finite or no frame's is named."""
+    stamps, order = index
+    t = fields.numbers(0, "timestamp")
+    k = np.searchsorted(stamps, t)
+    below, above = np.clip(k - 1, 0, len(stamps) - 1), np.clip(k, 0, len(stamps) - 1)
+    with np.errstate(invalid="ignore"):
+        near_below = (k >= 1) & (np.abs(stamps[below] - t) <= TIMESTAMP_TOLERANCE_S)
+        near_above = (k < len(stamps)) & (np.abs(stamps[above] - t) <= TIMESTAMP_TOLERANCE_S)
+    unmatched = ~(near_below | near_above)
+    if unmatched.any():
+        row = int(np.flatnonzero(unmatched)[0])
+        text = fields.text(0)[row].decode("utf-8", "replace")
+        if not np.isfinite(t[row]):
+            raise fields.fail(row, f"timestamp {text!r} is not a finite number")
+        raise fields.fail(row, f"timestamp {text} is no frame's (within {TIMESTAMP_TOLERANCE_S} s)")
+    return order[np.where(near_below, below, above)]
+
+
 def _frame_of(path: Path, number: int, text: str, index: tuple[np.ndarray, np.ndarray]) -> int:
+    """One line's frame (the detections file, which the bench writes, is read line by line)."""
     stamps, order = index
     try:
         t = float(text)
@@ -163,6 +274,81 @@ def _frame_of(path: Path, number: int, text: str, index: tuple[np.ndarray, np.nd
         if 0 <= j < len(stamps) and abs(stamps[j] - t) <= TIMESTAMP_TOLERANCE_S:
             return int(order[j])
     raise ProtocolError(path, number, f"timestamp {text} is no frame's (within {TIMESTAMP_TOLERANCE_S} s)")
+
+
+def read_trajectory(path: Path, sequence: Sequence) -> tuple[np.ndarray | None, ...]:
+    """A program's TUM trajectory as each frame's pose (``world_from_camera``, None where it
+    has none), each line checked as the protocol says: 8 finite fields, a timestamp of a
+    frame (within ``TIMESTAMP_TOLERANCE_S``), one pose a frame, a unit quaternion (within
+    ``QUATERNION_NORM_TOLERANCE``). A pose at no frame's time or a second one for a frame
+    would be dropped or chosen between without a word, and a quaternion far from unit
+    length is no rotation the program meant. Ground truth and evo's inputs are read by
+    ``read_tum``, which keeps TUM's and evo's leniency."""
+    index = _frame_index(sequence)
+    line_of_frame = np.zeros(len(sequence), np.int64)  # 0: no pose yet
+    poses = np.tile(np.eye(4), (len(sequence), 1, 1))
+    try:
+        # Commas separate fields too, as in TUM's own tools.
+        for fields in blocks(path, MAX_TEXT_BYTES, "trajectory", WHITESPACE + b","):
+            if len(fields):
+                _trajectory_block(fields, index, line_of_frame, poses)
+    except FileNotFoundError:
+        raise ProtocolError(path, None, "the trajectory is missing") from None
+    except ProtocolError:
+        raise
+    except FileError as exc:
+        raise ProtocolError(path, exc.line, exc.problem) from None
+    return tuple(None if line == 0 else poses[i] for i, line in enumerate(line_of_frame.tolist()))
+
+
+def _trajectory_block(
+    fields: Fields, index: tuple[np.ndarray, np.ndarray], line_of_frame: np.ndarray, poses: np.ndarray
+) -> None:
+    bad = np.flatnonzero(fields.counts != 8)
+    if bad.size:
+        raise fields.fail(
+            bad[0], f"expected 8 fields (timestamp tx ty tz qx qy qz qw), found {fields.counts[bad[0]]}"
+        )
+    frames = _frames_of(fields, index)
+    values = np.stack([fields.numbers(j, "field") for j in range(1, 8)], axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        norms = np.linalg.norm(values[:, 3:], axis=1)
+        checks = (
+            (~np.isfinite(values).all(axis=1), lambda r: "pose holds NaN or infinity"),
+            (
+                np.abs(values[:, :3]).max(axis=1) > MAX_ABS_POSITION_M,
+                lambda r: f"position is beyond +-{MAX_ABS_POSITION_M:g} m",
+            ),
+            (
+                ~(np.abs(norms - 1.0) <= QUATERNION_NORM_TOLERANCE),
+                lambda r: (
+                    f"quaternion (qx qy qz qw) has norm {norms[r]:.6g}, not 1 "
+                    f"(within {QUATERNION_NORM_TOLERANCE:g})"
+                ),
+            ),
+        )
+    for wrong, problem in checks:
+        if wrong.any():
+            row = int(np.flatnonzero(wrong)[0])
+            raise fields.fail(row, problem(row))
+    # A frame's earlier line: from an earlier block, or the one before it in this block.
+    earlier = line_of_frame[frames].copy()
+    order = np.argsort(frames, kind="stable")
+    same = frames[order[1:]] == frames[order[:-1]]
+    later, before = order[1:][same], order[:-1][same]
+    earlier[later] = np.where(earlier[later] > 0, earlier[later], fields.lines[before])
+    if (earlier > 0).any():
+        row = int(np.flatnonzero(earlier > 0)[0])
+        text = fields.text(0)[row].decode("utf-8", "replace")
+        raise fields.fail(
+            row,
+            f"timestamp {text} is frame {int(frames[row])}'s again, whose pose is on line "
+            f"{int(earlier[row])} (one pose a frame)",
+        )
+    line_of_frame[frames] = fields.lines
+    quats = values[:, 3:] / norms[:, None]
+    poses[frames, :3, :3] = Rotation.from_quat(quats).as_matrix()
+    poses[frames, :3, 3] = values[:, :3]
 
 
 def _data_lines(path: Path, limit: int, what: str, maxsplit: int):

@@ -40,7 +40,7 @@ def main() -> int:
     lines = []
     frames = 0
     with (sequence / "groundtruth.txt").open() as gt, keypoints.open("w") as out:
-        out.write("# timestamp x y kept [reason]\n")
+        out.write("# depotbench keypoints 1\n# timestamp x y kept [reason]\n")
         for line in gt:
             if line.startswith("#") or not line.strip():
                 continue

@@ -163,7 +163,7 @@ def main() -> None:
     # Both files are written as frames are done: a crash leaves what was tracked so far.
     with args.trajectory.open("w") as trajectory, args.keypoints.open("w") as decisions:
         trajectory.write("# timestamp tx ty tz qx qy qz qw\n")
-        decisions.write("# timestamp x y kept [reason]\n")
+        decisions.write("# depotbench keypoints 1\n# timestamp x y kept [reason]\n")
         for done, (stamp, rgb_path, depth_path) in enumerate(frames, start=1):
             gray = cv2.imread(str(rgb_path), cv2.IMREAD_GRAYSCALE)
             depth_m = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED).astype(np.float64) / depth_factor
