@@ -286,3 +286,59 @@ def test_a_nul_byte_in_a_trackers_fields_is_refused_by_validate(
     code, _, err = cli(capsys, "validate", spec)
     assert code == 2
     one_error_line(err, "trackers.0 (mine)", field, "NUL byte")
+
+
+# -- O12: what a confused program or configuration is told ------------------------------------------
+
+
+def test_a_program_that_removes_its_working_folder_is_a_failed_run_saying_so(
+    camera_sequence: Sequence, tmp_path: Path, capsys
+):
+    """O12: the run ended with ``error: /tmp/depotbench-cmd-...: No such file or directory``."""
+    remover = "sh -c 'rm -rf \"$PWD\"' sh {sequence}"
+    code, _, err = cli(
+        capsys, "run", camera_sequence.root, "-o", tmp_path / "r", "--slam", "cmd", "--command", remover
+    )
+    assert code != 0 and "Traceback" not in err
+    assert "removed its working folder" in err and "No such file or directory" not in err, err
+
+
+def test_a_folder_as_the_program_is_named_a_directory(
+    camera_sequence: Sequence, tmp_path: Path, capsys, monkeypatch
+):
+    (tmp_path / "my_slam").mkdir()
+    monkeypatch.chdir(tmp_path)
+    code, _, err = cli(
+        capsys,
+        "run",
+        camera_sequence.root,
+        "-o",
+        tmp_path / "r",
+        "--slam",
+        "cmd",
+        "--command",
+        "./my_slam {sequence}",
+    )
+    assert code == 2
+    one_error_line(err, "the program './my_slam'", "is a directory")
+
+
+def test_a_parameter_named_like_a_placeholder_is_told_so_plainly(
+    camera_sequence: Sequence, tmp_path: Path, capsys
+):
+    code, _, err = cli(
+        capsys,
+        "run",
+        camera_sequence.root,
+        "-o",
+        tmp_path / "r",
+        "--slam",
+        "cmd",
+        "--command",
+        "true {sequence}",
+        "--param",
+        "trajectory=1",
+    )
+    assert code == 2
+    line = one_error_line(err, "parameter 'trajectory'", "{trajectory} is one of the bench's placeholders")
+    assert "letters" not in line

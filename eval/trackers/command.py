@@ -143,11 +143,13 @@ def parse_template(template: str, parameters: tuple[str, ...] = ()) -> list[str]
 
 def check_parameter_names(names: tuple[str, ...]) -> None:
     for name in names:
-        if not PARAMETER_NAME.fullmatch(name) or name in PLACEHOLDERS:
-            taken = f"; {name} is a placeholder of the bench's" if name in PLACEHOLDERS else ""
+        if name in PLACEHOLDERS:
             raise InputError(
-                f"parameter {name!r}: give a name of letters, digits, _ and . (64 at most){taken}"
+                f"parameter {name!r}: {{{name}}} is one of the bench's placeholders; "
+                "give your parameter another name"
             )
+        if not PARAMETER_NAME.fullmatch(name):
+            raise InputError(f"parameter {name!r}: give a name of letters, digits, _ and . (64 at most)")
 
 
 def _check_word(word: str, known: tuple[str, ...]) -> None:
@@ -260,7 +262,14 @@ def check_program(words: list[str], cwd: Path) -> None:
     found = shutil.which(program)
     if found is None:
         path = Path(program)
-        why = "is not executable" if path.is_file() else "does not exist"
+        with_slash = "/" in program  # a bare name was looked for in PATH, not here
+        why = (
+            "is a directory"
+            if with_slash and path.is_dir()
+            else "is not executable"
+            if path.is_file()
+            else "does not exist"
+        )
         raise InputError(f"--command: the program {shown} {why}")
 
 
@@ -327,6 +336,11 @@ class CommandTracker:
                     )
                 finally:  # a failed program may have changed it too
                     changed = guard.change(what)
+                if not scratch.path.is_dir():
+                    raise TrackerError(
+                        f"{what}: removed its working folder (the scratch folder the bench made for it)",
+                        child.log,
+                    )
                 if changed is not None:
                     raise TrackerError(changed, child.log)
                 trajectory = Path(values["trajectory"])

@@ -76,7 +76,8 @@ class Scratch:
     def __exit__(self, *exc: object) -> None:
         watcher.kill_group(self.group)  # what the program left running
         try:
-            shutil.rmtree(self.path)
+            if os.path.lexists(self.path):  # else the program removed it: its run says so
+                shutil.rmtree(self.path)
         except OSError:
             self._quit()  # it could do no better: the error (naming the file) is ours to show
             raise
