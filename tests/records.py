@@ -38,4 +38,7 @@ def record(**columns: Any) -> RunRecord:
     unknown = sorted(set(columns) - set(FIELDS))
     if unknown:
         raise KeyError(f"not a record column: {unknown[0]}")
-    return RunRecord(**({name: None for name in FIELDS} | NEUTRAL | columns))
+    row = {name: None for name in FIELDS} | NEUTRAL | columns
+    if "sequence_fingerprint" not in columns:  # one sequence, one fingerprint: runs pair by it
+        row["sequence_fingerprint"] = f"fp:{row['sequence']}"
+    return RunRecord(**row)

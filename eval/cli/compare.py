@@ -5,7 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from depotbench.eval.cli.args import finite_float
+
 EXIT_REGRESSION = 1
+
+
+def tolerance(text: str) -> float:
+    """A finite tolerance of 0 or more: NaN compares false with every change and inf or
+    1e999 exceed all, so either would silently disarm --fail-on-regression."""
+    value = finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
+    return value
 
 
 def add_compare(sub: argparse._SubParsersAction) -> None:
@@ -25,7 +36,7 @@ def add_compare(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--tolerance",
-        type=float,
+        type=tolerance,
         default=0.0,
         help="a regression must exceed this: relative for errors and time (0.05: 5 %%), absolute for "
         "rates (default 0)",
@@ -35,6 +46,14 @@ def add_compare(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="count a slower frame time as a regression too (only when both sets ran on the same "
         "machine under the same load)",
+    )
+    p.add_argument(
+        "--fingerprint",
+        action="append",
+        default=[],
+        metavar="FINGERPRINT",
+        help="of a folder holding rows of several versions of one tracker's program, use those with "
+        "this tracker fingerprint (repeat for several trackers)",
     )
     p.set_defaults(handler=_cmd_compare)
 
@@ -49,8 +68,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         raise InputError("compare needs two folders or more: the base, then what to compare with it")
     if args.html is not None:
         check_output_file(args.html, overwrite=args.overwrite, inputs=tuple(args.folders), option="--html")
-    base = load_rows(args.folders[0])
-    results = {str(folder): compare_rows(base, load_rows(folder)) for folder in args.folders[1:]}
+    chosen = tuple(args.fingerprint)
+    base = load_rows(args.folders[0], chosen)
+    results = {str(folder): compare_rows(base, load_rows(folder, chosen)) for folder in args.folders[1:]}
     regressions = {name: found.regressions(args.tolerance, time=args.time) for name, found in results.items()}
     if args.json:
         print(
@@ -108,4 +128,7 @@ def _page(base: Path, results: dict) -> str:
         for where, items in ((base, found.only_first), (name, found.only_this)):
             if items:
                 notes.add(f"only in {where}, not compared: " + "; ".join(items))
+        if found.duplicates:
+            twice = "; ".join(found.duplicates)
+            notes.add(f"{name}: more than one run on one sequence, not compared: {twice}")
     return page("depotbench compare", f"each set against {base}, paired by sequence", sections, notes)

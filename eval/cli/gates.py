@@ -26,6 +26,14 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         "compare each configuration's runs with its runs there, paired by sequence",
     )
     p.add_argument(
+        "--baseline-fingerprint",
+        action="append",
+        default=[],
+        metavar="FINGERPRINT",
+        help="of a --baseline folder holding rows of several versions of one tracker's program, use "
+        "those with this tracker fingerprint (repeat for several trackers)",
+    )
+    p.add_argument(
         "-o",
         "--output",
         type=Path,
@@ -49,7 +57,9 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
-    gates = open_gates(args.gates, args.baseline)  # before any folder is made
+    if args.baseline_fingerprint and args.baseline is None:
+        raise InputError("--baseline-fingerprint applies to --baseline DIR only")
+    gates = open_gates(args.gates, args.baseline, tuple(args.baseline_fingerprint))  # before any folder
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
         check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates.gates}"

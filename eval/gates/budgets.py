@@ -214,6 +214,8 @@ class CheckResult:
     row: str
     verdicts: tuple[Verdict, ...]
     seconds: float
+    configuration: bool = False
+    """The budgets of a configuration (its runs together), not of one run."""
 
     @property
     def passed(self) -> bool:
@@ -403,9 +405,10 @@ def _group_name(members: list[ScoredRun]) -> str:
 
 
 def _pairing(row: ScoredRun) -> str:
-    """What pairs a run with the baseline's: its sequence folder's name (a suite's numbered
-    variations keep their names wherever the suite is generated)."""
-    return Path(row["sequence"]).name
+    """What pairs a run with the baseline's: its sequence's fingerprint (the content of its
+    files and their place, relative to the sweep folder for a suite generated there), never
+    its folder's name: two folders named ``seq`` are two sequences."""
+    return row.get("sequence_fingerprint") or row["sequence"]
 
 
 def _group_result(
@@ -437,7 +440,7 @@ def _group_result(
             passed = _within(value, bound)
         verdicts.append(Verdict(check_name, name, budget, value, bound, passed, note))
     seconds = sum(float(r["wall_time_s"] or 0.0) for r in members)
-    return CheckResult(check_name, name, tuple(verdicts), seconds)
+    return CheckResult(check_name, name, tuple(verdicts), seconds, configuration=True)
 
 
 def _versus_baseline(
@@ -449,7 +452,14 @@ def _versus_baseline(
     if baseline is None:
         return None, False, "(no baseline given: check --baseline DIR)"
     key = configuration_of(members[0])
-    theirs = {_pairing(r): r for r in baseline if configuration_of(r) == key}
+    theirs: dict[str, ScoredRun] = {}
+    for r in baseline:
+        if configuration_of(r) == key:
+            if _pairing(r) in theirs:  # which of two runs stands for the sequence is unknown
+                runs = sum(_pairing(b) == _pairing(r) and configuration_of(b) == key for b in baseline)
+                name = Path(r["sequence"]).name
+                return None, False, f"(the baseline holds {runs} runs of this configuration on {name})"
+            theirs[_pairing(r)] = r
     pairs = [(theirs[_pairing(r)].get(metric), r.get(metric)) for r in members if _pairing(r) in theirs]
     if not pairs:
         return None, False, "(the baseline has no run of this configuration on these sequences)"
@@ -479,16 +489,30 @@ def format_report(report: GateReport) -> str:
             f"({','.join(v.bound.limits(space=''))}{', ' + v.note if v.note else ''})"
             for v in result.verdicts
         )
-        lines.append(f"{result.check[:24]:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")
+        lines.append(f"{result.check:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")
         lines.append(f"{'':31s} {budgets}")
     for check in report.empty_checks:
-        lines.append(f"{check[:24]:24s} FAIL   (no run matches this check)")
+        lines.append(f"{check:24s} FAIL   (no run matches this check)")
     failed = len(report.failures)
     lines.append(
-        f"{report.gates}: {sum(r.passed for r in report.results)}/{len(report.results)} runs within budget"
+        f"{report.gates}: {within_budget(report)}"
         + (f"; {failed} budget(s) failed" if failed else "; all budgets held")
     )
     return "\n".join(lines)
+
+
+def within_budget(report: GateReport) -> str:
+    """``24/24 runs and 2/2 configurations within budget``: runs counted once however many
+    checks select them (a run passes when it passes all of them), configurations apart."""
+    counts = []
+    for configuration, noun in ((False, "runs"), (True, "configurations")):
+        held: dict[str, bool] = {}
+        for r in report.results:
+            if r.configuration == configuration:
+                held[r.row] = held.get(r.row, True) and r.passed
+        if held or not configuration:
+            counts.append(f"{sum(held.values())}/{len(held)} {noun}")
+    return " and ".join(counts) + " within budget"
 
 
 def junit_xml(report: GateReport) -> str:

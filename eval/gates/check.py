@@ -22,9 +22,10 @@ class Gates:
     baseline: list[RunRecord] | None
 
 
-def open_gates(path: Path, baseline: Path | None = None) -> Gates:
+def open_gates(path: Path, baseline: Path | None = None, chosen: tuple[str, ...] = ()) -> Gates:
     """The gate file at ``path`` with its matrix validated, and the rows of the earlier
-    run at ``baseline`` where its budgets compare against one (they need it)."""
+    run at ``baseline`` where its budgets compare against one (they need it); ``chosen``:
+    the tracker fingerprints to take from a baseline holding several program versions."""
     from depotbench.core.errors import InputError
     from depotbench.eval.gates.budgets import load_gates
     from depotbench.eval.sweep.engine import spec_inputs, validate
@@ -33,7 +34,7 @@ def open_gates(path: Path, baseline: Path | None = None) -> Gates:
     if baseline is None and any(b.endswith(".vs_baseline") for c in gates.checks for b in c.budgets):
         raise InputError(f"{path}: its vs_baseline budgets need --baseline DIR (an earlier run's folder)")
     validate(gates.run, path)
-    rows = load_baseline(baseline) if baseline is not None else None
+    rows = load_baseline(baseline, chosen) if baseline is not None else None
     return Gates(gates, path, spec_inputs(gates.run, path), rows)
 
 
@@ -65,9 +66,12 @@ def run_gates(
     return evaluate(gates, outcome.records, baseline)
 
 
-def load_baseline(folder: Path) -> list[RunRecord]:
-    """An earlier check's or sweep's rows (read only), as the gates compare against them."""
+def load_baseline(folder: Path, chosen: tuple[str, ...] = ()) -> list[RunRecord]:
+    """An earlier check's or sweep's rows (read only), as the gates compare against them: one
+    program version per tracker (a folder swept by two builds is refused, naming their
+    fingerprints, unless ``chosen`` picks one; ``versions.one_version``)."""
     from depotbench.core.errors import InputError
+    from depotbench.eval.metrics.versions import one_version
     from depotbench.eval.sweep.store import ResultStore
 
     database = folder / "results.sqlite"
@@ -76,4 +80,4 @@ def load_baseline(folder: Path) -> list[RunRecord]:
             f"--baseline {folder}: no results.sqlite there (give an earlier check's or sweep's -o folder)"
         )
     with ResultStore(database, readonly=True) as store:
-        return store.records()
+        return one_version(store.records(), chosen, folder, "--baseline-fingerprint")

@@ -4,8 +4,13 @@ paired test, so that a real change is told from run-to-run noise (as evo's ``evo
 compares results, with statistics over seeds added).
 
 A configuration is paired with the same configuration of the other set; where the sets
-differ in a threshold or a parameter (so no configuration is in both), configurations of
-one family, tracker, detector and strategy are paired when there is one on each side.
+differ in a tracker's parameters or a strategy's settings (so no configuration is in both),
+a configuration is paired with the one configuration on the other side that shares
+everything else (then the one that shares all but its settings, then all but both), and
+the pair says which fields differ. Runs are paired by the sequence's fingerprint (its
+files' content and place), never by its folder's name: two folders named ``seq`` are two
+sequences, and two runs of one configuration on one sequence are reported, not compared.
+Each set holds one program version per tracker (``versions.one_version``).
 """
 
 from __future__ import annotations
@@ -46,6 +51,8 @@ class Comparison:
     base_mean: float | None
     other_mean: float | None
     change: Change
+    differs: str = ""
+    """What differs between the two configurations (``window 3 -> 5``), empty when they are one."""
 
     @property
     def significant(self) -> bool:
@@ -79,19 +86,23 @@ class Comparison:
             "figure": self.figure,
             "base_mean": self.base_mean,
             "other_mean": self.other_mean,
+            "differs": self.differs,
             **self.change.to_dict(),
             "significant": self.significant,
         }
 
 
-def load_rows(folder: Path) -> list[RunRecord]:
-    """A sweep's or check's runs (results.sqlite), or a run folder's one run (record.json)."""
+def load_rows(folder: Path, chosen: tuple[str, ...] = (), option: str = "--fingerprint") -> list[RunRecord]:
+    """A sweep's or check's runs (results.sqlite), or a run folder's one run (record.json),
+    with one program version per tracker (``chosen``: the fingerprints ``option`` gave, for a
+    folder holding several; see ``versions.one_version``)."""
     from depotbench.core.files import read_text
+    from depotbench.eval.metrics.versions import one_version
     from depotbench.eval.sweep.store import ResultStore
 
     if (folder / "results.sqlite").is_file():
         with ResultStore(folder / "results.sqlite", readonly=True) as store:
-            return store.records()
+            return one_version(store.records(), chosen, folder, option)
     if (folder / "record.json").is_file():
         try:
             row = json.loads(read_text(folder / "record.json", 1 << 20, "run record"))
@@ -100,7 +111,7 @@ def load_rows(folder: Path) -> list[RunRecord]:
         if not isinstance(row, dict) or "key" not in row:
             raise InputError(f"{folder / 'record.json'}: not a run record")
         try:
-            return [RunRecord.from_row(row)]
+            return one_version([RunRecord.from_row(row)], chosen, folder, option)
         except KeyError as exc:
             raise InputError(f"{folder / 'record.json'}: not a run record (no {exc.args[0]})") from None
     raise InputError(f"{folder}: neither a sweep folder (results.sqlite) nor a run folder (record.json)")
@@ -112,30 +123,78 @@ def _label(key: tuple) -> str:
     return f"{label} ({detector})"
 
 
-def _groups(records: list[RunRecord]) -> dict[tuple, dict[str, ScoredRun]]:
-    """Per configuration, its runs by sequence name (what pairs runs across sets)."""
-    out: dict[tuple, dict[str, ScoredRun]] = {}
+def sequence_of(row: Any) -> str:
+    """What pairs a run with another set's: its sequence's fingerprint (the content and place
+    of its files), the folder itself for a row that has none."""
+    return row.get("sequence_fingerprint") or row["sequence"]
+
+
+@dataclass(frozen=True)
+class _Grouped:
+    runs: dict[tuple, dict[str, ScoredRun]]
+    """Per configuration, its runs by sequence (``sequence_of``)."""
+    duplicates: dict[tuple, dict[str, int]]
+    """Per configuration, the sequences it ran on more than once, and how many times."""
+
+
+def _groups(records: list[RunRecord]) -> _Grouped:
+    runs: dict[tuple, dict[str, ScoredRun]] = {}
+    duplicates: dict[tuple, dict[str, int]] = {}
     for row in with_derived(records):
-        out.setdefault(configuration_of(row), {})[Path(row["sequence"]).name] = row
-    return out
+        config, sequence = configuration_of(row), sequence_of(row)
+        mine = runs.setdefault(config, {})
+        if sequence in mine:
+            seen = duplicates.setdefault(config, {})
+            seen[sequence] = seen.get(sequence, 1) + 1
+        mine[sequence] = row
+    return _Grouped(runs, duplicates)
+
+
+def _without_parameters(key: tuple) -> tuple:
+    family, tracker, _, detector, strategy, settings = key
+    return (family, tracker, detector, strategy, settings)
+
+
+def _without_settings(key: tuple) -> tuple:
+    return key[:5]
+
+
+def _loose(key: tuple) -> tuple:
+    family, tracker, _, detector, strategy, _ = key
+    return (family, tracker, detector, strategy)
+
+
+RELAXED = (_without_parameters, _without_settings, _loose)
+"""How configurations that are in one set only are paired, in turn: sharing all but the
+tracker's parameters (two sweeps of one program parameter), all but the settings, all but
+both; at each step only where exactly one configuration on each side shares it."""
 
 
 def _pairs(base: dict[tuple, Any], other: dict[tuple, Any]) -> list[tuple[tuple, tuple]]:
-    """Configurations paired across two sets: the same one, else the only one of its family,
-    tracker, detector and strategy on each side."""
+    """Configurations paired across two sets: the same one, else (``RELAXED``) the one on each
+    side that shares the most with it."""
     pairs = [(key, key) for key in sorted(base) if key in other]
     left = [k for k in sorted(base) if k not in other]
     right = [k for k in sorted(other) if k not in base]
-
-    def loose(key: tuple) -> tuple:
-        family, tracker, _, detector, strategy, _ = key
-        return (family, tracker, detector, strategy)
-
-    for key in left:
-        matches = [k for k in right if loose(k) == loose(key)]
-        if len(matches) == 1 and sum(loose(k) == loose(key) for k in left) == 1:
-            pairs.append((key, matches[0]))
+    for relax in RELAXED:
+        for key in list(left):
+            matches = [k for k in right if relax(k) == relax(key)]
+            if len(matches) == 1 and sum(relax(k) == relax(key) for k in left) == 1:
+                pairs.append((key, matches[0]))
+                left.remove(key)
+                right.remove(matches[0])
     return pairs
+
+
+def _differs(key_a: tuple, key_b: tuple) -> str:
+    """The parameters and settings two paired configurations differ in, ``name a -> b``."""
+    out = []
+    for index in (2, 5):  # parameters, settings: sorted JSON objects
+        a, b = json.loads(key_a[index] or "{}"), json.loads(key_b[index] or "{}")
+        for name in sorted(set(a) | set(b)):
+            if a.get(name) != b.get(name):
+                out.append(f"{name} {a.get(name, '-')} -> {b.get(name, '-')}")
+    return ", ".join(out)
 
 
 @dataclass(frozen=True)
@@ -149,6 +208,9 @@ class SetComparison:
     only_this: list[str] = field(default_factory=list)
     unshared: list[str] = field(default_factory=list)
     """Paired configurations that ran on no common sequence."""
+    duplicates: list[str] = field(default_factory=list)
+    """Configurations with more than one run on one sequence (a folder resumed after the bench
+    changed): those sequences are not compared, since which run stands for them is unknown."""
 
     def regressions(self, tolerance: float, time: bool = False) -> list[Comparison]:
         """Real changes for the worse; time only when asked (``time``): two sweeps run at
@@ -162,19 +224,26 @@ class SetComparison:
             "only_first": self.only_first,
             "only_this": self.only_this,
             "no_common_sequence": self.unshared,
+            "duplicates": self.duplicates,
         }
 
 
 def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) -> SetComparison:
-    base, other = _groups(base_records), _groups(other_records)
+    grouped_a, grouped_b = _groups(base_records), _groups(other_records)
+    base, other = grouped_a.runs, grouped_b.runs
     pairs = _pairs(base, other)
-    out, unshared = [], []
+    out, unshared, duplicates = [], [], []
     for key_a, key_b in pairs:
         runs_a, runs_b = base[key_a], other[key_b]
-        shared = sorted(set(runs_a) & set(runs_b))
+        twice = {**grouped_a.duplicates.get(key_a, {}), **grouped_b.duplicates.get(key_b, {})}
+        for sequence in sorted(set(twice) & (set(runs_a) | set(runs_b))):
+            name = Path((runs_a.get(sequence) or runs_b[sequence])["sequence"]).name
+            duplicates.append(f"{key_a[0]}: {_label(key_a)} on {name} ({twice[sequence]} runs)")
+        shared = sorted((set(runs_a) & set(runs_b)) - set(twice))
         if not shared:
             unshared.append(f"{key_a[0]}: {_label(key_a)}")
             continue
+        differs = _differs(key_a, key_b)
         for figure in COMPARED:
             if figure == "rho_percent" and key_a[4] == "none":
                 continue  # ρ is taken against the none run itself: 0 by definition
@@ -191,6 +260,7 @@ def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) 
                     base_mean=stats(a).mean,
                     other_mean=stats(b).mean,
                     change=paired_change(figure, a, b),
+                    differs=differs,
                 )
             )
     paired_a, paired_b = {a for a, _ in pairs}, {b for _, b in pairs}
@@ -199,6 +269,7 @@ def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) 
         only_first=[f"{k[0]}: {_label(k)}" for k in sorted(base) if k not in paired_a],
         only_this=[f"{k[0]}: {_label(k)}" for k in sorted(other) if k not in paired_b],
         unshared=unshared,
+        duplicates=duplicates,
     )
 
 
@@ -213,7 +284,7 @@ def format_comparisons(name: str, result: SetComparison) -> str:
         if (c.family, c.base, c.other) != block:
             block = (c.family, c.base, c.other)
             config = c.base if c.base == c.other else f"{c.base} -> {c.other}"
-            lines.append(f"{c.family} · {config}")
+            lines.append(f"{c.family} · {config}" + (f" (differs: {c.differs})" if c.differs else ""))
             lines.append(
                 f"  {'figure':24s} {'first':>9s} {'this':>9s} {'change':>9s} {'95% interval':>21s} "
                 f"{'pairs':>5s} {'p(worse)':>9s}"
@@ -234,6 +305,7 @@ def format_comparisons(name: str, result: SetComparison) -> str:
         ("only in the first set", result.only_first),
         ("only in this set", result.only_this),
         ("paired but on no common sequence", result.unshared),
+        ("more than one run of a configuration on one sequence", result.duplicates),
     ):
         if items:
             lines.append(f"{title}, not compared: " + "; ".join(items))

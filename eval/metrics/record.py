@@ -14,11 +14,16 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-RECORD_VERSION = 6
+RECORD_VERSION = 7
 """2: the sequence fingerprint and relocalised frames; 3: an external tracker's parameters,
 a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
 configuration, settings and parameters as typed JSON, sequences relative to the sweep;
-5: the median ATE; 6: the dense map's figures."""
+5: the median ATE; 6: the dense map's figures; 7: the tracker fingerprint (and keys that
+cover every file a command names)."""
+
+UNKNOWN_FINGERPRINT = "unknown"
+"""The tracker fingerprint of a row written before record version 7: one version of its own,
+never taken for the fingerprint of any program."""
 
 
 def typed(text: str) -> int | float | str:
@@ -70,6 +75,7 @@ class RunIdentity:
     detector_config: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
     knobs: dict[str, Any] = field(default_factory=dict)
+    tracker_fingerprint: str | None = None
 
 
 @dataclass(frozen=True)
@@ -132,7 +138,17 @@ class RunRecord:
     computed_by: str = ""
     """The key of the job whose tracking made this row: itself, or an earlier job of this
     sweep with the same signature (the same run, so it was tracked once)."""
+    tracker_fingerprint: str | None = None
+    """A short hash of the tracker's identity (``harness.tracker_fingerprint``: its command,
+    program and named files, vocabulary, settings template, parameters): rows of one tracker
+    label with two fingerprints came from two versions of its program. None in a row written
+    before record version 7 (read as ``UNKNOWN_FINGERPRINT``)."""
     record_version: int = RECORD_VERSION
+
+    @property
+    def program_version(self) -> str:
+        """The tracker fingerprint, ``UNKNOWN_FINGERPRINT`` for a row written before them."""
+        return self.tracker_fingerprint or UNKNOWN_FINGERPRINT
 
     @staticmethod
     def identity_columns(run: RunIdentity) -> dict[str, Any]:
@@ -151,6 +167,7 @@ class RunRecord:
             "strategy": run.strategy,
             "settings": settings_json(run.settings),
             "computed_by": run.key,
+            "tracker_fingerprint": run.tracker_fingerprint,
         }
 
     @classmethod
@@ -264,6 +281,7 @@ ADDED_FIELDS = {
     "map_accuracy": 6,
     "map_completeness": 6,
     "ghost_fraction": 6,
+    "tracker_fingerprint": 7,
 }
 """Columns a later record version added, with that version: rows and stores written before
 them read with them empty (a baseline kept from version 4 still serves compare and check)."""

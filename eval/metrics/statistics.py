@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 from depotbench.eval.metrics.figures import FIGURES, HIGHER_IS_BETTER, RATIO, ScoredRun
+from depotbench.eval.metrics.versions import check_one_version
 
 CONFIDENCE = 0.95
 RESAMPLES = 2000
@@ -114,7 +115,8 @@ def confidence_interval(values: np.ndarray) -> tuple[float | None, float | None]
 
 def summarize(rows: list[ScoredRun], rule: SuccessRule) -> dict[str, Any]:
     """The runs of one configuration in one family (its seeds): counts and every figure's
-    statistics."""
+    statistics. Runs of two versions of the tracker's program are refused, not averaged."""
+    check_one_version(rows, "the runs of one configuration")
     successes = sum(rule.holds(r) for r in rows)
     out: dict[str, Any] = {
         "runs": len(rows),

@@ -243,9 +243,10 @@ def _header(job: RunJob) -> str:
 
 def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
     """What of an external tracker shapes its results: the command template, the bytes of
-    the program it starts and of the vocabulary it is given (a rebuilt program or another
-    vocabulary is a new run, not a row to resume). A sweep computes it once per tracker:
-    ORB-SLAM's own vocabulary is 145 MB."""
+    the program it starts, of every other file its command names (``command_files``: an
+    interpreter's script, a config file) and of the vocabulary it is given (a rebuilt
+    program, an edited script or another vocabulary is a new run, not a row to resume). A
+    sweep computes it once per tracker: ORB-SLAM's own vocabulary is 145 MB."""
     identity: dict[str, Any] = {"kind": tracker.kind}
     if not tracker.type.external:
         return tuple(identity.items())
@@ -263,10 +264,27 @@ def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
         identity["command"] = tracker.command
         program = _program_path(tracker.command)
         identity["program_sha256"] = file_digest(program, "program").hex() if program else None
+        named = command_files(tracker.command, tracker.label)
+        if named:  # a command naming no file keeps the identity (and the keys) it had
+            identity["command_files_sha256"] = [
+                [word, file_digest(path, "file the command names").hex()] for word, path in named
+            ]
     if tracker.vocabulary is not None:
         identity["vocabulary"] = str(tracker.vocabulary.resolve())
         identity["vocabulary_sha256"] = file_digest(tracker.vocabulary, "vocabulary").hex()
     return tuple(sorted(identity.items()))
+
+
+FINGERPRINT_CHARS = 12
+"""A tracker fingerprint's length in hex digits: 48 bits, so two program versions of one
+tracker collide with odds of about 1 in 10^14."""
+
+
+def tracker_fingerprint(identity: tuple[tuple[str, Any], ...]) -> str:
+    """A short content hash of ``tracker_identity``: every row carries it, so that rows of two
+    versions of one program (one tracker label) are told apart and never paired or averaged
+    together."""
+    return content_hash("tracker", identity)[:FINGERPRINT_CHARS]
 
 
 def _program_path(command: str) -> Path | None:
@@ -277,6 +295,43 @@ def _program_path(command: str) -> Path | None:
         return None
     found = shutil.which(words[0]) if words else None
     return Path(found) if found else None
+
+
+COMMAND_FILES_MAX_BYTES = 4 << 30
+"""What the files a command names (its program aside) may total: each sweep hashes them once
+per tracker, and 4 GiB take about 3 s at SHA-256's 1.5 GB/s; a command naming more (a data
+set as an argument) is refused rather than keyed by anything weaker than content."""
+
+
+def command_files(command: str, label: str = "command") -> list[tuple[str, Path]]:
+    """The regular files a command template names after its program word, as (word, path):
+    a word, or the value after the first ``=`` of an ``--option=value`` word, that names an
+    existing regular file from the folder the bench was started in (as the program word is
+    found). A word with a placeholder is the job's own input, keyed apart; a directory is
+    keyed by its name only (the command text), never by its content."""
+    try:
+        words = shlex.split(command)
+    except ValueError:
+        return []
+    found: dict[str, Path] = {}
+    for word in words[1:]:
+        for candidate in (word, word.partition("=")[2] if word.startswith("-") else ""):
+            if not candidate or "{" in candidate or candidate in found:
+                continue
+            path = Path(candidate) if Path(candidate).is_absolute() else Path.cwd() / candidate
+            try:
+                if path.is_file():
+                    found[candidate] = path
+            except OSError:  # a name too long, a loop of links: not a file the key can cover
+                continue
+    total = sum(path.stat().st_size for path in found.values())
+    if total > COMMAND_FILES_MAX_BYTES:
+        raise InputError(
+            f"tracker {label}: the files its command names total {total} bytes, over the "
+            f"{COMMAND_FILES_MAX_BYTES} a row key hashes; name a large input's folder instead "
+            "(a folder is keyed by its name)"
+        )
+    return sorted(found.items())
 
 
 def job_key(
@@ -327,8 +382,10 @@ def identity_of(
     fingerprint: str,
     seed: int | None,
     knobs: dict[str, Any] | None = None,
+    tracker_fingerprint: str | None = None,
 ) -> RunIdentity:
-    """What a row records of a job besides its results."""
+    """What a row records of a job besides its results (``tracker_fingerprint``: of the
+    job's ``tracker_identity``, computed once per tracker by the caller)."""
     return RunIdentity(
         key=key,
         family=family,
@@ -342,6 +399,7 @@ def identity_of(
         detector_config=job.detector.to_dict(),
         seed=seed,
         knobs=knobs or {},
+        tracker_fingerprint=tracker_fingerprint,
     )
 
 
@@ -349,9 +407,10 @@ def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRe
     """The typed row of a single run (what a sweep stores for it)."""
     fingerprint = sequence_fingerprint(sequence)
     camera = sequence.intrinsics if job.camera is not None else None
+    tracker = tracker_identity(job.tracker)
     key = job_key(
         fingerprint,
-        tracker_identity(job.tracker),
+        tracker,
         job.detector,
         job.strategy,
         job.settings,
@@ -359,7 +418,8 @@ def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRe
         camera,
     )
     stored = str(sequence.root.resolve())
-    run = identity_of(job, key, family_of(sequence), stored, fingerprint, seed_of(sequence))
+    family, seed = family_of(sequence), seed_of(sequence)
+    run = identity_of(job, key, family, stored, fingerprint, seed, None, tracker_fingerprint(tracker))
     return RunRecord.of_run(run, metrics, generator_version())
 
 

@@ -35,6 +35,7 @@ from depotbench.eval.run.harness import (
     stages_for,
     track,
     track_tree,
+    tracker_fingerprint,
     tracker_identity,
     uses_stages,
 )
@@ -117,6 +118,7 @@ def jobs_for(
     ``dense_map``: the built-in tracker's runs also build and score their dense maps."""
     jobs = []
     identities = {tracker: tracker_identity(tracker) for tracker in trackers}
+    versions = {tracker: tracker_fingerprint(identity) for tracker, identity in identities.items()}
     for entry in sequence_entries(sequences):
         root, family = entry.root, entry.family
         opened = Sequence.open(root)
@@ -130,7 +132,9 @@ def jobs_for(
                         continue
                     key = job_key(fingerprint, identities[tracker], detector, v.strategy, v.settings, mapped)
                     run = RunJob(root, v.strategy, detector, v.settings, tracker, mapped)
-                    identity = identity_of(run, key, family, stored, fingerprint, seed, dict(entry.knobs))
+                    identity = identity_of(
+                        run, key, family, stored, fingerprint, seed, dict(entry.knobs), versions[tracker]
+                    )
                     jobs.append(SweepJob(key, family, run, fingerprint, identity))
     return jobs
 
