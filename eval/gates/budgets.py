@@ -44,7 +44,12 @@ from depotbench.eval.metrics.figures import (
     configuration_of,
     with_derived,
 )
-from depotbench.eval.metrics.record import RunRecord
+from depotbench.eval.metrics.record import (
+    COMPILATION_NOTE,
+    TIMING_FIELDS,
+    RunRecord,
+    timing_may_include_compilation,
+)
 from depotbench.eval.metrics.statistics import SuccessRule, paired_change, stats, summarize
 from depotbench.eval.sweep.spec import SweepSpec
 from depotbench.eval.sweep.summary import settings_text
@@ -436,7 +441,7 @@ def _group_result(
                 or stats([r.get(metric) for r in members], metric in HIGHER_IS_BETTER).to_dict()
             )
             value = figures.get(aggregate)
-            note = f"(n={figures['n']})"
+            note = f"(n={figures['n']}) {_compilation_note(members, metric)}".strip()
             passed = _within(value, bound)
         verdicts.append(Verdict(check_name, name, budget, value, bound, passed, note))
     seconds = sum(float(r["wall_time_s"] or 0.0) for r in members)
@@ -477,7 +482,15 @@ def _versus_baseline(
 def _note(row: ScoredRun, metric: str, reference: str) -> str:
     if row.get("failure"):
         return f"(the run failed: {row['failure']})"
-    return f"against {reference}" if metric == "time_ratio" else ""
+    note = f"against {reference}" if metric == "time_ratio" else ""
+    return f"{note} {_compilation_note([row], metric)}".strip()
+
+
+def _compilation_note(rows: list[ScoredRun], metric: str) -> str:
+    """Said of a time judged on rows written before times excluded compiling the kernels."""
+    timed = metric == "time_ratio" or metric in TIMING_FIELDS
+    old = sum(timing_may_include_compilation(r) for r in rows) if timed else 0
+    return f"({COMPILATION_NOTE}: {old} of {len(rows)} rows predate record version 7)" if old else ""
 
 
 def format_report(report: GateReport) -> str:

@@ -19,7 +19,7 @@ RECORD_VERSION = 7
 a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
 configuration, settings and parameters as typed JSON, sequences relative to the sweep;
 5: the median ATE; 6: the dense map's figures; 7: the tracker fingerprint (and keys that
-cover every file a command names)."""
+cover every file a command names), and times that exclude compiling the kernels."""
 
 UNKNOWN_FINGERPRINT = "unknown"
 """The tracker fingerprint of a row written before record version 7: one version of its own,
@@ -287,3 +287,13 @@ ADDED_FIELDS = {
 them read with them empty (a baseline kept from version 4 still serves compare and check)."""
 TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")
 DETERMINISTIC_FIELDS = tuple(f for f in FIELDS if f not in TIMING_FIELDS)
+TIMED_WITHOUT_COMPILING = 7
+"""The first record version whose times exclude compiling the kernels (``kernels.ready``
+runs before the clock starts). An earlier row's first frames may hold the 14 s of a first
+run after an install: its per-frame means read up to 10x too high."""
+COMPILATION_NOTE = "timing may include compilation"
+
+
+def timing_may_include_compilation(row: RunRecord) -> bool:
+    """Whether a row's times may hold kernel compilation (written before record version 7)."""
+    return int(row.get("record_version") or 0) < TIMED_WITHOUT_COMPILING

@@ -28,6 +28,7 @@ from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
 from depotbench.sim.sequence import Sequence
+from depotbench.slam import kernels
 from depotbench.slam.config import RejectionConfig, SlamConfig, TrackingConfig
 from depotbench.slam.features import FeatureExtractor, FrameFeatures
 from depotbench.slam.rejection import Flow, classify, flow_to_previous
@@ -36,7 +37,9 @@ from depotbench.slam.types import REJECTION_CODES, Rejection
 
 FEATURES_STAGE = "features"
 FLOW_STAGE = "flow"
-STAGE_FORMAT = 1
+STAGE_FORMAT = 2
+"""2: stage times measured with the kernels compiled beforehand (``kernels.ready``): a stage
+kept from before may hold the compile time in its first frames, so it is measured again."""
 NO_IMAGE = np.zeros((0, 0), np.uint8)
 _FIELDS = ("keypoints_px", "undistorted_px", "octaves", "descriptors", "depth_m", "angles_deg")
 
@@ -80,6 +83,7 @@ def sequence_stages(
     flows = _load(cache.get(FLOW_STAGE, l_key)) if cache is not None and need_flow else None
     if features is not None and (flows is not None or not need_flow):
         return _assemble(features, flows if need_flow else None)
+    kernels.ready()  # the times kept with the stages must not include compiling
     features, flows = _compute(sequence, tracking, rejection, progress)
     if cache is not None:
         cache.put(FEATURES_STAGE, f_key, _dump(features))

@@ -26,7 +26,7 @@ from depotbench.eval.metrics.figures import (
     parameters_of,
     with_derived,
 )
-from depotbench.eval.metrics.record import RunRecord
+from depotbench.eval.metrics.record import COMPILATION_NOTE, RunRecord, timing_may_include_compilation
 from depotbench.eval.metrics.statistics import SuccessRule, summarize
 
 
@@ -64,6 +64,8 @@ def configurations(rows: list[RunRecord], rule: SuccessRule | None = None) -> li
                 "sequences": len(members),
                 **summarize(members, rule),
                 **{f.name: _mean([m.get(f.name) for m in members]) for f in FIGURES},
+                # Rows written before times excluded compiling: their times are not comparable.
+                **({"timing": COMPILATION_NOTE} if any(map(timing_may_include_compilation, members)) else {}),
             }
         )
     return out
