@@ -421,6 +421,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise InputError(f"--command applies to --slam {takers('command')} only")
     if args.vocabulary is not None and not kind.vocabulary:
         raise InputError(f"--vocabulary applies to --slam {takers('vocabulary')} only")
+    if args.vocabulary is not None:
+        from depotbench.eval.trackers.vocabulary import vocabulary_problem
+
+        if (problem := vocabulary_problem(args.vocabulary)) is not None:
+            raise InputError(f"{args.vocabulary}: {problem}")
     if args.param and not kind.parameters:
         raise InputError(
             f"--param applies to --slam {takers('parameters')} (the built-in tracker takes --set)"

@@ -21,6 +21,7 @@ from depotbench.eval.trackers.external import run_child
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.reaper import Scratch
 from depotbench.eval.trackers.registry import parameter_text
+from depotbench.eval.trackers.vocabulary import vocabulary_problem
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.slam.types import TrackingState
 
@@ -147,8 +148,9 @@ class Orbslam3Tracker:
     def run(self, frames: FrameSource, progress: bool) -> TrackerRun:
         if not available():
             raise TrackerError(f"ORB-SLAM3 is not installed: {INSTALL_HINT}")
-        if not self.vocabulary.is_file():
-            raise TrackerError(f"{self.vocabulary}: no such vocabulary (build one with `depotbench vocab`)")
+        problem = vocabulary_problem(self.vocabulary)
+        if problem is not None:
+            raise TrackerError(f"{self.vocabulary}: {problem}")
         sequence = frames.sequence
         try:  # a folder and process group that end with depotbench, SIGKILL included
             guard = Scratch("depotbench-orbslam3-")

@@ -30,6 +30,7 @@ import math
 import multiprocessing
 import os
 import re
+import stat
 import tempfile
 import time
 from collections import deque
@@ -328,6 +329,23 @@ def clear_cached(folder: Path) -> Contents:
         removed += 1
         freed += size
     return Contents(removed, freed)
+
+
+def vocabulary_problem(path: Path) -> str | None:
+    """What keeps ``path`` from being a vocabulary file, or None: missing, a folder, or not a
+    regular file. ORB-SLAM reads the file itself, so a device or a pipe would hang or fill
+    memory there (/dev/zero never ends) instead of failing here."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        return "no such vocabulary (build one with `depotbench vocab -o FILE`)"
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror or exc})"
+    if stat.S_ISDIR(mode):
+        return "is a folder, not a vocabulary file"
+    if not stat.S_ISREG(mode):
+        return "is not a regular file (a device, pipe or socket), not a vocabulary"
+    return None
 
 
 def default_vocabulary(
