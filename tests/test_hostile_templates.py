@@ -342,3 +342,41 @@ def test_a_parameter_named_like_a_placeholder_is_told_so_plainly(
     assert code == 2
     line = one_error_line(err, "parameter 'trajectory'", "{trajectory} is one of the bench's placeholders")
     assert "letters" not in line
+
+
+# -- O11: a process that leaves the program's group ------------------------------------------------
+
+ESCAPER = """
+import shutil, subprocess, sys
+sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+open(sys.argv[3], "w").write(str(sleeper.pid))
+shutil.copy(sys.argv[1] + "/groundtruth.txt", sys.argv[2])
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/fd").exists(), reason="reads /proc")
+def test_a_process_that_escapes_the_programs_group_is_named_and_ended_without_a_stall(
+    camera_sequence: Sequence, tmp_path: Path, capsys, caplog
+):
+    """O11: a setsid grandchild holding the program's output kept the bench waiting 5 s a
+    pipe (10 s a run) and was never mentioned."""
+    from tests.test_external_program import alive, gone_within
+
+    script = tmp_path / "escaper.py"
+    script.write_text(ESCAPER)
+    pid_file = tmp_path / "pid"
+    command = f"{sys.executable} {script} {{sequence}} {{trajectory}} {pid_file}"
+    started = time.monotonic()
+    with caplog.at_level("WARNING", logger="depotbench"):
+        code, out, err = cli(
+            capsys, "run", camera_sequence.root, "-o", tmp_path / "r", "--slam", "cmd", "--command", command
+        )
+    elapsed = time.monotonic() - started
+    print(f"the run took {elapsed:.1f} s")
+    assert code == 0, err
+    pid = int(pid_file.read_text())
+    warned = [r.getMessage() for r in caplog.records if "outlived it" in r.getMessage()]
+    assert len(warned) == 1 and f"process {pid}," in warned[0] and "was killed" in warned[0], warned
+    assert gone_within(5.0, lambda: not alive(pid))
+    assert "outlived it" in (tmp_path / "r" / "program.log").read_text()
+    assert elapsed < 2 * 5.0  # the stall it had: 5 s for each of two pipes

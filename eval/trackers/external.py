@@ -4,7 +4,10 @@ with a time limit and a progress bar (their output files are read by ``protocol`
 from __future__ import annotations
 
 import collections
+import contextlib
+import logging
 import os
+import signal
 import subprocess
 import threading
 import time
@@ -17,6 +20,8 @@ from depotbench.eval.trackers.watcher import kill_group
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence
 
+LOG = logging.getLogger(__name__)
+
 STDERR_TAIL_LINES = 20
 STDERR_LINE_CHARS = 500
 """A line of the program's stderr is kept to this many characters (the error shows the last)."""
@@ -24,7 +29,10 @@ READ_BYTES = 1 << 16
 """Stderr is read in pieces of 64 KiB: a program that writes without newlines once grew
 one string to 2.4 GB."""
 POLL_S = 0.1
-READER_JOIN_S = 5.0
+READER_JOIN_S = 1.0
+"""Once the program has exited and its group is killed, its pipes close within
+milliseconds; one still open after this is held by a process that left the group
+(``setsid``), which stalled each run 10 s without a word."""
 
 
 def write_settings(sequence: Sequence, path: Path) -> Path:
@@ -88,8 +96,10 @@ def run_child(
     for reader in readers:
         reader.start()
 
+    notes: list[str] = []  # the bench's own lines about the run, kept with its output
+
     def log() -> str:
-        return _log(out.text(), tail.raw.text())
+        return _log(out.text(), tail.raw.text()) + "".join(f"== depotbench ==\n{n}\n" for n in notes)
 
     try:
         _watch(child, tail, what=what, started=started, timeout_s=timeout_s, frames=frames, progress=progress)
@@ -100,10 +110,13 @@ def run_child(
         _kill(child, group)
         raise
     peak_mb = _kill(child, group)  # it has exited: this ends what it left running, which may hold a pipe open
-    for reader, stream in zip(readers, (child.stderr, child.stdout), strict=True):
-        reader.join(timeout=READER_JOIN_S)
+    streams = (child.stderr, child.stdout)
+    escaped = _outlived(readers, streams, what)
+    for reader, stream in zip(readers, streams, strict=True):
         if not reader.is_alive():
             stream.close()
+    if escaped:
+        notes.append(escaped)
     if child.returncode != 0:
         how = (
             f"was killed by signal {-child.returncode}"
@@ -112,6 +125,55 @@ def run_child(
         )
         raise TrackerError(f"{what}: {how} ({tail.last() or 'no message'})", log())
     return ChildResult(time.perf_counter() - started, peak_mb, log())
+
+
+def _outlived(readers: list[threading.Thread], streams: tuple, what: str) -> str | None:
+    """Wait up to ``READER_JOIN_S`` for the program's pipes to close. Where a process it
+    started left its group and holds one, end that process (found in /proc, where there
+    is one) and say so in one warning line, which is returned."""
+    deadline = time.monotonic() + READER_JOIN_S
+    for reader in readers:
+        reader.join(timeout=max(0.0, deadline - time.monotonic()))
+    open_pipes = [s.fileno() for r, s in zip(readers, streams, strict=True) if r.is_alive()]
+    if not open_pipes:
+        return None
+    holders = sorted({pid for fd in open_pipes for pid in _pipe_holders(fd)})
+    for pid in holders:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGKILL)
+    for reader in readers:
+        reader.join(timeout=READER_JOIN_S)
+    shown = ", ".join(map(str, holders))
+    warning = (
+        f"{what}: process {shown}, started by the program outside its process group (setsid?), "
+        "outlived it holding its output open, and was killed"
+        if holders
+        else f"{what}: a process started by the program outside its process group (setsid?) "
+        "outlived it holding its output open; it is left running"
+    )
+    LOG.warning(warning)
+    return warning
+
+
+def _pipe_holders(fd: int) -> list[int]:
+    """The other processes that hold the pipe ``fd`` reads, from /proc (none where there is
+    no /proc): only the program's descendants inherited it."""
+    try:
+        target = f"pipe:[{os.fstat(fd).st_ino}]"
+        pids = [int(name) for name in os.listdir("/proc") if name.isdigit()]
+    except OSError:
+        return []
+    holders = []
+    for pid in pids:
+        if pid == os.getpid():
+            continue
+        try:
+            links = [os.readlink(f"/proc/{pid}/fd/{n}") for n in os.listdir(f"/proc/{pid}/fd")]
+        except OSError:  # gone, or not ours to look at
+            continue
+        if target in links:
+            holders.append(pid)
+    return holders
 
 
 def _log(stdout: str, stderr: str) -> str:
