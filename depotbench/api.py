@@ -155,7 +155,7 @@ def run(
     out: str | Path | None = None,
     *,
     strategy: str = "none",
-    detector: DetectorConfig | str = "groundtruth",
+    detector: DetectorConfig | str | None = None,
     settings: Mapping[str, Setting] | None = None,
     tracker: TrackerConfig | str = "builtin",
     parameters: Mapping[str, Setting] | None = None,
@@ -166,7 +166,8 @@ def run(
     camera: CameraOverride | Intrinsics | str | Path | None = None,
 ) -> RunRecord:
     """Track a sequence with a rejection ``strategy``, boxes from ``detector`` (a
-    ``DetectorConfig`` or its text, ``"onnx"``, ``"groundtruth+miss=0.3"``) and threshold
+    ``DetectorConfig`` or its text, ``"onnx"``, ``"groundtruth+miss=0.3"``; None: the true
+    boxes of a generated sequence, none on a real folder with ``strategy="none"``) and threshold
     ``settings``; ``tracker``: a registry name (``builtin``, ``orbslam3``) or a whole
     ``TrackerConfig`` (a ``cmd`` tracker needs its command). With ``out``, the run folder is
     written there (trajectory, frames, metrics, record: what ``depotbench report`` reads);
@@ -179,20 +180,21 @@ def run(
     sensor's calibration, else the ROS default, and a warning says which
     (``logging.getLogger("depotbench")``); metrics.json's ``camera`` records what was used."""
     from depotbench.eval.run.cache import StageCache
-    from depotbench.eval.run.harness import RunJob, run_job
+    from depotbench.eval.run.harness import RunJob, default_detector, run_job
     from depotbench.sim.sequence import Sequence
 
     root = sequence.root if isinstance(sequence, Sequence) else Path(sequence)
     if camera is None and isinstance(sequence, Sequence):
         camera = sequence.camera_given
+    given = _camera(camera)
     job = RunJob(
         root,
         strategy,
-        _detector(detector),
+        _detector(detector) if detector is not None else default_detector(root, strategy, given),
         _settings(settings or {}),
         _tracker(tracker, parameters or {}),
         dense_map,
-        _camera(camera),
+        given,
     )
     stages = StageCache.from_env() if cache else None
     finished = run_job(

@@ -8,14 +8,19 @@ from pathlib import Path
 from depotbench.core.errors import InputError
 
 
-def add_detector_options(p: argparse.ArgumentParser, default: str = "groundtruth") -> None:
+def add_detector_options(p: argparse.ArgumentParser, default: str | None = "groundtruth") -> None:
+    """``default`` None: the run picks one that needs nothing the sequence lacks
+    (``harness.default_detector``)."""
+    said = default or (
+        "groundtruth on a generated sequence; none on a real folder with --strategy none, which uses no boxes"
+    )
     p.add_argument(
         "--detector",
         default=default,
         metavar="DETECTOR",
         help="where boxes come from: groundtruth (true visible boxes), onnx (the shipped "
         "YOLOX-nano), onnx:PATH (another YOLOX/YOLOv5/YOLOv8 ONNX model) or none "
-        f"(default: {default})",
+        f"(default: {said})",
     )
     p.add_argument(
         "--detector-set",
@@ -55,11 +60,15 @@ def pairs(items: list[str], flag: str) -> dict[str, str]:
 
 
 def detector_config(args: argparse.Namespace):
+    """The detector the options name; None where they name none and the command picks
+    (``add_detector_options(default=None)``): a setting or fault alone means groundtruth's."""
     from depotbench.detectors.config import DetectorConfigError, parse_detector
 
+    if args.detector is None and not (args.detector_set or args.fault or args.class_prior):
+        return None
     try:
         return parse_detector(
-            args.detector,
+            args.detector or "groundtruth",
             pairs(args.detector_set, "--detector-set"),
             pairs(args.fault, "--fault"),
             pairs(args.class_prior, "--class-prior"),

@@ -338,7 +338,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help="dynamic-feature rejection; 'mask' blanks dynamic boxes in RGB and depth before the "
         "tracker sees the frames (any tracker); the others are the built-in tracker's",
     )
-    add_detector_options(p)
+    add_detector_options(p, default=None)
     add_camera_options(p)
     p.add_argument(
         "--set",

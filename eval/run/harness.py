@@ -140,6 +140,27 @@ def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, Sl
     return sequence, config
 
 
+BOXLESS_STRATEGIES = ("none",)
+"""The strategies that decide nothing from boxes: on a real folder they need no detector."""
+
+
+def default_detector(
+    sequence_dir: Path, strategy: str, camera: CameraOverride | None = None
+) -> DetectorConfig:
+    """The detector of a run that names none: the true boxes of a generated sequence. A real
+    TUM folder has no ground truth to draw boxes from, so there a strategy that uses no boxes
+    runs with no detector, and one that does is refused in one line naming what to give."""
+    sequence = Sequence.open(sequence_dir, camera=camera)
+    if sequence.is_generated:
+        return DetectorConfig()
+    if strategy in BOXLESS_STRATEGIES:
+        return DetectorConfig(DetectorKind.NONE)
+    raise InputError(
+        f"{sequence.root}: --strategy {strategy} needs boxes, and a real folder has no ground truth "
+        "to draw them from: give --detector onnx (the shipped YOLOX-nano) or onnx:PATH"
+    )
+
+
 @functools.cache
 def _warn_once(message: str) -> None:
     """A guessed camera is said once per folder and process: a sweep prepares each of its
@@ -439,14 +460,14 @@ def run_sequence(
 ) -> dict[str, Any]:
     """Track a sequence; return (and write) its metrics (``dense_map``: and its map, map.ply).
 
-    ``detector`` defaults to the ground-truth boxes; ``cache`` holds detections
+    ``detector`` defaults to ``default_detector``'s choice; ``cache`` holds detections
     between runs (``StageCache.from_env()`` is the default on the command line);
     ``camera``: a real TUM folder's camera (``eval/cli/camera.py``), recorded in the metrics.
     """
     job = RunJob(
         Path(sequence_dir),
         strategy,
-        detector or DetectorConfig(),
+        detector if detector is not None else default_detector(Path(sequence_dir), strategy, camera),
         tuple(sorted((settings or {}).items())),
         tracker or TrackerConfig(),
         dense_map,

@@ -38,9 +38,10 @@ from collections.abc import Iterator
 from depotbench.core.errors import InputError
 
 VARIABLE = "DEPOTBENCH_KERNELS"
-ANNOUNCE_AFTER_S = 1.0
+ANNOUNCE_AFTER_S = 3.0
 """A warm-up still running after this long is compiling, not loading (0.5 s from the cache,
-14 s compiling): only then does it say so, so a user knows what the wait is."""
+1.5 s on a busy machine, 14 s compiling): only then does it say so, so a user knows what
+the wait is."""
 LOG = logging.getLogger("depotbench.kernels")
 
 
@@ -157,5 +158,5 @@ def _ready(path: Kernels) -> float:
     finally:
         announce.cancel()
     if seconds > ANNOUNCE_AFTER_S:
-        LOG.info(f"kernels compiled in {seconds:.1f} s (kept in Numba's cache for later runs)")
+        LOG.info(f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
     return seconds
