@@ -74,18 +74,18 @@ class Fields:
         # precedes one. bytes.split() finds the same fields, one object each.
         starts = np.flatnonzero(~space & np.concatenate(([True], space[:-1])))
         ends = np.flatnonzero(~space & np.concatenate((space[1:], [True]))) + 1
-        newline_before = np.concatenate(([0], np.cumsum(raw == 10)))
-        field_line = newline_before[starts]
+        newlines = np.flatnonzero(raw == 10)
+        field_line = np.searchsorted(newlines, starts)  # the newlines before a field: its line
         first = np.concatenate(([True], field_line[1:] != field_line[:-1]))
-        comments = np.zeros(int(newline_before[-1]) + 1, bool)
+        comments = np.zeros(len(newlines) + 1, bool)
         comments[field_line[first & (raw[starts] == ord("#"))]] = True
         data_field = ~comments[field_line]
         self._raw = raw
         self._starts, self._ends = starts[data_field], ends[data_field]
-        lines, self._first, self.counts = np.unique(
-            field_line[data_field], return_index=True, return_counts=True
-        )
-        self.lines = lines + first_line
+        self._first = np.flatnonzero(first[data_field])
+        """Index of each data line's first field (fields come in line order)."""
+        self.counts = np.diff(np.append(self._first, len(self._starts)))
+        self.lines = field_line[data_field][self._first] + first_line
         """(L,) the file's line number of each data line."""
 
     def __len__(self) -> int:
@@ -112,11 +112,15 @@ class Fields:
         gathered[offsets >= widths[:, None]] = 0
         return gathered.view(f"S{width}").ravel()
 
-    def numbers(self, column: int, what: str) -> np.ndarray:
+    def numbers(self, column: int, what: str, repeated: bool = False) -> np.ndarray:
         """The ``column``-th field of every line as float64; the first that is not a number
-        is named with its line."""
+        is named with its line. ``repeated``: a column of few distinct values (a frame's
+        timestamp on each of its keypoints), converted once each."""
         text = self.text(column)
         try:
+            if repeated:
+                distinct, inverse = np.unique(text, return_inverse=True)
+                return distinct.astype(np.float64)[inverse]
             return text.astype(np.float64)
         except ValueError:
             for row, field in enumerate(text):

@@ -244,7 +244,7 @@ def _frames_of(fields: Fields, index: tuple[np.ndarray, np.ndarray]) -> np.ndarr
     """Each line's frame, from its timestamp (within ``TIMESTAMP_TOLERANCE_S``); the first
     that is not finite or no frame's is named."""
     stamps, order = index
-    t = fields.numbers(0, "timestamp")
+    t = fields.numbers(0, "timestamp", repeated=True)
     k = np.searchsorted(stamps, t)
     below, above = np.clip(k - 1, 0, len(stamps) - 1), np.clip(k, 0, len(stamps) - 1)
     with np.errstate(invalid="ignore"):
