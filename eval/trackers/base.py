@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.eval.metrics.trajectory import Trajectory
+from depotbench.eval.trackers.evidence import Evidence
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.slam.types import FrameResult, TrackingState
 
@@ -22,14 +23,16 @@ if TYPE_CHECKING:
 class TrackerError(InputError):
     """An external tracker that is missing, failed, or gave output we cannot read.
 
-    ``log`` keeps the end of what the program printed, for the run folder or the row."""
+    ``log`` keeps the end of what the program printed, and ``evidence`` how it was started
+    and what it wrote (bounded), for the failed run's folder (``evidence.write_evidence``)."""
 
-    def __init__(self, message: str, log: str = "") -> None:
+    def __init__(self, message: str, log: str = "", evidence: Evidence | None = None) -> None:
         super().__init__(message)
         self.log = log
+        self.evidence = evidence
 
-    def __reduce__(self):  # it crosses from worker processes with its log
-        return (type(self), (str(self), self.log))
+    def __reduce__(self):  # it crosses from worker processes with its log and evidence
+        return (type(self), (str(self), self.log, self.evidence))
 
 
 @dataclass(frozen=True, eq=False)

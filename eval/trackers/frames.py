@@ -2,8 +2,8 @@
 
 ``mask`` blanks RGB and depth inside the boxes of dynamic classes before any
 tracker sees them (DynaSLAM-style), so box rejection can be measured on trackers
-that take no boxes. External trackers read folders: ``folder`` writes the masked
-frames as a plain TUM sequence when masking is on.
+that take no boxes. External trackers read folders: ``folder`` hands them a view of the
+sequence they cannot change it through, or the masked frames as a plain TUM sequence.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.detectors.detection import Detection, Prior
+from depotbench.eval.trackers.sequence_view import view_of
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence, timestamp_name
 from depotbench.sim.tum_files import write_frame_list
@@ -92,12 +93,19 @@ class FrameSource:
         return rgb, depth
 
     def folder(self, scratch: Path) -> Path:
-        """A TUM folder holding these frames: the sequence itself, or a masked copy in ``scratch``.
+        """A TUM folder holding these frames, in ``scratch``: a view of the sequence (its text
+        files copied, its frames hard-linked: ``sequence_view``; named as the sequence is,
+        since a real folder's name tells its camera), or a masked copy. A program writing into it
+        never changes the sequence itself.
 
-        Raises InputError naming the copy when it cannot be written (a full disk, say).
+        Raises InputError naming the folder when it cannot be written (a full disk, say).
         """
         if self.mask is None:
-            return self.sequence.root
+            root = scratch / "view" / (self.sequence.root.resolve().name or "sequence")
+            try:
+                return view_of(self.sequence, root)
+            except OSError as exc:
+                raise InputError(f"{root}: cannot write the sequence's view: {exc.strerror or exc}") from None
         root = scratch / "masked"
         try:
             self._write_masked(root)
