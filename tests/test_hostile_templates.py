@@ -116,6 +116,29 @@ def test_a_sandboxed_template_still_renders_what_a_settings_file_needs(
     assert f"Camera.fx: {k.fx}" in out.replace(".0\n", "\n") or f"Camera.fx: {k.fx:g}" in out
 
 
+def test_a_rendering_is_made_once_per_process_and_a_refusal_every_time(
+    camera_sequence: Sequence, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """A sweep renders a template for every job: the same request gives the child's first
+    answer back (a rendering is a function of its request), a refusal is never kept."""
+    from depotbench.eval.trackers import sandbox
+
+    started = []
+    real = sandbox._render
+    monkeypatch.setattr(sandbox, "_render", lambda *a: started.append(a) or real(*a))
+    monkeypatch.setattr(sandbox, "_rendered", {})
+    template = SettingsTemplate(tmp_path / "t.j2", "a: {{ params.a }}\n")
+    first = [template.render(camera_sequence, {"a": "1"}) for _ in range(3)]
+    other = template.render(camera_sequence, {"a": "2"})
+    assert first == ["a: 1\n"] * 3 and other == "a: 2\n"
+    assert len(started) == 3  # compiled, then rendered twice
+    refused = SettingsTemplate(tmp_path / "z.j2", "{{ 1 / 0 }}")
+    for _ in range(2):
+        with pytest.raises(InputError, match="ZeroDivisionError|division"):
+            refused.render(camera_sequence, {})
+    assert len(started) == 6
+
+
 # -- the entry points: validate (a child process), run, the pytest plugin ---------------------
 
 
