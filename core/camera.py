@@ -28,6 +28,11 @@ at fx = 1 sees 175 degrees); they keep the arithmetic finite."""
 
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2", "k3")
 """OpenCV's radial-tangential coefficients, in the order ``Intrinsics.distortion`` holds them."""
+DISTORTION_LIMITS = {"k1": 10.0, "k2": 10.0, "p1": 1.0, "p2": 1.0, "k3": 10.0}
+"""Largest magnitude of each given coefficient: calibrated lenses in this model have radial
+k of a few at most (TUM fr1: k1 0.26, k2 -0.95, k3 1.16) and tangential p of hundredths. At
+an image corner (r^2 about 0.6 at fx 525) k = 10 already scales a point's radius by 7 and
+p = 1 moves it by hundreds of pixels; 1e30 gave an ATE of 4e12 m and exit 0."""
 
 
 @dataclass(frozen=True)
@@ -167,6 +172,12 @@ class CameraOverride:
                 )
             for name, value in zip(DISTORTION_NAMES, self.distortion, strict=True):
                 _finite(self.origin, name, value)
+                if abs(value) > DISTORTION_LIMITS[name]:
+                    limit = DISTORTION_LIMITS[name]
+                    raise ValueError(
+                        f"{self.origin}: distortion {name} = {value:g} is outside the plausible "
+                        f"{-limit:g}..{limit:g} of a real lens"
+                    )
         if self.depth_factor is not None:
             _finite(self.origin, "depth factor", self.depth_factor)
             unit = "per metre (TUM: 5000)"

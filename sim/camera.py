@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 from depotbench.core.camera import (
     DEPTH_FACTOR_RANGE,
+    DISTORTION_LIMITS,
     DISTORTION_NAMES,
     FOCAL_RANGE_PX,
     CameraOverride,
@@ -326,6 +327,9 @@ def read_camera_file(path: Path) -> CameraOverride:
     for key, value in zip(distortion_keys, given, strict=True):
         if value is not None and not math.isfinite(value):
             raise FileError(path, None, f"{key} must be a finite number, got {value}")
+        limit = DISTORTION_LIMITS[key.split(".")[1]]
+        if value is not None and abs(value) > limit:
+            raise FileError(path, None, f"{key} = {value:g} is outside the plausible {-limit:g}..{limit:g}")
     # A key left out is 0, as ORB-SLAM2 reads it (OpenCV's empty node) and as ORB-SLAM3 leaves k3.
     distortion = tuple(value or 0.0 for value in given) if any(v is not None for v in given) else None
     depth_factor = settings.number(depth_key)

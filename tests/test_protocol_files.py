@@ -309,3 +309,43 @@ def test_a_large_keypoint_file_is_read_in_bounded_memory(seq: Path, tmp_path: Pa
     assert int(read) == count
     result_mb = count * 19 / 2**20  # points, flag and reason code of each keypoint
     assert float(grown_mb) < result_mb + 60, (grown_mb, result_mb)
+
+
+# -- N6: lens distortion is bounded as the focal length is ---------------------------------
+
+
+@pytest.mark.parametrize(
+    ("flags", "needle"),
+    [
+        # 1e30 gave "tracked 6/6, ATE 4.4e12 m", rc 0; 1e6 a plausible-looking 0.031 m.
+        (["--distortion", "1e30", "0", "0", "0"], "--distortion: distortion k1 = 1e+30 is outside"),
+        (["--distortion", "0", "1e6", "0", "0"], "distortion k2 = 1e+06 is outside the plausible -10..10"),
+        (["--distortion", "0", "0", "1.5", "0"], "distortion p1 = 1.5 is outside the plausible -1..1"),
+        (["--distortion", "0", "0", "0", "0", "-11"], "distortion k3 = -11 is outside"),
+        (["--camera", "CAMERA"], "cam.yaml: Camera.k1 = 1e+30 is outside the plausible -10..10"),
+    ],
+)
+def test_an_implausible_lens_distortion_is_one_line_naming_it(tmp_path: Path, capsys, flags, needle):
+    from tests.test_camera_input import as_real
+
+    write_sequence(tmp_path / "generated", n=4, with_flow=False)
+    real = as_real(tmp_path / "generated", tmp_path / "my_recording")
+    camera = (tmp_path / "generated" / "camera.yaml").read_text()
+    assert "Camera.k1: 0.0" in camera
+    (tmp_path / "cam.yaml").write_text(camera.replace("Camera.k1: 0.0", "Camera.k1: 1e30"))
+    if flags[0] == "--distortion":
+        flags = ["--intrinsics", "50", "50", "31.5", "23.5", *flags]
+    flags = [str(tmp_path / "cam.yaml") if f == "CAMERA" else f for f in flags]
+    out = tmp_path / "out"
+    code, _, err = cli(capsys, "run", real, "-o", out, "--detector", "none", *flags)
+    assert code == 2
+    one_error_line(err, needle)
+    assert not out.exists()
+
+
+def test_a_real_lens_distortion_is_taken(tmp_path: Path):
+    """TUM fr1's calibration (k3 1.16) and values at the bounds pass."""
+    from depotbench.core.camera import CameraOverride
+
+    for distortion in ((0.2624, -0.9531, -0.0054, 0.0026, 1.1633), (10.0, -10.0, 1.0, -1.0, 10.0)):
+        assert CameraOverride((517.3, 516.5, 318.6, 255.3), distortion).distortion == distortion
