@@ -40,6 +40,12 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         help="the run matrix's folder, resumed if it exists (default: runs/check-NAME)",
     )
     p.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
+    p.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="run the folder's failed rows again (a program's exit, time limit or unreadable output) "
+        "instead of reusing them",
+    )
     p.add_argument("--backend", choices=("local", "ray"), default="local", help="where runs execute")
     p.add_argument(
         "--json", action="store_true", help="print the verdicts as JSON (each run's budgets, the failures)"
@@ -63,7 +69,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
         check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates.gates}"
-    report = check_folder(gates, out, args.workers, args.backend, args.address)
+    report = check_folder(gates, out, args.workers, args.backend, args.address, args.retry_failed)
     if args.junit is not None:
         write_text_atomic(args.junit, junit_xml(report))
     if args.json:

@@ -31,6 +31,12 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         help="track every job, even where another keeps the same keypoints in every frame",
     )
     p.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="run the failed rows again (a program's exit, time limit or unreadable output) instead "
+        "of reusing them",
+    )
+    p.add_argument(
         "--json",
         action="store_true",
         help="print summary.json's content (best per family, Pareto front, configurations) instead of tables",
@@ -52,6 +58,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         dedupe=not args.no_dedupe,
         backend=args.backend,
         address=args.address,
+        retry_failed=args.retry_failed,
     )
     if args.json:
         print(dumps_json(outcome.summary))

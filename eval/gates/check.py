@@ -39,13 +39,21 @@ def open_gates(path: Path, baseline: Path | None = None, chosen: tuple[str, ...]
 
 
 def check_folder(
-    gates: Gates, out: Path, workers: int, backend: str = "local", address: str | None = None
+    gates: Gates,
+    out: Path,
+    workers: int,
+    backend: str = "local",
+    address: str | None = None,
+    retry_failed: bool = False,
 ) -> GateReport:
-    """``run_gates`` into the folder ``out`` (resumed if it is a depotbench run folder)."""
+    """``run_gates`` into the folder ``out`` (resumed if it is a depotbench run folder;
+    ``retry_failed``: its failed rows run again)."""
     from depotbench.core.output import OutputContainer, OutputKind
 
     with OutputContainer(out, OutputKind.SWEEP, inputs=gates.inputs) as container:
-        return run_gates(gates.gates, gates.path, container.path, workers, backend, address, gates.baseline)
+        return run_gates(
+            gates.gates, gates.path, container.path, workers, backend, address, gates.baseline, retry_failed
+        )
 
 
 def run_gates(
@@ -56,13 +64,16 @@ def run_gates(
     backend: str = "local",
     address: str | None = None,
     baseline: list[RunRecord] | None = None,
+    retry_failed: bool = False,
 ) -> GateReport:
     """The gate file's matrix through the sweep engine (cache and stored rows reused), checked
     (``baseline``: an earlier run's rows, for ``vs_baseline`` budgets)."""
     from depotbench.eval.gates.budgets import evaluate
     from depotbench.eval.sweep.execute import execute_sweep
 
-    outcome = execute_sweep(gates.run, gates_path, out, workers, backend=backend, address=address)
+    outcome = execute_sweep(
+        gates.run, gates_path, out, workers, backend=backend, address=address, retry_failed=retry_failed
+    )
     return evaluate(gates, outcome.records, baseline)
 
 

@@ -18,6 +18,7 @@ import logging
 import re
 import shlex
 import shutil
+import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -37,8 +38,9 @@ from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.dense import RunMap, run_map
 from depotbench.eval.run.detections import SequenceDetections, detect_sequence, sequence_fingerprint
 from depotbench.eval.run.stages import FrameStages, features_key, sequence_stages
-from depotbench.eval.trackers.base import TrackerRun
+from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.builtin import BuiltinTracker, camera_of
+from depotbench.eval.trackers.evidence import write_evidence
 from depotbench.eval.trackers.frames import FrameSource, MaskSettings
 from depotbench.eval.trackers.registry import BUILTIN, TrackerConfig, tracker_type
 from depotbench.eval.trackers.registry import build as build_tracker
@@ -427,6 +429,11 @@ def identity_of(
 
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
+    return RunRecord.of_run(run_identity(job, sequence), metrics, generator_version())
+
+
+def run_identity(job: RunJob, sequence: Sequence) -> RunIdentity:
+    """What the row of a single run records of it besides its results."""
     fingerprint = sequence_fingerprint(sequence)
     camera = sequence.intrinsics if job.camera is not None else None
     tracker = tracker_identity(job.tracker)
@@ -441,8 +448,7 @@ def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRe
     )
     stored = str(sequence.root.resolve())
     family, seed = family_of(sequence), seed_of(sequence)
-    run = identity_of(job, key, family, stored, fingerprint, seed, None, tracker_fingerprint(tracker))
-    return RunRecord.of_run(run, metrics, generator_version())
+    return identity_of(job, key, family, stored, fingerprint, seed, None, tracker_fingerprint(tracker))
 
 
 def run_sequence(
@@ -501,7 +507,17 @@ def run_job(
     # The output is checked, locked and staged first: a place that must not or cannot be
     # written is refused before the run, not after it.
     with StagedOutput(out_dir, OutputKind.RUN, overwrite=overwrite, inputs=(job.sequence,)) as output:
-        tracked = _execute(job, sequence, config, cache, progress)
+        started = time.perf_counter()
+        try:
+            tracked = _execute(job, sequence, config, cache, progress)
+        except TrackerError as exc:
+            if not job.tracker.type.external:
+                raise
+            _keep_failure(output, job, sequence, exc, time.perf_counter() - started)
+            raise TrackerError(
+                f"{exc}; what it was given and wrote is in {out_dir} (failure.json, program.log, scratch/)",
+                exc.log,
+            ) from None
         run = tracked.run
         estimate = run.trajectory()
         if estimate is not None:
@@ -518,6 +534,18 @@ def run_job(
         (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
         output.commit()
     return Finished(tracked.metrics, record)
+
+
+def _keep_failure(
+    output: StagedOutput, job: RunJob, sequence: Sequence, exc: TrackerError, wall_s: float
+) -> None:
+    """A failed program's run folder: its failed record and what it was given and wrote
+    (``evidence.write_evidence``), swapped into place as a finished run's is."""
+    write_evidence(output.path, str(exc), exc.log, exc.evidence)
+    identity = run_identity(job, sequence)
+    record = RunRecord.failed(identity, str(exc), len(sequence), wall_s, generator_version())
+    (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
+    output.commit()
 
 
 def _time_stats(values_ms: np.ndarray) -> dict[str, float | None]:

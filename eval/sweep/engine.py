@@ -8,6 +8,9 @@ and running it again does exactly the jobs that are missing.
 
 from __future__ import annotations
 
+import logging
+import shutil
+import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -56,6 +59,7 @@ from depotbench.eval.sweep.spec import (
 )
 from depotbench.eval.sweep.store import ResultStore
 from depotbench.eval.trackers.base import TrackerError
+from depotbench.eval.trackers.evidence import Evidence, write_evidence
 from depotbench.eval.trackers.registry import TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
@@ -63,6 +67,7 @@ from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import TrackingConfig
 
 DATABASE = "results.sqlite"
+LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -356,7 +361,16 @@ def decide(jobs: list[SweepJob]) -> list[Decision]:
     return decisions
 
 
-def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
+@dataclass(frozen=True)
+class Failure:
+    """A failed row with what its program was given and wrote (``failures/<key>/``)."""
+
+    record: RunRecord
+    log: str
+    evidence: Evidence | None
+
+
+def run_job(job: SweepJob, bench_version: str) -> list[RunRecord | Failure]:
     """Worker entry point of phase 2 for a job tracked alone. An external program that
     fails (its exit, its time limit, output that cannot be read) gives a failed row, and
     the sweep goes on; the built-in tracker failing is a bug of ours, and raises."""
@@ -366,8 +380,44 @@ def run_job(job: SweepJob, bench_version: str) -> list[RunRecord]:
     except TrackerError as exc:
         if not job.job.tracker.type.external:
             raise
-        return [_failed(job, str(exc), time.perf_counter() - started, bench_version)]
+        record = _failed(job, str(exc), time.perf_counter() - started, bench_version)
+        return [Failure(record, exc.log, exc.evidence)]
     return [_record(job, tracked.metrics, bench_version, None)]
+
+
+FAILURES = "failures"
+KEEP_FAILURES = 20
+"""Failed runs whose folders a sweep keeps (the newest): enough to debug a program that fails
+on some sequences, bounded for one that fails on all of a 2000-run sweep (64 MiB each at most)."""
+
+
+def keep_failure(folder: Path, failure: Failure, keep: int = KEEP_FAILURES) -> Path:
+    """Write a failed run's folder at ``folder/<key>`` (staged and swapped in whole, with the
+    marker of a run folder) and remove the oldest such folders past ``keep``. The caller
+    holds the sweep folder's lock."""
+    from depotbench.core.files import dumps_json
+    from depotbench.core.output import MARKER_NAME, Marker, OutputKind, read_marker, replace_folder
+
+    record = failure.record
+    target = folder / record.key
+    if target.exists() and read_marker(target) is None:
+        raise InputError(f"{target}: not a failed run's folder of depotbench; move it away and run again")
+    folder.mkdir(exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{record.key}.partial-", dir=folder))
+    try:
+        write_evidence(staging, record.failure or "", failure.log, failure.evidence)
+        (staging / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
+        (staging / MARKER_NAME).write_text(Marker(OutputKind.RUN).to_json(), encoding="utf-8")
+        replace_folder(staging, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    kept = []
+    for child in folder.iterdir():
+        if not child.name.startswith(".") and child.is_dir() and read_marker(child) is not None:
+            kept.append(((child / MARKER_NAME).stat().st_mtime_ns, child.name, child))
+    for *_, old in sorted(kept, reverse=True)[keep:]:
+        shutil.rmtree(old)
+    return target
 
 
 def _failed(job: SweepJob, reason: str, wall_s: float, bench_version: str) -> RunRecord:
@@ -433,8 +483,11 @@ def run_jobs(
     dedupe: bool = True,
     backend: str = "local",
     address: str | None = None,
+    retry_failed: bool = False,
 ) -> tuple[int, int]:
-    """Run the jobs whose rows are missing; returns (runs tracked, rows written).
+    """Run the jobs whose rows are missing (``retry_failed``: or failed, time-outs included);
+    returns (runs tracked, rows written). A failed program's row is stored as any row, and
+    what it was given and wrote in ``failures/<key>/`` beside the store (``keep_failure``).
 
     Phase 0 computes the stages jobs share (detections, features, flow), one task per
     sequence and setting, into the stage cache. Phase 1 finds, per job, which keypoints
@@ -443,7 +496,7 @@ def run_jobs(
     where their paths agree; jobs with a path already tracked get its row. ``dedupe=False`` tracks every job
     alone (the reference the tests compare against).
     """
-    done = store.keys()
+    done = store.keys() - (store.failed_keys() if retry_failed else set())
     pending = [j for j in jobs if j.key not in done]
     by_key = {j.key: j for j in pending}
     version = generator_version()
@@ -504,9 +557,13 @@ def run_jobs(
             smoothing=0.1,
         )
         tracked = 0
+        failures = []
         with bar:
             for _, records in pool.map_unordered(_dispatch, tasks):
                 for record in records:
+                    if isinstance(record, Failure):
+                        failures.append(keep_failure(store.path.parent / FAILURES, record))
+                        record = record.record
                     store.add(record)
                     tracked += 1
                     for other in followers.get(record.key, []):
@@ -515,6 +572,11 @@ def run_jobs(
         failed = False
     finally:
         pool.close(failed)
+    if failures:
+        LOG.warning(
+            f"{len(failures)} runs failed; what each program was given and wrote is in "
+            f"{failures[-1].parent}/KEY/ (the last {KEEP_FAILURES} failed runs are kept)"
+        )
     return tracked, len(pending)
 
 

@@ -48,9 +48,11 @@ def execute_sweep(
     backend: str = "local",
     address: str | None = None,
     announce: bool = True,
+    retry_failed: bool = False,
 ) -> SweepOutcome:
-    """Generate (or resume) the sequences, run the missing rows, write results.csv,
-    summary.json and plots under ``out`` (a folder the caller owns)."""
+    """Generate (or resume) the sequences, run the missing rows (``retry_failed``: and the
+    failed ones), write results.csv, summary.json and plots under ``out`` (a folder the
+    caller owns)."""
     from depotbench.eval.sweep.search import run_search
 
     where = {"backend": backend, "address": address}
@@ -59,9 +61,11 @@ def execute_sweep(
     with open_store(out, spec, spec_path) as store:
         stored = store.keys()
         done = len(stored & {j.key for j in jobs})
+        failed = len(store.failed_keys() & {j.key for j in jobs})
         if announce:
             LOG.info(
-                f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done)"
+                f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done"
+                f"{_failed_ones(failed, retry_failed)})"
             )
         if any(j.job.tracker.type.per_keypoint for j in jobs if j.key not in stored):
             # Compiled here once, into Numba's cache, before any worker starts: each worker
@@ -69,7 +73,9 @@ def execute_sweep(
             # worth of ETA), and none inside a timed frame (every worker also calls it).
             kernels.ready()
         started = time.perf_counter()
-        tracked, written = run_jobs(jobs, store, workers, progress=progress, dedupe=dedupe, **where)
+        tracked, written = run_jobs(
+            jobs, store, workers, progress=progress, dedupe=dedupe, retry_failed=retry_failed, **where
+        )
         elapsed = time.perf_counter() - started
         # A family is how this sweep groups sequences, not part of a run's content:
         # rows carry the family of the sweep that asked for them now.
@@ -105,6 +111,16 @@ def execute_sweep(
     return SweepOutcome(records, summary, len(jobs), written, tracked, elapsed, plots, search)
 
 
+def _failed_ones(failed: int, retry_failed: bool) -> str:
+    """What the status line says of stored failed rows: a failure (a time-out on a loaded
+    machine, say) is reused as any row unless the user asks to run it again."""
+    if not failed:
+        return ""
+    if retry_failed:
+        return f"; its {failed} failed runs run again"
+    return f"; {failed} of them failed and are reused: --retry-failed runs them again"
+
+
 def sweep_folder(
     spec_path: Path,
     out: Path,
@@ -114,6 +130,7 @@ def sweep_folder(
     dedupe: bool = True,
     backend: str = "local",
     address: str | None = None,
+    retry_failed: bool = False,
 ) -> SweepOutcome:
     """A sweep spec file run into the folder ``out``: the spec and every file it names are
     checked before the folder is made, and an existing folder is resumed only if it is a
@@ -130,4 +147,5 @@ def sweep_folder(
             dedupe=dedupe,
             backend=backend,
             address=address,
+            retry_failed=retry_failed,
         )

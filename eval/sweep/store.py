@@ -176,6 +176,11 @@ class ResultStore:
     def keys(self) -> set[str]:
         return {row[0] for row in self._read("SELECT key FROM runs")}
 
+    def failed_keys(self) -> set[str]:
+        """The keys of failed runs (a program's exit, time limit or unreadable output)."""
+        found = self._read("SELECT key FROM runs WHERE failure IS NOT NULL AND failure != ''")
+        return {row[0] for row in found}
+
     def add(self, record: RunRecord) -> None:
         row = record.to_row()
         names = ", ".join(FIELDS)
