@@ -290,9 +290,9 @@ def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
         identity["program_sha256"] = file_digest(program, "program").hex() if program else None
         named = command_files(tracker.command, tracker.label)
         if named:  # a command naming no file keeps the identity (and the keys) it had
-            identity["command_files_sha256"] = [
-                [word, file_digest(path, "file the command names").hex()] for word, path in named
-            ]
+            identity["command_files_sha256"] = tuple(
+                (word, file_digest(path, "file the command names").hex()) for word, path in named
+            )
     if tracker.vocabulary is not None:
         identity["vocabulary"] = str(tracker.vocabulary.resolve())
         identity["vocabulary_sha256"] = file_digest(tracker.vocabulary, "vocabulary").hex()
