@@ -14,6 +14,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from unittest import mock
 
@@ -203,6 +204,10 @@ def test_o3_an_interpreters_script_and_its_config_file_are_in_the_key(tmp_path: 
     assert len({first, second, third}) == 3
     assert len({tracker_fingerprint(i) for i in (first, second, third)}) == 3
     assert tracker_identity(tracker) == third  # and nothing else moves it
+    # a parameter is a configuration of one program version, not another version
+    swept = replace(tracker, parameters=(("window", "5"),))
+    assert tracker_fingerprint(tracker_identity(swept)) == tracker_fingerprint(third)
+    assert tracker_identity(swept) != third
 
 
 def test_a_command_naming_more_than_the_bound_is_refused_in_one_line(tmp_path: Path, monkeypatch):

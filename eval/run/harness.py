@@ -305,10 +305,12 @@ tracker collide with odds of about 1 in 10^14."""
 
 
 def tracker_fingerprint(identity: tuple[tuple[str, Any], ...]) -> str:
-    """A short content hash of ``tracker_identity``: every row carries it, so that rows of two
-    versions of one program (one tracker label) are told apart and never paired or averaged
-    together."""
-    return content_hash("tracker", identity)[:FINGERPRINT_CHARS]
+    """A short content hash of ``tracker_identity`` but its parameters: every row carries it,
+    so that rows of two versions of one program (one tracker label) are told apart and never
+    paired or averaged together. Parameters are left out: a sweep over them runs one program,
+    and each value is a configuration of its own (the row's ``parameters``)."""
+    version = [(name, value) for name, value in identity if name != "parameters"]
+    return content_hash("tracker", version)[:FINGERPRINT_CHARS]
 
 
 def _program_path(command: str) -> Path | None:
