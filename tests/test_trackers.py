@@ -155,7 +155,11 @@ def test_a_masked_folder_is_a_readable_tum_sequence_with_the_boxes_blanked(tmp_p
         untouched[8:20, 8:24] = False
         assert np.array_equal(rgb[untouched], sequence.rgb(i)[untouched])
         assert np.array_equal(depth[untouched], sequence.depth_raw(i)[untouched])
-    assert FrameSource(sequence).folder(tmp_path / "other") == sequence.root  # no copy unmasked
+    view = FrameSource(sequence).folder(tmp_path / "other")  # unmasked: a view, not the sequence
+    assert view != sequence.root and view.name == sequence.root.name
+    assert len(Sequence.open(view)) == 3 and np.array_equal(Sequence.open(view).rgb(2), sequence.rgb(2))
+    original, copy = (sequence.root / "groundtruth.txt").stat(), (view / "groundtruth.txt").stat()
+    assert copy.st_ino != original.st_ino  # a private copy: writing it leaves the sequence alone
 
 
 def test_builtin_tracker_with_mask_sees_no_keypoint_inside_a_dynamic_box(tmp_path: Path, capsys):
