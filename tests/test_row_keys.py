@@ -222,3 +222,53 @@ def test_a_command_naming_more_than_the_bound_is_refused_in_one_line(tmp_path: P
         and "tracker mine" in str(refused.value)
         and "2048" in str(refused.value)
     )
+
+
+@pytest.mark.slow  # three sweeps, each starting its program: 5 s
+def test_a_sweep_keeps_rows_of_an_older_program_apart_and_prune_stale_removes_them(tmp_path: Path, caplog):
+    """(Issue 50, item 2.) Swept again after its script changed, a folder keeps the old rows
+    out of the new run's rows and summary, says so per version, and ``--prune-stale`` removes
+    them, naming each version before it goes."""
+    import logging
+
+    from depotbench.eval.cli.main import main
+    from depotbench.eval.sweep.store import ResultStore
+
+    def fingerprints() -> list[str | None]:
+        with ResultStore(out / "results.sqlite", readonly=True) as store:
+            return [r.tracker_fingerprint for r in store.records()]
+
+    write_sequence(tmp_path / "seq", n=2, with_flow=False)
+    script = tmp_path / "prog.py"
+    script.write_text("raise SystemExit(3)\n")  # a failed row is a row: no tracking needed
+    command = f"{sys.executable} {script} {{sequence}} {{trajectory}}"
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(
+        json.dumps(
+            {
+                "sweep": "stale",
+                "sequences": [str(tmp_path / "seq")],
+                "trackers": [{"name": "mine", "command": command}],
+                "detectors": ["none"],
+            }
+        )
+    )
+    out = tmp_path / "out"
+    sweep = ["sweep", str(spec), "-o", str(out), "--workers", "1"]
+    assert main(sweep) == 0
+    (old,) = fingerprints()
+    script.write_text("raise SystemExit(4)\n")
+    caplog.set_level(logging.INFO)
+    assert main(sweep) == 0
+    (new,) = set(fingerprints()) - {old}
+    kept = f"1 row of tracker mine fingerprint {old} (now {new})"
+    assert [m for r in caplog.records if "kept apart" in (m := r.getMessage())] == [
+        f"{kept} kept apart, not reused; --prune-stale removes them"
+    ]
+    summary = json.loads((out / "summary.json").read_text())
+    assert [c["runs"] for c in summary["configurations"]] == [1]
+    caplog.clear()
+    assert main([*sweep, "--prune-stale"]) == 0
+    removed = [m for r in caplog.records if "prune" in (m := r.getMessage())]
+    assert removed == [f"--prune-stale: removing {kept}"]
+    assert fingerprints() == [new]

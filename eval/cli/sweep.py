@@ -37,6 +37,12 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         "of reusing them",
     )
     p.add_argument(
+        "--prune-stale",
+        action="store_true",
+        help="remove the folder's rows of older versions of the spec's trackers (another tracker "
+        "fingerprint), one line per version removed; without it they are kept apart",
+    )
+    p.add_argument(
         "--json",
         action="store_true",
         help="print summary.json's content (best per family, Pareto front, configurations) instead of tables",
@@ -59,6 +65,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         backend=args.backend,
         address=args.address,
         retry_failed=args.retry_failed,
+        prune_stale=args.prune_stale,
     )
     if args.json:
         print(dumps_json(outcome.summary))

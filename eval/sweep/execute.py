@@ -16,8 +16,17 @@ from depotbench.core.files import dumps_json
 from depotbench.core.output import OutputContainer, OutputKind, write_text_atomic
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
-from depotbench.eval.sweep.engine import expand, open_store, run_jobs, sequences_of, spec_inputs, validate
+from depotbench.eval.sweep.engine import (
+    SweepJob,
+    expand,
+    open_store,
+    run_jobs,
+    sequences_of,
+    spec_inputs,
+    validate,
+)
 from depotbench.eval.sweep.spec import SweepSpec, load_sweep
+from depotbench.eval.sweep.store import ResultStore
 from depotbench.eval.sweep.summary import best_per_family, configurations, pareto, plot, unqualified, with_rho
 from depotbench.slam import kernels
 
@@ -37,6 +46,20 @@ class SweepOutcome:
     search: dict[str, Any] | None
 
 
+def _older_versions(store: ResultStore, jobs: list[SweepJob], prune: bool) -> None:
+    """Rows of an older version of one of this sweep's trackers (another fingerprint) are
+    kept apart, said in one line per version; ``prune`` removes them, each version named
+    before its rows go."""
+    current = {j.run.tracker: j.run.tracker_fingerprint or "" for j in jobs}
+    for tracker, fingerprint, rows in store.older_versions(current):
+        what = f"{rows} row{'s' if rows != 1 else ''} of tracker {tracker} fingerprint {fingerprint}"
+        if prune:
+            LOG.info(f"--prune-stale: removing {what} (now {current[tracker]})")
+            store.remove_version(tracker, fingerprint)
+        else:
+            LOG.info(f"{what} (now {current[tracker]}) kept apart, not reused; --prune-stale removes them")
+
+
 def execute_sweep(
     spec: SweepSpec,
     spec_path: Path,
@@ -49,6 +72,7 @@ def execute_sweep(
     address: str | None = None,
     announce: bool = True,
     retry_failed: bool = False,
+    prune_stale: bool = False,
 ) -> SweepOutcome:
     """Generate (or resume) the sequences, run the missing rows (``retry_failed``: and the
     failed ones), write results.csv, summary.json and plots under ``out`` (a folder the
@@ -67,6 +91,7 @@ def execute_sweep(
                 f"sweep {spec.sweep}: {len(jobs)} runs over {len(sequences)} sequences ({done} already done"
                 f"{_failed_ones(failed, retry_failed)})"
             )
+        _older_versions(store, jobs, prune_stale)
         if any(j.job.tracker.type.per_keypoint for j in jobs if j.key not in stored):
             # Compiled here once, into Numba's cache, before any worker starts: each worker
             # then loads them (0.5 s) instead of compiling its own (14 s, the first job's
@@ -131,10 +156,12 @@ def sweep_folder(
     backend: str = "local",
     address: str | None = None,
     retry_failed: bool = False,
+    prune_stale: bool = False,
 ) -> SweepOutcome:
     """A sweep spec file run into the folder ``out``: the spec and every file it names are
     checked before the folder is made, and an existing folder is resumed only if it is a
-    depotbench sweep folder (never someone else's files)."""
+    depotbench sweep folder (never someone else's files); ``prune_stale``: the rows of older
+    versions of its trackers are removed."""
     spec = load_sweep(spec_path)
     validate(spec, spec_path)
     with OutputContainer(out, OutputKind.SWEEP, inputs=spec_inputs(spec, spec_path)) as container:
@@ -148,4 +175,5 @@ def sweep_folder(
             backend=backend,
             address=address,
             retry_failed=retry_failed,
+            prune_stale=prune_stale,
         )

@@ -21,7 +21,13 @@ from typing import Any
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
 from depotbench.core.output import write_text_atomic
-from depotbench.eval.metrics.record import ADDED_FIELDS, FIELDS, RECORD_VERSION, RunRecord
+from depotbench.eval.metrics.record import (
+    ADDED_FIELDS,
+    FIELDS,
+    RECORD_VERSION,
+    UNKNOWN_FINGERPRINT,
+    RunRecord,
+)
 
 _KIND_OF_TYPE = {"str": str, "int": int, "float": float}
 _KINDS = {f.name: _KIND_OF_TYPE[str(f.type).split(" | ")[0]] for f in dataclass_fields(RunRecord)}
@@ -180,6 +186,26 @@ class ResultStore:
         """The keys of failed runs (a program's exit, time limit or unreadable output)."""
         found = self._read("SELECT key FROM runs WHERE failure IS NOT NULL AND failure != ''")
         return {row[0] for row in found}
+
+    def older_versions(self, current: dict[str, str]) -> list[tuple[str, str, int]]:
+        """(tracker, fingerprint, rows) of each program version of a tracker in ``current``
+        (label: its fingerprint now) other than its current one: a row written before
+        fingerprints counts as ``unknown``. A sweep keeps such rows apart: their keys are not
+        its jobs', so they are neither reused nor summarised."""
+        fingerprint = "tracker_fingerprint" if "tracker_fingerprint" not in self._missing else "NULL"
+        found = self._read(
+            f"SELECT tracker, COALESCE({fingerprint}, ?), count(*) FROM runs GROUP BY 1, 2 ORDER BY 1, 2",
+            (UNKNOWN_FINGERPRINT,),
+        )
+        return [(t, f, n) for t, f, n in found if t in current and f != current[t]]
+
+    def remove_version(self, tracker: str, fingerprint: str) -> None:
+        """Delete the rows of one program version of a tracker (``older_versions``), in one
+        transaction."""
+        self._write(
+            "DELETE FROM runs WHERE tracker = ? AND COALESCE(tracker_fingerprint, ?) = ?",
+            (tracker, UNKNOWN_FINGERPRINT, fingerprint),
+        )
 
     def add(self, record: RunRecord) -> None:
         row = record.to_row()
