@@ -230,15 +230,24 @@ def sweep(
     dedupe: bool = True,
     backend: str = "local",
     address: str | None = None,
+    retry_failed: bool = False,
 ) -> SweepResult:
-    """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows):
-    results.sqlite, results.csv, summary.json and plots, as ``depotbench sweep`` leaves them."""
+    """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows;
+    ``retry_failed``: failed ones run again): results.sqlite, results.csv, summary.json and
+    plots, as ``depotbench sweep`` leaves them."""
     from depotbench.eval.metrics.figures import with_derived
     from depotbench.eval.sweep.execute import sweep_folder
 
     out = Path(out)
     outcome = sweep_folder(
-        Path(spec), out, workers, progress=progress, dedupe=dedupe, backend=backend, address=address
+        Path(spec),
+        out,
+        workers,
+        progress=progress,
+        dedupe=dedupe,
+        backend=backend,
+        address=address,
+        retry_failed=retry_failed,
     )
     scored = with_derived(outcome.records)
     return SweepResult(
@@ -260,14 +269,16 @@ def check(
     workers: int = 1,
     backend: str = "local",
     address: str | None = None,
+    retry_failed: bool = False,
 ) -> GateReport:
-    """A gate file's matrix run into ``out`` (resumed) and its budgets checked; ``baseline``:
-    an earlier check's or sweep's folder, for ``vs_baseline`` budgets. The report's ``passed``
+    """A gate file's matrix run into ``out`` (resumed; ``retry_failed``: failed rows run
+    again) and its budgets checked; ``baseline``: an earlier check's or sweep's folder, for
+    ``vs_baseline`` budgets. The report's ``passed``
     and ``failures`` say what ``depotbench check`` would exit with and print."""
     from depotbench.eval.gates.check import check_folder, open_gates
 
     opened = open_gates(Path(gates), None if baseline is None else Path(baseline))
-    return check_folder(opened, Path(out), workers, backend, address)
+    return check_folder(opened, Path(out), workers, backend, address, retry_failed)
 
 
 def compare(base: str | Path, *others: str | Path) -> dict[Path, SetComparison]:

@@ -55,6 +55,11 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         default=max(1, os.cpu_count() or 1),
         help="worker processes for depotbench fixtures",
     )
+    group.addoption(
+        "--depotbench-retry-failed",
+        action="store_true",
+        help="run failed rows kept in --depotbench-dir again instead of reusing them",
+    )
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -309,7 +314,10 @@ def depotbench_run(request: pytest.FixtureRequest, depotbench_dir: Path) -> Call
         key = hashlib.sha256((spec.model_dump_json() + str(spec_path)).encode()).hexdigest()[:12]
         out = depotbench_dir / "runs" / key
         with _claim(out):  # two processes with one spec share its results database
-            outcome = execute_sweep(spec, spec_path, out, workers, progress=False, announce=False)
+            retry = request.config.getoption("--depotbench-retry-failed")
+            outcome = execute_sweep(
+                spec, spec_path, out, workers, progress=False, announce=False, retry_failed=retry
+            )
         if gates is not None:
             _fail_on(evaluate(gates, outcome.records))
         return the_row(derived_rows(outcome.records, "none"), strategy, job)

@@ -513,8 +513,8 @@ def run_job(
         try:
             tracked = _execute(job, sequence, config, cache, progress)
         except TrackerError as exc:
-            if not job.tracker.type.external:
-                raise
+            if not job.tracker.type.external or (exc.evidence is None and not exc.log):
+                raise  # refused before the program ran: one line, no folder
             _keep_failure(output, job, sequence, exc, time.perf_counter() - started)
             raise TrackerError(
                 f"{exc}; what it was given and wrote is in {out_dir} (failure.json, program.log, scratch/)",

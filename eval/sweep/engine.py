@@ -562,7 +562,8 @@ def run_jobs(
             for _, records in pool.map_unordered(_dispatch, tasks):
                 for record in records:
                     if isinstance(record, Failure):
-                        failures.append(keep_failure(store.path.parent / FAILURES, record))
+                        if record.evidence is not None or record.log:  # the program ran
+                            failures.append(keep_failure(store.path.parent / FAILURES, record))
                         record = record.record
                     store.add(record)
                     tracked += 1
