@@ -175,3 +175,23 @@ def test_a_sweep_keeps_only_its_newest_failures(seq: Path, tmp_path: Path):
     record = RunRecord.failed(RunIdentity("k9", "f", "s", "p", "t", "gt", "none"), "x", 4, 0.1, "v")
     with pytest.raises(Exception, match="not a failed run's folder"):
         keep_failure(folder, Failure(record, "log", None), keep=3)
+
+
+@pytest.mark.slow  # three checks, ~7 s: the sweep test above covers the engine by default
+def test_check_runs_its_failed_rows_again_on_request(seq: Path, tmp_path: Path, capsys):
+    tracker = {"name": "flaky", "command": _command(tmp_path), "env": {"FAIL_FLAG": str(tmp_path / "fail")}}
+    gate = tmp_path / "gates.yaml"
+    gate.write_text(
+        f"gates: flaky\nrun:\n  sequences: [{seq}]\n  strategies: [none]\n"
+        f"  trackers: [{json.dumps(tracker)}]\n"
+        "checks:\n  - name: accurate\n    trackers: [flaky]\n    budgets: {ate_rmse_m: {max: 0.01}}\n"
+    )
+    out = tmp_path / "chk"
+    (tmp_path / "fail").touch()
+    assert cli(capsys, "check", gate, "-o", out, "--workers", "1")[0] == 1  # the run failed
+    assert (out / "failures").is_dir()
+    os.remove(tmp_path / "fail")
+    assert cli(capsys, "check", gate, "-o", out, "--workers", "1")[0] == 1  # reused
+    code, stdout, err = cli(capsys, "check", gate, "-o", out, "--workers", "1", "--retry-failed")
+    assert code == 0, stdout + err
+    assert _failures(out) == [""]
