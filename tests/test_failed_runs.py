@@ -165,6 +165,7 @@ def test_a_sweep_keeps_only_its_newest_failures(seq: Path, tmp_path: Path):
     from depotbench.eval.sweep.engine import Failure, keep_failure
 
     folder = tmp_path / "failures"
+    (folder / ".k5.partial-1234").mkdir(parents=True)  # what a killed sweep left: cleaned
     for i in range(5):
         run = RunIdentity(f"k{i}", "f", "s", "p", "t", "gt", "none")
         record = RunRecord.failed(run, f"failure {i}", 4, 0.1, "v")
@@ -175,6 +176,7 @@ def test_a_sweep_keeps_only_its_newest_failures(seq: Path, tmp_path: Path):
     record = RunRecord.failed(RunIdentity("k9", "f", "s", "p", "t", "gt", "none"), "x", 4, 0.1, "v")
     with pytest.raises(Exception, match="not a failed run's folder"):
         keep_failure(folder, Failure(record, "log", None), keep=3)
+    assert sorted(p.name for p in folder.iterdir()) == ["k2", "k3", "k4", "k9"]
 
 
 @pytest.mark.slow  # three checks, ~7 s: the sweep test above covers the engine by default

@@ -400,9 +400,11 @@ def keep_failure(folder: Path, failure: Failure, keep: int = KEEP_FAILURES) -> P
 
     record = failure.record
     target = folder / record.key
-    if target.exists() and read_marker(target) is None:
+    if target.exists() and getattr(read_marker(target), "kind", None) is not OutputKind.RUN:
         raise InputError(f"{target}: not a failed run's folder of depotbench; move it away and run again")
     folder.mkdir(exist_ok=True)
+    for stale in folder.glob(".*.partial-*"):  # a sweep killed while keeping one
+        shutil.rmtree(stale, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{record.key}.partial-", dir=folder))
     try:
         write_evidence(staging, record.failure or "", failure.log, failure.evidence)
@@ -413,7 +415,8 @@ def keep_failure(folder: Path, failure: Failure, keep: int = KEEP_FAILURES) -> P
         shutil.rmtree(staging, ignore_errors=True)
     kept = []
     for child in folder.iterdir():
-        if not child.name.startswith(".") and child.is_dir() and read_marker(child) is not None:
+        marker = read_marker(child) if child.is_dir() and not child.name.startswith(".") else None
+        if marker is not None and marker.kind is OutputKind.RUN:
             kept.append(((child / MARKER_NAME).stat().st_mtime_ns, child.name, child))
     for *_, old in sorted(kept, reverse=True)[keep:]:
         shutil.rmtree(old)
