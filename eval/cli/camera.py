@@ -22,9 +22,10 @@ if TYPE_CHECKING:
 NUMBER_FLAGS = ("intrinsics", "distortion", "depth_factor")
 
 
-def add_camera_options(parser: argparse.ArgumentParser) -> None:
+def add_camera_options(parser: argparse.ArgumentParser, guessed: bool = True) -> None:
     """``--camera FILE``, ``--intrinsics FX FY CX CY``, ``--distortion K1 K2 P1 P2 [K3]``,
-    ``--depth-factor F`` (``camera_from_args`` reads them)."""
+    ``--depth-factor F`` (``camera_from_args`` reads them). ``guessed``: a folder given none
+    is read with a guess (``run``), else refused (``export-rosbag``); the help says which."""
     group = parser.add_argument_group(
         "camera of a real TUM folder (a generated sequence keeps its own camera.yaml)"
     )
@@ -41,7 +42,11 @@ def add_camera_options(parser: argparse.ArgumentParser) -> None:
         type=finite_float,
         metavar=("FX", "FY", "CX", "CY"),
         help="focal lengths and principal point in pixels (OpenCV: pixel centres at integers); "
-        "without it a folder named like TUM's gets that sensor's calibration, else the ROS default",
+        + (
+            "without it a folder named like TUM's gets that sensor's calibration, else the ROS default"
+            if guessed
+            else "a folder without camera.yaml needs it or --camera"
+        ),
     )
     group.add_argument(
         "--distortion",

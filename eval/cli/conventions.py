@@ -101,12 +101,15 @@ USAGE: dict[str, Usage] = {
         "and NAMESPACE/depth, stamped with the frames' timestamps in the camera's optical frame; the true "
         "poses of groundtruth.txt on /tf (world -> optical frame), /ground_truth/pose and, once and "
         "latched, /ground_truth/path; with --detections the ground-truth boxes as "
-        "vision_msgs/Detection2DArray. Depth is 32FC1 metres by default (REP 118). The bag is written "
-        "beside BAG and moved into place when complete; play it with 'ros2 bag play BAG' (docs/rosbag.md).",
+        "vision_msgs/Detection2DArray. Depth is 32FC1 metres by default (REP 118). A real folder's camera "
+        "is its camera.yaml or given as for run (--camera FILE, --intrinsics ...), never guessed. The bag is "
+        "written beside BAG and moved into place when complete; play it with 'ros2 bag play BAG' "
+        "(docs/rosbag.md).",
         (
             "depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz",
             "depotbench export-rosbag seqs/walking_xyz -o bags/walking_xyz --detections --storage sqlite3",
-            "depotbench export-rosbag rgbd_dataset_freiburg3_walking_xyz -o bags/fr3_walking_xyz --compress",
+            "depotbench export-rosbag rgbd_dataset_freiburg3_walking_xyz -o bags/fr3_walking_xyz --compress "
+            "--intrinsics 535.4 539.2 320.1 247.6",
         ),
     ),
     "sweep": Usage(

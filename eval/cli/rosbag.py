@@ -50,7 +50,7 @@ def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--compress", action="store_true", help="zstd-compress the MCAP chunks (mcap only)")
     p.add_argument("--overwrite", action="store_true", help="replace a bag depotbench wrote")
-    add_camera_options(p)
+    add_camera_options(p, guessed=False)
     p.set_defaults(handler=_cmd_export_rosbag)
 
 
