@@ -74,11 +74,17 @@ def open_regular(path: Path, limit: int, what: str) -> int:
 
 
 def read_bytes(path: Path, limit: int, what: str) -> bytes:
-    """The whole file, size-checked before it is read (and again while, should it grow)."""
+    """The whole file, size-checked before it is read (and again while, should it grow).
+
+    The first read asks for the size ``fstat`` gave, not the limit: a buffered read of ``n``
+    bytes allocates ``n`` up front, so a 1 TiB limit would cost 1 TiB for a 10-byte file."""
     fd = open_regular(path, limit, what)
     try:
         with os.fdopen(fd, "rb") as handle:
-            data = handle.read(limit + 1)
+            size = os.fstat(handle.fileno()).st_size
+            data = handle.read(size + 1)
+            if (len(data) > size or size == 0) and len(data) <= limit:  # it grew (or says 0
+                data += handle.read(limit + 1 - len(data))  # bytes, as /proc files do): read on
     except OSError as exc:  # /proc/self/mem says it is a file of 0 bytes, then refuses to be read
         raise FileError(path, None, f"cannot be read ({exc.strerror or exc})") from None
     if len(data) > limit:
@@ -106,6 +112,19 @@ def read_text(path: Path, limit: int, what: str) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise FileError(path, None, f"not a text file ({exc.reason} at byte {exc.start})") from None
+
+
+def read_json(path: Path, limit: int, what: str) -> Any:
+    """A JSON file's value, read as ``read_text`` reads (a regular file, bounded, UTF-8);
+    malformed or too deeply nested JSON (a few thousand ``[``, which CPython's parser
+    recurses on) is a ``FileError`` naming the file, as a refused file is."""
+    text = read_text(path, limit, what)
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise FileError(path, None, f"is nested too deeply to be a {what}") from None
+    except ValueError as exc:
+        raise FileError(path, None, f"is not a {what} (not valid JSON: {exc})") from None
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

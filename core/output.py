@@ -43,6 +43,7 @@ from pathlib import Path
 from types import TracebackType
 
 from depotbench.core.errors import InputError
+from depotbench.core.files import read_json
 
 MARKER_NAME = ".depotbench.json"
 MARKER_MAX_BYTES = 64 * 1024
@@ -78,20 +79,12 @@ class Marker:
 
 def read_marker(folder: Path) -> Marker | None:
     """The folder's marker, or None when it has none (or one depotbench did not write)."""
-    path = folder / MARKER_NAME
-    try:
-        with path.open("rb") as handle:
-            raw = handle.read(MARKER_MAX_BYTES + 1)
-    except OSError:
-        return None
-    if len(raw) > MARKER_MAX_BYTES:
-        return None
-    try:
-        data = json.loads(raw)
+    try:  # a FIFO (tar keeps them) would block a plain open until a writer came
+        data = read_json(folder / MARKER_NAME, MARKER_MAX_BYTES, "depotbench marker")
         if data.get("tool") != "depotbench":
             return None
         return Marker(OutputKind(data["kind"]), data.get("content_key"))
-    except (ValueError, KeyError, TypeError, AttributeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):  # FileError is a ValueError
         return None
 
 

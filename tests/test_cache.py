@@ -14,7 +14,7 @@ import pytest
 from depotbench.core.cache_home import parse_bytes
 from depotbench.core.output import OutputError
 from depotbench.eval.cli.main import main
-from depotbench.eval.run.cache import StageCache, content_hash
+from depotbench.eval.run.cache import ENTRY_OVERHEAD, StageCache, content_hash
 
 from tests.sequences import write_sequence
 
@@ -162,7 +162,8 @@ def test_eviction_never_touches_files_the_cache_did_not_write(tmp_path: Path):
     cache = StageCache(home, max_bytes=2500)
     for i in range(3):
         cache.put("features", content_hash(i), bytes(1000))
-    assert len(cache.entries()) == 2 and cache.size_bytes() == 2000  # the oldest evicted, bound kept
+    assert len(cache.entries()) == 2  # the oldest evicted, bound kept
+    assert cache.size_bytes() == 2 * (1000 + ENTRY_OVERHEAD)
     assert cache.clear().entries == 2 and cache.entries() == []
     assert sorted(str(p.relative_to(home)) for p in home.rglob("*") if p.is_file()) == sorted(mine)
     with pytest.raises(ValueError, match="bad cache stage or key"):
@@ -178,5 +179,5 @@ def test_clearing_takes_what_killed_writers_left_an_hour_ago_and_not_a_live_writ
         path.write_bytes(bytes(10))
     os.utime(stale, (time.time() - 3601, time.time() - 3601))
     cleared = cache.clear()
-    assert (cleared.entries, cleared.bytes) == (1, 110)  # the entry and the stale file's bytes
+    assert (cleared.entries, cleared.bytes) == (1, 100 + ENTRY_OVERHEAD + 10)  # the entry, the stale file
     assert not stale.exists() and live.exists()

@@ -9,6 +9,11 @@ recently used entries go. It lives in the ``stages`` folder of the cache root
 ``DEPOTBENCH_CACHE_STAGES`` this one, ``DEPOTBENCH_CACHE_STAGES_MAX_BYTES`` bounds it,
 2 GiB by default).
 
+Each entry is stored with a SHA-256 digest of its bytes ahead of them (``ENTRY_HEADER``);
+an entry whose bytes no longer match (a flipped block, a truncation: the numpy archives
+the stages are stored as are uncompressed, so a changed byte inside an array decodes
+without complaint) is a miss, and the stage is computed and stored again.
+
 Only files named as entries are ever listed, evicted or cleared (``STAGE/HEX``, 32
 hexadecimal digits): a cache folder set by mistake to one holding other files loses none
 of them.
@@ -31,6 +36,8 @@ import time
 from pathlib import Path
 
 from depotbench.core.cache_home import CACHES, Contents, cache_bound, cache_folder
+from depotbench.core.errors import FileError
+from depotbench.core.files import read_bytes
 from depotbench.core.output import OutputError, write_bytes_atomic
 
 NAME = "stages"
@@ -44,12 +51,27 @@ STALE_TEMPORARY_S = 3600.0
 for 150 frames of 640x480) is written in well under a second, so clearing never takes a
 live writer's file."""
 log = logging.getLogger("depotbench.cache")
+ENTRY_HEADER = b"depotbench stage entry 1\n"
+"""What an entry begins with, before the 32-byte SHA-256 digest of its value; an entry
+without it (one an older version wrote) is a miss, like a damaged one."""
+_DIGEST_BYTES = 32
+ENTRY_OVERHEAD = len(ENTRY_HEADER) + _DIGEST_BYTES
+"""Bytes an entry's file holds beyond its value."""
 
 
 def content_hash(*parts: object) -> str:
     """A stable key of JSON-able parts."""
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:32]
+
+
+def _verified(stored: bytes) -> bytes | None:
+    """An entry's value, or None when its digest does not match (or it has no header)."""
+    head = ENTRY_OVERHEAD
+    if not stored.startswith(ENTRY_HEADER) or len(stored) < head:
+        return None
+    data = stored[head:]
+    return data if hashlib.sha256(data).digest() == stored[len(ENTRY_HEADER) : head] else None
 
 
 class StageCache:
@@ -87,14 +109,22 @@ class StageCache:
         return self.root / stage / key
 
     def get(self, stage: str, key: str) -> bytes | None:
+        """The entry's value; None (a miss) when there is none or it is damaged."""
         path = self._path(stage, key)
-        try:
-            data = path.read_bytes()
+        try:  # bounded: an entry larger than the cache's bound is evicted when stored
+            stored = read_bytes(path, max(self.max_bytes, 0) + ENTRY_OVERHEAD, "stage entry")
         except FileNotFoundError:
             self.misses += 1
             return None
         except OSError as exc:  # a file where a folder should be, an unreadable entry
             self._unusable("be read", exc.strerror or str(exc))
+            self.misses += 1
+            return None
+        except FileError:  # not a regular file, or over the bound: recomputed, then replaced
+            self.misses += 1
+            return None
+        data = _verified(stored)
+        if data is None:
             self.misses += 1
             return None
         with contextlib.suppress(OSError):  # evicted meanwhile: the bytes read are still whole
@@ -108,7 +138,7 @@ class StageCache:
         path = self._path(stage, key)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            write_bytes_atomic(path, data)
+            write_bytes_atomic(path, ENTRY_HEADER + hashlib.sha256(data).digest() + data)
         except OSError as exc:
             self._unusable("store an entry", exc.strerror or str(exc))
             return

@@ -19,6 +19,8 @@ from __future__ import annotations
 import hashlib
 import io
 import time
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -163,7 +165,7 @@ def _load(data: bytes | None) -> dict[str, np.ndarray] | None:
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:
             return {name: archive[name] for name in archive.files}
-    except (ValueError, OSError, KeyError):
+    except (ValueError, OSError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
         return None  # a damaged entry is recomputed
 
 
