@@ -30,15 +30,22 @@ class ColumnsError(FileError):
     """A line of a program's file that cannot be read: names the file and the line."""
 
 
-def blocks(path: Path, limit: int, what: str, separators: bytes = WHITESPACE) -> Iterator[Fields]:
-    """The file's data lines (not blank, not starting with ``#``), a block at a time. The
-    file must be a regular one of at most ``limit`` bytes (a FIFO or a device is refused
-    without blocking). ``FileNotFoundError`` propagates, for the caller to say what the
-    missing file was for."""
+def blocks(
+    path: Path,
+    limit: int,
+    what: str,
+    separators: bytes = WHITESPACE,
+    start: tuple[int, int] = (0, 1),
+) -> Iterator[Fields]:
+    """The file's data lines (not blank, not starting with ``#``), a block at a time, from
+    ``start`` (a byte offset and the number of the line there). The file must be a regular
+    one of at most ``limit`` bytes (a FIFO or a device is refused without blocking).
+    ``FileNotFoundError`` propagates, for the caller to say what the missing file was for."""
     from depotbench.core.files import open_regular
 
     with os.fdopen(open_regular(path, limit, what), "rb") as handle:
-        carry, line, total = b"", 1, 0
+        handle.seek(start[0])
+        carry, line, total = b"", start[1], start[0]
         while True:
             try:
                 chunk = handle.read(BLOCK_BYTES)
@@ -112,11 +119,13 @@ class Fields:
         gathered[offsets >= widths[:, None]] = 0
         return gathered.view(f"S{width}").ravel()
 
-    def numbers(self, column: int, what: str, repeated: bool = False) -> np.ndarray:
-        """The ``column``-th field of every line as float64; the first that is not a number
-        is named with its line. ``repeated``: a column of few distinct values (a frame's
-        timestamp on each of its keypoints), converted once each."""
-        text = self.text(column)
+    def numbers(
+        self, column: int, what: str, repeated: bool = False, rows: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The ``column``-th field of every line (of ``rows``) as float64; the first that is
+        not a number is named with its line. ``repeated``: a column of few distinct values (a
+        frame's timestamp on each of its keypoints), converted once each."""
+        text = self.text(column, rows)
         try:
             if repeated:
                 distinct, inverse = np.unique(text, return_inverse=True)
@@ -128,6 +137,7 @@ class Fields:
                     float(field)
                 except ValueError:
                     raise self.fail(
-                        row, f"{what} {field.decode('utf-8', 'replace')!r} is not a number"
+                        row if rows is None else int(rows[row]),
+                        f"{what} {field.decode('utf-8', 'replace')!r} is not a number",
                     ) from None
             raise

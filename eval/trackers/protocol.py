@@ -372,14 +372,31 @@ MAX_MAP_BYTES = 2048 * MIB
 def read_map(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """The point cloud a program wrote at ``{map}``: a PLY (ASCII or binary) of points in the
     frame of its trajectory, with or without colours; (points (N, 3), colours (N, 3) uint8,
-    grey where it gave none). Whatever the PLY reader cannot read is this file's problem,
-    named (the reader raises all sorts on a damaged file)."""
-    import os
+    grey where it gave none). Read in chunks (``ply``); a layout that reader leaves aside
+    goes to trimesh, and whatever that cannot read is this file's problem, named (it raises
+    all sorts on a damaged file)."""
+    from depotbench.eval.trackers.ply import NotHere, read_ply_points
 
+    try:
+        points, colours = read_ply_points(path, MAX_MAP_BYTES)
+    except NotHere:
+        points, colours = _read_map_whole(path)
+    except FileNotFoundError:
+        raise ProtocolError(path, None, "the map is missing (a link to nothing?)") from None
+    except ProtocolError:
+        raise
+    except FileError as exc:
+        raise ProtocolError(path, exc.line, exc.problem) from None
+    if not len(points):
+        raise ProtocolError(path, None, "holds no points")
+    if not np.isfinite(points).all():
+        raise ProtocolError(path, None, "holds a point that is not finite")
+    return points, colours
+
+
+def _read_map_whole(path: Path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
-    from depotbench.core.files import open_regular
 
-    os.close(open_regular(path, MAX_MAP_BYTES, "map"))
     try:
         cloud = trimesh.load(path, file_type="ply", process=False)
     except Exception as exc:  # noqa: BLE001 - any reader failure is the file's, said in one line
@@ -387,10 +404,8 @@ def read_map(path: Path) -> tuple[np.ndarray, np.ndarray]:
             path, None, f"not a readable PLY point cloud ({type(exc).__name__}: {exc})"
         ) from None
     points = np.asarray(getattr(cloud, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3 or not len(points):
+    if points.ndim != 2 or points.shape[1] != 3:
         raise ProtocolError(path, None, "holds no points")
-    if not np.isfinite(points).all():
-        raise ProtocolError(path, None, "holds a point that is not finite")
     colours = np.asarray(getattr(cloud, "colors", []))
     if colours.shape[:1] != (len(points),) or colours.ndim != 2 or colours.shape[1] < 3:
         colours = np.full((len(points), 3), 160, np.uint8)
