@@ -95,6 +95,12 @@ def test_a_bad_trajectory_line_is_named(seq: Path, tmp_path: Path, block_bytes, 
     assert needle in str(caught.value)
 
 
+@pytest.mark.parametrize("text", ["", "\n\n  \n", "# only a comment\n\n"])
+def test_a_trajectory_without_a_pose_line_tracked_nothing(seq: Path, tmp_path: Path, text: str):
+    (tmp_path / "trajectory.txt").write_text(text)
+    assert read_trajectory(tmp_path / "trajectory.txt", Sequence.open(seq)) == (None,) * 4
+
+
 def test_a_quaternion_within_the_tolerance_is_taken(seq: Path, tmp_path: Path):
     lines = pose_lines(seq)
     path = tmp_path / "trajectory.txt"

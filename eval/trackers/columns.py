@@ -83,7 +83,8 @@ class Fields:
         ends = np.flatnonzero(~space & np.concatenate((space[1:], [True]))) + 1
         newlines = np.flatnonzero(raw == 10)
         field_line = np.searchsorted(newlines, starts)  # the newlines before a field: its line
-        first = np.concatenate(([True], field_line[1:] != field_line[:-1]))
+        first = np.ones(len(field_line), bool)  # a line's first field
+        first[1:] = field_line[1:] != field_line[:-1]
         comments = np.zeros(len(newlines) + 1, bool)
         comments[field_line[first & (raw[starts] == ord("#"))]] = True
         data_field = ~comments[field_line]
