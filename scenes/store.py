@@ -12,16 +12,21 @@ the pytest plugin render a sequence once per machine instead of once per job.
   digest; the level shapes the bytes, not the pixels, and the key leaves it out): a
   complete sequence with its marker, written through ``depotbench.core.output.StagedOutput``
   (staged, locked, swapped into place), and beside it ``HEX-L.json`` with the key, the
-  bytes and the files, written last. A second writer of one entry finds it locked (or
+  bytes, the files and a digest of the whole (each file's path, size and SHA-256), written
+  last. A second writer of one entry finds it locked (or
   complete) and leaves it be.
 - **Copies out.** A sequence comes out as a copy (a hard link would let an edit in one
   place change the other), written through ``StagedOutput`` like a rendered one, with
-  the marker of its key; the bytes and files copied are counted against ``HEX-L.json``,
-  so a copy made while the entry was evicted is never taken.
+  the marker of its key; the bytes, files and digest of what was copied are checked
+  against ``HEX-L.json``, so a copy made while the entry was evicted is never taken, and
+  an entry changed in place (edited, rotted) is removed with one warning and rendered
+  again, never served under its key. Hashing while copying costs about 0.1 s on a
+  300-frame entry (see ``docs/scenarios.md``).
 - **Bounded.** ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` (default 20 GiB; ``500M``,
   ``20GiB`` and plain bytes are read); using an entry marks it used (its mtime) and the
-  least recently used go first. An evicted entry is first renamed aside, so a reader
-  copying it fails and renders instead.
+  least recently used go first, when one is stored and before one is copied out (so a
+  bound lowered below what the store holds takes effect at once). An evicted entry is
+  first renamed aside, so a reader copying it fails and renders instead.
 
 The store only saves time: one that cannot be written (read-only, full, a file where
 its folder should be) is read where it can be and otherwise left alone, with one
@@ -33,17 +38,20 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import hashlib
 import json
 import logging
 import os
 import re
 import shutil
+import stat
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
 from depotbench.core.cache_home import CACHES, cache_bound, cache_folder
-from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+from depotbench.core.errors import InputError
+from depotbench.core.files import DEFAULT_PNG_COMPRESSION, read_json
 from depotbench.core.output import (
     MARKER_NAME,
     OutputError,
@@ -63,9 +71,26 @@ DEFAULT_MAX_BYTES = CACHES[NAME].default_bound
 _KEY = re.compile(r"sha256:([0-9a-f]{64})")
 _ENTRY = re.compile(r"[0-9a-f]{64}-[0-9]")
 _EVICTED = ".evicted-"
+MANIFEST_MAX_BYTES = 64 * 1024
+"""``HEX-L.json`` holds the key, two counts and a digest: about 200 bytes."""
 log = logging.getLogger("depotbench.store")
 _warned: set[str] = set()
 """Stores already warned about in this process: one warning each, however many sequences."""
+
+
+@dataclass(frozen=True)
+class _Copied:
+    """What ``_copy_tree`` copied: what ``HEX-L.json`` records of an entry."""
+
+    bytes: int
+    files: int
+    digest: str
+    """SHA-256 over each file's relative path, size and SHA-256, in a fixed order."""
+
+
+class _Damaged(Exception):
+    """An entry (or a sequence being stored) holding what a sequence never holds: a link,
+    a FIFO, a device."""
 
 
 @dataclass(frozen=True)
@@ -103,9 +128,11 @@ class SequenceStore:
         return self.root / f"{match.group(1)}-{int(png_compression)}"
 
     def _manifest(self, entry: Path) -> dict | None:
+        """``HEX-L.json``, or None when it is missing, damaged or not a regular file (a FIFO
+        would block a plain read; ``/dev/zero`` would fill the memory)."""
         try:
-            data = json.loads(entry.with_name(entry.name + ".json").read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            data = read_json(entry.with_name(entry.name + ".json"), MANIFEST_MAX_BYTES, "store manifest")
+        except (OSError, InputError):
             return None
         return data if isinstance(data, dict) else None
 
@@ -118,25 +145,31 @@ class SequenceStore:
         if marker is None or marker.kind is not OutputKind.SEQUENCE or marker.content_key != key:
             return False
         manifest = self._manifest(entry)
-        return manifest is not None and manifest.get("content_key") == key
+        return manifest is not None and manifest.get("content_key") == key and _recorded(manifest) is not None
 
     def fetch(self, key: str, target: Path, png_compression: int = DEFAULT_PNG_COMPRESSION) -> bool:
         """Put a copy of ``key``'s sequence at ``target`` (staged, locked and marked as a
         rendered one is, replacing a stale sequence there); False when the store does not
-        hold it (or it was evicted while being copied): then render it."""
+        hold it (or it was evicted while being copied, or it is not what was stored): then
+        render it."""
+        self.evict()
         if not self.has(key, png_compression):
             return False
         entry = self.entry(key, png_compression)
         assert entry is not None
-        manifest = self._manifest(entry) or {}
+        recorded = _recorded(self._manifest(entry) or {})
         with StagedOutput(target, OutputKind.SEQUENCE, overwrite=True, content_key=key) as out:
             try:
-                copied = _copy_tree(entry, out.path)
+                copied: _Copied | None = _copy_tree(entry, out.path)
+            except _Damaged:
+                copied = None
             except OSError:
                 if self.has(key, png_compression):
                     raise  # the store still holds it whole: the copy could not be written
                 return False  # evicted meanwhile
-            if copied != (manifest.get("bytes"), manifest.get("files")) or not self.has(key, png_compression):
+            if copied != recorded or not self.has(key, png_compression):
+                if self.has(key, png_compression):  # still there, so changed in place
+                    self._discard(entry)
                 return False  # not what was stored: render it
             out.commit()
         with contextlib.suppress(OSError):  # a read-only store is still read
@@ -144,6 +177,37 @@ class SequenceStore:
         return True
 
     # -- writing -----------------------------------------------------------------------
+
+    def _discard(self, entry: Path) -> None:
+        """Remove an entry whose files are not what was stored, saying so once."""
+        log.warning(
+            "the sequence store's entry %s is not what was stored (a file in it changed); "
+            "removed it, and the sequence is rendered again",
+            entry,
+        )
+        self._remove(entry)
+
+    def _remove(self, entry: Path) -> bool:
+        """Lock, rename aside and delete an entry; False when another process holds it (is
+        writing it) or it cannot be removed (then the store is read-only: warned once)."""
+        lock = OutputLock(entry)
+        try:
+            lock.acquire()
+        except OutputError:
+            return False  # being written (or not writable at all: then nothing is removed)
+        try:
+            aside = hidden_sibling(entry, f"{_EVICTED}{uuid.uuid4().hex[:8]}")
+            os.rename(entry, aside)  # readers copying it now fail, and render instead
+            entry.with_name(entry.name + ".json").unlink(missing_ok=True)
+            shutil.rmtree(aside, ignore_errors=True)
+        except FileNotFoundError:
+            pass  # removed by another process
+        except OSError as exc:
+            self._unusable("evict an entry", exc.strerror or str(exc))
+            return False
+        finally:
+            lock.release()
+        return True
 
     def _unusable(self, doing: str, reason: str) -> None:
         if self.writable and str(self.root) not in _warned:
@@ -176,19 +240,25 @@ class SequenceStore:
                 if self.root.exists():
                     raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(self.root))
                 self.root.mkdir(parents=True, exist_ok=True)
-            marker = read_marker(entry)
-            if marker is not None and marker.content_key == key:  # stored, but HEX-L.json is missing
-                size = _measure(entry)
-            else:
-                size = _measure(sequence)
-                if size[0] > self.max_bytes:
-                    return False  # it would evict everything, itself too
-                with StagedOutput(entry, OutputKind.SEQUENCE, overwrite=True, content_key=key) as out:
-                    if _copy_tree(sequence, out.path) != size:
-                        return False  # the sequence changed while it was copied
-                    out.commit()
-            manifest = {"content_key": key, "bytes": size[0], "files": size[1]}
+            size = _measure(sequence)
+            if size[0] > self.max_bytes:
+                return False  # it would evict everything, itself too
+            # Copied again even when an entry of this key is there without its HEX-L.json:
+            # its files cannot be trusted without the digest that manifest would hold.
+            with StagedOutput(entry, OutputKind.SEQUENCE, overwrite=True, content_key=key) as out:
+                copied = _copy_tree(sequence, out.path)
+                if (copied.bytes, copied.files) != size:
+                    return False  # the sequence changed while it was copied
+                out.commit()
+            manifest = {
+                "content_key": key,
+                "bytes": copied.bytes,
+                "files": copied.files,
+                "digest": copied.digest,
+            }
             write_text_atomic(entry.with_name(entry.name + ".json"), json.dumps(manifest) + "\n")
+        except _Damaged:
+            return False  # a link or a FIFO in the sequence: not one the store takes
         except OutputError as exc:
             stored = read_marker(entry)
             if _busy(entry) or (stored is not None and stored.content_key == key):
@@ -236,23 +306,10 @@ class SequenceStore:
         for item in entries:
             if total <= self.max_bytes:
                 break
-            lock = OutputLock(item.path)
-            try:
-                lock.acquire()
-            except OutputError:
-                continue  # being written (or not writable at all: then nothing is evicted)
-            try:
-                aside = hidden_sibling(item.path, f"{_EVICTED}{uuid.uuid4().hex[:8]}")
-                os.rename(item.path, aside)  # readers copying it now fail, and render instead
-                item.path.with_name(item.path.name + ".json").unlink(missing_ok=True)
-                shutil.rmtree(aside, ignore_errors=True)
-            except FileNotFoundError:
-                pass  # evicted by another process
-            except OSError as exc:
-                self._unusable("evict an entry", exc.strerror or str(exc))
-                break
-            finally:
-                lock.release()
+            if not self._remove(item.path):
+                if not self.writable:
+                    break
+                continue  # being written by another process
             total -= item.bytes
             removed += 1
         return removed
@@ -281,11 +338,21 @@ def _busy(entry: Path) -> bool:
     return False
 
 
-def _copy_tree(source: Path, target: Path) -> tuple[int, int]:
+def _recorded(manifest: dict) -> _Copied | None:
+    """What ``HEX-L.json`` says was stored; None for one without a digest (an older
+    version's, which cannot be checked: the entry is then stored again)."""
+    size, files, digest = manifest.get("bytes"), manifest.get("files"), manifest.get("digest")
+    if not isinstance(size, int) or not isinstance(files, int) or not isinstance(digest, str):
+        return None
+    return _Copied(size, files, digest)
+
+
+def _copy_tree(source: Path, target: Path) -> _Copied:
     """Copy every file of ``source`` but its marker into the existing folder ``target``
-    (contents only: fresh times and modes, as a rendered sequence has); returns the bytes
-    and files copied."""
+    (contents only: fresh times and modes, as a rendered sequence has), hashing the bytes
+    as they pass; returns what was copied."""
     total = files = 0
+    tree = hashlib.sha256()
     for folder, dirs, names in os.walk(source, onerror=_raise):
         dirs.sort()
         relative = Path(folder).relative_to(source)
@@ -293,10 +360,33 @@ def _copy_tree(source: Path, target: Path) -> tuple[int, int]:
         for name in sorted(names):
             if relative == Path(".") and name == MARKER_NAME:
                 continue
-            shutil.copyfile(Path(folder) / name, target / relative / name, follow_symlinks=False)
-            total += (target / relative / name).lstat().st_size
+            size, digest = _copy_file(Path(folder) / name, target / relative / name)
+            tree.update(os.fsencode(relative / name) + b"\0" + str(size).encode() + b"\0" + digest)
+            total += size
             files += 1
-    return total, files
+    return _Copied(total, files, tree.hexdigest())
+
+
+def _copy_file(source: Path, target: Path) -> tuple[int, bytes]:
+    """Copy one regular file (a link, FIFO or device is ``_Damaged``: a FIFO would block);
+    returns its size and SHA-256."""
+    try:
+        fd = os.open(source, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise _Damaged(f"{source} is a link") from None
+        raise
+    with os.fdopen(fd, "rb") as reader:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise _Damaged(f"{source} is not a regular file")
+        digest = hashlib.sha256()
+        size = 0
+        with open(target, "xb") as writer:
+            while chunk := reader.read(1 << 20):
+                digest.update(chunk)
+                writer.write(chunk)
+                size += len(chunk)
+    return size, digest.digest()
 
 
 def _measure(source: Path) -> tuple[int, int]:

@@ -8,7 +8,6 @@ import json
 import logging
 import multiprocessing
 import os
-import shutil
 from pathlib import Path
 
 # Imported here, before any pytester fixture: pytester drops the modules a test imported when
@@ -294,13 +293,15 @@ def test_a_copy_is_never_taken_from_an_entry_evicted_while_it_is_copied(
 ):
     cache = SequenceStore(store)
     cache.put(_fake_sequence(tmp_path / "s", _key(1), 1000), _key(1))
-    real = shutil.copyfile
+    import depotbench.scenes.store as store_module
 
-    def evicting(src, dst, **kwargs):
+    real = store_module._copy_file
+
+    def evicting(src, dst):
         SequenceStore(store, max_bytes=0).evict()  # another process evicts it midway
-        return real(src, dst, **kwargs)
+        return real(src, dst)
 
-    monkeypatch.setattr(shutil, "copyfile", evicting)
+    monkeypatch.setattr(store_module, "_copy_file", evicting)
     assert not cache.fetch(_key(1), tmp_path / "copy")
     assert not (tmp_path / "copy").exists() and not list(tmp_path.glob(".copy*"))
 
