@@ -144,18 +144,19 @@ def read_keypoints(path: Path, sequence: Sequence) -> KeypointDecisions:
             path, None, f"is empty: a keypoint file begins with {KEYPOINTS_HEADER.splitlines()[0]!r}"
         )
     points, kept, codes = [], [], []
-    for k, frame in enumerate(pieces):
-        # One frame at a time, each frame's blocks let go as it is joined: the whole file's
-        # arrays are never held twice.
-        parts, pieces[k] = frame, []
-        if len(parts) == 1:
-            points.append(parts[0][0]), kept.append(parts[0][1]), codes.append(parts[0][2])
-        else:
-            points.append(np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 2)))
-            kept.append(np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, bool))
-            codes.append(np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.uint16))
+    for k, parts in enumerate(pieces):
+        # One frame at a time, its pieces let go once joined: the whole file's arrays are
+        # never held twice.
+        pieces[k] = []
+        points.append(_joined([p[0] for p in parts], np.zeros((0, 2))))
+        kept.append(_joined([p[1] for p in parts], np.zeros(0, bool)))
+        codes.append(_joined([p[2] for p in parts], np.zeros(0, np.uint16)))
     reason_names = tuple(word.decode("utf-8") for word in sorted(names, key=names.__getitem__))
     return KeypointDecisions(tuple(points), tuple(kept), tuple(codes), reason_names)
+
+
+def _joined(arrays: list[np.ndarray], empty: np.ndarray) -> np.ndarray:
+    return arrays[0] if len(arrays) == 1 else np.concatenate(arrays) if arrays else empty
 
 
 def _check_header(path: Path, data: bytes) -> None:
