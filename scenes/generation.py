@@ -12,7 +12,6 @@ is added to it.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -20,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.executors import make_pool
-from depotbench.core.files import DEFAULT_PNG_COMPRESSION, dumps_json
+from depotbench.core.files import DEFAULT_PNG_COMPRESSION, MAX_META_BYTES, MIB, dumps_json, read_json
 from depotbench.core.output import (
     OutputContainer,
     OutputKind,
@@ -38,6 +37,8 @@ from depotbench.sim.spec import content_key
 LOG = logging.getLogger(__name__)
 
 INDEX_NAME = "index.json"
+INDEX_MAX_BYTES = 16 * MIB
+"""A suite folder's index: the suite limit's 10,000 sequences take about 3 MB."""
 
 
 def generate_job(scenario_data: dict[str, Any], out: str, png_compression: int) -> dict[str, Any]:
@@ -52,8 +53,8 @@ def generate_job(scenario_data: dict[str, Any], out: str, png_compression: int) 
 
 
 def read_difficulty(sequence: Path) -> dict[str, Any]:
-    meta = json.loads((sequence / "meta.json").read_text(encoding="utf-8"))
-    return meta.get("difficulty", {})
+    meta = read_json(sequence / "meta.json", MAX_META_BYTES, "sequence's meta.json")
+    return meta.get("difficulty", {}) if isinstance(meta, dict) else {}
 
 
 def is_complete(sequence: Path, key: str) -> bool:

@@ -258,17 +258,17 @@ def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
 
 def _folder_entries(folder: Path, where: str) -> list[SequenceEntry]:
     """A sequence folder's entry, or a suite folder's sequences, each checked complete."""
-    import json
-
+    from depotbench.core.errors import FileError
+    from depotbench.core.files import read_json
     from depotbench.core.output import OutputKind, read_marker
-    from depotbench.scenes.generation import INDEX_NAME, is_complete
+    from depotbench.scenes.generation import INDEX_MAX_BYTES, INDEX_NAME, is_complete
 
     marker = read_marker(folder)
     if marker is None or marker.kind is not OutputKind.SUITE:
         return [SequenceEntry(folder, family_of(Sequence.open(folder)))]
     again = f"run `depotbench generate SUITE.yaml -o {folder}` again"
     try:
-        index = json.loads((folder / INDEX_NAME).read_text(encoding="utf-8"))
+        index = read_json(folder / INDEX_NAME, INDEX_MAX_BYTES, "suite index")
         suite, listed = str(index["suite"]), list(index["sequences"])
         for entry in listed:
             name = entry["name"]
@@ -281,6 +281,8 @@ def _folder_entries(folder: Path, where: str) -> list[SequenceEntry]:
             f"{where}: {folder} is a suite folder without {INDEX_NAME} "
             f"(its generation did not finish: {again})"
         ) from None
+    except FileError as exc:  # not a regular file, over its bound, not JSON, nested too deeply
+        raise InputError(f"{where}: {exc}; {again}") from None
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{where}: {folder / INDEX_NAME} cannot be read ({exc}); {again}") from None
     entries = []
