@@ -28,6 +28,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 from depotbench.core.errors import InputError
@@ -36,6 +37,8 @@ ROOT_VARIABLE = "DEPOTBENCH_CACHE"
 OFF = ("off", "0", "no", "false")
 ON = ("on", "1", "yes", "true")
 _UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
+MAX_BOUND = (1 << 63) - 1
+"""The largest bound read: a file size is a signed 64-bit number, so no cache holds more."""
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,10 @@ def _setting(variable: str) -> bool | Path | None:
         return False
     if text.lower() in ON:
         return True
-    path = Path(text).expanduser()
+    try:
+        path = Path(text).expanduser()
+    except RuntimeError:  # ~name of no user here
+        raise InputError(f"{variable}={raw!r}: {text.split('/')[0]} is no user's home folder here") from None
     if not path.is_absolute():
         raise InputError(f"{variable}={raw!r}: give on, off or an absolute folder (~ allowed)")
     return path
@@ -200,8 +206,14 @@ def cache_bound(name: str) -> int | None:
 
 
 def parse_bytes(text: str, name: str) -> int:
-    """A size such as ``2147483648``, ``500M``, ``2GiB`` or ``1.5 GB`` (units of 1024)."""
+    """A size such as ``2147483648``, ``500M``, ``2GiB`` or ``1.5 GB`` (units of 1024), read
+    exactly (a float of 400 digits is infinite) and at most ``MAX_BOUND``."""
     match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([kmgt]?)(?:i?b)?\s*", text, re.IGNORECASE)
     if match is None:
         raise InputError(f"{name}={text!r}: give a size in bytes, e.g. 2147483648, 500M or 2GiB")
-    return int(float(match.group(1)) * _UNITS[match.group(2).lower()])
+    if len(match.group(1)) > 40:  # Python refuses to read an int of over 4300 digits (ValueError)
+        raise InputError(f"{name}={text[:40]!r}...: more than the largest size, {MAX_BOUND} bytes")
+    size = int(Fraction(match.group(1)) * _UNITS[match.group(2).lower()])
+    if size > MAX_BOUND:
+        raise InputError(f"{name}={text!r}: more than the largest size, {MAX_BOUND} bytes")
+    return size

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,6 +126,21 @@ HANDLING: dict[str, _Handling] = {
 """One entry per cache of ``depotbench.core.cache_home.CACHES`` (a test holds them equal)."""
 
 
+def _not_a_folder(folder: Path) -> str | None:
+    """Why a cache's folder cannot hold the cache (a file is there, or above it), or None.
+    Such a cache is shown and left alone, each one alike: the caches only save time, and the
+    bench runs without them (each warns once when used)."""
+    try:
+        info = os.stat(folder)
+    except FileNotFoundError:
+        return None  # made when first written
+    except NotADirectoryError:
+        return f"not a folder: a file is in the way above {folder}"
+    except OSError as exc:
+        return f"not a folder that can be read: {folder}: {exc.strerror or exc}"
+    return None if stat.S_ISDIR(info.st_mode) else f"not a folder: {folder} is a file"
+
+
 def _root_origin() -> str:
     """Which setting gives the cache root, for ``info``."""
     if os.environ.get(ROOT_VARIABLE, "").strip():
@@ -152,7 +168,9 @@ def _state() -> dict:
     caches = {}
     for name, cache in CACHES.items():
         folder = now.folders[name]
-        contents = HANDLING[name].contents(folder) if folder is not None else Contents(0, 0)
+        problem = None if folder is None else _not_a_folder(folder)
+        usable = folder is not None and problem is None
+        contents = HANDLING[name].contents(folder) if usable else Contents(0, 0)
         caches[name] = {
             "holds": cache.holds,
             "location": None if folder is None else str(folder),
@@ -163,6 +181,7 @@ def _state() -> dict:
             "bytes": contents.bytes,
             "bound_bytes": now.bounds[name],
             "bound_variable": cache.bound_variable,
+            "problem": problem,
         }
     root = None if now.root is None else str(now.root)
     return {"root": root, "root_from": _root_origin(), "caches": caches}
@@ -186,6 +205,9 @@ def _cmd_info(args: argparse.Namespace) -> int:
         bound = cache["bound_bytes"]
         limit = "unbounded" if bound is None else f"bound {bytes_text(bound)} ({cache['bound_variable']})"
         print(f"  location: {cache['location']}")
+        if cache["problem"]:
+            print(f"  {cache['problem']}; the cache is not used")
+            continue
         print(
             f"  size: {bytes_text(cache['bytes'])} in {entries} entr{'y' if entries == 1 else 'ies'}, {limit}"
         )
@@ -202,6 +224,10 @@ def _cmd_clear(args: argparse.Namespace) -> int:
         folder = now.folders[name]
         if folder is None:
             print(f"{name}: off ({now.off_by[name]}), nothing to clear")
+            continue
+        problem = _not_a_folder(folder)
+        if problem is not None:
+            print(f"{name}: {problem}, nothing to clear")
             continue
         freed, kept = HANDLING[name].clear(folder)
         freed_total += freed.bytes
