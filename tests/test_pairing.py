@@ -25,7 +25,8 @@ from scipy.stats import ttest_1samp
 from tests.records import record
 
 GOOD = [0.010, 0.012, 0.009, 0.011, 0.010, 0.013]
-BAD = [40 * a * f for a, f in zip(GOOD, [1.0, 1.1, 0.9, 1.05, 0.95, 1.0], strict=True)]
+NOISE = [1.0, 1.1, 0.9, 1.05, 0.95, 1.0]
+BAD = [40 * a * f for a, f in zip(GOOD, NOISE, strict=True)]
 
 
 def _rows(ates: list[float], version: str | None, tag: str = "", folder: str = "/suite") -> list[RunRecord]:
@@ -216,3 +217,38 @@ def test_o14_sweeps_differing_in_one_parameter_pair_every_configuration():
     expected = np.exp(np.mean(np.log([2 + 0.1 * (i % 3) for i in range(len(GOOD))]))) - 1
     assert len(ate) == 4 and all(c.change.change == pytest.approx(expected) and c.significant for c in ate)
     assert all(c.differs == "window 3 -> 5" for c in ate)
+
+
+def test_n13_compare_streams_a_store_and_agrees_with_its_records(tmp_path: Path):
+    """N13: compare held every row of a store as a record (200,000 rows: 1.53 GB); it now
+    reads the columns it needs a row at a time (``load_set``). Its comparison of two stores
+    is the one of their records: rho against each sequence's none run, missing figures and
+    a second program version chosen away included."""
+    from depotbench.eval.gates.compare import load_set
+
+    def sweep(scale: float) -> list[RunRecord]:
+        rows = []
+        for strategy, factor in (("none", 1.0), ("box_rule", 0.5)):
+            for i, ate in enumerate(GOOD):
+                recall = None if strategy == "none" else 0.8 + 0.01 * i * scale
+                rows.append(
+                    record(
+                        key=f"{strategy}-{i}",
+                        sequence=f"/suite/walk-{i:04d}",
+                        tracker="mine",
+                        strategy=strategy,
+                        ate_rmse_m=ate * factor * (scale * NOISE[i] if strategy != "none" else 1.0),
+                        rejection_recall=recall,
+                        tracker_fingerprint="v",
+                    )
+                )
+        return rows
+
+    first = _store(tmp_path / "a", sweep(1.0))
+    second = _store(tmp_path / "b", sweep(1.3) + _rows(BAD, "worsebuild00"))
+    streamed = compare_rows(load_set(first), load_set(second, ("v",)))
+    held = compare_rows(load_rows(first), load_rows(second, ("v",)))
+    assert streamed.to_dict() == held.to_dict()
+    assert {c.figure for c in streamed.comparisons} >= {"ate_rmse_m", "rho_percent", "rejection_recall"}
+    with pytest.raises(InputError, match="2 program versions"):
+        load_set(second)

@@ -62,15 +62,15 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     from depotbench.core.errors import InputError
     from depotbench.core.files import dumps_json
     from depotbench.core.output import check_output_file, write_text_atomic
-    from depotbench.eval.gates.compare import compare_rows, format_comparisons, load_rows
+    from depotbench.eval.gates.compare import compare_rows, format_comparisons, load_set
 
     if len(args.folders) < 2:
         raise InputError("compare needs two folders or more: the base, then what to compare with it")
     if args.html is not None:
         check_output_file(args.html, overwrite=args.overwrite, inputs=tuple(args.folders), option="--html")
     chosen = tuple(args.fingerprint)
-    base = load_rows(args.folders[0], chosen)
-    results = {str(folder): compare_rows(base, load_rows(folder, chosen)) for folder in args.folders[1:]}
+    base = load_set(args.folders[0], chosen)
+    results = {str(folder): compare_rows(base, load_set(folder, chosen)) for folder in args.folders[1:]}
     regressions = {name: found.regressions(args.tolerance, time=args.time) for name, found in results.items()}
     if args.json:
         print(

@@ -16,21 +16,28 @@ Each set holds one program version per tracker (``versions.one_version``).
 from __future__ import annotations
 
 import json
+import math
+import sys
+from array import array
+from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
 from depotbench.eval.metrics.figures import (
+    DERIVED_COLUMNS,
     FIGURES,
     HIGHER_IS_BETTER,
     RATIO,
     TIME,
-    ScoredRun,
     configuration_of,
+    is_baseline,
+    parameters_of,
     with_derived,
 )
-from depotbench.eval.metrics.record import RunRecord
+from depotbench.eval.metrics.record import UNKNOWN_FINGERPRINT, RunRecord
 from depotbench.eval.metrics.statistics import Change, paired_change, stats
 from depotbench.eval.sweep.summary import configuration_label
 
@@ -129,25 +136,112 @@ def sequence_of(row: Any) -> str:
     return row.get("sequence_fingerprint") or row["sequence"]
 
 
+@dataclass(frozen=True, slots=True)
+class _Run:
+    """What compare keeps of a run: its sequence folder's name (for messages) and its
+    ``COMPARED`` figures in that order, NaN where it has none (an array: 13 doubles, 170 bytes,
+    where a record takes some 7 kB)."""
+
+    name: str
+    figures: array
+
+    def get(self, index: int) -> float | None:
+        value = self.figures[index]
+        return None if math.isnan(value) else value
+
+
 @dataclass(frozen=True)
-class _Grouped:
-    runs: dict[tuple, dict[str, ScoredRun]]
-    """Per configuration, its runs by sequence (``sequence_of``)."""
+class RunSet:
+    """A result set as compare pairs it: per configuration (``configuration_of``), its runs
+    by sequence (``sequence_of``)."""
+
+    runs: dict[tuple, dict[str, _Run]]
     duplicates: dict[tuple, dict[str, int]]
     """Per configuration, the sequences it ran on more than once, and how many times."""
 
+    @classmethod
+    def of(cls, items: Iterable[tuple[tuple, str, str, tuple]]) -> RunSet:
+        """From (configuration, sequence, folder name, figures) per run."""
+        runs: dict[tuple, dict[str, _Run]] = {}
+        duplicates: dict[tuple, dict[str, int]] = {}
+        for config, sequence, name, figures in items:
+            mine = runs.setdefault(config, {})
+            sequence = sys.intern(sequence)  # a few hundred sequences under 200,000 rows
+            if sequence in mine:
+                seen = duplicates.setdefault(config, {})
+                seen[sequence] = seen.get(sequence, 1) + 1
+            values = array("d", (math.nan if v is None else v for v in figures))
+            mine[sequence] = _Run(sys.intern(name), values)
+        return cls(runs, duplicates)
 
-def _groups(records: list[RunRecord]) -> _Grouped:
-    runs: dict[tuple, dict[str, ScoredRun]] = {}
-    duplicates: dict[tuple, dict[str, int]] = {}
-    for row in with_derived(records):
-        config, sequence = configuration_of(row), sequence_of(row)
-        mine = runs.setdefault(config, {})
-        if sequence in mine:
-            seen = duplicates.setdefault(config, {})
-            seen[sequence] = seen.get(sequence, 1) + 1
-        mine[sequence] = row
-    return _Grouped(runs, duplicates)
+    @classmethod
+    def of_records(cls, records: Iterable[RunRecord]) -> RunSet:
+        return cls.of(
+            (configuration_of(row), sequence_of(row), Path(row["sequence"]).name, _figures(row))
+            for row in with_derived(records)
+        )
+
+
+def _figures(row: Any) -> tuple:
+    return tuple(row.get(name) for name in COMPARED)
+
+
+STREAMED = (
+    "family",
+    "tracker",
+    "parameters",
+    "detector",
+    "strategy",
+    "settings",
+    "sequence",
+    "sequence_fingerprint",
+    "tracker_fingerprint",
+)
+"""The columns a streamed store gives compare besides the figures it compares."""
+
+
+def load_set(folder: Path, chosen: tuple[str, ...] = (), option: str = "--fingerprint") -> RunSet:
+    """``load_rows``'s runs as compare keeps them; a results store is read a row at a time,
+    its needed columns only (a 200,000-row store: ``docs/statistics.md``)."""
+    if not (folder / "results.sqlite").is_file():
+        return RunSet.of_records(load_rows(folder, chosen, option))
+    from depotbench.eval.metrics.accuracy import improvement_rate
+    from depotbench.eval.metrics.versions import chosen_versions, version_of
+    from depotbench.eval.sweep.store import ResultStore
+
+    stored = [name for name in COMPARED if name not in DERIVED_COLUMNS]
+    with ResultStore(folder / "results.sqlite", readonly=True) as store:
+        counts: dict[str, Counter[str]] = {}
+        for tracker, fingerprint in store.columns(("tracker", "tracker_fingerprint")):
+            counts.setdefault(tracker, Counter())[fingerprint or UNKNOWN_FINGERPRINT] += 1
+        keep = chosen_versions(counts, chosen, folder, option)
+
+        def rows():
+            for values in store.columns((*STREAMED, *stored)):
+                row = dict(zip(STREAMED, values[: len(STREAMED)], strict=True))
+                if keep.get(row["tracker"], version_of(row)) == version_of(row):
+                    yield row, values[len(STREAMED) :]
+
+        def where(row: dict) -> tuple:  # what rho pairs a run with its none run by
+            return (row["sequence"], row["tracker"], parameters_of(row), row["detector"])
+
+        figures = dict(zip(stored, range(len(stored)), strict=True))
+        ate = figures["ate_rmse_m"]
+        baseline = {where(row): values[ate] for row, values in rows() if is_baseline(row)}
+
+        def items():
+            for row, values in rows():
+                base, mine = baseline.get(where(row)), values[ate]
+                rho = improvement_rate(base, mine) if base and mine is not None and base > 0 else None
+                derived = {"rho_percent": rho}
+                yield (
+                    configuration_of(row),
+                    sequence_of(row),
+                    Path(row["sequence"]).name,
+                    tuple(derived[n] if n in derived else values[figures[n]] for n in COMPARED),
+                )
+
+        return RunSet.of(items())
 
 
 def _without_parameters(key: tuple) -> tuple:
@@ -228,8 +322,15 @@ class SetComparison:
         }
 
 
-def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) -> SetComparison:
-    grouped_a, grouped_b = _groups(base_records), _groups(other_records)
+def compare_rows(
+    base_records: list[RunRecord] | RunSet, other_records: list[RunRecord] | RunSet
+) -> SetComparison:
+    """Each figure's paired change per configuration from the first set to the other (sets as
+    records, or as ``load_set`` streamed them)."""
+    grouped_a, grouped_b = (
+        group if isinstance(group, RunSet) else RunSet.of_records(group)
+        for group in (base_records, other_records)
+    )
     base, other = grouped_a.runs, grouped_b.runs
     pairs = _pairs(base, other)
     out, unshared, duplicates = [], [], []
@@ -237,18 +338,18 @@ def compare_rows(base_records: list[RunRecord], other_records: list[RunRecord]) 
         runs_a, runs_b = base[key_a], other[key_b]
         twice = {**grouped_a.duplicates.get(key_a, {}), **grouped_b.duplicates.get(key_b, {})}
         for sequence in sorted(set(twice) & (set(runs_a) | set(runs_b))):
-            name = Path((runs_a.get(sequence) or runs_b[sequence])["sequence"]).name
+            name = (runs_a.get(sequence) or runs_b[sequence]).name
             duplicates.append(f"{key_a[0]}: {_label(key_a)} on {name} ({twice[sequence]} runs)")
         shared = sorted((set(runs_a) & set(runs_b)) - set(twice))
         if not shared:
             unshared.append(f"{key_a[0]}: {_label(key_a)}")
             continue
         differs = _differs(key_a, key_b)
-        for figure in COMPARED:
+        for index, figure in enumerate(COMPARED):
             if figure == "rho_percent" and key_a[4] == "none":
                 continue  # ρ is taken against the none run itself: 0 by definition
-            a = [runs_a[name].get(figure) for name in shared]
-            b = [runs_b[name].get(figure) for name in shared]
+            a = [runs_a[name].get(index) for name in shared]
+            b = [runs_b[name].get(index) for name in shared]
             if all(v is None for v in a + b):
                 continue
             out.append(

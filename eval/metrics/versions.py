@@ -37,11 +37,12 @@ def versions_text(counts: Counter[str]) -> str:
     return ", ".join(f"{name} ({n} row{'s' if n != 1 else ''})" for name, n in counts.most_common())
 
 
-def one_version(rows: list, chosen: Sequence[str], folder: object, option: str) -> list:
-    """The rows with one program version per tracker label: a label with several keeps the
-    rows of the one fingerprint in ``chosen`` (``option``'s values, which may name those of
-    other folders too), else this refuses naming them (a mistyped choice included)."""
-    found = versions(rows)
+def chosen_versions(
+    found: dict[str, Counter[str]], chosen: Sequence[str], folder: object, option: str
+) -> dict[str, str]:
+    """Per tracker label with several versions (``versions``), the one fingerprint in
+    ``chosen`` (``option``'s values, which may name those of other folders too) whose rows
+    to keep; a label with none or two of them chosen is refused naming its fingerprints."""
     keep: dict[str, str] = {}
     for tracker, counts in sorted(found.items()):
         if len(counts) < 2:
@@ -54,9 +55,15 @@ def one_version(rows: list, chosen: Sequence[str], folder: object, option: str) 
                 + PRUNE_HINT.format(folder=folder)
             )
         keep[tracker] = picked[0]
+    return keep
+
+
+def one_version(rows: list, chosen: Sequence[str], folder: object, option: str) -> list:
+    """The rows with one program version per tracker label (``chosen_versions``)."""
+    keep = chosen_versions(versions(rows), chosen, folder, option)
     if not keep:
         return rows
-    return [r for r in rows if r.get("tracker") not in keep or version_of(r) == keep[r.get("tracker")]]
+    return [r for r in rows if keep.get(r.get("tracker"), version_of(r)) == version_of(r)]
 
 
 def check_one_version(rows: Iterable[Any], what: str) -> None:
