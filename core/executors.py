@@ -53,31 +53,43 @@ def _init_local_worker(parent_pid: int) -> None:
 
 class LocalPool:
     """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error.
-    With one worker and ``in_process``, jobs run in this process instead."""
+    With one worker and ``in_process``, jobs run in this process instead.
+
+    The executor (its queues hold five named semaphores) is made at the first
+    ``map_unordered``, inside the caller's ``try``/``close``, with Ctrl-C held until it is
+    kept: made here, a Ctrl-C between it and the caller's ``try`` left it unclosed, and an
+    interrupted command (which ends by ``os._exit``) drew three lines from the resource
+    tracker about leaked semaphores (probe N27)."""
 
     def __init__(self, workers: int, in_process: bool = True) -> None:
         self.workers = workers
-        self.pool = None
-        if workers > 1 or not in_process:
-            self.pool = ProcessPoolExecutor(
-                workers,
-                mp_context=mp.get_context("spawn"),
-                initializer=_init_local_worker,
-                initargs=(os.getpid(),),
-            )
+        self.parallel = workers > 1 or not in_process
+        self.pool: ProcessPoolExecutor | None = None
+
+    def _executor(self) -> ProcessPoolExecutor:
+        if self.pool is None:
+            with children_block_sigint():  # a Ctrl-C now is raised once self.pool holds it
+                self.pool = ProcessPoolExecutor(
+                    self.workers,
+                    mp_context=mp.get_context("spawn"),
+                    initializer=_init_local_worker,
+                    initargs=(os.getpid(),),
+                )
+        return self.pool
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
-        if self.pool is None:
+        if not self.parallel:
             for item in items:
                 yield item, fn(*item)
             return
+        pool = self._executor()
         running: dict[Future, tuple] = {}
         queue = list(items)
         while queue or running:
             while queue and len(running) < 2 * self.workers:
                 item = queue.pop(0)
                 with children_block_sigint():  # the first submit spawns the workers
-                    running[self.pool.submit(fn, *item)] = item
+                    running[pool.submit(fn, *item)] = item
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in finished:
                 yield running.pop(future), future.result()

@@ -12,21 +12,25 @@ rendering, the sequence format), ``depotbench.scenes`` (scenario specs and suite
 (the plumbing they share).
 """
 
-from depotbench.api import (
-    SweepResult,
-    check,
-    compare,
-    evaluate,
-    generate,
-    generate_suite,
-    report,
-    run,
-    scenario,
-    sweep,
-)
-from depotbench.core.version import generator_version
+from __future__ import annotations
 
-__version__ = generator_version()
+import importlib
+
+TYPE_CHECKING = False  # typing itself costs 5 ms of the time before Ctrl-C is handled
+if TYPE_CHECKING:
+    from depotbench.api import (
+        SweepResult,
+        check,
+        compare,
+        evaluate,
+        generate,
+        generate_suite,
+        report,
+        run,
+        scenario,
+        sweep,
+    )
+
 
 __all__ = [
     "SweepResult",
@@ -41,3 +45,17 @@ __all__ = [
     "scenario",
     "sweep",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """The API's names and ``__version__``, loaded at first use (PEP 562): every module of the
+    package imports this one first, the command line's first module too, and a Ctrl-C is the
+    command line's to report only once that module has run (importing ``depotbench.api`` and
+    the package metadata here cost 40 ms, the window of probe C15's tracebacks)."""
+    if name == "__version__":
+        from depotbench.core.version import generator_version
+
+        return generator_version()
+    if name in __all__:
+        return getattr(importlib.import_module("depotbench.api"), name)
+    raise AttributeError(f"module 'depotbench' has no attribute {name!r}")

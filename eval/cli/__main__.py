@@ -1,5 +1,5 @@
 """``python -m depotbench.eval.cli``: the console script without its wrapper."""
 
-from depotbench.eval.cli.main import entry
+from depotbench.eval.cli.console import entry
 
 entry()
