@@ -267,6 +267,8 @@ def test_a_sweep_keeps_rows_of_an_older_program_apart_and_prune_stale_removes_th
     ]
     summary = json.loads((out / "summary.json").read_text())
     assert [c["runs"] for c in summary["configurations"]] == [1]
+    with ResultStore(out / "results.sqlite", readonly=True) as store:  # as report reads it
+        assert [r.tracker_fingerprint for r in store.current_records()] == [new]
     caplog.clear()
     assert main([*sweep, "--prune-stale"]) == 0
     removed = [m for r in caplog.records if "prune" in (m := r.getMessage())]

@@ -1310,7 +1310,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
 
     summary = read_summary(folder / "summary.json")
     with ResultStore(folder / "results.sqlite", readonly=True) as store:
-        rows = with_rho(store.records())
+        rows = with_rho(store.current_records())  # an older program's rows stay apart
     sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]

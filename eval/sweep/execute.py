@@ -48,9 +48,11 @@ class SweepOutcome:
 
 def _older_versions(store: ResultStore, jobs: list[SweepJob], prune: bool) -> None:
     """Rows of an older version of one of this sweep's trackers (another fingerprint) are
-    kept apart, said in one line per version; ``prune`` removes them, each version named
-    before its rows go."""
+    kept apart (here and, through the store's record of the current versions, in ``report``),
+    said in one line per version; ``prune`` removes them, each version named before its rows
+    go."""
     current = {j.run.tracker: j.run.tracker_fingerprint or "" for j in jobs}
+    store.set_versions(current)
     for tracker, fingerprint, rows in store.older_versions(current):
         what = f"{rows} row{'s' if rows != 1 else ''} of tracker {tracker} fingerprint {fingerprint}"
         if prune:

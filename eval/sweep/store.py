@@ -42,6 +42,8 @@ def _column(name: str) -> str:
     return f"{name} {_SQL[_KINDS[name]]}{' PRIMARY KEY' if name == 'key' else ''}"
 
 
+VERSIONS = "tracker_fingerprints"
+"""The meta entry of the tracker fingerprints the last sweep into the store ran."""
 SQLITE_HEADER = b"SQLite format 3\x00"
 LOCK_WAIT_S = 30.0
 """How long a write waits for another program's lock on the file (a viewer, a backup)."""
@@ -199,6 +201,17 @@ class ResultStore:
             (UNKNOWN_FINGERPRINT,),
         )
         return [(t, f, n) for t, f, n in found if t in current and f != current[t]]
+
+    def set_versions(self, current: dict[str, str]) -> None:
+        """Remember the tracker fingerprints the last sweep ran (label: fingerprint), so that a
+        reader of the folder (``report``) keeps the older versions' rows apart too."""
+        self.set_meta(VERSIONS, json.dumps(current, sort_keys=True))
+
+    def current_records(self) -> list[RunRecord]:
+        """Every run but those of an older version of a tracker the last sweep ran."""
+        text = self.meta(VERSIONS)
+        current = json.loads(text) if text else {}
+        return [r for r in self.records() if current.get(r.tracker, r.program_version) == r.program_version]
 
     def remove_version(self, tracker: str, fingerprint: str) -> None:
         """Delete the rows of one program version of a tracker (``older_versions``), in one
