@@ -310,3 +310,53 @@ def test_a_cache_root_that_is_a_file_is_shown_and_cleared_alike(clean_env, tmp_p
         assert err == "" and "not a folder" in out and "removed" not in out, (flag, out, err)
     assert set(codes.values()) == {0}
     assert (tmp_path / "file").read_text() == "mine\n"
+
+
+# -- N20, N25: what rows and checks read of a sequence ------------------------------------------
+
+
+def test_a_path_is_stored_as_text_and_read_back_losslessly():
+    from depotbench.core.path_text import path_text, text_path
+
+    for raw in (b"/d/seq", b"/d/s\xffq", b"/d/a\\x41b", b"/d/\xc3\xa9t\xe9", b"/d/x\\", "/d/é".encode()):
+        text = path_text(os.fsdecode(raw))
+        text.encode("utf-8")  # what SQLite, JSON and HTML need
+        assert os.fsencode(text_path(text)) == raw
+    assert path_text("/d/walking-0001") == "/d/walking-0001"  # rows already stored keep their text
+
+
+def test_a_sequence_folder_whose_name_is_not_utf8_is_swept_and_reported(tmp_path: Path, capsys):
+    """Probe N20: the row insert died with UnicodeEncodeError."""
+    import sqlite3
+
+    from depotbench.core.path_text import text_path
+
+    from tests.sequences import write_sequence
+
+    folder = Path(os.fsdecode(bytes(tmp_path) + b"/seq\xff"))
+    write_sequence(folder, n=3)
+    (tmp_path / "x.yaml").write_text("sweep: x\nsequences: ['seq*']\nstrategies: [none]\n")
+    assert main(["sweep", str(tmp_path / "x.yaml"), "-o", str(tmp_path / "sw")]) == 0, capsys.readouterr().err
+    with contextlib.closing(sqlite3.connect(tmp_path / "sw" / "results.sqlite")) as db:
+        (stored,) = db.execute("SELECT sequence FROM runs").fetchone()
+    assert (tmp_path / "sw" / text_path(stored)).resolve() == folder.resolve() or text_path(stored) == folder
+
+
+def test_tags_that_are_not_text_are_one_line_naming_the_meta_file(tmp_path: Path, capsys):
+    """Probe N25: ``check`` with ``tags:`` died with TypeError: unhashable type."""
+    import json
+
+    from tests.sequences import write_sequence
+
+    write_sequence(tmp_path / "seq", n=3)
+    meta_path = tmp_path / "seq" / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["scenario"]["tags"] = [["smoke"], 3]
+    meta_path.write_text(json.dumps(meta))
+    gate = tmp_path / "g.yaml"
+    gate.write_text(
+        "gates: g\nrun:\n  sequences: [seq]\n  strategies: [none]\nchecks:\n"
+        "  - name: tagged\n    tags: [smoke]\n    budgets: {lost_fraction: {max: 1}}\n"
+    )
+    assert main(["check", str(gate), "-o", str(tmp_path / "chk")]) == 2
+    _one_line(capsys.readouterr().err, "meta.json", "tags")

@@ -37,6 +37,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from depotbench.core.errors import InputError
+from depotbench.core.path_text import text_path
 from depotbench.eval.metrics.figures import (
     FIGURES,
     HIGHER_IS_BETTER,
@@ -290,8 +292,14 @@ def _row_name(row: ScoredRun) -> str:
 
 def _tags(sequence: str, cache: dict[str, set[str]]) -> set[str]:
     if sequence not in cache:
-        scenario = (Sequence.open(Path(sequence)).meta or {}).get("scenario") or {}
-        cache[sequence] = set(scenario.get("tags") or []) if isinstance(scenario, dict) else set()
+        opened = Sequence.open(text_path(sequence))
+        scenario = (opened.meta or {}).get("scenario") or {}
+        tags = (scenario.get("tags") or []) if isinstance(scenario, dict) else []
+        if not isinstance(tags, list) or not all(isinstance(tag, str) for tag in tags):
+            raise InputError(
+                f"{opened.root / 'meta.json'}: scenario.tags must be a list of text, got {tags!r:.80}"
+            )
+        cache[sequence] = set(tags)
     return cache[sequence]
 
 

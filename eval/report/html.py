@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MIB, open_regular, read_text
+from depotbench.core.path_text import text_path
 from depotbench.eval.metrics.alignment import Alignment, align
 from depotbench.eval.metrics.figures import ScoredRun, is_baseline
 from depotbench.eval.metrics.record import RunRecord
@@ -152,7 +153,7 @@ def resolve_sequence(recorded: str, base: Path) -> Path | None:
     stored paths relative to where they ran, ``specs/../seq``). Resolved, so that the
     sequence's fingerprint, which holds its folder, is the one the sweep computed.
     """
-    path = Path(recorded)
+    path = text_path(recorded)
     candidates = [path] if path.is_absolute() else [base / path, path]
     return next((c.resolve() for c in candidates if c.is_dir()), None)
 

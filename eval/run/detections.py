@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest
+from depotbench.core.path_text import path_text
 from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
 from depotbench.detectors.base import DetectorFrame
@@ -73,13 +74,14 @@ Opening the folder again hashes it again, so a file changed between two opens is
 
 
 def stored_path(root: Path, anchor: Path | None) -> str:
-    """A sequence folder as rows name it: relative to ``anchor`` when inside it, else absolute."""
+    """A sequence folder as rows name it: relative to ``anchor`` when inside it, else absolute,
+    as text any store holds (``depotbench.core.path_text``: a name that is not UTF-8 too)."""
     absolute = root.resolve()
     if anchor is not None:
         base = anchor.resolve()
         if base in absolute.parents:
-            return absolute.relative_to(base).as_posix()
-    return str(absolute)
+            return path_text(absolute.relative_to(base).as_posix())
+    return path_text(absolute)
 
 
 def build_detector(config: DetectorConfig, sequence: Sequence):

@@ -29,6 +29,7 @@ from depotbench.core.camera import CameraOverride, Intrinsics, camera_json
 from depotbench.core.errors import InputError
 from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.output import OutputKind, StagedOutput
+from depotbench.core.path_text import path_text
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig, DetectorKind
 from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions, compare
@@ -448,7 +449,7 @@ def run_identity(job: RunJob, sequence: Sequence) -> RunIdentity:
         job.dense_map,
         camera,
     )
-    stored = str(sequence.root.resolve())
+    stored = path_text(sequence.root.resolve())
     family, seed = family_of(sequence), seed_of(sequence)
     return identity_of(job, key, family, stored, fingerprint, seed, None, tracker_fingerprint(tracker))
 
