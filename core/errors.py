@@ -12,6 +12,20 @@ from pathlib import Path
 class InputError(ValueError):
     """Bad input from the user: a file, a field or an argument."""
 
+    def __reduce__(self):
+        """Rebuilt from its message and fields, not by calling ``__init__`` with the message
+        alone: worker processes and Ray send errors back pickled, and ``FileError(message)``
+        raised TypeError there, so a bad file in a Ray job reached the user as a 30-line
+        ``UnserializableException``."""
+        return (_rebuilt, (type(self), self.args, self.__dict__))
+
+
+def _rebuilt(kind: type[BaseException], args: tuple, fields: dict) -> BaseException:
+    error = kind.__new__(kind, *args)
+    error.args = args
+    error.__dict__.update(fields)
+    return error
+
 
 class FileError(InputError):
     """A file that cannot be used as input: the message names it and, where known, the line."""

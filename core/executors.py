@@ -15,10 +15,12 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
 
-from depotbench.core.errors import InputError
+from depotbench.core.errors import EnvironmentProblem, InputError
 from depotbench.core.processes import children_block_sigint, exit_with_parent, release_sigint
 
 BACKENDS = ("local", "ray")
+USER_ERRORS = (InputError, EnvironmentProblem)
+"""What a job raises for the user to fix (the command line says it in one line)."""
 KILL_WAIT_S = 5.0
 """How long a killed worker may take to be gone (it dies at once; this bounds a stuck kernel)."""
 
@@ -147,7 +149,20 @@ class RayPool:
                 running[self.remote.remote(fn, *item)] = item
             finished, _ = self.ray.wait(list(running), num_returns=1)
             for ref in finished:
-                yield running.pop(ref), self.ray.get(ref)
+                item = running.pop(ref)
+                yield item, self._result(ref)
+
+    def _result(self, ref: Any) -> Any:
+        """A task's value, or the error it raised: a user's error (a bad file, a missing
+        library) as itself, so that the command says it in one line, not inside Ray's
+        ``RayTaskError`` with the worker's traceback (~30 lines); anything else, a bug of
+        ours, keeps Ray's error and the worker's traceback."""
+        try:
+            return self.ray.get(ref)
+        except self.ray.exceptions.RayTaskError as exc:
+            if isinstance(exc.cause, USER_ERRORS):
+                raise exc.cause from None
+            raise
 
     def close(self, failed: bool) -> None:
         if self.started:
