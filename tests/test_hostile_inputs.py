@@ -360,3 +360,18 @@ def test_tags_that_are_not_text_are_one_line_naming_the_meta_file(tmp_path: Path
     )
     assert main(["check", str(gate), "-o", str(tmp_path / "chk")]) == 2
     _one_line(capsys.readouterr().err, "meta.json", "tags")
+
+
+def test_a_glob_skips_the_sweeps_own_output_folder(tmp_path: Path, capsys):
+    """Probe N28: ``sequences: ['*']`` matched the output folder, made (and marked) before the
+    glob was expanded: ``sw/rgb.txt: file is missing``."""
+    import sqlite3
+
+    from tests.sequences import write_sequence
+
+    write_sequence(tmp_path / "seqa", n=3)
+    (tmp_path / "x.yaml").write_text("sweep: x\nsequences: ['*']\nstrategies: [none]\n")
+    for _ in range(2):  # and again, resumed: the folder now holds a finished sweep
+        assert main(["sweep", str(tmp_path / "x.yaml"), "-o", str(tmp_path / "sw")]) == 0, capsys.readouterr()
+    with contextlib.closing(sqlite3.connect(tmp_path / "sw" / "results.sqlite")) as db:
+        assert [row[0] for row in db.execute("SELECT sequence FROM runs")] == [str(tmp_path / "seqa")]

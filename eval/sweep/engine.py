@@ -230,8 +230,9 @@ def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
     sequence folder, a suite folder (``depotbench generate SUITE.yaml -o DIR``: its
     sequences, in its ``index.json``'s order, with the family and knobs a ``suite:``
     entry gives them) or a glob (``seqs/*``, relative to the spec file; a folder whose
-    name holds ``*``, ``?`` or ``[`` is that folder) of such folders, sorted; a glob
-    matching no folder is refused naming the entry."""
+    name holds ``*``, ``?`` or ``[`` is that folder) of such folders, sorted, skipping
+    depotbench's other outputs (``_other_output``); a glob matching no folder is refused
+    naming the entry."""
     import glob
 
     entries = []
@@ -243,7 +244,7 @@ def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
                 found = glob.glob(pattern)
             else:  # the spec's folder is no part of the pattern: it may hold * or [ itself
                 found = [str(spec_path.parent / p) for p in glob.glob(pattern, root_dir=spec_path.parent)]
-            folders = sorted(Path(p) for p in found if Path(p).is_dir())
+            folders = sorted(Path(p) for p in found if Path(p).is_dir() and not _other_output(Path(p)))
             if not folders:
                 start = spec_path.parent.absolute()
                 raise InputError(f"{where}: {name!r} matches no folder (relative to {start})")
@@ -254,6 +255,16 @@ def named_sequences(spec: SweepSpec, spec_path: Path) -> list[SequenceEntry]:
         for folder in folders:
             entries.extend(_folder_entries(folder, where))
     return entries
+
+
+def _other_output(folder: Path) -> bool:
+    """Whether depotbench wrote ``folder`` as an output that holds no sequence (a sweep, a
+    run, a report): a glob skips it, the sweep's own ``-o`` folder among them, which is
+    made (and marked) before the glob is expanded."""
+    from depotbench.core.output import OutputKind, read_marker
+
+    marker = read_marker(folder)
+    return marker is not None and marker.kind not in (OutputKind.SEQUENCE, OutputKind.SUITE)
 
 
 def _folder_entries(folder: Path, where: str) -> list[SequenceEntry]:
