@@ -21,7 +21,7 @@ the pytest plugin render a sequence once per machine instead of once per job.
   against ``HEX-L.json``, so a copy made while the entry was evicted is never taken, and
   an entry changed in place (edited, rotted) is removed with one warning and rendered
   again, never served under its key. Hashing while copying costs about 0.1 s on a
-  300-frame entry (see ``docs/scenarios.md``).
+  300-frame entry (162 MB in 900 files: 0.3 s against 0.2 s for a plain copy).
 - **Bounded.** ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` (default 20 GiB; ``500M``,
   ``20GiB`` and plain bytes are read); using an entry marks it used (its mtime) and the
   least recently used go first, when one is stored and before one is copied out (so a
