@@ -393,10 +393,72 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
     )
 
 
+_TYPE_TAGS = frozenset({"str", "int", "float", "bool", "bytes", "none", "list", "dict", "tuple"})
+"""How pydantic names a union's alternative of a plain type in an error's location."""
+
+
+def _model_names() -> set[str]:
+    """The class names pydantic gives a union's model alternatives in an error's location."""
+    names, pending = set(), [BaseModel]
+    while pending:
+        for sub in pending.pop().__subclasses__():
+            names.add(sub.__name__)
+            pending.append(sub)
+    return names
+
+
+def _tags(loc: tuple, models: set[str]) -> list[int]:
+    """Where ``loc`` may name a union's alternative (``Grid``, ``str``, ``function-after[...]``)."""
+    return [
+        i
+        for i, part in enumerate(loc)
+        if isinstance(part, str) and (part in _TYPE_TAGS or "[" in part or part in models)
+    ]
+
+
+def relevant_errors(errors: list[dict]) -> list[dict]:
+    """A union's errors for the alternative the input came nearest to, its tag dropped from
+    the location: pydantic reports every alternative (``grid: [.nan]`` read as a Grid, a
+    Range and a Random gave 5 lines, 4 of them 'unknown field grid' or 'range: Field
+    required'). The nearest is the one whose errors reach deepest into the input (the NaN at
+    ``grid.0`` against a missing ``range``); on a tie, the first alternative. A place is a
+    union only where errors name two alternatives there (a user's key named ``str`` stays)."""
+    models = _model_names()
+    while (union := _first_union(errors, models)) is not None:
+        prefix, at, members = union
+        depth: dict[str, int] = {}
+        for e in members:
+            depth[e["loc"][at]] = max(depth.get(e["loc"][at], 0), len(e["loc"]))
+        chosen = max(depth, key=lambda tag: depth[tag])  # the first of the deepest
+        kept = []
+        for e in errors:
+            if not any(e is m for m in members):
+                kept.append(e)
+            elif e["loc"][at] == chosen:
+                kept.append({**e, "loc": (*prefix, *e["loc"][at + 1 :])})
+        errors = kept
+    return errors
+
+
+def _first_union(errors: list[dict], models: set[str]) -> tuple[tuple, int, list[dict]] | None:
+    """The first place where errors name two or more alternatives: its location, the tag's
+    index and the errors of every alternative there."""
+    for error in errors:
+        loc = tuple(error["loc"])
+        for at in _tags(loc, models):
+            members = [
+                e for e in errors if tuple(e["loc"][:at]) == loc[:at] and at in _tags(tuple(e["loc"]), models)
+            ]
+            if len({e["loc"][at] for e in members}) > 1:
+                return loc[:at], at, members
+    return None
+
+
 def format_validation_error(source: str, exc: ValidationError) -> str:
-    """One line per problem: ``file: field.path: what is wrong (got X)``."""
+    """One line per problem: ``file: field.path: what is wrong (got X)``; of a union, the
+    alternative the input came nearest to (``relevant_errors``)."""
     lines = []
-    for error in exc.errors():
+    for error in relevant_errors(exc.errors()):
         path = ".".join(str(p) for p in error["loc"])
         message = error["msg"].removeprefix("Value error, ")
         if error["type"] == "extra_forbidden":

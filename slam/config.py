@@ -217,9 +217,15 @@ def parse_setting(name: str, text: str) -> Setting:
             raise ConfigError(f"setting {name}={text!r} is not true or false")
         return _BOOLEANS[text.strip().lower()]
     try:
-        return int(text) if kind == "int" else float(text)
+        number = float(text)
     except ValueError:
         raise ConfigError(f"setting {name}={text!r} is not a number") from None
+    if kind != "int":
+        return number
+    try:
+        return int(text)  # exact, however many digits
+    except ValueError:  # 1e12 or 8.0: a number written otherwise, whole or not
+        return setting_value(name, number)
 
 
 def parse_settings(items: Iterable[str]) -> dict[str, Setting]:
