@@ -157,6 +157,6 @@ def _ready(path: Kernels) -> float:
         seconds = warm_up()
     finally:
         announce.cancel()
-    if seconds > ANNOUNCE_AFTER_S:
-        LOG.info(f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
+    said = LOG.info if seconds > ANNOUNCE_AFTER_S else LOG.debug  # -v shows a load too
+    said(f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
     return seconds
