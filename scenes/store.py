@@ -49,7 +49,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from depotbench.core.cache_home import CACHES, cache_bound, cache_folder
+from depotbench.core.cache_home import CACHES, cache_bound, cache_folder, warning_level
 from depotbench.core.errors import InputError
 from depotbench.core.files import DEFAULT_PNG_COMPRESSION, read_json
 from depotbench.core.output import (
@@ -212,7 +212,8 @@ class SequenceStore:
     def _unusable(self, doing: str, reason: str) -> None:
         if self.writable and str(self.root) not in _warned:
             _warned.add(str(self.root))
-            log.warning(
+            log.log(
+                warning_level(),
                 "the sequence store %s cannot %s (%s); going on without storing sequences, which "
                 "costs time, not results (set %s to a writable folder, or %s=off)",
                 self.root,

@@ -375,3 +375,20 @@ def test_a_glob_skips_the_sweeps_own_output_folder(tmp_path: Path, capsys):
         assert main(["sweep", str(tmp_path / "x.yaml"), "-o", str(tmp_path / "sw")]) == 0, capsys.readouterr()
     with contextlib.closing(sqlite3.connect(tmp_path / "sw" / "results.sqlite")) as db:
         assert [row[0] for row in db.execute("SELECT sequence FROM runs")] == [str(tmp_path / "seqa")]
+
+
+@pytest.mark.slow
+def test_an_unusable_cache_is_warned_once_by_the_sweep_not_by_each_worker(tmp_path: Path, capfd, monkeypatch):
+    """Probe M1: with two workers, 11-14 copies of the warning, the workers' without the
+    ``depotbench sweep: warning:`` prefix."""
+    from tests.sequences import write_sequence
+
+    for i in range(3):
+        write_sequence(tmp_path / f"seq{i}", n=3)
+    (tmp_path / "blocker").write_text("")
+    monkeypatch.setenv(ROOT_VARIABLE, str(tmp_path / "blocker"))  # a file where the cache should be
+    (tmp_path / "x.yaml").write_text("sweep: x\nsequences: ['seq*']\nstrategies: [none, box_rule]\n")
+    assert main(["sweep", str(tmp_path / "x.yaml"), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
+    err = capfd.readouterr().err
+    mentions = [line for line in err.splitlines() if "stage cache" in line]
+    assert len(mentions) == 1 and mentions[0].startswith("depotbench sweep: warning: "), err

@@ -32,10 +32,11 @@ import logging
 import os
 import re
 import stat
+import tempfile
 import time
 from pathlib import Path
 
-from depotbench.core.cache_home import CACHES, Contents, cache_bound, cache_folder
+from depotbench.core.cache_home import CACHES, Contents, cache_bound, cache_folder, warning_level
 from depotbench.core.errors import FileError
 from depotbench.core.files import read_bytes
 from depotbench.core.output import OutputError, write_bytes_atomic
@@ -51,6 +52,8 @@ STALE_TEMPORARY_S = 3600.0
 for 150 frames of 640x480) is written in well under a second, so clearing never takes a
 live writer's file."""
 log = logging.getLogger("depotbench.cache")
+_warned: set[str] = set()
+"""Caches already warned about in this process: one warning each, however many jobs."""
 ENTRY_HEADER = b"depotbench stage entry 1\n"
 """What an entry begins with, before the 32-byte SHA-256 digest of its value; an entry
 without it (one an older version wrote) is a miss, like a damaged one."""
@@ -90,9 +93,24 @@ class StageCache:
         root = cache_folder(NAME)
         return None if root is None else cls(root)
 
+    def probe(self) -> bool:
+        """Whether the cache can be written, warned here when not. A sweep asks before its
+        workers start, so that the warning comes once, from the command, with its prefix:
+        workers only log it for debugging (``warning_level``)."""
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=self.root):  # unnamed (O_TMPFILE): nothing left behind
+                pass
+        except OSError as exc:
+            self._unusable("be written", exc.strerror or str(exc))
+            return False
+        return True
+
     def _unusable(self, doing: str, reason: str) -> None:
-        if self.writable:
-            log.warning(
+        if self.writable and str(self.root) not in _warned:
+            _warned.add(str(self.root))
+            log.log(
+                warning_level(),
                 "the stage cache %s cannot %s (%s); going on without storing stages, which costs "
                 "time, not results (set %s to a writable folder, or %s=off)",
                 self.root,

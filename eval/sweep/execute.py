@@ -16,6 +16,7 @@ from depotbench.core.files import dumps_json
 from depotbench.core.output import OutputContainer, OutputKind, write_text_atomic
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
+from depotbench.eval.run.cache import StageCache
 from depotbench.eval.sweep.engine import (
     SweepJob,
     expand,
@@ -99,6 +100,9 @@ def execute_sweep(
             # then loads them (0.5 s) instead of compiling its own (14 s, the first job's
             # worth of ETA), and none inside a timed frame (every worker also calls it).
             kernels.ready()
+        stages = StageCache.from_env()
+        if stages is not None:
+            stages.probe()  # warned here, once, not by each worker (their lines lack the prefix)
         started = time.perf_counter()
         tracked, written = run_jobs(
             jobs, store, workers, progress=progress, dedupe=dedupe, retry_failed=retry_failed, **where
