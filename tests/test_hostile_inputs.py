@@ -392,3 +392,12 @@ def test_an_unusable_cache_is_warned_once_by_the_sweep_not_by_each_worker(tmp_pa
     err = capfd.readouterr().err
     mentions = [line for line in err.splitlines() if "stage cache" in line]
     assert len(mentions) == 1 and mentions[0].startswith("depotbench sweep: warning: "), err
+
+
+def test_a_fifo_map_is_refused_by_the_report_without_blocking(tmp_path: Path):
+    from depotbench.core.errors import FileError
+    from depotbench.eval.report.maps import check_map_ply
+
+    os.mkfifo(tmp_path / "map.ply")
+    with _within(2), pytest.raises(FileError, match="not a regular file"):
+        check_map_ply(tmp_path / "map.ply")

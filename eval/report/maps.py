@@ -5,12 +5,13 @@ grey where it is neither, with the map's figures under it: method 2's two pictur
 
 from __future__ import annotations
 
-import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from depotbench.core.files import MAX_META_BYTES, open_regular, read_json
 from depotbench.eval.metrics.alignment import Similarity
 from depotbench.eval.metrics.map import ReferenceClouds, map_distances
 
@@ -46,7 +47,7 @@ def check_map_ply(path: Path) -> None:
     """Refuse (ValueError, naming what is wrong) a map.ply that is not the binary PLY a run
     writes, whole: its header read within 4 KiB, its body exactly its vertices' bytes. A file
     cut short or edited would otherwise reach the PLY reader, which fails on it unpredictably."""
-    with path.open("rb") as handle:
+    with os.fdopen(open_regular(path, 1 << 40, "map.ply"), "rb") as handle:  # a FIFO: refused, not waited on
         head = handle.read(4096)
     end = head.find(b"end_header\n")
     if not head.startswith(b"ply\n") or end < 0:
@@ -69,7 +70,7 @@ def check_map_ply(path: Path) -> None:
 def placed_map(run_folder: Path, reference: ReferenceClouds, title: str) -> PlacedMap:
     """A run folder's map.ply placed by metrics.json's ``map.to_groundtruth`` and classified at
     the threshold its figures are given at."""
-    figures = json.loads((run_folder / "metrics.json").read_text())["map"]
+    figures = read_json(run_folder / "metrics.json", MAX_META_BYTES, "run's metrics.json")["map"]
     check_map_ply(run_folder / "map.ply")
     cloud = trimesh.load(run_folder / "map.ply")
     points = np.asarray(cloud.vertices, dtype=np.float64)
