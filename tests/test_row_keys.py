@@ -130,6 +130,15 @@ def _move_sweep(world: World, r: random.Random) -> None:
     world.spec["sequences"] = [str(world.sequence)]
 
 
+def _rename_sequence(world: World, r: random.Random) -> None:
+    """The sequence folder renamed, or moved out of the sweep folder: the same files."""
+    where = r.choice([world.sweep, world.root])
+    renamed = where / f"renamed-{r.randint(0, 10**9)}"
+    shutil.move(world.sequence, renamed)
+    world.sequence = renamed
+    world.spec["sequences"] = [str(renamed)]
+
+
 def _folder_content(world: World, r: random.Random) -> None:
     """A folder the command names is keyed by its name only (its content is the program's
     business: a data set may be any size)."""
@@ -139,6 +148,7 @@ def _folder_content(world: World, r: random.Random) -> None:
 SAME: dict[str, Callable[[World, random.Random], None]] = {
     "mtime": _mtimes,
     "sweep folder moved": _move_sweep,
+    "sequence folder renamed or moved": _rename_sequence,
     "content of a named folder": _folder_content,
 }
 """What a row does not depend on."""
@@ -167,7 +177,8 @@ def test_a_change_to_any_input_a_row_depends_on_changes_every_key(change: str, s
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(change=st.sampled_from(sorted(SAME)), seed=st.integers(0, 2**32 - 1), order_seed=st.integers(0, 99))
 def test_a_change_to_nothing_a_row_depends_on_keeps_every_key(change: str, seed: int, order_seed: int):
-    """mtime, the sweep folder's place, a named folder's content, and the order of the spec's
+    """mtime, the sweep folder's place, the sequence folder's name and place, a named folder's
+    content, and the order of the spec's
     YAML keys (shuffled in every mapping)."""
     world = _world()
     try:

@@ -33,7 +33,7 @@ from depotbench.sim.sequence import Sequence
 
 CACHE_STAGE = "detections"
 CACHE_FORMAT = 1
-FINGERPRINT_FORMAT = "sequence-files-v2"
+FINGERPRINT_FORMAT = "sequence-files-v3"
 
 
 @dataclass(frozen=True)
@@ -44,33 +44,34 @@ class SequenceDetections:
     from_cache: bool
 
 
-def sequence_fingerprint(sequence: Sequence, anchor: Path | None = None) -> str:
-    """What every result on a sequence depends on: where the folder is and the bytes of
-    every file of the sequence format it holds (``Sequence.files``).
+def sequence_fingerprint(sequence: Sequence) -> str:
+    """What every result on a sequence depends on: the bytes of every file of the sequence
+    format it holds (``Sequence.files``) and the camera it is read with.
 
     It keys cached stages and sweep rows, so it hashes content, not stat: a depth PNG
-    rewritten in place, a corrected groundtruth.txt or a copy of the folder elsewhere
-    each get a key of their own. Hashing a 300-frame 640x480 sequence reads about
-    150 MB once, at about 1.5 GB/s with SHA-256's CPU instructions. Where is the folder's
-    path, or its path relative to ``anchor`` (a sweep folder) when it lies inside it: a
-    sweep copied or moved whole keeps its keys, and with them its rows. Hashed once per opened
-    ``Sequence`` (``_FINGERPRINTS``).
+    rewritten in place or a corrected groundtruth.txt gets a key of its own. Where the
+    folder lies and what it is called are no part of it: a sequence copied, moved or renamed
+    is the same sequence, its rows are resumed and paired with a baseline made elsewhere. A
+    real folder's camera, guessed from its name (freiburg1/2/3) where it has no camera.yaml,
+    is hashed as the camera it gave. Hashing a 300-frame 640x480 sequence reads about 150 MB
+    once, at about 1.5 GB/s with SHA-256's CPU instructions; an opened ``Sequence`` is hashed
+    once (``_FINGERPRINTS``).
     """
-    known = _FINGERPRINTS.setdefault(sequence, {})
-    if anchor not in known:
+    known = _FINGERPRINTS.get(sequence)
+    if known is None:
         digest = hashlib.sha256(FINGERPRINT_FORMAT.encode())
-        digest.update(os.fsencode(stored_path(sequence.root, anchor)) + b"\0")
+        digest.update(f"{sequence.intrinsics!r} {sequence.fps!r}".encode() + b"\0")
         for path in sequence.files():
             digest.update(os.fsencode(path.relative_to(sequence.root)) + b"\0")
             digest.update(file_digest(path, "sequence file"))
-        known[anchor] = digest.hexdigest()[:32]
-    return known[anchor]
+        known = _FINGERPRINTS[sequence] = digest.hexdigest()[:32]
+    return known
 
 
-_FINGERPRINTS: weakref.WeakKeyDictionary[Sequence, dict[Path | None, str]] = weakref.WeakKeyDictionary()
-"""Each opened sequence's fingerprints, by anchor: an open sequence is hashed once however many
-stages key on it (a branching sweep task asked three times: features, stages, detections).
-Opening the folder again hashes it again, so a file changed between two opens is seen."""
+_FINGERPRINTS: weakref.WeakKeyDictionary[Sequence, str] = weakref.WeakKeyDictionary()
+"""Each opened sequence's fingerprint: an open sequence is hashed once however many stages
+key on it (a branching sweep task asked three times: features, stages, detections). Opening
+the folder again hashes it again, so a file changed between two opens is seen."""
 
 
 def stored_path(root: Path, anchor: Path | None) -> str:

@@ -124,10 +124,13 @@ def jobs_for(
     jobs = []
     identities = {tracker: tracker_identity(tracker) for tracker in trackers}
     versions = {tracker: tracker_fingerprint(identity) for tracker, identity in identities.items()}
+    named: dict[str, Path] = {}
     for entry in sequence_entries(sequences):
         root, family = entry.root, entry.family
         opened = Sequence.open(root)
-        fingerprint = sequence_fingerprint(opened, anchor)
+        fingerprint = sequence_fingerprint(opened)
+        if named.setdefault(fingerprint, root) != root:
+            raise InputError(_named_twice(named[fingerprint], root))
         stored, seed = stored_path(root, anchor), seed_of(opened)
         for tracker in trackers:
             mapped = dense_map and maps_itself(tracker)  # built-in keyframes, or a program's {map}
@@ -142,6 +145,13 @@ def jobs_for(
                     )
                     jobs.append(SweepJob(key, family, run, fingerprint, identity))
     return jobs
+
+
+def _named_twice(first: Path, second: Path) -> str:
+    """A sequence named twice would be one job (one key) labelled twice: one row, a family
+    gone from the summary. A suite and one of its sequences, a folder and its copy, a link."""
+    how = "is named twice" if first.resolve() == second.resolve() else f"holds the same sequence as {first}"
+    return f"sequences: {second} {how} (the same files and camera, so the same runs); name each sequence once"
 
 
 def validate(spec: SweepSpec, spec_path: Path) -> None:

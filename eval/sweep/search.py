@@ -70,7 +70,6 @@ def study_name(
     sequences: list,
     trackers: list[TrackerConfig],
     detectors: list[DetectorConfig],
-    anchor: Path | None = None,
 ) -> str:
     """The study's name: the sweep's, and a hash of everything a trial's value depends on
     (the space, objective, weight and seed; the sequences' content, trackers and detectors).
@@ -79,7 +78,7 @@ def study_name(
     assert spec.search is not None
     key = content_hash(
         spec.search.model_dump(mode="json"),
-        [sequence_fingerprint(Sequence.open(entry.root), anchor) for entry in sequence_entries(sequences)],
+        [sequence_fingerprint(Sequence.open(entry.root)) for entry in sequence_entries(sequences)],
         [tracker_identity(t) for t in trackers],
         [(d.key(), d.faults.to_dict()) for d in detectors],
     )
@@ -162,9 +161,7 @@ def run_search(
     optuna = _optuna()
     source = str(spec_path)
     trackers, detectors = tracker_configs(spec, source), detector_configs(spec, source)
-    study = _open_study(
-        optuna, out / STUDY, study_name(spec, sequences, trackers, detectors, out), search.seed
-    )
+    study = _open_study(optuna, out / STUDY, study_name(spec, sequences, trackers, detectors), search.seed)
     complete = optuna.trial.TrialState.COMPLETE
     families: dict[str, str] = {}
     for trial in study.get_trials(deepcopy=False, states=(complete,)):  # earlier trials' rows
