@@ -342,6 +342,21 @@ def test_a_sequence_folder_whose_name_is_not_utf8_is_swept_and_reported(tmp_path
     assert (tmp_path / "sw" / text_path(stored)).resolve() == folder.resolve() or text_path(stored) == folder
 
 
+@pytest.mark.slow
+def test_sweeps_of_a_folder_whose_name_is_not_utf8_are_compared_into_a_page(tmp_path: Path, capsys):
+    """Probe N20: ``compare --html`` died with UnicodeEncodeError too."""
+    from tests.sequences import write_sequence
+
+    write_sequence(Path(os.fsdecode(bytes(tmp_path) + b"/seq\xff")), n=3)
+    for name, strategy in (("a", "none"), ("b", "box_rule")):
+        spec = f"sweep: {name}\nsequences: ['seq*']\nstrategies: [{strategy}]\n"
+        (tmp_path / f"{name}.yaml").write_text(spec)
+        assert main(["sweep", str(tmp_path / f"{name}.yaml"), "-o", str(tmp_path / name)]) == 0
+    compared = ["compare", str(tmp_path / "a"), str(tmp_path / "b"), "--html", str(tmp_path / "c.html")]
+    assert main(compared) == 0, capsys.readouterr().err
+    assert (tmp_path / "c.html").read_text(encoding="utf-8").endswith("</html>\n")
+
+
 def test_tags_that_are_not_text_are_one_line_naming_the_meta_file(tmp_path: Path, capsys):
     """Probe N25: ``check`` with ``tags:`` died with TypeError: unhashable type."""
     import json
