@@ -330,3 +330,20 @@ def test_an_opened_sequence_is_hashed_once_and_a_reopened_one_again(generated: P
     assert n_files == len(sequence.files()) > 10
     assert sequence_fingerprint(sequence) == first and len(reads) == n_files
     assert sequence_fingerprint(Sequence.open(generated)) == first and len(reads) == 2 * n_files
+
+
+def test_a_moved_sequence_resumes_its_rows_which_then_name_its_new_folder(
+    generated: Path, tmp_path: Path, capsys
+):
+    """Its key is its content: the second sweep runs nothing, and its rows (results.csv, the
+    report's source) name the folder the sequence is in now, not the one it left."""
+    shutil.copytree(generated, tmp_path / "old")
+    spec = tmp_path / "moved.yaml"
+    spec.write_text("sweep: moved\nsequences: [old]\nstrategies: [none]\n")
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    shutil.move(tmp_path / "old", tmp_path / "new")
+    spec.write_text("sweep: moved\nsequences: [new]\nstrategies: [none]\n")
+    capsys.readouterr()
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
+    assert "(1 already done" in capsys.readouterr().out
+    assert [Path(row["sequence"]).name for row in _rows(tmp_path / "sw")] == ["new"]

@@ -95,6 +95,9 @@ def execute_sweep(
                 f"{_failed_ones(failed, retry_failed)})"
             )
         _older_versions(store, jobs, prune_stale)
+        moved = store.relabel([j.run for j in jobs if j.key in stored])
+        if moved and announce:
+            LOG.info(f"{moved} done runs now name their sequence where this sweep finds it")
         if any(j.job.tracker.type.per_keypoint for j in jobs if j.key not in stored):
             # Compiled here once, into Numba's cache, before any worker starts: each worker
             # then loads them (0.5 s) instead of compiling its own (14 s, the first job's

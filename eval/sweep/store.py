@@ -27,6 +27,7 @@ from depotbench.eval.metrics.record import (
     FIELDS,
     RECORD_VERSION,
     UNKNOWN_FINGERPRINT,
+    RunIdentity,
     RunRecord,
 )
 
@@ -45,6 +46,9 @@ def _column(name: str) -> str:
 VERSIONS = "tracker_fingerprints"
 """The meta entry of the tracker fingerprints the last sweep into the store ran."""
 SQLITE_HEADER = b"SQLite format 3\x00"
+RELABELLED = ("sequence", "family", "seed", "knobs")
+"""What a resumed row takes from its job now: where its sequence is and what it is called,
+none of it in the key."""
 LOCK_WAIT_S = 30.0
 """How long a write waits for another program's lock on the file (a viewer, a backup)."""
 
@@ -220,6 +224,25 @@ class ResultStore:
             "DELETE FROM runs WHERE tracker = ? AND COALESCE(tracker_fingerprint, ?) = ?",
             (tracker, UNKNOWN_FINGERPRINT, fingerprint),
         )
+
+    def relabel(self, runs: list[RunIdentity]) -> int:
+        """Name each stored run where its job now finds its sequence (folder, family, seed and
+        knobs), in one transaction; the number of rows changed. A key is content, so a sequence
+        moved or renamed since resumes its rows, which would otherwise name the old folder."""
+        changed = 0
+        try:
+            with self._db:
+                for run in runs:
+                    columns = RunRecord.identity_columns(run)
+                    found = self._db.execute(
+                        "UPDATE runs SET sequence = ?, family = ?, seed = ?, knobs = ? WHERE key = ? AND "
+                        "(sequence IS NOT ? OR family IS NOT ? OR seed IS NOT ? OR knobs IS NOT ?)",
+                        [*(columns[c] for c in RELABELLED), run.key, *(columns[c] for c in RELABELLED)],
+                    )
+                    changed += found.rowcount
+        except sqlite3.Error as exc:
+            raise store_error(self.path, exc) from None
+        return changed
 
     def add(self, record: RunRecord) -> None:
         row = record.to_row()
