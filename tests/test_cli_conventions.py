@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 from depotbench.eval.cli import choices
-from depotbench.eval.cli.conventions import USAGE
+from depotbench.eval.cli.conventions import USAGE, verbosity
 from depotbench.eval.cli.main import build_parser, main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -80,8 +80,10 @@ def test_verbosity_before_or_after_the_command():
     parser = build_parser()
     assert parser.parse_args(["-q", "scenarios"]).quiet
     assert parser.parse_args(["scenarios", "-q"]).quiet
-    assert parser.parse_args(["-vv", "scenarios"]).verbose == 2
-    assert parser.parse_args(["scenarios", "-v"]).verbose == 1
+    assert verbosity(parser.parse_args(["-vv", "scenarios"])) == 2
+    assert verbosity(parser.parse_args(["scenarios", "-v"])) == 1
+    assert verbosity(parser.parse_args(["-v", "scenarios", "-v"])) == 2
+    assert verbosity(parser.parse_args(["-q", "scenarios"])) == -1
     assert not parser.parse_args(["-v", "scenarios"]).quiet
 
 
@@ -235,7 +237,7 @@ FUZZ = {
     "completion-no-shell": (["completion"], "the following arguments are required: shell"),
     "validate-nothing": (["validate"], "the following arguments are required: FILE"),
     "verbose-and-quiet": (["scenarios", "-v", "-q"], "not allowed with argument"),
-    "version-after-command": (["scenarios", "--version"], "unrecognized arguments: --version"),
+    "unknown-option-after-command": (["scenarios", "--bogus"], "depotbench scenarios: error: unrecognized"),
 }
 
 

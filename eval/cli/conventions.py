@@ -12,6 +12,7 @@ import argparse
 import logging
 import sys
 from dataclasses import dataclass
+from typing import NoReturn
 
 
 @dataclass(frozen=True)
@@ -171,34 +172,94 @@ def describe(name: str, parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with its errors in one line, as every other error of the command line, and
+    said in the name of the parser they belong to (``depotbench run: error: ...``).
+
+    argparse hands an option a command does not know back to the top parser, which then says
+    ``depotbench: error: unrecognized arguments`` and points to the wrong ``--help``; and a
+    missing positional hid a mistyped option (``run --bogus`` said "SEQUENCE is required").
+    So each parser first reads its words with nothing required: anything left over is
+    refused there, by name; the second, ordinary reading then reports what is missing."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        words = list(sys.argv[1:] if args is None else args)
+        required = [action for action in self._actions if action.required]
+        for action in required:
+            action.required = False
+        try:
+            _, extras = super().parse_known_args(words, argparse.Namespace())
+        finally:
+            for action in required:
+                action.required = True
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return super().parse_known_args(words, namespace)
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    """``--version`` before or after the command's name (``depotbench run --version``), as the
+    README promises; the version is read when asked (installed metadata, not at import)."""
+    parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
+
+
+class _Version(argparse.Action):
+    def __call__(self, parser, namespace, values, option_string=None) -> NoReturn:
+        from depotbench.core.version import generator_version
+
+        print(f"depotbench {generator_version()}")  # on stdout, as argparse's own version action
+        parser.exit(0)
+
+
 def add_verbosity(parser: argparse.ArgumentParser, *, top: bool) -> None:
     """``-v`` (repeatable) and ``-q``, before or after the command's name. A command's parser
-    leaves them unset unless given, so that ``depotbench -q run`` is not undone by ``run``'s
-    defaults."""
-    default = {} if top else {"default": argparse.SUPPRESS}
+    counts its own ``-v`` apart (``verbose_command``) and leaves ``-q`` unset unless given, so
+    that ``depotbench -v run -v`` is ``-vv`` and ``depotbench -q run`` is not undone by
+    ``run``'s defaults (argparse reads a command's words into a namespace of their own)."""
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
         "-v",
         "--verbose",
         action="count",
-        help="say more: debugging detail of the library's steps",
-        **({"default": 0} if top else default),
+        dest="verbose" if top else "verbose_command",
+        help="say more (on stderr): -v the steps' details (workers, times, programs' command "
+        "lines), -vv debugging detail too (cache hits and misses with their keys)",
+        **({"default": 0} if top else {"default": argparse.SUPPRESS}),
     )
     group.add_argument(
         "-q",
         "--quiet",
         action="store_true",
         help="print nothing but errors (a result asked for with --json still prints)",
-        **({"default": False} if top else default),
+        **({"default": False} if top else {"default": argparse.SUPPRESS}),
     )
+
+
+def verbosity(args: argparse.Namespace) -> int:
+    """-1 for ``-q``, else the number of ``-v`` before and after the command's name."""
+    if args.quiet:
+        return -1
+    return args.verbose + getattr(args, "verbose_command", 0)
+
+
+DETAIL = 15
+"""The level of ``-v``: a step's details (workers started, stage times, a program's command
+line), between DEBUG (``-vv``: every cache lookup) and INFO (status lines, shown by default).
+A library user who sets the ``depotbench`` logger to DEBUG sees both."""
+logging.addLevelName(DETAIL, "DETAIL")
 
 
 class Messages(logging.Handler):
     """The library's log records as the command line prints them: ``depotbench VERB:
-    warning: ...`` and ``... error: ...`` lines on stderr; status lines (INFO and below) on
-    stdout beside the command's own output, or on stderr when stdout carries ``--json``
-    (it then holds nothing but the JSON). The streams are looked up when a line is written
-    (tests and callers replace ``sys.stdout`` and ``sys.stderr``)."""
+    warning: ...`` and ``... error: ...`` lines on stderr; status lines (INFO) on stdout
+    beside the command's own output, or on stderr when stdout carries ``--json`` (it then
+    holds nothing but the JSON); ``-v`` and ``-vv`` lines on stderr, as ``depotbench VERB:
+    detail|debug: ...`` with the logger's name, so that they never mix with a result. The
+    streams are looked up when a line is written (tests and callers replace ``sys.stdout``
+    and ``sys.stderr``)."""
 
     def __init__(self) -> None:
         super().__init__(logging.NOTSET)
@@ -211,15 +272,19 @@ class Messages(logging.Handler):
             line, stream = f"depotbench {self.verb}: error: {message}", sys.stderr
         elif record.levelno >= logging.WARNING:
             line, stream = f"depotbench {self.verb}: warning: {message}", sys.stderr
-        else:
+        elif record.levelno >= logging.INFO:
             line, stream = message, sys.stderr if self.status_to_stderr else sys.stdout
+        else:
+            kind = "detail" if record.levelno >= DETAIL else "debug"
+            where = record.name.removeprefix("depotbench.")
+            line, stream = f"depotbench {self.verb}: {kind}: [{where}] {message}", sys.stderr
         print(line, file=stream, flush=True)
 
 
 MESSAGES = Messages()
 
-LEVELS = {-1: logging.ERROR, 0: logging.INFO}
-"""``-q``, nothing; ``-v`` and more: DEBUG."""
+LEVELS = {-1: logging.ERROR, 0: logging.INFO, 1: DETAIL}
+"""``-q``, nothing, ``-v``; ``-vv`` and more: DEBUG."""
 
 
 def show_messages(verb: str, verbosity: int, *, json: bool = False) -> int:

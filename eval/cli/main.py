@@ -16,14 +16,21 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
 from depotbench.eval.cli.cache import add_cache
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.compare import add_compare
-from depotbench.eval.cli.conventions import add_verbosity, describe, show_messages
+from depotbench.eval.cli.conventions import (
+    Parser,
+    add_verbosity,
+    add_version,
+    describe,
+    show_messages,
+    verbosity,
+)
 from depotbench.eval.cli.detectors import (
     add_detect_eval,
     add_detector_options,
@@ -585,13 +592,6 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     return 0
 
 
-class Parser(argparse.ArgumentParser):
-    """argparse with its errors in one line, as every other error of the command line."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_INPUT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def _add_completion(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("completion", help="print a bash or zsh completion script")
     p.add_argument("shell", choices=SHELLS, help="the shell")
@@ -624,8 +624,6 @@ def _actions(parser: argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from depotbench.core.version import generator_version
-
     parser = Parser(
         prog="depotbench",
         description="Simulation-backed test bench for dynamic visual SLAM: generate scenario suites, "
@@ -635,7 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
         "  depotbench run seqs/xyz -o runs/xyz --strategy box_epipolar_flow",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"depotbench {generator_version()}")
+    add_version(parser)
     add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="verb", required=True, metavar="COMMAND", parser_class=Parser)
     for add in (
@@ -661,6 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, command in sub.choices.items():
         describe(name, command)
         add_verbosity(command, top=False)
+        add_version(command)
     return parser
 
 
@@ -685,7 +684,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print("depotbench: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
         as_json = getattr(args, "json", False)
-        level = show_messages(args.verb, -1 if args.quiet else args.verbose, json=as_json)
+        level = show_messages(args.verb, verbosity(args), json=as_json)
         try:
             if args.quiet and not as_json:
                 with open(os.devnull, "w") as nowhere, contextlib.redirect_stdout(nowhere):
