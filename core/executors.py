@@ -9,6 +9,7 @@ they run, so both backends give identical rows.
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import os
 from collections.abc import Callable, Iterable, Iterator
@@ -16,8 +17,10 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from typing import Any
 
 from depotbench.core.errors import EnvironmentProblem, InputError
+from depotbench.core.logs import DETAIL
 from depotbench.core.processes import children_block_sigint, exit_with_parent, release_sigint
 
+LOG = logging.getLogger(__name__)
 BACKENDS = ("local", "ray")
 USER_ERRORS = (InputError, EnvironmentProblem)
 """What a job raises for the user to fix (the command line says it in one line)."""
@@ -77,10 +80,12 @@ class LocalPool:
                     initializer=_init_local_worker,
                     initargs=(os.getpid(),),
                 )
+            LOG.log(DETAIL, "started a pool of %d spawned worker processes (one thread each)", self.workers)
         return self.pool
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
         if not self.parallel:
+            LOG.log(DETAIL, "one worker: jobs run in this process")
             for item in items:
                 yield item, fn(*item)
             return
@@ -138,6 +143,8 @@ class RayPool:
             env = {k: v for k, v in os.environ.items() if k.startswith("DEPOTBENCH_")}
             ray.init(runtime_env={"env_vars": env} if env else None, **options)
         self.workers = workers if not address else max(1, int(ray.cluster_resources().get("CPU", 1)))
+        where = f"the cluster at {address}" if address else "a local Ray"
+        LOG.log(DETAIL, "Ray: %s jobs at a time on %s", self.workers, where)
         self.remote = ray.remote(num_cpus=1, max_retries=0)(_on_ray)
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:

@@ -154,6 +154,7 @@ class SequenceStore:
         render it."""
         self.evict()
         if not self.has(key, png_compression):
+            log.debug("sequence store miss: %s (PNG level %d) in %s", key, png_compression, self.root)
             return False
         entry = self.entry(key, png_compression)
         assert entry is not None
@@ -174,6 +175,7 @@ class SequenceStore:
             out.commit()
         with contextlib.suppress(OSError):  # a read-only store is still read
             os.utime(entry)  # most recently used
+        log.debug("sequence store hit: %s copied from %s to %s", key, entry, target)
         return True
 
     # -- writing -----------------------------------------------------------------------
@@ -258,6 +260,7 @@ class SequenceStore:
                 "digest": copied.digest,
             }
             write_text_atomic(entry.with_name(entry.name + ".json"), json.dumps(manifest) + "\n")
+            log.debug("sequence store stored: %s (%d bytes, %d files) at %s", key, *size, entry)
         except _Damaged:
             return False  # a link or a FIFO in the sequence: not one the store takes
         except OutputError as exc:

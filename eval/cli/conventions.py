@@ -14,6 +14,8 @@ import sys
 from dataclasses import dataclass
 from typing import NoReturn
 
+from depotbench.core.logs import DETAIL
+
 
 @dataclass(frozen=True)
 class Usage:
@@ -243,13 +245,6 @@ def verbosity(args: argparse.Namespace) -> int:
     if args.quiet:
         return -1
     return args.verbose + getattr(args, "verbose_command", 0)
-
-
-DETAIL = 15
-"""The level of ``-v``: a step's details (workers started, stage times, a program's command
-line), between DEBUG (``-vv``: every cache lookup) and INFO (status lines, shown by default).
-A library user who sets the ``depotbench`` logger to DEBUG sees both."""
-logging.addLevelName(DETAIL, "DETAIL")
 
 
 class Messages(logging.Handler):

@@ -132,23 +132,24 @@ class StageCache:
         try:  # bounded: an entry larger than the cache's bound is evicted when stored
             stored = read_bytes(path, max(self.max_bytes, 0) + ENTRY_OVERHEAD, "stage entry")
         except FileNotFoundError:
-            self.misses += 1
-            return None
+            return self._miss(stage, key, "no entry")
         except OSError as exc:  # a file where a folder should be, an unreadable entry
             self._unusable("be read", exc.strerror or str(exc))
-            self.misses += 1
-            return None
+            return self._miss(stage, key, exc.strerror or "unreadable")
         except FileError:  # not a regular file, or over the bound: recomputed, then replaced
-            self.misses += 1
-            return None
+            return self._miss(stage, key, "not a regular file or over the bound")
         data = _verified(stored)
         if data is None:
-            self.misses += 1
-            return None
+            return self._miss(stage, key, "damaged (digest does not match)")
         with contextlib.suppress(OSError):  # evicted meanwhile: the bytes read are still whole
             os.utime(path)  # most recently used
         self.hits += 1
+        log.debug("stage cache hit: %s %s (%d bytes) in %s", stage, key, len(data), self.root)
         return data
+
+    def _miss(self, stage: str, key: str, why: str) -> None:
+        self.misses += 1
+        log.debug("stage cache miss: %s %s (%s) in %s", stage, key, why, self.root)
 
     def put(self, stage: str, key: str, data: bytes) -> None:
         if not self.writable:
@@ -163,6 +164,7 @@ class StageCache:
         except OutputError as exc:  # the atomic write's own one-line error
             self._unusable("store an entry", str(exc))
             return
+        log.debug("stage cache stored: %s %s (%d bytes)", stage, key, len(data))
         self.evict()
 
     def entries(self) -> list[tuple[float, int, Path]]:

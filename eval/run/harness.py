@@ -28,6 +28,7 @@ import numpy as np
 from depotbench.core.camera import CameraOverride, Intrinsics, camera_json
 from depotbench.core.errors import InputError
 from depotbench.core.files import dumps_json, file_digest
+from depotbench.core.logs import timed
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.path_text import path_text
 from depotbench.core.version import generator_version
@@ -59,6 +60,7 @@ FLOW_STRATEGIES = ("prior_flow", "box_epipolar_flow")
 MASK_SETTINGS = ("box_dilation_px", "min_confidence")
 """The only settings that apply to external trackers: they shape the mask."""
 log = logging.getLogger("depotbench.camera")
+LOG = logging.getLogger(__name__)
 
 
 def maps_itself(tracker: TrackerConfig) -> bool:
@@ -175,12 +177,19 @@ def _execute(
     job: RunJob, sequence: Sequence, config: SlamConfig, cache: StageCache | None, progress: bool
 ) -> Tracked:
     mask = MaskSettings(config.rejection.box_dilation_px, config.rejection.min_confidence)
-    detections = detect_sequence(sequence, job.detector, cache, progress)
+    what = f"{sequence.root.name} {job.tracker.label} {job.strategy}"
+    with timed(LOG, f"{what}: detections ({job.detector.label})"):
+        detections = detect_sequence(sequence, job.detector, cache, progress)
     boxes = detections.per_frame if detections is not None else None
     frames = FrameSource(sequence, boxes, mask if job.strategy == MASK else None)
-    stages = stages_for(sequence, config, cache, progress) if uses_stages(job) and cache is not None else None
-    run = build_tracker(job.tracker, config, progress, stages).run(frames, progress)
-    return _tracked(job, sequence, frames, run, config, detections)
+    stages = None
+    if uses_stages(job) and cache is not None:
+        with timed(LOG, f"{what}: features and flow"):
+            stages = stages_for(sequence, config, cache, progress)
+    with timed(LOG, f"{what}: tracking {len(sequence)} frames"):
+        run = build_tracker(job.tracker, config, progress, stages).run(frames, progress)
+    with timed(LOG, f"{what}: metrics"):
+        return _tracked(job, sequence, frames, run, config, detections)
 
 
 def _tracked(

@@ -7,6 +7,7 @@ import collections
 import contextlib
 import logging
 import os
+import shlex
 import signal
 import subprocess
 import threading
@@ -14,6 +15,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from depotbench.core.logs import DETAIL
 from depotbench.core.progress import progress_bar
 from depotbench.eval.trackers.base import TrackerError
 from depotbench.eval.trackers.watcher import kill_group
@@ -73,6 +75,7 @@ def run_child(
     raises ``TrackerError`` carrying the log.
     """
     started = time.perf_counter()
+    LOG.log(DETAIL, "%s: running %s in %s (timeout %g s)", what, shlex.join(argv), cwd, timeout_s)
     try:
         child = subprocess.Popen(
             argv,
@@ -124,7 +127,10 @@ def run_child(
             else f"exited with code {child.returncode}"
         )
         raise TrackerError(f"{what}: {how} ({tail.last() or 'no message'})", log())
-    return ChildResult(time.perf_counter() - started, peak_mb, log())
+    took = time.perf_counter() - started
+    peak = "unknown" if peak_mb is None else f"{peak_mb:.0f} MB"
+    LOG.log(DETAIL, "%s: exited 0 after %.2f s (peak memory %s)", what, took, peak)
+    return ChildResult(took, peak_mb, log())
 
 
 def _outlived(readers: list[threading.Thread], streams: tuple, what: str) -> str | None:

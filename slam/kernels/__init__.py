@@ -36,6 +36,7 @@ import time
 from collections.abc import Iterator
 
 from depotbench.core.errors import InputError
+from depotbench.core.logs import DETAIL
 
 VARIABLE = "DEPOTBENCH_KERNELS"
 ANNOUNCE_AFTER_S = 3.0
@@ -145,6 +146,7 @@ def ready() -> float:
 def _ready(path: Kernels) -> float:
     """``ready`` once per path (``using`` switches it within a process)."""
     if path is not Kernels.NUMBA:
+        LOG.log(DETAIL, "kernels: the NumPy path (%s=numpy, or no numba), nothing to compile", VARIABLE)
         return 0.0
     announce = threading.Timer(
         ANNOUNCE_AFTER_S,
@@ -157,6 +159,6 @@ def _ready(path: Kernels) -> float:
         seconds = warm_up()
     finally:
         announce.cancel()
-    said = LOG.info if seconds > ANNOUNCE_AFTER_S else LOG.debug  # -v shows a load too
-    said(f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
+    said = logging.INFO if seconds > ANNOUNCE_AFTER_S else DETAIL  # -v shows a load too
+    LOG.log(said, f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
     return seconds
