@@ -42,6 +42,7 @@ from depotbench.eval.cli.gates import add_check
 from depotbench.eval.cli.report import add_report
 from depotbench.eval.cli.rosbag import add_export_rosbag
 from depotbench.eval.cli.sweep import add_sweep
+from depotbench.eval.trackers.placeholders import PLACEHOLDERS
 
 if TYPE_CHECKING:
     from depotbench.eval.metrics.accuracy import Statistics
@@ -54,6 +55,8 @@ EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
 """``depotbench.core.files.DEFAULT_PNG_COMPRESSION``, named here so that ``--help`` imports no numpy
 (a test holds the two equal)."""
+COMMAND_PLACEHOLDERS = " ".join(f"{{{name}}}" for name in PLACEHOLDERS)
+"""Every placeholder of the external-program protocol, as ``run --help`` lists them."""
 MAX_PREVIEW_FRAMES = 16
 """Rows of one preview picture (each 3 frames wide)."""
 EXIT_INTERRUPTED = 128 + signal.SIGINT
@@ -357,9 +360,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--command",
         metavar="TEMPLATE",
-        help="--slam cmd: the program and its arguments, with {sequence} {associations} {settings} "
-        "{vocabulary} {trajectory} as whole words, run without a shell (a shell script takes them as "
-        'arguments, "$1", or from $DEPOTBENCH_SEQUENCE and the like)',
+        help=f"--slam cmd: the program and its arguments, with {COMMAND_PLACEHOLDERS} and {{NAME}} of each "
+        "--param as whole words, run without a shell (a shell script takes them as arguments, "
+        '"$1", or from $DEPOTBENCH_SEQUENCE and the like; docs/external-trackers.md)',
     )
     p.add_argument(
         "--param",

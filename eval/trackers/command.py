@@ -68,6 +68,7 @@ from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.evidence import collect
 from depotbench.eval.trackers.external import run_child, write_settings
 from depotbench.eval.trackers.frames import FrameSource
+from depotbench.eval.trackers.placeholders import PLACEHOLDERS
 from depotbench.eval.trackers.protocol import read_keypoints, read_map, read_trajectory, write_detections
 from depotbench.eval.trackers.reaper import Scratch
 from depotbench.eval.trackers.sequence_view import SequenceGuard
@@ -75,17 +76,6 @@ from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.sim.sequence import Sequence, timestamp_name
 from depotbench.slam.types import TrackingState
 
-PLACEHOLDERS = (
-    "sequence",
-    "associations",
-    "settings",
-    "vocabulary",
-    "trajectory",
-    "detections",
-    "keypoints",
-    "parameters",
-    "map",
-)
 PARAMETER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.]{0,63}")
 """A parameter's name: also a placeholder, and ``DEPOTBENCH_PARAM_`` + its upper case."""
 DEFAULT_TRAJECTORY = "CameraTrajectory.txt"
