@@ -123,8 +123,9 @@ class Check(Strict):
     (``groundtruth+latency=3,miss=0.5``), so ``groundtruth+*miss=*`` selects every missing one."""
     strategies: list[str] = Field(default_factory=list)
     settings: dict[str, float] = Field(default_factory=dict)
-    parameters: dict[str, float | str] = Field(default_factory=dict)
-    """Only rows whose external tracker ran with these parameter values."""
+    parameters: dict[str, bool | float | str] = Field(default_factory=dict)
+    """Only rows whose external tracker ran with these parameter values (numbers, text or
+    booleans; ``bool`` first, or ``true`` would be read as the number 1)."""
     budgets: dict[str, Bound] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -321,7 +322,9 @@ def _selects(check: Check, row: ScoredRun, tags: dict[str, set[str]]) -> bool:
     ) and all(k in parameters and _same_value(parameters[k], v) for k, v in check.parameters.items())
 
 
-def _same_value(stored: str, wanted: float | str) -> bool:
+def _same_value(stored: bool | float | str, wanted: bool | float | str) -> bool:
+    if isinstance(wanted, bool) or isinstance(stored, bool):  # true is not the number 1
+        return stored is wanted
     if isinstance(wanted, str):
         return stored == wanted
     try:

@@ -26,9 +26,17 @@ UNKNOWN_FINGERPRINT = "unknown"
 never taken for the fingerprint of any program."""
 
 
-def typed(text: str) -> int | float | str:
-    """A setting's or parameter's text as the value it stands for: an integer, a number,
-    or text (``2`` and ``2.5`` are numbers in SQLite's JSON and in CSV, ``fast`` stays text)."""
+BOOLEAN_TEXT = {"true": True, "false": False}
+"""A parameter's text that stands for a boolean: as YAML and JSON spell one (``parameter_text``
+writes a spec's ``true`` so); ``True`` or ``yes`` stay text."""
+
+
+def typed(text: str) -> bool | int | float | str:
+    """A setting's or parameter's text as the value it stands for: a boolean, an integer, a
+    number, or text (``2`` and ``2.5`` are numbers in SQLite's JSON and in CSV, ``true`` a
+    boolean, ``fast`` stays text)."""
+    if text in BOOLEAN_TEXT:
+        return BOOLEAN_TEXT[text]
     for kind in (int, float):
         try:
             return kind(text)
@@ -149,6 +157,21 @@ class RunRecord:
     def program_version(self) -> str:
         """The tracker fingerprint, ``UNKNOWN_FINGERPRINT`` for a row written before them."""
         return self.tracker_fingerprint or UNKNOWN_FINGERPRINT
+
+    @property
+    def setting_values(self) -> dict[str, int | float | bool]:
+        """``settings`` as typed values (``{"k": 2.5}``): the column stays JSON text, as stored."""
+        return json.loads(self.settings or "{}")
+
+    @property
+    def knob_values(self) -> dict[str, Any]:
+        """``knobs`` as typed values (``{"actors.0.count": 6, "seed": 3}``)."""
+        return json.loads(self.knobs or "{}")
+
+    @property
+    def parameter_values(self) -> dict[str, int | float | str | bool]:
+        """``parameters`` as typed values (``{"window": 5, "mode": "fast"}``)."""
+        return json.loads(self.parameters or "{}")
 
     @staticmethod
     def identity_columns(run: RunIdentity) -> dict[str, Any]:

@@ -30,6 +30,7 @@ import math
 import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Annotated, Any
 
 import numpy as np
 from depotbench.core.errors import InputError
@@ -51,13 +52,49 @@ from depotbench.eval.trackers.registry import (
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError, Strict, load_model
 from depotbench.slam.config import ConfigError, Setting, setting_value
-from pydantic import Field, model_validator
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 
 MAX_JOBS = 100_000
 
 
 class Grid(Strict):
     grid: list[float] = Field(min_length=1, max_length=10_000)
+
+
+def _scalar(value: Any) -> Any:
+    """A mapping or a list where a value belongs, refused as what it is (else the error
+    names the first alternative that refused it: 'should be a valid boolean')."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError("give a finite number")
+    if isinstance(value, bool | int | float | str):
+        return value
+    kind = {dict: "mapping", list: "list", type(None): "empty value"}.get(type(value), type(value).__name__)
+    raise ValueError(f"give text, a number or a boolean, not a {kind}")
+
+
+ParameterValue = Annotated[bool | int | float | str, BeforeValidator(_scalar)]
+"""A program's parameter value as YAML gives it; ``bool`` first, or ``true`` would be
+read as the number 1 (pydantic's lax mode takes a boolean for a number)."""
+
+
+class ParameterGrid(Strict):
+    """The values of one of a program's parameters: numbers, text (``[fast, accurate]``)
+    or booleans (``[true, false]``); each reaches the program as ``parameter_text`` spells it."""
+
+    grid: list[ParameterValue] = Field(min_length=1, max_length=10_000)
+
+
+EnvValue = ParameterValue
+"""An ``env:`` value as YAML gives it; the program gets it as text (``env_text``)."""
+
+
+def env_text(value: EnvValue) -> str:
+    """An environment value as the OS takes it (text): a boolean as YAML and JSON spell it
+    (``true``), a whole number without a point, any other number as Python writes it
+    (``1.5e3`` is ``1500.0``: quote a value whose spelling matters)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return value if isinstance(value, str) else str(value)
 
 
 class Range(Strict):
@@ -157,12 +194,15 @@ class TrackerEntry(Strict):
     command: str | None = None
     """``cmd``: the command template, run without a shell; a program with a slash is
     relative to the spec file."""
-    parameters: dict[str, float | int | str] = Field(default_factory=dict)
-    """The parameters' default values; ``parameters:`` of the spec sweeps them."""
+    parameters: dict[str, ParameterValue] = Field(default_factory=dict)
+    """The parameters' default values (numbers, text or booleans); ``parameters:`` of the
+    spec sweeps them."""
     settings: str | None = None
     """``cmd``: a Jinja2 settings template (relative to the spec file)."""
     timeout_s: float = Field(default=3600.0, gt=0.0, le=7 * 86400.0)
-    env: dict[str, str] = Field(default_factory=dict)
+    env: dict[str, EnvValue] = Field(default_factory=dict)
+    """``cmd``: variables added to the program's environment; numbers and booleans are
+    written as text (``env_text``)."""
     vocabulary: str | None = None
 
     @model_validator(mode="after")
@@ -178,10 +218,17 @@ class TrackerEntry(Strict):
             raise ValueError(
                 f"{self.kind} takes no command or settings template (its settings are parameters)"
             )
-        for name in self.env:
-            if not name or "=" in name or "\0" in name:
-                raise ValueError(f"env: {name!r} is not an environment variable name")
         return self
+
+    @field_validator("env")
+    @classmethod
+    def _environment(cls, env: dict[str, Any]) -> dict[str, Any]:
+        """Checked as a field, so that its error is placed at ``env`` (an error of the
+        whole entry ties with the ``str`` alternative of ``trackers``, which would win)."""
+        for name in env:
+            if not name or "=" in name or "\0" in name:
+                raise ValueError(f"{name!r} is not an environment variable name")
+        return env  # a NUL in a value is refused with the command's (``command._refuse_nul``)
 
 
 class Statistics(Strict):
@@ -209,8 +256,9 @@ class SweepSpec(Strict):
     detectors: list[str | DetectorEntry] = Field(default_factory=lambda: ["groundtruth"], min_length=1)
     strategies: list[str] = Field(default_factory=lambda: ["none"], min_length=1)
     thresholds: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
-    parameters: dict[str, dict[str, Grid | Range | Random]] = Field(default_factory=dict)
-    """By tracker name: values of that external tracker's parameters to sweep."""
+    parameters: dict[str, dict[str, ParameterGrid | Range | Random]] = Field(default_factory=dict)
+    """By tracker name: values of that external tracker's parameters to sweep (a grid may
+    hold text and booleans as well as numbers)."""
     search: Search | None = None
     statistics: Statistics = Field(default_factory=Statistics)
     dense_map: bool = False
@@ -309,8 +357,8 @@ def _name(entry: str | TrackerEntry) -> str:
     return entry if isinstance(entry, str) else entry.name
 
 
-def _count(axis: Grid | Range | Random) -> int:
-    if isinstance(axis, Grid):
+def _count(axis: Grid | ParameterGrid | Range | Random) -> int:
+    if isinstance(axis, Grid | ParameterGrid):
         return len(axis.grid)
     if isinstance(axis, Range):
         start, stop, step = axis.range
@@ -318,8 +366,8 @@ def _count(axis: Grid | Range | Random) -> int:
     return axis.random.samples
 
 
-def _values(axis: Grid | Range | Random) -> list[float]:
-    if isinstance(axis, Grid):
+def _values(axis: Grid | ParameterGrid | Range | Random) -> list:
+    if isinstance(axis, Grid | ParameterGrid):
         return list(axis.grid)
     if isinstance(axis, Range):
         return axis.values()
@@ -386,7 +434,7 @@ def tracker_configs(spec: SweepSpec, source: str) -> list[TrackerConfig]:
             name=entry.name,
             parameters=parameters,
             settings_template=_beside(folder, entry.settings) if entry.settings else None,
-            env=tuple(sorted(entry.env.items())),
+            env=tuple(sorted((name, env_text(value)) for name, value in entry.env.items())),
         )
         try:
             check_tracker(config)

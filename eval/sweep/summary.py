@@ -706,6 +706,8 @@ def settings_text(settings: dict[str, Any]) -> str:
 
 
 def _shown(value: Any) -> str:
+    if isinstance(value, bool):  # as the spec wrote it, not Python's True
+        return "true" if value else "false"
     if isinstance(value, float) and math.isfinite(value):
         return f"{value:.6g}"
     return str(value)
