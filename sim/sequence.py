@@ -6,10 +6,12 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import posixpath
 import zipfile
+import zlib
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -28,6 +30,7 @@ from depotbench.core.files import (
     decode_png,
     open_regular,
     png_header,
+    read_bytes,
     read_text,
 )
 from depotbench.core.output import OutputKind, StagedOutput
@@ -329,14 +332,18 @@ class Sequence:
         if not path.exists():
             return None
         h, w = self.intrinsics.height, self.intrinsics.width
-        try:
-            with zipfile.ZipFile(path) as archive:
+        limit = h * w * 2 * 4 + 4096  # float32 (H, W, 2) and the .npy header
+        try:  # read bounded (a FIFO refused, not waited on), then opened from memory
+            data = read_bytes(path, limit + 65536, "flow archive")
+            with zipfile.ZipFile(io.BytesIO(data)) as archive:
                 size = archive.getinfo("flow.npy").file_size
-            if size > h * w * 2 * 4 + 4096:  # float32 (H, W, 2) and the .npy header
+            if size > limit:
                 raise SequenceFormatError(path, None, f"flow.npy holds {size} bytes, too many for {w}x{h}")
-            with np.load(path) as data:
-                flow = data["flow"]
-        except (zipfile.BadZipFile, KeyError, ValueError, OSError) as exc:
+            with np.load(io.BytesIO(data)) as archive_data:
+                flow = archive_data["flow"]
+        except FileError:
+            raise
+        except (zipfile.BadZipFile, KeyError, ValueError, OSError, EOFError, zlib.error) as exc:
             raise SequenceFormatError(path, None, f"not a flow archive ({exc})") from None
         if flow.shape != (h, w, 2):
             raise SequenceFormatError(path, None, f"flow has shape {flow.shape}, expected {(h, w, 2)}")

@@ -416,3 +416,21 @@ def test_a_fifo_map_is_refused_by_the_report_without_blocking(tmp_path: Path):
     os.mkfifo(tmp_path / "map.ply")
     with _within(2), pytest.raises(FileError, match="not a regular file"):
         check_map_ply(tmp_path / "map.ply")
+
+
+@pytest.mark.parametrize("kind", ["fifo", "truncated"])
+def test_a_hostile_flow_file_is_refused_without_blocking(tmp_path: Path, kind: str):
+    from depotbench.core.errors import FileError
+    from depotbench.sim.sequence import Sequence
+
+    from tests.sequences import write_sequence
+
+    write_sequence(tmp_path / "seq", n=2)
+    flows = sorted((tmp_path / "seq" / "gt" / "flow").iterdir())
+    if kind == "fifo":
+        flows[0].unlink()
+        os.mkfifo(flows[0])
+    else:
+        flows[0].write_bytes(flows[0].read_bytes()[:-40])
+    with _within(2), pytest.raises(FileError, match="flow"):
+        Sequence.open(tmp_path / "seq").flow(0)
