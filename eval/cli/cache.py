@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from depotbench.core.cache_home import CACHES, ROOT_VARIABLE, Contents
-from depotbench.eval.cli.conventions import add_verbosity
+from depotbench.eval.cli.conventions import add_json, add_verbosity, add_version, print_result
 
 
 def add_cache(sub: argparse._SubParsersAction) -> None:
@@ -51,9 +51,11 @@ def add_cache(sub: argparse._SubParsersAction) -> None:
     clear.add_argument("--stage", "--stages", dest="stages", action="store_true", help="the stage cache")
     clear.add_argument("--sequences", action="store_true", help="the stored sequences")
     clear.add_argument("--vocabulary", action="store_true", help="the ORB vocabularies")
+    add_json(clear, "each cache's folder, entries and bytes removed, and what was kept or skipped")
     clear.set_defaults(handler=_cmd_clear)
     for child in (info, clear):
         add_verbosity(child, top=False)
+        add_version(child)
 
 
 @dataclass(frozen=True)
@@ -220,18 +222,25 @@ def _cmd_clear(args: argparse.Namespace) -> int:
     now = settings()  # every setting read before any file goes
     named = [name for name in CACHES if getattr(args, name)] or list(CACHES)
     freed_total = 0
+    lines, caches = [], {}
     for name in named:
         folder = now.folders[name]
         if folder is None:
-            print(f"{name}: off ({now.off_by[name]}), nothing to clear")
+            lines.append(f"{name}: off ({now.off_by[name]}), nothing to clear")
+            caches[name] = {"folder": None, "skipped": f"off ({now.off_by[name]})"}
             continue
         problem = _not_a_folder(folder)
         if problem is not None:
-            print(f"{name}: {problem}, nothing to clear")
+            lines.append(f"{name}: {problem}, nothing to clear")
+            caches[name] = {"folder": folder, "skipped": problem}
             continue
         freed, kept = HANDLING[name].clear(folder)
         freed_total += freed.bytes
         note = f"; kept {kept} being written by another depotbench" if kept else ""
-        print(f"{name}: removed {freed.entries} entries, {bytes_text(freed.bytes)} freed ({folder}){note}")
-    print(f"freed {bytes_text(freed_total)}")
+        lines.append(
+            f"{name}: removed {freed.entries} entries, {bytes_text(freed.bytes)} freed ({folder}){note}"
+        )
+        caches[name] = {"folder": folder, "entries": freed.entries, "bytes": freed.bytes, "kept": kept}
+    lines.append(f"freed {bytes_text(freed_total)}")
+    print_result(args, {"caches": caches, "freed_bytes": freed_total}, "\n".join(lines))
     return 0

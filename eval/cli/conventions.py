@@ -12,7 +12,8 @@ import argparse
 import logging
 import sys
 from dataclasses import dataclass
-from typing import NoReturn
+from pathlib import PurePath
+from typing import Any, NoReturn
 
 from depotbench.core.logs import DETAIL
 
@@ -296,3 +297,36 @@ def show_messages(verb: str, verbosity: int, *, json: bool = False) -> int:
     if MESSAGES not in logger.handlers:
         logger.addHandler(MESSAGES)
     return previous
+
+
+def add_json(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--json``: the command's result as one JSON object on stdout (``what`` it holds); its
+    status lines then go to stderr (``show_messages``), so stdout parses as a whole."""
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help=f"print {what} as one JSON object, and nothing else on stdout",
+    )
+
+
+def print_result(args: argparse.Namespace, result: dict[str, Any], text: str) -> None:
+    """A command's result: ``result`` as JSON with ``--json`` (paths as text that
+    ``core.path_text`` reads back), else ``text`` for a reader."""
+    if getattr(args, "json", False):
+        from depotbench.core.files import dumps_json
+
+        print(dumps_json(_json_paths(result)))
+    elif text:
+        print(text)
+
+
+def _json_paths(value: Any) -> Any:
+    from depotbench.core.path_text import path_text
+
+    if isinstance(value, PurePath):
+        return path_text(value)
+    if isinstance(value, dict):
+        return {key: _json_paths(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_paths(item) for item in value]
+    return value

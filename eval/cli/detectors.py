@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from depotbench.core.errors import InputError
+from depotbench.eval.cli.conventions import add_json, print_result
 
 
 def add_detector_options(p: argparse.ArgumentParser, default: str | None = "groundtruth") -> None:
@@ -157,6 +159,7 @@ def add_export_dataset(sub: argparse._SubParsersAction) -> None:
         "spellings name the bench's classes: 'dining table' is the desk); other classes get no box",
     )
     p.add_argument("--overwrite", action="store_true", help="replace a dataset depotbench wrote")
+    add_json(p, "the dataset's folder, images and boxes per split and the class ids")
     p.set_defaults(handler=_cmd_export_dataset)
 
 
@@ -179,19 +182,22 @@ def _cmd_export_dataset(args: argparse.Namespace) -> int:
     options = ExportOptions(
         args.val_fraction, args.seed, tuple(args.val), args.every, args.min_pixels, classes
     )
+    started = time.perf_counter()
     summary = export_dataset(args.sequences, args.output, options, overwrite=args.overwrite)
     c = summary["counts"]
     ids = ", ".join(f"{name} {i}" for name, i in summary["ids"].items())
-    print(
+    lines = [
         f"exported {c['train']['images']} train and {c['val']['images']} val images "
         f"({c['train']['boxes']} / {c['val']['boxes']} boxes) to {args.output}; class ids: {ids or 'none'}"
-    )
+    ]
     if summary["appended_classes"]:
-        print(
+        lines.append(
             "classes neither COCO's nor the bench's, numbered after them in this export only: "
             + ", ".join(summary["appended_classes"])
         )
     if summary["skipped_classes"]:
         skipped = ", ".join(f"{k} ({v})" for k, v in sorted(summary["skipped_classes"].items()))
-        print(f"boxes of classes not in --names were left out: {skipped}")
+        lines.append(f"boxes of classes not in --names were left out: {skipped}")
+    result = {"dataset": args.output, **summary, "seconds": time.perf_counter() - started}
+    print_result(args, result, "\n".join(lines))
     return 0

@@ -25,9 +25,11 @@ from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.compare import add_compare
 from depotbench.eval.cli.conventions import (
     Parser,
+    add_json,
     add_verbosity,
     add_version,
     describe,
+    print_result,
     show_messages,
     verbosity,
 )
@@ -152,6 +154,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
     p.add_argument("--workers", type=workers, default=one_per_core())
+    add_json(p, "the files written, the runs, the verdict and the failed budgets")
     p.set_defaults(handler=_cmd_demo)
 
 
@@ -168,24 +171,37 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     gates = load_gates(DEMO_GATES)
     started = time.perf_counter()
+    status = logging.getLogger("depotbench.demo").info  # on stderr with --json
     with OutputContainer(args.output, OutputKind.DEMO) as container:
         out = container.path
-        print(f"1/4 the demo suite and its sweep ({DEMO_GATES.name}): generating, then tracking")
+        status(f"1/4 the demo suite and its sweep ({DEMO_GATES.name}): generating, then tracking")
         outcome = execute_sweep(gates.run, DEMO_GATES, out, args.workers)
-        print(f"2/4 best configuration per family (of {outcome.jobs} runs; rho: ATE improvement over none)")
-        print(format_best(outcome.summary["best"], outcome.summary["unqualified"]))
+        status(f"2/4 best configuration per family (of {outcome.jobs} runs; rho: ATE improvement over none)")
+        status(format_best(outcome.summary["best"], outcome.summary["unqualified"]))
         report = evaluate(gates, outcome.records)
-        print("3/4 gates")
-        print(format_report(report))
+        status("3/4 gates")
+        status(format_report(report))
         write_text_atomic(out / "gates.xml", junit_xml(report))
-        print("4/4 HTML report (plots, trajectories, frames with keypoints by decision)")
+        status("4/4 HTML report (plots, trajectories, frames with keypoints by decision)")
         page = write_report(out, out / "report", args.workers)
-    print(
-        f"\ndone in {time.perf_counter() - started:.0f} s. Open {args.output / page.relative_to(out)}; "
-        f"rows in {args.output / 'results.csv'}, JUnit in {args.output / 'gates.xml'}"
+    seconds = time.perf_counter() - started
+    failures = [str(failure) for failure in report.failures]
+    result = {
+        "output": args.output,
+        "report": args.output / page.relative_to(out),
+        "results_csv": args.output / "results.csv",
+        "summary": args.output / "summary.json",
+        "junit": args.output / "gates.xml",
+        "runs": outcome.jobs,
+        "passed": report.passed,
+        "failures": failures,
+        "seconds": seconds,
+    }
+    text = (
+        f"\ndone in {seconds:.0f} s. Open {result['report']}; "
+        f"rows in {result['results_csv']}, JUnit in {result['junit']}"
     )
-    for failure in report.failures:
-        print(f"FAILED {failure}")
+    print_result(args, result, "\n".join([text, *(f"FAILED {failure}" for failure in failures)]))
     return 0 if report.passed else 1
 
 
@@ -229,6 +245,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
         "higher levels are slower for a few percent smaller files; the same pixels at every level "
         "(default: %(default)s)",
     )
+    add_json(p, "what was written: the sequence folder(s) with their names, seeds and frames")
     p.set_defaults(handler=_cmd_generate)
 
 
@@ -244,6 +261,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     from depotbench.scenes.suite import is_suite_file, load_suite
     from depotbench.sim.generate import generate
 
+    started = time.perf_counter()
     path = Path(args.spec)
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
@@ -260,7 +278,10 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             address=args.address,
             png_compression=args.png_compression,
         )
-        print(f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}")
+        text = f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}"
+        result = {"kind": "suite", "suite": index["suite"], "folder": args.output}
+        result |= {"sequences": index["sequences"], "seconds": time.perf_counter() - started}
+        print_result(args, result, text)
         return 0
     changes = {
         name: value for name, value in (("frames", args.frames), ("seed", args.seed)) if value is not None
@@ -272,7 +293,9 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     out = generate(
         scenario, args.output, overwrite=args.overwrite, inputs=inputs, png_compression=args.png_compression
     )
-    print(f"wrote {scenario.frames} frames of '{scenario.name}' (seed {scenario.seed}) to {out}")
+    text = f"wrote {scenario.frames} frames of '{scenario.name}' (seed {scenario.seed}) to {out}"
+    result = {"kind": "scenario", "name": scenario.name, "seed": scenario.seed, "frames": scenario.frames}
+    print_result(args, result | {"sequence": out, "seconds": time.perf_counter() - started}, text)
     return 0
 
 
@@ -542,6 +565,7 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=default["seed"], help="seed of the training scenes")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
     p.add_argument("--workers", type=workers, default=one_per_core(), help="scenes rendered at a time")
+    add_json(p, "the vocabulary's path, its words and the spec it was built from")
     p.set_defaults(handler=_cmd_vocab)
 
 
@@ -552,6 +576,7 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
 
     for name in args.scenes:
         library.get(name)  # refuses an unknown scene by name, before any work
+    started = time.perf_counter()
     spec = VocabularySpec(args.branching, args.levels, tuple(args.scenes), args.frames, args.seed)
     if args.output is None:
         path = default_vocabulary(progress=True, spec=spec, workers=args.workers)
@@ -560,7 +585,17 @@ def _cmd_vocab(args: argparse.Namespace) -> int:
         path = args.output
         build_file(spec, path, progress=True, workers=args.workers)
     words = read_text(path).words
-    print(f"{path}: {words} words (k={spec.branching}, L={spec.levels})")
+    result = {
+        "vocabulary": path,
+        "words": words,
+        "branching": spec.branching,
+        "levels": spec.levels,
+        "scenes": list(spec.scenes),
+        "frames": spec.frames,
+        "seed": spec.seed,
+        "seconds": time.perf_counter() - started,
+    }
+    print_result(args, result, f"{path}: {words} words (k={spec.branching}, L={spec.levels})")
     return 0
 
 
@@ -570,6 +605,7 @@ def _add_preview(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, nargs="+", default=[0], help="frame indices (default: 0)")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG file to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    add_json(p, "the picture's path, size and frames")
     p.set_defaults(handler=_cmd_preview)
 
 
@@ -579,6 +615,7 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     from depotbench.eval.report.preview import preview, save_png
     from depotbench.sim.sequence import Sequence
 
+    started = time.perf_counter()
     if args.output.suffix.lower() != ".png":
         raise InputError(f"{args.output}: the preview is a PNG; give a file name ending in .png")
     check_output_file(args.output, overwrite=args.overwrite, inputs=(args.sequence,), option="-o")
@@ -591,7 +628,9 @@ def _cmd_preview(args: argparse.Namespace) -> int:
     objects = seq.objects() if seq.is_generated else None
     image = np.vstack([preview(seq, i, objects=None if objects is None else objects[i]) for i in args.frames])
     save_png(args.output, image)
-    print(f"wrote {args.output}")
+    height, width = image.shape[:2]
+    result = {"png": args.output, "frames": list(args.frames), "width": width, "height": height}
+    print_result(args, result | {"seconds": time.perf_counter() - started}, f"wrote {args.output}")
     return 0
 
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from depotbench.eval.cli.args import one_per_core, workers
+from depotbench.eval.cli.conventions import add_json, print_result
 
 
 def add_report(sub: argparse._SubParsersAction) -> None:
@@ -27,6 +29,7 @@ def add_report(sub: argparse._SubParsersAction) -> None:
         default=one_per_core(),
         help="processes that track a sweep's featured runs again (used from 300 frames in all)",
     )
+    add_json(p, "the page's path and size, the recording's path and what the page leaves out")
     p.set_defaults(handler=_cmd_report)
 
 
@@ -34,10 +37,24 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from depotbench.eval.report.html import warn
     from depotbench.eval.report.write import report_folder
 
+    started = time.perf_counter()
     written = report_folder(args.source, args.output, args.rerun, args.workers)
-    if written.recording is not None:
-        print(f"wrote {written.recording} (open it with: rerun {written.recording})")
     path = written.page
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, self-contained: open it in any browser)")
+    size = path.stat().st_size
+    lines = (
+        []
+        if written.recording is None
+        else [f"wrote {written.recording} (open it with: rerun {written.recording})"]
+    )
+    lines.append(f"wrote {path} ({size / 1e6:.1f} MB, self-contained: open it in any browser)")
     warn(written.notes)
+    result = {
+        "source": args.source,
+        "page": path,
+        "page_bytes": size,
+        "recording": written.recording,
+        "left_out": list(written.notes.items),
+        "seconds": time.perf_counter() - started,
+    }
+    print_result(args, result, "\n".join(lines))
     return 0

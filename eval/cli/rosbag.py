@@ -7,9 +7,11 @@ and ``tests/test_rosbag.py`` holds them equal to ``depotbench.eval.export.rosbag
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
+from depotbench.eval.cli.conventions import add_json, print_result
 
 STORAGES = ("mcap", "sqlite3")
 """``depotbench.eval.export.rosbag.BagStorage``."""
@@ -51,12 +53,14 @@ def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compress", action="store_true", help="zstd-compress the MCAP chunks (mcap only)")
     p.add_argument("--overwrite", action="store_true", help="replace a bag depotbench wrote")
     add_camera_options(p, guessed=False)
+    add_json(p, "the bag's path, storage, size, frames and each topic's type and message count")
     p.set_defaults(handler=_cmd_export_rosbag)
 
 
 def _cmd_export_rosbag(args: argparse.Namespace) -> int:
     from depotbench.eval.export.rosbag import write_bag
 
+    started = time.perf_counter()
     summary = write_bag(
         args.sequence,
         args.output,
@@ -69,14 +73,23 @@ def _cmd_export_rosbag(args: argparse.Namespace) -> int:
         camera=camera_from_args(args),
     )
     messages = sum(t.count for t in summary.topics)
-    print(
-        f"wrote {summary.path} ({summary.storage.value}, {summary.frames} frames, {messages} messages, "
-        f"{summary.size_bytes / 1e6:.1f} MB)"
-    )
+    size_mb = summary.size_bytes / 1e6
+    head = f"{summary.storage.value}, {summary.frames} frames, {messages} messages, {size_mb:.1f} MB"
+    lines = [f"wrote {summary.path} ({head})"]
     width = max(len(t.topic) for t in summary.topics)
-    for t in summary.topics:
-        print(f"  {t.topic:<{width}}  {t.msgtype:<34} {t.count:>6}")
-    for note in summary.notes:
-        print(f"note: {note}")
-    print(f"play it with: ros2 bag play {summary.path}")
+    lines += [f"  {t.topic:<{width}}  {t.msgtype:<34} {t.count:>6}" for t in summary.topics]
+    lines += [f"note: {note}" for note in summary.notes]
+    lines.append(f"play it with: ros2 bag play {summary.path}")
+    result = {
+        "bag": summary.path,
+        "storage": summary.storage.value,
+        "depth": summary.depth.value,
+        "frames": summary.frames,
+        "messages": messages,
+        "bytes": summary.size_bytes,
+        "topics": [{"topic": t.topic, "type": t.msgtype, "count": t.count} for t in summary.topics],
+        "notes": list(summary.notes),
+        "seconds": time.perf_counter() - started,
+    }
+    print_result(args, result, "\n".join(lines))
     return 0
