@@ -399,7 +399,7 @@ def test_an_unusable_cache_is_warned_once_by_the_sweep_not_by_each_worker(tmp_pa
     from tests.sequences import write_sequence
 
     for i in range(3):
-        write_sequence(tmp_path / f"seq{i}", n=3)
+        write_sequence(tmp_path / f"seq{i}", n=3, seed=i)  # distinct: a sequence twice is refused
     (tmp_path / "blocker").write_text("")
     monkeypatch.setenv(ROOT_VARIABLE, str(tmp_path / "blocker"))  # a file where the cache should be
     (tmp_path / "x.yaml").write_text("sweep: x\nsequences: ['seq*']\nstrategies: [none, box_rule]\n")
