@@ -100,9 +100,15 @@ def kind_of(path: Path) -> str:
 
 
 def validate_file(name: str) -> Checked:
-    """``name`` (a file, or a library scenario's name) checked; a user's mistake becomes its
-    problems, one per line of the message (pydantic's errors are one per field)."""
+    """``name`` (a file, a shipped example's name or a library scenario's name) checked; a
+    user's mistake becomes its problems, one per line of the message (pydantic's errors are
+    one per field)."""
+    from depotbench.core.examples import Kind, examples
+
     path = Path(name)
+    shipped = examples().get(name)
+    if not path.exists() and shipped is not None and shipped.kind is not Kind.TRACKER:
+        path = shipped.path  # a shipped spec by name; a path that exists wins
     kind = SCENARIO
     try:
         if path.is_file():

@@ -42,11 +42,12 @@ USAGE: dict[str, Usage] = {
         ),
     ),
     "generate": Usage(
-        "Render a scenario (a library name or a file) or a whole suite into sequence folders: "
+        "Render a scenario (a library name or a file) or a whole suite (a shipped suite's name or a "
+        "file) into sequence folders: "
         "RGB, depth, exact poses, instance masks and 2D boxes in the TUM RGB-D layout.",
         (
             "depotbench generate walking_xyz -o seqs/walking_xyz --seed 3 --frames 150",
-            "depotbench generate scenes/suites/demo.yaml -o seqs/demo --workers 2",
+            "depotbench generate demo -o seqs/demo --workers 2",
         ),
     ),
     "validate": Usage(
@@ -55,12 +56,24 @@ USAGE: dict[str, Usage] = {
         "invalid.",
         (
             "depotbench validate my_scene.yaml",
-            "depotbench validate assets/sweeps/*.yaml assets/gates/walking-ci.yaml --json",
+            "depotbench validate smallest walking-ci --json",
         ),
     ),
     "scenarios": Usage(
         "List the library's named scenarios with their tags and descriptions.",
         ("depotbench scenarios", "depotbench scenarios --tag tum-like --json"),
+    ),
+    "examples": Usage(
+        "List the sweep specs, gate files, suites and example trackers that ship with depotbench: "
+        "sweep, check, generate and validate take each by its name (a path that exists wins over "
+        "a name). 'examples copy' copies one, with the files it reads beside it, into a folder to "
+        "edit and run there; it never replaces a file unless --overwrite.",
+        (
+            "depotbench examples",
+            "depotbench examples copy smallest my-sweeps",
+            "depotbench examples copy my_slam .",
+            "depotbench examples copy --all examples --json",
+        ),
     ),
     "run": Usage(
         "Track one sequence (generated, or any TUM-layout folder) with a tracker and a dynamic-feature "
@@ -120,15 +133,15 @@ USAGE: dict[str, Usage] = {
         "Run a threshold sweep (a YAML spec) into a resumable SQLite database, with results.csv, "
         "summary.json (the best configuration per family, the Pareto front) and plots.",
         (
-            "depotbench sweep assets/sweeps/walking4.yaml -o runs/walking4",
-            "depotbench sweep assets/sweeps/smallest.yaml -o runs/smallest --workers 2 --json",
+            "depotbench sweep smallest -o runs/smallest",
+            "depotbench sweep my-sweeps/smallest.yaml -o runs/mine --workers 2 --json",
         ),
     ),
     "check": Usage(
         "Run a gate file's matrix and check its budgets, for CI: exit 1 naming each failed budget, "
         "optionally JUnit XML.",
         (
-            "depotbench check assets/gates/walking-ci.yaml --junit gates.xml",
+            "depotbench check walking-ci --junit gates.xml",
             "depotbench check my-gates.yaml --baseline runs/main --json",
         ),
     ),
@@ -136,7 +149,7 @@ USAGE: dict[str, Usage] = {
         "Write a self-contained HTML page of a run folder or a sweep folder (plots, trajectories, "
         "frames with keypoints by decision), optionally a Rerun recording of a run.",
         (
-            "depotbench report runs/walking4 -o runs/walking4/report",
+            "depotbench report runs/smallest -o runs/smallest/report",
             "depotbench report runs/xyz-flow -o runs/xyz-flow/report --rerun xyz.rrd",
         ),
     ),

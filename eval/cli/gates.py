@@ -15,7 +15,11 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         "check",
         help="run a gate file's matrix and check its budgets (exit 1 naming each failed budget)",
     )
-    p.add_argument("gates", type=Path, help="the gate file (see assets/gates/)")
+    p.add_argument(
+        "gates",
+        help="the gate file: a file, or the name of a shipped one (depotbench examples lists them; "
+        "a path that exists wins over a name)",
+    )
     p.add_argument("--junit", type=Path, help="also write JUnit XML here (a new file, or see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --junit file")
     p.add_argument(
@@ -56,6 +60,7 @@ def add_check(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from depotbench.core.errors import InputError
+    from depotbench.core.examples import Kind, find
     from depotbench.core.files import dumps_json
     from depotbench.core.output import check_output_file, write_text_atomic
     from depotbench.eval.gates.budgets import format_report, junit_xml
@@ -65,7 +70,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
         raise InputError("--address applies to --backend ray only")
     if args.baseline_fingerprint and args.baseline is None:
         raise InputError("--baseline-fingerprint applies to --baseline DIR only")
-    gates = open_gates(args.gates, args.baseline, tuple(args.baseline_fingerprint))  # before any folder
+    path = find(args.gates, Kind.GATES)  # a file, or a shipped gate file's name
+    gates = open_gates(path, args.baseline, tuple(args.baseline_fingerprint))  # before any folder
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
         check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates.gates}"

@@ -40,6 +40,7 @@ from depotbench.eval.cli.detectors import (
     detector_config,
     pairs,
 )
+from depotbench.eval.cli.examples import add_examples
 from depotbench.eval.cli.gates import add_check
 from depotbench.eval.cli.report import add_report
 from depotbench.eval.cli.rosbag import add_export_rosbag
@@ -68,8 +69,8 @@ EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="ATE and RPE of an estimated trajectory (TUM files), as evo")
-    p.add_argument("reference", type=Path, help="ground-truth trajectory (TUM format)")
-    p.add_argument("estimate", type=Path, help="estimated trajectory (TUM format)")
+    p.add_argument("reference", help="ground-truth trajectory (a TUM file, or a shipped one's name)")
+    p.add_argument("estimate", help="estimated trajectory (a TUM file, or a shipped one's name)")
     p.add_argument(
         "--align",
         choices=choices.ALIGNMENTS,
@@ -98,6 +99,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from depotbench.core.examples import Kind, find
     from depotbench.core.files import dumps_json
     from depotbench.eval.metrics.accuracy import DeltaUnit
     from depotbench.eval.metrics.alignment import Alignment
@@ -112,7 +114,9 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         rpe_unit=DeltaUnit(args.rpe_unit),
         rpe_all_pairs=args.all_pairs,
     )
-    result = compare(read_tum(args.reference), read_tum(args.estimate), options)
+    # A file, or a shipped trajectory's name (depotbench examples): a path that exists wins.
+    reference, estimate = (find(name, Kind.TRAJECTORY) for name in (args.reference, args.estimate))
+    result = compare(read_tum(reference), read_tum(estimate), options)
     if args.json:
         print(dumps_json(result.to_dict()))
     else:
@@ -207,7 +211,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _add_generate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="render a scenario or a whole suite into sequence folders")
-    p.add_argument("spec", help="'default', a library scenario name, a scenario file or a suite file")
+    p.add_argument(
+        "spec",
+        help="'default', a library scenario's name (depotbench scenarios), a shipped suite's name "
+        "(depotbench examples), a scenario file or a suite file",
+    )
     p.add_argument(
         "-o",
         "--output",
@@ -256,6 +264,7 @@ def _png_level(text: str) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    from depotbench.core.examples import Kind, named
     from depotbench.scenes.generation import run_suite
     from depotbench.scenes.resolve import resolve
     from depotbench.scenes.suite import is_suite_file, load_suite
@@ -263,6 +272,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     path = Path(args.spec)
+    if not path.exists():  # a shipped suite by name (depotbench examples); a path wins over a name
+        path = named(args.spec, Kind.SUITE) or path
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     if path.is_file() and is_suite_file(path):
@@ -684,6 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_generate,
         _add_validate,
         _add_scenarios,
+        add_examples,
         _add_run,
         _add_preview,
         _add_vocab,

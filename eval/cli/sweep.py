@@ -14,7 +14,11 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         "sweep",
         help="run a threshold sweep (a YAML spec) into a resumable SQLite database, with CSV and plots",
     )
-    p.add_argument("spec", type=Path, help="the sweep spec (see assets/sweeps/)")
+    p.add_argument(
+        "spec",
+        help="the sweep spec: a file, or the name of a shipped one (depotbench examples lists them; "
+        "a path that exists wins over a name)",
+    )
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
     p.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
     p.add_argument(
@@ -51,6 +55,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from depotbench.core.examples import Kind, find
     from depotbench.core.files import dumps_json
     from depotbench.eval.sweep.execute import sweep_folder
     from depotbench.eval.sweep.summary import format_best
@@ -58,7 +63,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     outcome = sweep_folder(
-        args.spec,
+        find(args.spec, Kind.SWEEP),
         args.output,
         args.workers,
         dedupe=not args.no_dedupe,

@@ -177,9 +177,7 @@ def validate(spec: SweepSpec, spec_path: Path) -> None:
     if spec.suite is not None:
         from depotbench.scenes.suite import load_suite
 
-        suite_path = resolve(spec, spec_path, spec.suite)
-        if not suite_path.is_file():
-            raise InputError(f"{spec_path}: suite: {suite_path} is not a file")
+        suite_path = suite_file(spec, spec_path)
         load_suite(suite_path)
 
 
@@ -189,8 +187,24 @@ def spec_inputs(spec: SweepSpec, spec_path: Path) -> tuple[Path, ...]:
     named = [resolve(spec, spec_path, name) for name in spec.sequences]
     named += [entry.root for entry in named_sequences(spec, spec_path)]
     if spec.suite is not None:
-        named.append(resolve(spec, spec_path, spec.suite))
+        named.append(suite_file(spec, spec_path))
     return (spec_path, *named)
+
+
+def suite_file(spec: SweepSpec, spec_path: Path) -> Path:
+    """The spec's suite file: a path relative to the spec where that file exists, else a
+    shipped suite of that name (``suite: walking4``, as ``depotbench generate`` takes it), so
+    a spec copied alone into another folder still finds it."""
+    from depotbench.core.examples import Kind, named
+
+    assert spec.suite is not None
+    path = resolve(spec, spec_path, spec.suite)
+    if path.is_file():
+        return path
+    shipped = named(spec.suite, Kind.SUITE)
+    if shipped is not None and not path.exists():
+        return shipped
+    raise InputError(f"{spec_path}: suite: {path} is not a file, nor a shipped suite's name")
 
 
 def sequences_of(
@@ -211,9 +225,7 @@ def sequences_of(
         from depotbench.scenes.generation import run_suite
         from depotbench.scenes.suite import load_suite
 
-        suite_path = resolve(spec, spec_path, spec.suite)
-        if not suite_path.is_file():
-            raise InputError(f"{spec_path}: suite: {suite_path} is not a file")
+        suite_path = suite_file(spec, spec_path)
         index = run_suite(
             load_suite(suite_path),
             suite_path,
