@@ -235,12 +235,13 @@ def sweep(
     """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows;
     ``retry_failed``: failed ones run again): results.sqlite, results.csv, summary.json and
     plots, as ``depotbench sweep`` leaves them."""
+    from depotbench.core.examples import Kind, find
     from depotbench.eval.metrics.figures import with_derived
     from depotbench.eval.sweep.execute import sweep_folder
 
     out = Path(out)
     outcome = sweep_folder(
-        Path(spec),
+        find(spec, Kind.SWEEP),  # a file, or a shipped spec's name ("smallest")
         out,
         workers,
         progress=progress,
@@ -275,9 +276,10 @@ def check(
     again) and its budgets checked; ``baseline``: an earlier check's or sweep's folder, for
     ``vs_baseline`` budgets. The report's ``passed``
     and ``failures`` say what ``depotbench check`` would exit with and print."""
+    from depotbench.core.examples import Kind, find
     from depotbench.eval.gates.check import check_folder, open_gates
 
-    opened = open_gates(Path(gates), None if baseline is None else Path(baseline))
+    opened = open_gates(find(gates, Kind.GATES), None if baseline is None else Path(baseline))
     return check_folder(opened, Path(out), workers, backend, address, retry_failed)
 
 

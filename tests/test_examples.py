@@ -224,3 +224,20 @@ def test_from_the_wheel_examples_copy_and_names_work(installed: Path, tmp_path: 
     assert by_name.stdout.count(": ok: ") == 3
     tracker = _run(installed, tmp_path, "depotbench", "examples", "copy", "my_slam", "trackers")
     assert tracker.returncode == 0 and os.access(tmp_path / "trackers" / "my_slam.py", os.X_OK)
+
+
+def test_the_python_api_takes_names_too(tmp_path: Path):
+    from depotbench.core.errors import InputError
+
+    import depotbench
+
+    with pytest.raises(InputError, match="did you mean smallest"):
+        depotbench.sweep("smalest", tmp_path / "s")
+    with pytest.raises(InputError, match="shipped: walking-ci"):
+        depotbench.check("no-such-gates", tmp_path / "c")
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "mine.txt").write_text("a user's file")
+    with pytest.raises(InputError, match="taken"):  # found and validated, then the folder refused
+        depotbench.sweep("smallest", taken)
+    assert not (tmp_path / "s").exists() and not (tmp_path / "c").exists()
