@@ -17,7 +17,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from typing import Any
 
 from depotbench.core.errors import EnvironmentProblem, InputError
-from depotbench.core.logs import DETAIL
+from depotbench.core.logs import DETAIL, follow_in_worker
 from depotbench.core.processes import children_block_sigint, exit_with_parent, release_sigint
 
 LOG = logging.getLogger(__name__)
@@ -47,10 +47,11 @@ def single_threaded() -> None:
     threadpool_limits(1)
 
 
-def _init_local_worker(parent_pid: int) -> None:
+def _init_local_worker(parent_pid: int, log_level: int = logging.WARNING) -> None:
     release_sigint()
     exit_with_parent(parent_pid)
     single_threaded()
+    follow_in_worker(log_level)
     from depotbench.core.progress import use_thread_lock
 
     use_thread_lock()
@@ -78,7 +79,7 @@ class LocalPool:
                     self.workers,
                     mp_context=mp.get_context("spawn"),
                     initializer=_init_local_worker,
-                    initargs=(os.getpid(),),
+                    initargs=(os.getpid(), logging.getLogger("depotbench").getEffectiveLevel()),
                 )
             LOG.log(DETAIL, "started a pool of %d spawned worker processes (one thread each)", self.workers)
         return self.pool

@@ -8,6 +8,7 @@ code that wrote it (OpenCV for the PNG, ``rosbags`` for the bag, the files on di
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -104,7 +105,7 @@ def test_vv_shows_cache_hits_and_misses_with_their_keys(sequence: Path, tmp_path
     assert len(hits) == 1, second
     key = hits[0]
     assert f"features {key}" in first  # the first run looked up the same entry (a miss, then stored)
-    stored = [p for p in Path(__import__("os").environ["DEPOTBENCH_CACHE"]).rglob(key) if p.is_file()]
+    stored = [p for p in Path(os.environ["DEPOTBENCH_CACHE"]).rglob(key) if p.is_file()]
     assert len(stored) == 1 and stored[0].parent.name == "features"
     # -v: where the time went; nothing of it on stdout, which holds the run's summary alone
     assert re.search(r"detail: \[eval\.run\.harness\] seq builtin none: tracking 5 frames took \d", second)
@@ -220,8 +221,6 @@ def test_demo_json(tmp_path: Path, capsys):
 
 def test_cache_clear_json(capsys):
     """What clear removed, as the folder holds it before (the session's private caches)."""
-    import os
-
     root = Path(os.environ["DEPOTBENCH_CACHE"])
     entries = [p for p in (root / "stages").rglob("*") if p.is_file()] if (root / "stages").exists() else []
     result, _ = as_json(capsys, "cache", "clear", "--stage")
@@ -229,3 +228,25 @@ def test_cache_clear_json(capsys):
     stages = result["caches"]["stages"]
     assert stages["entries"] == len(entries) and stages["bytes"] == result["freed_bytes"]
     assert not [p for p in (root / "stages").rglob("*") if p.is_file()]
+
+
+@pytest.mark.slow
+def test_vv_reaches_a_sweeps_worker_processes(tmp_path: Path):
+    """A sweep looks its stages up in spawned workers, whose logger stayed at Python's
+    WARNING: -vv said nothing of them. Through the real program, --json on stdout alone."""
+    for name, seed in (("a", 1), ("b", 2)):
+        write_sequence(tmp_path / name, n=4, seed=5410 + seed)
+    (tmp_path / "w.yaml").write_text("sweep: w\nsequences: [a, b]\nstrategies: [none]\n")
+    done = subprocess.run(
+        [*PROGRAM, "sweep", str(tmp_path / "w.yaml"), "-o", str(tmp_path / "sw"), "--workers", "2", "-vv"]
+        + ["--json"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    json.loads(done.stdout)
+    assert "detail: [core.executors] started a pool of 2 spawned worker processes" in done.stderr
+    workers = set(
+        re.findall(r"depotbench worker (\d+): debug: \[cache\] stage cache miss: features", done.stderr)
+    )
+    assert len(workers) >= 1 and str(os.getpid()) not in workers
