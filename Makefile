@@ -6,7 +6,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 export MUJOCO_GL ?= egl
-PACKAGE := -e '.[dev,viz,orbslam3]'
+PACKAGE := -e '.[dev,viz,orbslam3,ros]'
 
 .PHONY: demo test test-slow lint docs bench system-deps browser shells ultralytics clean readme-images
 

@@ -1,8 +1,9 @@
-"""The package as users get it: one wheel, one namespace, its assets inside.
+"""The package as users get it: one wheel, one namespace, its assets and licences inside.
 
-The wheel is built from the checkout, installed into a clean virtualenv with its declared
-dependencies only, and run from a folder outside the checkout: a scenario whose cats wear
-the shipped fur photograph, the default (shipped ONNX) detector, and the demo.
+The sdist is built from the checkout and the wheel from the sdist, as a package index's user
+builds them, without a warning; the wheel is installed into a clean virtualenv with its
+declared dependencies only, and run from a folder outside the checkout: a scenario whose cats
+wear the shipped fur photograph, the default (shipped ONNX) detector, and the demo.
 """
 
 from __future__ import annotations
@@ -12,7 +13,11 @@ import os
 import shutil
 import subprocess
 import sys
+import tarfile
 import tomllib
+import zipfile
+from dataclasses import dataclass
+from fnmatch import fnmatch
 from pathlib import Path
 
 import pytest
@@ -35,8 +40,81 @@ def test_every_package_folder_is_installed_under_the_namespace():
                 continue
             rel = init.parent.relative_to(REPO / folder).parts
             found.add(".".join((package, *rel)))
-    assert found == listed
+    data_only = listed - found  # folders of data (and example scripts), listed for setuptools: the next test
+    assert found <= listed and all("." in name for name in data_only)
     assert all(name == "depotbench" or name.startswith("depotbench.") for name in listed)
+
+
+DATA_ONLY_UNSHIPPED = {"assets/readme"}
+"""Folders of files under a package folder that the wheel leaves out: the README's pictures
+(in the sdist through docs/images)."""
+
+
+def test_every_file_of_the_package_folders_is_package_data_of_a_listed_package():
+    """include-package-data is off, so a file no pattern names is left out of the wheel; and
+    setuptools warns once per folder of data that is not a listed package (Python imports it
+    as a namespace package), so each pattern names files of its own folder only."""
+    config = PYPROJECT["tool"]["setuptools"]
+    mapped = config["package-dir"]
+    listed = set(config["packages"])
+    data = config["package-data"]
+    assert set(data) <= listed
+    assert all("/" not in pattern for patterns in data.values() for pattern in patterns)
+    unshipped = []
+    for package, folder in mapped.items():
+        for path in (REPO / folder).rglob("*"):
+            if not path.is_file() or "__pycache__" in path.parts or path.suffix == ".py":
+                continue
+            if path.parent.relative_to(REPO).as_posix() in DATA_ONLY_UNSHIPPED:
+                continue
+            owner = ".".join((package, *path.parent.relative_to(REPO / folder).parts))
+            if owner not in listed or not any(fnmatch(path.name, p) for p in data.get(owner, ())):
+                unshipped.append(path.relative_to(REPO).as_posix())
+    assert unshipped == []
+
+
+def test_the_metadata_names_its_licences_and_pypis_classifiers():
+    """PEP 639: an SPDX expression and the licence files; setuptools refuses a "License ::"
+    classifier beside the expression, and PyPI refuses a classifier not in its list."""
+    from trove_classifiers import classifiers as known
+
+    project = PYPROJECT["project"]
+    assert project["license"] == "MIT"
+    assert "MIT License" in (REPO / "LICENSE").read_text()
+    assert "Apache License" in (REPO / "assets/models/yolox_nano/LICENSE").read_text()
+    assert all((REPO / name).is_file() for name in project["license-files"])
+    assert set(project["classifiers"]) <= known
+    assert not [c for c in project["classifiers"] if c.startswith("License ::")]
+    lowest = project["requires-python"].removeprefix(">=")
+    assert f"Programming Language :: Python :: {lowest}" in project["classifiers"]
+
+
+def test_export_rosbag_without_the_ros_extra_says_how_to_install(tmp_path: Path):
+    """rosbags serves export-rosbag alone and is the extra [ros]: without it the command
+    says so in one line and exits non-zero, and the other commands do not need it."""
+    from tests.sequences import write_sequence
+
+    write_sequence(tmp_path / "seq", n=2)
+    bag = tmp_path / "bag"
+    code = (
+        "import sys\n"
+        "sys.modules['rosbags'] = None  # as if not installed: importing it raises ModuleNotFoundError\n"
+        "from depotbench.eval.cli.main import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    env = os.environ | {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    run = [sys.executable, "-c", code, "export-rosbag", str(tmp_path / "seq"), "-o", str(bag)]
+    done = subprocess.run(run, capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode != 0 and done.stdout == ""
+    assert done.stderr.strip() == (
+        "depotbench export-rosbag: error: export-rosbag needs the ros extra: pip install 'depotbench[ros]'"
+    )
+    assert not bag.exists()
+    listed = subprocess.run([*run[:3], "scenarios"], capture_output=True, text=True, env=env, timeout=120)
+    assert listed.returncode == 0 and "walking_xyz" in listed.stdout, listed.stderr
+    extras = PYPROJECT["project"]["optional-dependencies"]
+    assert not [d for d in PYPROJECT["project"]["dependencies"] if d.startswith("rosbags")]
+    assert [d for d in extras["ros"] if d.startswith("rosbags")] and "depotbench[ros]" in extras["dev"]
 
 
 def _uv() -> str | None:
@@ -44,20 +122,96 @@ def _uv() -> str | None:
     return str(here) if here.exists() else shutil.which("uv")
 
 
+@dataclass(frozen=True)
+class Built:
+    sdist: Path
+    wheel: Path
+    log: str
+    """What the build backend printed, both builds."""
+
+
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A virtualenv holding the wheel and its dependencies, nothing of the checkout."""
+def built(tmp_path_factory: pytest.TempPathFactory) -> Built:
+    """The sdist built from the checkout, and the wheel built from the sdist (uv build's default,
+    as pip builds a package it gets as source)."""
     uv = _uv()
     if uv is None:
-        pytest.fail("uv is needed to install the wheel (make installs it into the virtualenv)")
+        pytest.fail("uv is needed to build and install the wheel (make installs it into the virtualenv)")
     root = tmp_path_factory.mktemp("wheel")
     # built from a copy: setuptools leaves build/ and *.egg-info in the folder it builds
     source = root / "source"
     skip = shutil.ignore_patterns(".git", ".venv", "build", "runs", "*.egg-info", "__pycache__", ".*_cache")
-    shutil.copytree(REPO, source, ignore=skip)
-    subprocess.run([uv, "build", "--wheel", "--out-dir", str(root / "dist"), str(source)], check=True,
-                   capture_output=True)  # fmt: skip
+    shutil.copytree(REPO, source, ignore=skip, symlinks=True)
+    # setuptools notes each skipped byte-compilation as a warning when this is set
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    done = subprocess.run([uv, "build", "--out-dir", str(root / "dist"), str(source)], check=True,
+                          capture_output=True, text=True, env=env)  # fmt: skip
+    (sdist,) = (root / "dist").glob("depotbench-*.tar.gz")
     (wheel,) = (root / "dist").glob("depotbench-*.whl")
+    return Built(sdist, wheel, done.stdout + done.stderr)
+
+
+def test_the_build_prints_no_warning(built: Built):
+    """There were 16 warning lines: 8 data folders not listed as packages, each twice."""
+    warnings = [line for line in built.log.splitlines() if "warn" in line.lower()]
+    assert warnings == []
+
+
+def test_the_wheel_and_sdist_carry_both_licences(built: Built):
+    with zipfile.ZipFile(built.wheel) as wheel:
+        names = wheel.namelist()
+        metadata = wheel.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
+    licences = [n.split(".dist-info/licenses/", 1)[1] for n in names if ".dist-info/licenses/" in n]
+    assert sorted(licences) == ["LICENSE", "assets/models/yolox_nano/LICENSE"]
+    assert "depotbench/assets/models/yolox_nano/LICENSE" in names  # and beside the model
+    assert "License-Expression: MIT" in metadata
+    assert "Classifier: Topic :: Scientific/Engineering" in metadata
+    with tarfile.open(built.sdist) as sdist:
+        top = sdist.getnames()[0].split("/")[0]
+        held = {name.removeprefix(top + "/") for name in sdist.getnames()}
+    assert {"LICENSE", "assets/models/yolox_nano/LICENSE", "assets/models/yolox_nano/PROVENANCE.md"} <= held
+
+
+def test_the_sdist_holds_what_its_tests_read(built: Built):
+    """The tests read docs/ (its examples run, its tables are held to the code), benchmarks/
+    and the programs in tests/: every file git tracks there is in the sdist (a link to a
+    folder, docs/images, as the folder's files)."""
+    tracked = subprocess.run(["git", "ls-files", "docs", "benchmarks", "tests", ".ci"], cwd=REPO,
+                             capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
+    if not tracked:
+        pytest.skip("not a git checkout: nothing to compare the sdist with")
+    with tarfile.open(built.sdist) as sdist:
+        top = sdist.getnames()[0].split("/")[0]
+        held = {name.removeprefix(top + "/") for name in sdist.getnames()}
+    files = [name for name in tracked if not (REPO / name).is_symlink()]
+    assert [name for name in files if name not in held] == []
+    assert "mkdocs.yml" in held and any(name.startswith("docs/images/") for name in held)
+
+
+@pytest.mark.slow
+def test_tests_run_from_the_unpacked_sdist(built: Built, tmp_path: Path):
+    """Two test files that read docs/ and pyproject.toml, run inside the unpacked sdist."""
+    with tarfile.open(built.sdist) as sdist:
+        sdist.extractall(tmp_path, filter="data")
+    (unpacked,) = tmp_path.iterdir()
+    tests = [
+        "tests/test_placeholders.py",
+        "tests/test_package.py::test_every_package_folder_is_installed_under_the_namespace",
+    ]
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    pytest_ = [sys.executable, "-m", "pytest", "-q", "-p", "no:xdist", "-p", "no:cacheprovider"]
+    done = subprocess.run([*pytest_, *tests], cwd=unpacked, capture_output=True, text=True, env=env)
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "4 passed" in done.stdout
+
+
+@pytest.fixture(scope="module")
+def installed(built: Built, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A virtualenv holding the wheel and its dependencies, nothing of the checkout."""
+    uv = _uv()
+    assert uv is not None
+    root = tmp_path_factory.mktemp("venv")
+    wheel = built.wheel
     venv = root / "venv"
     subprocess.run([uv, "venv", "--python", sys.executable, str(venv)], check=True, capture_output=True)
     # Compiled at install, as pip does by default (uv does not): the runs below import from a

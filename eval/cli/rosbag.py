@@ -10,6 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
+from depotbench.core.errors import EnvironmentProblem
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.conventions import add_json, print_result
 
@@ -19,6 +20,8 @@ DEPTHS = ("m", "mm", "raw")
 """``depotbench.eval.export.rosbag.DepthUnit``."""
 DEFAULT_NAMESPACE = "/camera"
 """``depotbench.eval.export.rosbag.DEFAULT_NAMESPACE``."""
+ROS_EXTRA_MISSING = "export-rosbag needs the ros extra: pip install 'depotbench[ros]'"
+"""``rosbags`` serves this one command: it and its four dependencies (18 MB) are an extra."""
 
 
 def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
@@ -58,7 +61,12 @@ def add_export_rosbag(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_export_rosbag(args: argparse.Namespace) -> int:
-    from depotbench.eval.export.rosbag import write_bag
+    try:
+        from depotbench.eval.export.rosbag import write_bag
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").partition(".")[0] != "rosbags":
+            raise
+        raise EnvironmentProblem(ROS_EXTRA_MISSING) from None
 
     started = time.perf_counter()
     summary = write_bag(
