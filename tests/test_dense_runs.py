@@ -206,4 +206,5 @@ def test_a_programs_own_map_is_placed_and_scored_like_the_built_in_one(walking: 
     code = main(
         ["run", str(walking), "-o", str(tmp_path / "bad"), "--slam", "cmd", "--command", bad, "--map"]
     )
-    assert code != 0 and not (tmp_path / "bad").exists()
+    assert code != 0 and (tmp_path / "bad" / "failure.json").is_file()  # kept to debug by
+    assert not (tmp_path / "bad" / "map.ply").exists()

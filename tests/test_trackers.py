@@ -7,6 +7,7 @@ import json
 import math
 import os
 import subprocess
+import shutil
 import sys
 import textwrap
 from pathlib import Path
@@ -224,17 +225,20 @@ def test_command_failures_are_one_line(tmp_path: Path, fake_slam: Path, capsys):
     write_sequence(tmp_path / "seq", n=3, with_flow=False)
     base = ["run", tmp_path / "seq", "--slam", "cmd", "-o", tmp_path / "run"]
     template = f"{sys.executable} {fake_slam} {{sequence}} {{associations}} {{trajectory}}"
-    for command, extra, needle in (
-        (f"{template} fail", (), "exited with code 3 (fake slam: cannot open the vocabulary)"),
-        (f"{template} hang", ("--timeout", "1.5"), "stopped after the time limit of 1.5 s"),
-        (f"{template} {{camera}}", (), "unknown placeholder {camera}"),
-        ("/no/such/program {sequence}", (), "the program '/no/such/program' does not exist"),
-        (f"{template} 'unbalanced", (), "No closing quotation"),
+    for command, extra, needle, ran in (
+        (f"{template} fail", (), "exited with code 3 (fake slam: cannot open the vocabulary)", True),
+        (f"{template} hang", ("--timeout", "1.5"), "stopped after the time limit of 1.5 s", True),
+        (f"{template} {{camera}}", (), "unknown placeholder {camera}", False),
+        ("/no/such/program {sequence}", (), "the program '/no/such/program' does not exist", False),
+        (f"{template} 'unbalanced", (), "No closing quotation", False),
     ):
         code, _, err = cli(capsys, *base, "--command", command, *extra)
         assert code == 2, command
         one_error_line(err, needle)
-        assert not (tmp_path / "run").exists()
+        # a program that ran and failed leaves its run folder to debug it by; a refused
+        # command leaves nothing
+        assert (tmp_path / "run" / "failure.json").is_file() == ran, command
+        shutil.rmtree(tmp_path / "run", ignore_errors=True)
 
 
 # -- undistortion (TUM fr1/fr2 lenses) ---------------------------------------------------------------
