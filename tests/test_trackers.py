@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import subprocess
 import shutil
+import subprocess
 import sys
 import textwrap
 from pathlib import Path
