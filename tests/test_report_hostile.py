@@ -284,14 +284,23 @@ def test_a_sequence_path_relative_to_the_working_directory_is_still_found(
     assert "Scenario difficulty" in page and "frames with keypoints" in page
 
 
-def test_a_moved_sequence_is_found_but_not_tracked_again_and_says_why(copy: Path, capfd, monkeypatch):
-    """copy/seq is a copy: its fingerprint (which holds its folder) is not the sweep's."""
+def test_a_moved_sequence_is_tracked_again_and_a_changed_one_is_not_and_says_why(
+    copy: Path, capfd, monkeypatch
+):
+    """copy/seq is a copy: the same files, so the same fingerprint (a sequence's key is its
+    content, not its folder), and its featured runs are tracked again. Once a file of it is
+    changed, its fingerprint is not the sweep's: left out, with the reason."""
     set_rows(copy / "sw", "specs/../seq")  # as 0.3.15 stored it, relative to where the sweep ran
     monkeypatch.chdir(copy)
     assert main(["report", "sw", "-o", "out"]) == 0
+    assert capfd.readouterr().err == ""
+    assert "not tracked again" not in (copy / "out" / "index.html").read_text()
+    truth = copy / "seq" / "groundtruth.txt"
+    truth.write_text(truth.read_text() + "\n")
+    assert main(["report", "sw", "-o", "out2"]) == 0
     lines = capfd.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "warning" in lines[0] and "fingerprint" in lines[0], lines
-    page = (copy / "out" / "index.html").read_text()
+    page = (copy / "out2" / "index.html").read_text()
     assert "Scenario difficulty" in page and "Left out" in page and "not tracked again" in page
 
 
