@@ -724,8 +724,8 @@ def _command_cases() -> dict[str, Case]:
                 (tmp / "seq" / "meta.json").unlink(),
                 (tmp / "seq" / "groundtruth.txt").unlink(),
             ),
-            run,
-            "needs a generated sequence",
+            (*run, "--strategy", "box_rule"),  # with none, a real folder runs (probe U4)
+            "give --detector onnx",
         ),
         "detect-eval-real-tum": Case(
             lambda tmp: (
