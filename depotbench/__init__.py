@@ -2,8 +2,11 @@
 
 ``import depotbench`` gives the command line's jobs as functions on typed values
 (``depotbench.api``): ``scenario``, ``generate``, ``generate_suite``, ``run``, ``sweep``,
-``check``, ``compare``, ``report`` and ``evaluate``. They load the parts they use when
-called, so the import itself stays light (no MuJoCo, OpenCV or ONNX Runtime).
+``check``, ``compare``, ``report`` and ``evaluate``, and the typed results they return
+(``SweepResult``, ``SweepSummary``, ``Configuration``, ``Comparisons``). The import itself
+stays light (no MuJoCo, OpenCV or ONNX Runtime): the API loads at the first use of one of
+its names (about 1 s, the types its signatures name), MuJoCo and ONNX Runtime when a
+function needs them.
 
 The parts are subpackages, in the order of the pipeline: ``depotbench.sim`` (worlds,
 rendering, the sequence format), ``depotbench.scenes`` (scenario specs and suites),
@@ -19,7 +22,11 @@ import importlib
 TYPE_CHECKING = False  # typing itself costs 5 ms of the time before Ctrl-C is handled
 if TYPE_CHECKING:
     from depotbench.api import (
+        Comparisons,
+        Configuration,
+        MissingExtra,
         SweepResult,
+        SweepSummary,
         check,
         compare,
         evaluate,
@@ -33,7 +40,11 @@ if TYPE_CHECKING:
 
 
 __all__ = [
+    "Comparisons",
+    "Configuration",
+    "MissingExtra",
     "SweepResult",
+    "SweepSummary",
     "__version__",
     "check",
     "compare",

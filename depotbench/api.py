@@ -5,9 +5,10 @@ types of the parts), and returns a typed result instead of printing one:
 
 - ``scenario`` / ``generate`` / ``generate_suite``: scenarios and the sequences they render;
 - ``run``: one sequence through a detector and a tracker, as a ``RunRecord``;
-- ``sweep``: a sweep spec's matrix into a resumable folder, as a ``SweepResult``;
+- ``sweep``: a sweep spec's matrix into a resumable folder, as a ``SweepResult`` (its typed
+  ``SweepSummary`` and ``Configuration``s, ``to_pandas()``);
 - ``check``: a gate file's budgets, as a ``GateReport``;
-- ``compare``: sets of runs against a base, as ``SetComparison`` per set;
+- ``compare``: sets of runs against a base, as ``Comparisons`` (a ``SetComparison`` per set);
 - ``report``: the self-contained HTML page of a run or a sweep;
 - ``evaluate``: ATE and RPE of an estimate against a reference trajectory.
 
@@ -19,22 +20,55 @@ Nothing here prints except progress bars, which ``progress=False`` turns off.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:  # the parts load when a function is called: ``import depotbench`` stays light
-    from depotbench.core.camera import CameraOverride, Intrinsics
-    from depotbench.detectors.config import DetectorConfig
-    from depotbench.eval.gates.budgets import GateReport
-    from depotbench.eval.gates.compare import SetComparison
-    from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions
-    from depotbench.eval.metrics.figures import ScoredRun
-    from depotbench.eval.metrics.record import RunRecord
-    from depotbench.eval.metrics.trajectory import Trajectory
-    from depotbench.eval.trackers.registry import TrackerConfig
-    from depotbench.sim.sequence import Sequence
-    from depotbench.sim.spec import ScenarioSpec
+# The types of the signatures, imported so that typing.get_type_hints resolves every one
+# (about 1 s: OpenCV, SciPy, pydantic). ``import depotbench`` does not load this module
+# until a name of the API is first used; MuJoCo and ONNX Runtime load only when a function
+# needs them.
+from depotbench.core.camera import CameraOverride, Intrinsics
+from depotbench.core.main_guard import require_main_guard
+from depotbench.detectors.config import DetectorConfig
+from depotbench.eval.gates.budgets import GateReport
+from depotbench.eval.gates.compare import SetComparison
+from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions
+from depotbench.eval.metrics.record import RunRecord
+from depotbench.eval.metrics.trajectory import Trajectory
+from depotbench.eval.trackers.registry import TrackerConfig
+from depotbench.results import Comparisons, Configuration, MissingExtra, SweepResult, SweepSummary
+from depotbench.sim.sequence import Sequence
+from depotbench.sim.spec import ScenarioSpec
+
+__all__ = [
+    "CameraOverride",
+    "Comparison",
+    "ComparisonOptions",
+    "Comparisons",
+    "Configuration",
+    "DetectorConfig",
+    "GateReport",
+    "Intrinsics",
+    "MissingExtra",
+    "RunRecord",
+    "ScenarioSpec",
+    "Sequence",
+    "SetComparison",
+    "Setting",
+    "SweepResult",
+    "SweepSummary",
+    "TrackerConfig",
+    "Trajectory",
+    "check",
+    "compare",
+    "evaluate",
+    "generate",
+    "generate_suite",
+    "report",
+    "run",
+    "scenario",
+    "sweep",
+]
 
 Setting = int | float | str | bool
 """A threshold's or parameter's value (``settings={"max_flow_px": 2.5}``)."""
@@ -62,8 +96,6 @@ def generate(
     import dataclasses
 
     from depotbench.sim.generate import generate as write_sequence
-    from depotbench.sim.sequence import Sequence
-    from depotbench.sim.spec import ScenarioSpec
 
     if isinstance(spec, ScenarioSpec):  # a typed spec: its own checks (__post_init__) hold
         resolved, inputs = dataclasses.replace(spec, **changes), ()
@@ -82,8 +114,8 @@ def generate_suite(
     the suite's order."""
     from depotbench.scenes.generation import run_suite
     from depotbench.scenes.suite import load_suite
-    from depotbench.sim.sequence import Sequence
 
+    require_main_guard("workers", workers)
     path, out = Path(suite), Path(out)
     index = run_suite(load_suite(path), path, out, workers, progress=progress, overwrite=overwrite)
     return [Sequence.open(out / entry["name"]) for entry in index["sequences"]]
@@ -91,7 +123,7 @@ def generate_suite(
 
 def _detector(detector: DetectorConfig | str) -> DetectorConfig:
     from depotbench.core.errors import InputError
-    from depotbench.detectors.config import DetectorConfig, DetectorConfigError, parse_detector
+    from depotbench.detectors.config import DetectorConfigError, parse_detector
 
     if isinstance(detector, DetectorConfig):
         return detector
@@ -103,8 +135,8 @@ def _detector(detector: DetectorConfig | str) -> DetectorConfig:
 
 def _tracker(tracker: TrackerConfig | str, parameters: Mapping[str, Setting]) -> TrackerConfig:
     from depotbench.core.errors import InputError
-    from depotbench.eval.trackers.registry import TrackerConfig, tracker_parameters, tracker_type
     from depotbench.eval.trackers.registry import check as check_tracker
+    from depotbench.eval.trackers.registry import tracker_parameters, tracker_type
 
     if isinstance(tracker, str):
         kind = tracker_type(tracker)
@@ -135,7 +167,7 @@ def _settings(settings: Mapping[str, Setting]) -> tuple[tuple[str, int | float |
 
 
 def _camera(camera: CameraOverride | Intrinsics | str | Path | None) -> CameraOverride | None:
-    from depotbench.core.camera import CameraOverride, CameraSource, Intrinsics
+    from depotbench.core.camera import CameraSource
     from depotbench.core.errors import InputError
     from depotbench.sim.camera import read_camera_file
 
@@ -180,9 +212,13 @@ def run(
     sensor's calibration, else the ROS default, and a warning says which
     (``logging.getLogger("depotbench")``); metrics.json's ``camera`` records what was used."""
     from depotbench.eval.run.cache import StageCache
-    from depotbench.eval.run.harness import RunJob, default_detector, run_job
-    from depotbench.sim.sequence import Sequence
+    from depotbench.eval.run.harness import RunJob, default_detector, run_job, slam_config
 
+    # The options are checked before the sequence is opened: a misspelt strategy is named
+    # as such, not hidden behind what the folder lacks.
+    checked_settings = _settings(settings or {})
+    checked_tracker = _tracker(tracker, parameters or {})
+    slam_config(strategy, dict(checked_settings), checked_tracker.kind)
     root = sequence.root if isinstance(sequence, Sequence) else Path(sequence)
     if camera is None and isinstance(sequence, Sequence):
         camera = sequence.camera_given
@@ -191,8 +227,8 @@ def run(
         root,
         strategy,
         _detector(detector) if detector is not None else default_detector(root, strategy, given),
-        _settings(settings or {}),
-        _tracker(tracker, parameters or {}),
+        checked_settings,
+        checked_tracker,
         dense_map,
         given,
     )
@@ -201,24 +237,6 @@ def run(
         job, None if out is None else Path(out), progress=progress, overwrite=overwrite, cache=stages
     )
     return finished.record
-
-
-@dataclass(frozen=True)
-class SweepResult:
-    """A sweep done (or resumed): its runs, what was best, and where its files are."""
-
-    folder: Path
-    records: list[RunRecord]
-    """Every run of the matrix, failed ones included (``failure`` says why)."""
-    runs: list[ScoredRun]
-    """The same runs with rho against their none run and the fraction of frames lost."""
-    best: dict[str, Any]
-    """The best configuration of each family (summary.json's ``best``)."""
-    summary: dict[str, Any]
-    """All of summary.json: every configuration's statistics over its seeds, the Pareto front."""
-    written: int
-    """Runs done now (the others were in the folder already)."""
-    plots: list[Path]
 
 
 def sweep(
@@ -234,11 +252,14 @@ def sweep(
 ) -> SweepResult:
     """A sweep spec's matrix run into the folder ``out`` (resumed where it holds rows;
     ``retry_failed``: failed ones run again): results.sqlite, results.csv, summary.json and
-    plots, as ``depotbench sweep`` leaves them."""
+    plots, as ``depotbench sweep`` leaves them. ``workers`` > 1 from a script: its code under
+    ``if __name__ == "__main__":`` (each spawned worker imports the script again)."""
     from depotbench.core.examples import Kind, find
     from depotbench.eval.metrics.figures import with_derived
     from depotbench.eval.sweep.execute import sweep_folder
 
+    if backend == "local":
+        require_main_guard("workers", workers)
     out = Path(out)
     outcome = sweep_folder(
         find(spec, Kind.SWEEP),  # a file, or a shipped spec's name ("smallest")
@@ -250,13 +271,11 @@ def sweep(
         address=address,
         retry_failed=retry_failed,
     )
-    scored = with_derived(outcome.records)
     return SweepResult(
         out,
         outcome.records,
-        scored,
-        outcome.summary["best"],
-        outcome.summary,
+        with_derived(outcome.records),
+        SweepSummary.of(outcome.summary),
         outcome.written,
         outcome.plots,
     )
@@ -279,20 +298,25 @@ def check(
     from depotbench.core.examples import Kind, find
     from depotbench.eval.gates.check import check_folder, open_gates
 
+    if backend == "local":
+        require_main_guard("workers", workers)
     opened = open_gates(find(gates, Kind.GATES), None if baseline is None else Path(baseline))
     return check_folder(opened, Path(out), workers, backend, address, retry_failed)
 
 
-def compare(base: str | Path, *others: str | Path) -> dict[Path, SetComparison]:
+def compare(base: str | Path, *others: str | Path) -> Comparisons:
     """Each folder of ``others`` (a sweep's or a check's) against ``base``, run by run paired by
-    sequence: per figure the change, its 95 % interval and whether it is significant."""
+    sequence: per figure the change, its 95 % interval and whether it is significant; a
+    mapping of each folder to its ``SetComparison``, with ``to_pandas()``."""
     from depotbench.core.errors import InputError
     from depotbench.eval.gates.compare import compare_rows, load_rows
 
     if not others:
         raise InputError("compare needs two folders or more: the base, then what to compare with it")
     rows = load_rows(Path(base))
-    return {Path(other): compare_rows(rows, load_rows(Path(other))) for other in others}
+    return Comparisons(
+        Path(base), {Path(other): compare_rows(rows, load_rows(Path(other))) for other in others}
+    )
 
 
 def report(source: str | Path, out: str | Path, workers: int = 1) -> Path:
@@ -301,6 +325,7 @@ def report(source: str | Path, out: str | Path, workers: int = 1) -> Path:
     ``workers``: processes that track a sweep's featured runs again (from 300 frames in all)."""
     from depotbench.eval.report.write import report_folder
 
+    require_main_guard("workers", workers)
     return report_folder(Path(source), Path(out), workers=workers).page
 
 
@@ -311,9 +336,8 @@ def evaluate(
 ) -> Comparison:
     """ATE and RPE of ``estimate`` against ``reference`` (TUM files or trajectories), associated
     by time and aligned as ``options`` say (SE(3) by default): what ``depotbench eval`` prints."""
-    from depotbench.eval.metrics.evaluate import ComparisonOptions
     from depotbench.eval.metrics.evaluate import compare as compare_trajectories
-    from depotbench.eval.metrics.trajectory import Trajectory, read_tum
+    from depotbench.eval.metrics.trajectory import read_tum
 
     def opened(value: Trajectory | str | Path) -> Trajectory:
         return value if isinstance(value, Trajectory) else read_tum(value)

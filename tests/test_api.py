@@ -1,15 +1,18 @@
-"""The Python API (``import depotbench``): the documented example runs as written, and each
-function gives what the command line gives for the same job, read back from the files the
-command line writes (record.json, results.csv, its exit status) or from evo."""
+"""The Python API (``import depotbench``): the documented examples run as written, saved as
+files, and each function gives what the command line gives for the same job, read back from
+the files the command line writes (record.json, results.csv, its exit status) or from evo."""
 
 from __future__ import annotations
 
 import csv
+import inspect
+import itertools
 import json
 import os
 import re
 import subprocess
 import sys
+import typing
 from pathlib import Path
 
 import pytest
@@ -28,24 +31,31 @@ API_PAGE = ROOT / "docs" / "api.md"
 EXAMPLES = ROOT / "assets" / "examples"
 
 
-def example_code() -> str:
-    blocks = re.findall(r"```python\n(.*?)```", API_PAGE.read_text(encoding="utf-8"), flags=re.S)
-    assert len(blocks) == 1, "docs/api.md holds one example"
-    return blocks[0]
+def python_blocks(page: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S)
 
 
-@pytest.fixture(scope="module")
-def session(tmp_path_factory) -> tuple[Path, str]:
-    """The page's example run as a user runs it: a fresh interpreter in an empty folder."""
-    where = tmp_path_factory.mktemp("api")
-    done = subprocess.run(
-        [sys.executable, "-c", example_code()],
+def run_saved(code: str, where: Path, name: str) -> subprocess.CompletedProcess:
+    """A documented example as a user runs it: saved as a file, run by a fresh interpreter in
+    ``where`` (not ``python -c``: a spawned worker imports a script again, never -c's code)."""
+    script = where / name
+    script.write_text(code, encoding="utf-8")
+    return subprocess.run(
+        [sys.executable, script.name],
         cwd=where,
         capture_output=True,
         text=True,
         env=os.environ | {"MUJOCO_GL": "egl"},
         timeout=600,
     )
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> tuple[Path, str]:
+    """The page's session example, saved as a file and run in an empty folder."""
+    where = tmp_path_factory.mktemp("api")
+    session_code, _tables = python_blocks(API_PAGE)
+    done = run_saved(session_code, where, "session.py")
     assert done.returncode == 0, done.stderr[-3000:]
     return where / "work", done.stdout
 
@@ -56,8 +66,16 @@ def test_the_documented_example_runs_and_says_what_it_did(session):
     assert "gates passed" in out
     assert (work / "report" / "index.html").is_file()
     assert (work / "run-box_rule" / "record.json").is_file()
-    # Each swept run printed once: 2 seeds x (none + prior_flow at 2 values).
+    # Each swept run printed once: 2 seeds x (none + prior_flow at 2 values), its settings typed.
     assert len(re.findall(r"^[12] (none|prior_flow) ", out, flags=re.M)) == 6
+    assert len(re.findall(r"^[12] prior_flow \{'k': [23]\} ", out, flags=re.M)) == 4
+    assert re.search(r"^best of .+: (none|prior_flow k=[23]), mean ATE \d\.\d{4} m$", out, flags=re.M)
+    # The sweep's repr: a few lines (counts, the best per family), not its records.
+    lines = out.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("SweepResult("))
+    shown = list(itertools.takewhile(lambda line: not re.match(r"[12] ", line), lines[first:]))
+    assert 2 <= len(shown) <= 3 and "6 runs (0 failed, 6 done now) over 2 sequences" in shown[0]
+    assert shown[1].startswith("  best ") and shown[-1].endswith(")")
 
 
 def test_a_run_is_the_record_the_command_line_writes(session, tmp_path: Path):
@@ -89,8 +107,15 @@ def test_a_sweep_returns_the_rows_it_stored(session):
         row = stored[record.key]
         assert float(row["ate_rmse_m"]) == pytest.approx(record.ate_rmse_m, rel=1e-12)
         assert row["strategy"] == record.strategy and row["settings"] == record.settings
+        assert record.setting_values == json.loads(row["settings"])  # typed: k is 2, not "2"
+        assert record.knob_values == json.loads(row["knobs"]) and record.knob_values["seed"] == record.seed
     summary = json.loads((work / "sweep" / "summary.json").read_text())
-    assert result.best == summary["best"]
+    assert result.summary.to_dict() == summary
+    assert {family: c.to_dict() for family, c in result.best.items()} == summary["best"]
+    (family, best), *_ = result.best.items()
+    assert isinstance(best, depotbench.Configuration) and best.strategy in ("none", "prior_flow")
+    assert best.stats["ate_rmse_m"].mean == pytest.approx(best["ate_rmse_m"])
+    assert {c.settings.get("k") for c in result.summary.configurations} == {None, 2, 3}
     # The scored runs carry rho against the none run of their sequence, as results.csv does.
     assert [run.record for run in result.runs] == result.records
     for run in result.runs:
@@ -198,3 +223,151 @@ def test_json_on_the_command_line_is_what_the_files_and_the_api_hold(session, tm
         assert len(verdict["results"]) == len(expected.results)
         for shown, result in zip(verdict["results"], expected.results, strict=True):
             assert [b["value"] for b in shown["budgets"]] == [v.value for v in result.verdicts]
+
+
+def test_the_tables_example_runs_saved_after_the_session(session):
+    """The page's second example (the [pandas] extra), saved and run where the session ran."""
+    work, _ = session
+    _session, tables = python_blocks(API_PAGE)
+    done = run_saved(tables, work.parent, "tables.py")
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "success_rate" in done.stdout and "significant" in done.stdout
+
+
+def test_a_sweeps_table_is_results_csv_typed(session):
+    """to_pandas() holds what results.csv holds (read by the csv module), column for column,
+    with figures as floats and settings and knobs spread to columns as the CSV spreads them."""
+    work, _ = session
+    result = depotbench.sweep(work / "sweep.yaml", work / "sweep")
+    frame = result.to_pandas()
+    with open(work / "sweep" / "results.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        stored, header = list(reader), reader.fieldnames
+    assert list(frame.columns) == header
+    assert len(frame) == len(stored) == 6
+    for column in (
+        "ate_rmse_m",
+        "rejection_recall",
+        "rho_percent",
+        "tracked_fraction",
+        "setting.k",
+        "knob.seed",
+    ):
+        assert str(frame[column].dtype) == "float64", column
+    assert str(frame["frames"].dtype) == "Int64" and str(frame["seed"].dtype) == "Int64"
+    by_key = frame.set_index("key")
+    for row in stored:
+        ours = by_key.loc[row["key"]]
+        for column, text in row.items():
+            if column == "key":
+                continue  # the index
+            value = ours[column]
+            if text == "":
+                assert value is None or value != value, column  # NaN or None
+            elif str(frame[column].dtype) in ("float64", "Int64"):
+                assert float(value) == pytest.approx(float(text), rel=1e-12), column
+            elif column not in ("sequence",):  # the CSV names the sequence inside the sweep folder
+                assert str(value) == text, column
+    assert set(frame.loc[frame["strategy"] == "prior_flow", "setting.k"]) == {2.0, 3.0}
+    assert frame.loc[frame["strategy"] == "none", "setting.k"].isna().all()
+
+    configurations = result.summary.to_pandas()
+    assert len(configurations) == len(result.summary.configurations) == 3
+    assert (
+        str(configurations["ate_rmse_m"].dtype) == "float64" and str(configurations["runs"].dtype) == "Int64"
+    )
+    mean = frame[frame["strategy"] == "none"]["ate_rmse_m"].mean()
+    assert configurations.set_index("strategy").loc["none", "ate_rmse_m"] == pytest.approx(mean)
+
+
+def test_a_comparisons_table_is_what_compare_json_prints(session, capsys):
+    work, _ = session
+    found = depotbench.compare(work / "sweep", work / "sweep")
+    assert isinstance(found, depotbench.Comparisons) and list(found) == [work / "sweep"]
+    frame = found.to_pandas()
+    capsys.readouterr()
+    assert main(["compare", str(work / "sweep"), str(work / "sweep"), "--json"]) == 0
+    (printed,) = json.loads(capsys.readouterr().out).values()
+    assert len(frame) == len(printed["comparisons"]) > 0
+    for (_, ours), theirs in zip(frame.iterrows(), printed["comparisons"], strict=True):
+        assert ours["folder"] == str(work / "sweep")
+        for name, value in theirs.items():
+            if value is None:
+                assert ours[name] != ours[name], name  # NaN
+            else:
+                assert ours[name] == value, name
+    assert str(frame["change"].dtype) == "float64" and str(frame["pairs"].dtype) == "Int64"
+    assert repr(found).count("\n") == 1 and "0 significant" in repr(found)
+
+
+def test_to_pandas_without_pandas_names_the_extra(session, monkeypatch):
+    work, _ = session
+    result = depotbench.sweep(work / "sweep.yaml", work / "sweep")
+    monkeypatch.setitem(sys.modules, "pandas", None)  # import pandas raises ImportError
+    with pytest.raises(ImportError) as raised:
+        result.to_pandas()
+    assert isinstance(raised.value, depotbench.MissingExtra)
+    assert str(raised.value) == "to_pandas needs pandas: pip install 'depotbench[pandas]'"
+    with pytest.raises(depotbench.MissingExtra):
+        depotbench.compare(work / "sweep", work / "sweep").to_pandas()
+
+
+def test_every_public_signature_resolves():
+    """typing.get_type_hints on each public function and class of ``import depotbench`` (it
+    raised NameError for types named only under TYPE_CHECKING), and on their methods but
+    to_pandas, whose DataFrame would import pandas for every user of the API."""
+    for name in depotbench.__all__:
+        value = getattr(depotbench, name)
+        if not callable(value):
+            continue
+        hints = typing.get_type_hints(value)
+        if inspect.isfunction(value):
+            assert "return" in hints, name
+            assert set(inspect.signature(value).parameters) <= set(hints), name
+        if inspect.isclass(value):
+            for method_name, method in vars(value).items():
+                if inspect.isfunction(method) and method_name != "to_pandas":
+                    typing.get_type_hints(method)
+    assert typing.get_type_hints(depotbench.run)["return"] is RunRecord
+    assert typing.get_type_hints(depotbench.sweep)["return"] is depotbench.SweepResult
+    assert (ROOT / "depotbench" / "py.typed").is_file()
+
+
+GUARDLESS = """import depotbench
+
+depotbench.sweep("sweep.yaml", "out", workers=2)
+"""
+
+
+def test_workers_from_a_scripts_top_level_are_refused_in_one_line(tmp_path: Path):
+    """A script starting workers outside ``if __name__ == "__main__":`` would run again in each
+    spawned worker (FileExistsError, then BrokenProcessPool): refused before anything is
+    written, naming the line. Under the guard the same call goes on (and finds no spec)."""
+    done = run_saved(GUARDLESS, tmp_path, "unguarded.py")
+    assert done.returncode == 1
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith("depotbench.core.errors.InputError: workers=2: unguarded.py, line 3: ")
+    assert 'if __name__ == "__main__":' in last
+    assert not (tmp_path / "out").exists()
+
+    guarded = "import depotbench\n\nif __name__ == '__main__':\n    " + GUARDLESS.splitlines()[-1] + "\n"
+    done = run_saved(guarded, tmp_path, "guarded.py")
+    assert done.returncode == 1 and "sweep.yaml" in done.stderr.strip().splitlines()[-1]
+    assert "__main__" not in done.stderr.strip().splitlines()[-1]
+    # Called through a function from the top level: the top-level line is named. One worker
+    # starts no process: nothing to say.
+    called = "import depotbench\n\ndef go():\n    depotbench.sweep('sweep.yaml', 'out', workers=2)\n\n"
+    done = run_saved(called + "go()\n", tmp_path, "called.py")
+    assert "line 6: " in done.stderr.strip().splitlines()[-1]
+    done = run_saved(GUARDLESS.replace("workers=2", "workers=1"), tmp_path, "one.py")
+    assert "__main__" not in done.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_the_readmes_example_runs_saved(tmp_path: Path):
+    """README's "From Python" example as written (60 frames rendered and tracked twice)."""
+    (code,) = [block for block in python_blocks(ROOT / "README.md") if "depotbench.generate(" in block]
+    done = run_saved(code, tmp_path, "readme.py")
+    assert done.returncode == 0, done.stderr[-3000:]
+    bare, boxed, recall = (float(x) for x in done.stdout.split())
+    assert bare > 0 and boxed > 0 and 0 <= recall <= 1
