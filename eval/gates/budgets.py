@@ -344,19 +344,30 @@ def derived_rows(
     records: list[RunRecord], reference: str, reference_settings: dict[str, float] | None = None
 ) -> list[ScoredRun]:
     """The runs with rho, the fraction of frames not tracked and the time ratio: a run's time
-    over the one run of the ``reference`` strategy with exactly ``reference_settings`` on the
-    same sequence, tracker and detector."""
+    per frame over the one run of the ``reference`` strategy with exactly
+    ``reference_settings`` on the same sequence, tracker and detector. The time is the
+    tracker's own (``track_ms_mean``) where the run has it, else its wall time per frame
+    (``time_basis``), taken alike of both runs: a ratio of two kinds of time means nothing."""
     wanted = reference_settings or {}
-    times: dict[tuple[str, str, str], float | None] = {}
+    references: dict[tuple[str, str, str], RunRecord] = {}
     for r in records:
         if r.strategy == reference and _same_settings(r, wanted):
-            times[(r.sequence, r.tracker, r.detector)] = r.track_ms_mean
+            references[(r.sequence, r.tracker, r.detector)] = r
     out = []
     for run in with_derived(records):
-        base = times.get((run.sequence, run.tracker, run.detector))
-        ratio = run.track_ms_mean / base if base and run.track_ms_mean is not None else None
+        base = references.get((run.sequence, run.tracker, run.detector))
+        basis = time_basis(run.record)
+        mine, theirs = run.get(basis), None if base is None else base.get(basis)
+        ratio = mine / theirs if theirs and mine is not None else None
         out.append(replace(run, time_ratio=ratio))
     return out
+
+
+def time_basis(row: RunRecord) -> str:
+    """Which time per frame a row's time ratio compares: the tracker's own where it has one
+    (the built-in tracker, ORB-SLAM3, a program that writes ``{times}``), else the wall time
+    per frame the bench measured around the program."""
+    return "track_ms_mean" if row.track_ms_mean is not None else "wall_ms_per_frame"
 
 
 def _within(value: float | None, bound: Bound) -> bool:
@@ -493,7 +504,10 @@ def _versus_baseline(
 def _note(row: ScoredRun, metric: str, reference: str) -> str:
     if row.get("failure"):
         return f"(the run failed: {row['failure']})"
-    note = f"against {reference}" if metric == "time_ratio" else ""
+    note = ""
+    if metric == "time_ratio":
+        wall = time_basis(row.record) == "wall_ms_per_frame"
+        note = f"against {reference}{', wall time per frame' if wall else ''}"
     return f"{note} {_compilation_note([row], metric)}".strip()
 
 

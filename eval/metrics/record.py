@@ -14,12 +14,13 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-RECORD_VERSION = 7
+RECORD_VERSION = 8
 """2: the sequence fingerprint and relocalised frames; 3: an external tracker's parameters,
 a failed run's reason, peak memory; 4: seed, suite knobs and the whole detector
 configuration, settings and parameters as typed JSON, sequences relative to the sweep;
 5: the median ATE; 6: the dense map's figures; 7: the tracker fingerprint (and keys that
-cover every file a command names), and times that exclude compiling the kernels."""
+cover every file a command names), and times that exclude compiling the kernels; 8: wall
+and CPU time per frame (an external program's time budgets)."""
 
 UNKNOWN_FINGERPRINT = "unknown"
 """The tracker fingerprint of a row written before record version 7: one version of its own,
@@ -129,6 +130,8 @@ class RunRecord:
     rejection_recall: float | None
     moving_inliers: int | None
     track_ms_mean: float | None
+    """The tracker's own time per frame: the built-in one's, ORB-SLAM3's, or what a program
+    wrote to ``{times}``; None for a program that wrote none."""
     track_ms_median: float | None
     detector_ms_mean: float | None
     map_f_score: float | None
@@ -151,6 +154,13 @@ class RunRecord:
     program and named files, vocabulary, settings template, parameters): rows of one tracker
     label with two fingerprints came from two versions of its program. None in a row written
     before record version 7 (read as ``UNKNOWN_FINGERPRINT``)."""
+    wall_ms_per_frame: float | None = None
+    """The run's wall time over its frames, start-up included: what any tracker is timed by
+    from outside (a program's loading of its vocabulary counts too). None in a failed row and
+    in one written before record version 8."""
+    cpu_ms_per_frame: float | None = None
+    """An external program's user plus system CPU time (with the processes it waited for)
+    over its frames; None for the built-in tracker, in a failed row and before version 8."""
     record_version: int = RECORD_VERSION
 
     @property
@@ -230,6 +240,8 @@ class RunRecord:
             ghost_fraction=dense.get("ghost_fraction"),
             wall_time_s=metrics["wall_time_s"],
             peak_memory_mb=metrics.get("peak_memory_mb"),
+            wall_ms_per_frame=_per_frame_ms(metrics["wall_time_s"], metrics["frames"]),
+            cpu_ms_per_frame=_per_frame_ms(metrics.get("cpu_time_s"), metrics["frames"]),
             bench_version=bench_version,
             signature=signature,
         )
@@ -296,6 +308,10 @@ class RunRecord:
         return name in _FIELD_SET
 
 
+def _per_frame_ms(seconds: float | None, frames: int) -> float | None:
+    return None if seconds is None or frames <= 0 else 1000.0 * seconds / frames
+
+
 FIELDS = tuple(f.name for f in fields(RunRecord))
 _FIELD_SET = frozenset(FIELDS)
 ADDED_FIELDS = {
@@ -305,10 +321,20 @@ ADDED_FIELDS = {
     "map_completeness": 6,
     "ghost_fraction": 6,
     "tracker_fingerprint": 7,
+    "wall_ms_per_frame": 8,
+    "cpu_ms_per_frame": 8,
 }
 """Columns a later record version added, with that version: rows and stores written before
 them read with them empty (a baseline kept from version 4 still serves compare and check)."""
-TIMING_FIELDS = ("track_ms_mean", "track_ms_median", "detector_ms_mean", "wall_time_s", "peak_memory_mb")
+TIMING_FIELDS = (
+    "track_ms_mean",
+    "track_ms_median",
+    "detector_ms_mean",
+    "wall_time_s",
+    "peak_memory_mb",
+    "wall_ms_per_frame",
+    "cpu_ms_per_frame",
+)
 DETERMINISTIC_FIELDS = tuple(f for f in FIELDS if f not in TIMING_FIELDS)
 TIMED_WITHOUT_COMPILING = 7
 """The first record version whose times exclude compiling the kernels (``kernels.ready``

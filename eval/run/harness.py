@@ -602,6 +602,7 @@ def _metrics(
         "stage_time": stage,
         "wall_time_s": run.total_s,
         "peak_memory_mb": run.peak_memory_mb,
+        "cpu_time_s": run.cpu_s,
         # Compiled (or loaded) before the first timed frame, once per process: kept apart so
         # that no per-frame time includes it (14 s compiling, 0.5 s loading).
         "kernels_s": kernels.ready() if tracker.type.per_keypoint else None,

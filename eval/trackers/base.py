@@ -56,6 +56,9 @@ class TrackerRun:
     """An external program's keypoint decisions (``{keypoints}``), scored like ``results``."""
     peak_memory_mb: float | None = None
     """The peak resident memory of an external program and what it waited for."""
+    cpu_s: float | None = None
+    """The user plus system CPU time of an external program and what it waited for, start-up
+    included; None for the built-in tracker (its ``track_ms`` is timed frame by frame)."""
     log: str = ""
     """The end of an external program's standard output and error (for the run folder)."""
     map_points: np.ndarray | None = None

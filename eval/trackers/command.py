@@ -15,11 +15,13 @@ shell. Placeholders stand for whole words (arguments):
                     the exact ground truth like the built-in tracker's
 ``{map}``           where the program may write its map, a PLY point cloud in the frame
                     of its trajectory, scored like the built-in dense map (``--map``)
+``{times}``         where the program may write the time each frame took (its track_ms)
 ``{parameters}``    a JSON file of the run's parameter values
 ``{NAME}``          the value of parameter NAME
 
 e.g. ``rgbd_tum {vocabulary} {settings} {sequence} {associations}``. Frames with
-a pose in the trajectory count as tracked; the program reports no per-frame time.
+a pose in the trajectory count as tracked. The bench times the program whole (wall and
+CPU time); a time per frame is the program's to write (``{times}``).
 docs/external-trackers.md is the whole contract, for the program's authors.
 
 A placeholder must be a whole word, with no format spec or conversion (``{sequence:d}``
@@ -69,7 +71,13 @@ from depotbench.eval.trackers.evidence import collect
 from depotbench.eval.trackers.external import run_child, write_settings
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.placeholders import PLACEHOLDERS
-from depotbench.eval.trackers.protocol import read_keypoints, read_map, read_trajectory, write_detections
+from depotbench.eval.trackers.protocol import (
+    read_keypoints,
+    read_map,
+    read_times,
+    read_trajectory,
+    write_detections,
+)
 from depotbench.eval.trackers.reaper import Scratch
 from depotbench.eval.trackers.sequence_view import SequenceGuard
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
@@ -342,6 +350,8 @@ class CommandTracker:
                     decisions = read_keypoints(keypoints, sequence) if os.path.lexists(keypoints) else None
                     drawn = Path(values["map"])
                     cloud = read_map(drawn) if os.path.lexists(drawn) else None
+                    timed = Path(values["times"])
+                    times = read_times(timed, sequence) if os.path.lexists(timed) else None
                 except InputError as exc:  # what the program wrote cannot be read: its failure, named
                     raise TrackerError(f"{what}: {_relative(exc, scratch.path)}", child.log) from None
             except TrackerError as exc:  # kept now: the scratch folder goes with the run
@@ -351,8 +361,10 @@ class CommandTracker:
         run = _tracker_run(frames, poses, child.wall_s)
         return dataclasses.replace(
             run,
+            track_ms=run.track_ms if times is None else times,
             decisions=decisions,
             peak_memory_mb=child.peak_memory_mb,
+            cpu_s=child.cpu_s,
             log=child.log,
             map_points=None if cloud is None else cloud[0],
             map_colours=None if cloud is None else cloud[1],
@@ -393,6 +405,7 @@ class CommandTracker:
             "detections": str(detections),
             "keypoints": str(scratch / "keypoints.txt"),
             "map": str(scratch / "map.ply"),
+            "times": str(scratch / "times.txt"),
             "parameters": str(parameters),
             "vocabulary": "",
         }

@@ -45,11 +45,14 @@ def write_settings(sequence: Sequence, path: Path) -> Path:
 
 @dataclass(frozen=True)
 class ChildResult:
-    """How a program ran: its wall time, peak memory and the end of what it printed."""
+    """How a program ran: its wall time, peak memory, CPU time and the end of what it printed."""
 
     wall_s: float
     peak_memory_mb: float | None
     log: str
+    cpu_s: float | None = None
+    """User plus system CPU time of the program and of the processes it waited for (what
+    ``wait4`` reports), None where the system has no ``wait4``."""
 
 
 def run_child(
@@ -112,7 +115,8 @@ def run_child(
     except BaseException:
         _kill(child, group)
         raise
-    peak_mb = _kill(child, group)  # it has exited: this ends what it left running, which may hold a pipe open
+    # It has exited: this ends what it left running, which may hold a pipe open.
+    peak_mb, cpu_s = _kill(child, group)
     streams = (child.stderr, child.stdout)
     escaped = _outlived(readers, streams, what)
     for reader, stream in zip(readers, streams, strict=True):
@@ -130,7 +134,7 @@ def run_child(
     took = time.perf_counter() - started
     peak = "unknown" if peak_mb is None else f"{peak_mb:.0f} MB"
     LOG.log(DETAIL, "%s: exited 0 after %.2f s (peak memory %s)", what, took, peak)
-    return ChildResult(took, peak_mb, log())
+    return ChildResult(took, peak_mb, log(), cpu_s)
 
 
 def _outlived(readers: list[threading.Thread], streams: tuple, what: str) -> str | None:
@@ -224,20 +228,20 @@ def _exited(child: subprocess.Popen, seconds: float) -> bool:
         time.sleep(0.02)
 
 
-def _kill(child: subprocess.Popen, group: int) -> float | None:
-    """End the group and reap the program; its peak resident memory in MB (with what it
-    waited for), from ``wait4``, where the system has it."""
+def _kill(child: subprocess.Popen, group: int) -> tuple[float | None, float | None]:
+    """End the group and reap the program; its peak resident memory in MB and its user plus
+    system CPU seconds (each with what it waited for), from ``wait4``, where the system has it."""
     kill_group(group)
     if not hasattr(os, "wait4"):
         child.wait()
-        return None
+        return None, None
     try:
         _, status, usage = os.wait4(child.pid, 0)
     except ChildProcessError:  # reaped already
         child.wait()
-        return None
+        return None, None
     child.returncode = os.waitstatus_to_exitcode(status)
-    return usage.ru_maxrss / 1024.0  # KiB on Linux
+    return usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime  # maxrss: KiB on Linux
 
 
 LOG_BYTES = 1 << 20

@@ -205,6 +205,7 @@ class Orbslam3Tracker:
             keyframes=keyframes,
             total_s=child.wall_s,
             peak_memory_mb=child.peak_memory_mb,
+            cpu_s=child.cpu_s,
             log=child.log,
             map_points=points,
             map_colours=None if points is None else np.full((len(points), 3), 160, np.uint8),

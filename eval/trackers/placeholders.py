@@ -16,5 +16,6 @@ PLACEHOLDERS = (
     "keypoints",
     "parameters",
     "map",
+    "times",
 )
 """Each reaches the program as one whole word and as ``DEPOTBENCH_`` + its upper case."""

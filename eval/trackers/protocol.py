@@ -1,8 +1,9 @@
 """The files an external tracker reads and writes besides its trajectory
-(docs/external-trackers.md): the detections the bench hands it, and the keypoint
-decisions it may hand back to be scored against the exact ground truth.
+(docs/external-trackers.md): the detections the bench hands it, the keypoint
+decisions it may hand back to be scored against the exact ground truth, and the time
+it may say each frame took.
 
-Both are plain text a C++ program reads or writes with ``sscanf`` and ``<<``: one box or
+All are plain text a C++ program reads or writes with ``sscanf`` and ``<<``: one box or
 one keypoint a line, the frame named by its RGB timestamp as in ``associations.txt``.
 """
 
@@ -27,6 +28,11 @@ MAX_KEYPOINTS_BYTES = 1024 * MIB
 """A keypoint file: 300 frames of 1000 keypoints take about 9 MB, so 1 GiB is 30,000
 frames of them; a larger file is refused before it is read."""
 MAX_DETECTIONS_BYTES = 256 * MIB
+TIMES_HEADER = "# depotbench times 1\n# timestamp ms\n"
+MAX_TIMES_BYTES = 32 * MIB
+"""A times file: a line takes about 30 bytes, so 32 MiB holds a million frames."""
+MAX_FRAME_MS = 3_600_000.0
+"""A frame's time may be up to an hour: more is a unit mistake (microseconds, say)."""
 TIMESTAMP_TOLERANCE_S = 1e-3
 """How far a line's timestamp may be from its frame's (trajectories are matched alike)."""
 
@@ -171,20 +177,20 @@ def _count_keypoints(path: Path, index: tuple[np.ndarray, np.ndarray], frames: i
     return counts
 
 
-def _check_header(path: Path, data: bytes) -> None:
+def _check_header(
+    path: Path, data: bytes, header: str = KEYPOINTS_HEADER, what: str = "keypoint file"
+) -> None:
     """The first line names the format and its version: a file of another version (or
     none) read as this one would be scored wrong without a word."""
     end = data.find(b"\n")
     first = data[: end if end >= 0 else len(data)].decode("utf-8", "replace").strip()
-    expected = KEYPOINTS_HEADER.splitlines()[0]
+    expected = header.splitlines()[0]
     if first == expected:
         return
     words = first.split()
-    if words[:3] == ["#", "depotbench", "keypoints"]:
+    if words[:3] == expected.split()[:3]:
         version = " ".join(words[3:]) or "(none)"
-        raise ProtocolError(
-            path, 1, f"keypoint file version {version} is unknown: this bench reads {expected!r}"
-        )
+        raise ProtocolError(path, 1, f"{what} version {version} is unknown: this bench reads {expected!r}")
     raise ProtocolError(path, 1, f"the first line must be {expected!r}, not {first[:60]!r}")
 
 
@@ -248,6 +254,80 @@ def _keypoint_block(
 
 MAX_REASONS = 65535
 """Different reason words in one file: a reason's code is 2 bytes."""
+
+
+def write_times(path: Path, timestamps_s: list[float], times_ms: list[float]) -> Path:
+    """Per-frame times as the protocol's file (what a Python tracker writes): the header,
+    then a frame's RGB timestamp and the milliseconds it took, one frame a line."""
+    lines = [TIMES_HEADER]
+    lines += [f"{timestamp_name(t)} {float(ms)!r}\n" for t, ms in zip(timestamps_s, times_ms, strict=True)]
+    path.write_text("".join(lines), encoding="utf-8")
+    return path
+
+
+def read_times(path: Path, sequence: Sequence) -> np.ndarray:
+    """The time (ms) a program says each frame took, NaN for a frame it gave none, each line
+    checked: the header line first, then a timestamp of a frame (within
+    ``TIMESTAMP_TOLERANCE_S``), one line a frame, and a finite time in [0, ``MAX_FRAME_MS``]."""
+    index = _frame_index(sequence)
+    line_of_frame = np.zeros(len(sequence), np.int64)
+    times = np.full(len(sequence), np.nan)
+    header = False
+    try:
+        for fields in blocks(path, MAX_TIMES_BYTES, "times file"):
+            if not header:
+                _check_header(path, fields.data, TIMES_HEADER, "times file")
+                header = True
+            if len(fields):
+                _times_block(fields, index, line_of_frame, times)
+    except FileNotFoundError:
+        raise ProtocolError(path, None, "the times file is missing") from None
+    except ProtocolError:
+        raise
+    except FileError as exc:
+        raise ProtocolError(path, exc.line, exc.problem) from None
+    if not header:
+        raise ProtocolError(
+            path, None, f"is empty: a times file begins with {TIMES_HEADER.splitlines()[0]!r}"
+        )
+    return times
+
+
+def _times_block(
+    fields: Fields, index: tuple[np.ndarray, np.ndarray], line_of_frame: np.ndarray, times: np.ndarray
+) -> None:
+    bad = np.flatnonzero(fields.counts != 2)
+    if bad.size:
+        raise fields.fail(bad[0], f"expected 2 fields (timestamp ms), found {fields.counts[bad[0]]}")
+    frames = _frames_of(fields, index)
+    ms = fields.numbers(1, "time")
+    with np.errstate(invalid="ignore"):
+        wrong = ~((ms >= 0.0) & (ms <= MAX_FRAME_MS))
+    if wrong.any():
+        row = int(np.flatnonzero(wrong)[0])
+        text = fields.text(1)[row].decode("utf-8", "replace")
+        raise fields.fail(row, f"time {text} ms is not a finite number in [0, {MAX_FRAME_MS:.0f}]")
+    _one_line_a_frame(fields, frames, line_of_frame, "time")
+    times[frames] = ms
+
+
+def _one_line_a_frame(fields: Fields, frames: np.ndarray, line_of_frame: np.ndarray, what: str) -> None:
+    """Refuse a line for a frame that has one already (in an earlier block, or earlier in
+    this one), naming both lines; then note this block's lines as their frames'."""
+    earlier = line_of_frame[frames].copy()
+    order = np.argsort(frames, kind="stable")
+    same = frames[order[1:]] == frames[order[:-1]]
+    later, before = order[1:][same], order[:-1][same]
+    earlier[later] = np.where(earlier[later] > 0, earlier[later], fields.lines[before])
+    if (earlier > 0).any():
+        row = int(np.flatnonzero(earlier > 0)[0])
+        text = fields.text(0)[row].decode("utf-8", "replace")
+        raise fields.fail(
+            row,
+            f"timestamp {text} is frame {int(frames[row])}'s again, whose {what} is on line "
+            f"{int(earlier[row])} (one {what} a frame)",
+        )
+    line_of_frame[frames] = fields.lines
 
 
 def _frame_index(sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
@@ -347,21 +427,7 @@ def _trajectory_block(
         if wrong.any():
             row = int(np.flatnonzero(wrong)[0])
             raise fields.fail(row, problem(row))
-    # A frame's earlier line: from an earlier block, or the one before it in this block.
-    earlier = line_of_frame[frames].copy()
-    order = np.argsort(frames, kind="stable")
-    same = frames[order[1:]] == frames[order[:-1]]
-    later, before = order[1:][same], order[:-1][same]
-    earlier[later] = np.where(earlier[later] > 0, earlier[later], fields.lines[before])
-    if (earlier > 0).any():
-        row = int(np.flatnonzero(earlier > 0)[0])
-        text = fields.text(0)[row].decode("utf-8", "replace")
-        raise fields.fail(
-            row,
-            f"timestamp {text} is frame {int(frames[row])}'s again, whose pose is on line "
-            f"{int(earlier[row])} (one pose a frame)",
-        )
-    line_of_frame[frames] = fields.lines
+    _one_line_a_frame(fields, frames, line_of_frame, "pose")
     quats = values[:, 3:] / norms[:, None]
     poses[frames, :3, :3] = Rotation.from_quat(quats).as_matrix()
     poses[frames, :3, 3] = values[:, :3]
