@@ -86,7 +86,9 @@ class KeypointDecisions:
     """Per frame, the keypoints a tracker extracted and whether it kept each."""
 
     keypoints_px: tuple[np.ndarray, ...]
-    """Per frame, (N, 2) pixel positions (x right, y down; pixel centres at integers)."""
+    """Per frame, (N, 2) pixel positions (x right, y down; pixel centres at integers), as
+    float32: a step of 0.001 px at 8192 px, finer than any detector, and half of float64's
+    200 MB for the 12.7M keypoints of a 330 MB file."""
     kept: tuple[np.ndarray, ...]
     reason_codes: tuple[np.ndarray, ...]
     """Per frame, each keypoint's reason as an index into ``reason_names``: a code of 2
@@ -136,7 +138,7 @@ def read_keypoints(path: Path, sequence: Sequence) -> KeypointDecisions:
     index = _frame_index(sequence)
     try:
         counts = _count_keypoints(path, index, len(sequence))
-        points = [np.empty((n, 2)) for n in counts.tolist()]
+        points = [np.empty((n, 2), np.float32) for n in counts.tolist()]
         kept = [np.empty(n, bool) for n in counts.tolist()]
         codes = [np.empty(n, np.uint16) for n in counts.tolist()]
         filled = np.zeros(len(sequence), np.int64)
