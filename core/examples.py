@@ -55,7 +55,6 @@ SHELVES: tuple[Shelf, ...] = (
     Shelf("depotbench.assets", "gates", "*.yaml"),
     Shelf("depotbench.scenes", "suites", "*.yaml"),  # the scenes' suites: data only, no code imported
     Shelf("depotbench.assets", "examples/external", "*.py"),
-    Shelf("depotbench.assets", "examples/external", "*.yaml"),
     Shelf("depotbench.assets", "examples", "*.txt"),
 )
 

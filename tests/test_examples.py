@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -16,7 +19,6 @@ from depotbench.eval.validate import kind_of
 from depotbench.scenes import library
 
 from tests.conftest import REPO
-from tests.test_package import _run, installed  # noqa: F401, F811 (the wheel's venv, a fixture)
 
 SHELVES = {
     "assets/sweeps": "*.yaml",
@@ -74,6 +76,24 @@ def test_names_are_unique_and_no_suite_shadows_a_library_scenario():
     assert not [s for s in stems if "." in s]  # a name with a suffix would be read as a path
     suites = {e.name for e in examples().values() if e.kind is Kind.SUITE}
     assert suites and not suites & set(library.names())  # generate takes both kinds by name
+
+
+def test_every_shelf_ships_in_the_wheel():
+    """A shelf the wheel leaves out would list nothing after pip install (pyproject's package data)."""
+    import tomllib
+
+    from depotbench.core.examples import SHELVES
+
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    data, packages = config["package-data"], config["packages"]
+    for shelf in SHELVES:
+        folder = f"{shelf.package}.{shelf.folder.replace('/', '.')}"  # a data folder listed as a package
+        shipped = (
+            f"{shelf.folder}/{shelf.pattern}" in data.get(shelf.package, [])
+            or shelf.pattern in data.get(folder, [])
+            or (shelf.pattern == "*.py" and folder in packages)  # modules of a listed package
+        )
+        assert shipped, shelf
 
 
 def test_sweep_and_check_find_a_shipped_spec_by_name(capsys, tmp_path: Path):
@@ -211,10 +231,11 @@ def test_companions_are_the_relative_files_beside_a_spec(tmp_path: Path):
 
 
 @pytest.mark.slow
-def test_from_the_wheel_examples_copy_and_names_work(installed: Path, tmp_path: Path):  # noqa: F811
+def test_from_the_wheel_examples_copy_and_names_work(tmp_path: Path):
     """A user with the wheel alone (a fresh uv venv, its declared dependencies only): the
     shipped spec and gate file by name and a copy of the spec validate, and the copied
     example tracker is a program."""
+    installed = _wheel_venv(tmp_path / "wheel")
     copied = _run(installed, tmp_path, "depotbench", "examples", "copy", "smallest", "mine")
     assert copied.returncode == 0, copied.stderr
     by_name = _run(
@@ -241,3 +262,28 @@ def test_the_python_api_takes_names_too(tmp_path: Path):
     with pytest.raises(InputError, match="taken"):  # found and validated, then the folder refused
         depotbench.sweep("smallest", taken)
     assert not (tmp_path / "s").exists() and not (tmp_path / "c").exists()
+
+
+def _wheel_venv(root: Path) -> Path:
+    """The checkout's wheel in a fresh uv virtualenv with its declared dependencies only."""
+    uv = Path(sys.executable).parent / "uv"
+    uv_ = str(uv) if uv.exists() else shutil.which("uv")
+    assert uv_ is not None, "uv builds and installs the wheel (make installs it into the venv)"
+    source = root / "source"  # setuptools leaves build/ and *.egg-info where it builds
+    skip = shutil.ignore_patterns(".git", ".venv", "build", "runs", "*.egg-info", "__pycache__", ".*_cache")
+    shutil.copytree(REPO, source, ignore=skip)
+    subprocess.run([uv_, "build", "--wheel", "--out-dir", str(root / "dist"), str(source)], check=True,
+                   capture_output=True)  # fmt: skip
+    (wheel,) = (root / "dist").glob("depotbench-*.whl")
+    venv = root / "venv"
+    subprocess.run([uv_, "venv", "--python", sys.executable, str(venv)], check=True, capture_output=True)
+    python = str(venv / "bin" / "python")
+    subprocess.run([uv_, "pip", "install", "--python", python, str(wheel)], check=True, capture_output=True)
+    return venv
+
+
+def _run(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["MUJOCO_GL"] = os.environ.get("MUJOCO_GL", "egl")
+    command = [str(venv / "bin" / args[0]), *args[1:]]
+    return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
