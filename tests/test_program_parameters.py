@@ -115,6 +115,15 @@ def test_variants_hold_text_and_booleans_and_a_default_boolean_is_not_one(sequen
         ),
         ("parameters:\n  timed:\n    mode: {grid: [fast, .nan]}\n", "grid.1: give a finite number (got nan)"),
         ("parameters:\n  timed:\n    mode: {grid: []}\n", "parameters.timed.mode.grid"),
+        # A bad range is the range's error, not 'grid: Field required' (read as a grid).
+        (
+            "parameters:\n  timed:\n    sleep_ms: {range: [3, 1, 1]}\n",
+            "parameters.timed.sleep_ms.range: range is [start, stop, step] with start <= stop",
+        ),
+        (
+            "parameters:\n  timed:\n    sleep_ms: {ragne: [1, 3, 1]}\n",
+            "sleep_ms: give one of grid:, range: or",
+        ),
     ],
 )
 def test_a_bad_grid_is_one_line_naming_its_place(sequence: Path, tmp_path: Path, yaml: str, expected: str):

@@ -30,7 +30,7 @@ import math
 import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from depotbench.core.errors import InputError
@@ -57,7 +57,24 @@ from pydantic import BeforeValidator, Field, field_validator, model_validator
 MAX_JOBS = 100_000
 
 
-class Grid(Strict):
+class _Axis(Strict):
+    """One axis of a sweep, told from the other kinds by its one key. A mapping without it
+    is refused before its fields are read: its error is then shallower than those of the
+    kind whose key it has, which the union's error reporting keeps (a bad ``range:`` read
+    as a Grid said 'grid: Field required')."""
+
+    _key: ClassVar[str]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _has_key(cls, data: Any) -> Any:
+        if isinstance(data, dict) and cls._key not in data:
+            raise ValueError("give one of grid:, range: or random:")
+        return data
+
+
+class Grid(_Axis):
+    _key = "grid"
     grid: list[float] = Field(min_length=1, max_length=10_000)
 
 
@@ -77,10 +94,11 @@ ParameterValue = Annotated[bool | int | float | str, BeforeValidator(_scalar)]
 read as the number 1 (pydantic's lax mode takes a boolean for a number)."""
 
 
-class ParameterGrid(Strict):
+class ParameterGrid(_Axis):
     """The values of one of a program's parameters: numbers, text (``[fast, accurate]``)
     or booleans (``[true, false]``); each reaches the program as ``parameter_text`` spells it."""
 
+    _key = "grid"
     grid: list[ParameterValue] = Field(min_length=1, max_length=10_000)
 
 
@@ -97,17 +115,21 @@ def env_text(value: EnvValue) -> str:
     return value if isinstance(value, str) else str(value)
 
 
-class Range(Strict):
+class Range(_Axis):
+    _key = "range"
     range: tuple[float, float, float]
 
-    @model_validator(mode="after")
-    def _steps(self) -> Range:
-        start, stop, step = self.range
-        if not all(math.isfinite(v) for v in self.range) or step <= 0 or stop < start:
+    @field_validator("range")
+    @classmethod
+    def _steps(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        """A check of the field, not the model, so that its error lies deeper than the
+        other kinds' (see ``_Axis``)."""
+        start, stop, step = value
+        if not all(math.isfinite(v) for v in value) or step <= 0 or stop < start:
             raise ValueError("range is [start, stop, step] with start <= stop and step > 0")
         if (stop - start) / step > 10_000:
             raise ValueError("range has more than 10,000 values")
-        return self
+        return value
 
     def values(self) -> list[float]:
         start, stop, step = self.range
@@ -139,7 +161,8 @@ class RandomDraw(Strict):
         return [float(v) for v in drawn]
 
 
-class Random(Strict):
+class Random(_Axis):
+    _key = "random"
     random: RandomDraw
 
 
