@@ -19,7 +19,7 @@ from depotbench.eval.cli.main import main
 from depotbench.eval.gates.budgets import Check, _same_value
 from depotbench.eval.metrics.record import typed
 from depotbench.eval.sweep.spec import load_sweep, tracker_configs, tracker_variants
-from depotbench.eval.sweep.summary import settings_text
+from depotbench.eval.sweep.summary import settings_text, threshold_figures
 from depotbench.scenes.schema import SpecError
 
 from tests.conftest import REPO
@@ -55,10 +55,11 @@ def test_a_grid_of_text_and_booleans_reaches_the_program_and_the_rows_typed(
         tmp_path,
         sequence,
         f"    env: {{TIMED_RECORD: {json.dumps(str(record))}, TIMED_N: 3, TIMED_ON: true, TIMED_X: 0.5}}\n",
-        "parameters:\n  timed:\n    mode: {grid: [fast, accurate]}\n    flag: {grid: [true, false]}\n",
+        "parameters:\n  timed:\n    mode: {grid: [fast, accurate]}\n    flag: {grid: [true, false]}\n"
+        "    sleep_ms: {grid: [0, 1]}\n",
     )
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "1"]) == 0
-    given = [json.loads(line) for line in record.read_text().splitlines()]
+    given = [json.loads(line) for line in record.read_text().splitlines() if '"sleep_ms": 0' in line]
     # The program's parameters.json holds JSON booleans and text, as the spec wrote them.
     assert sorted((g["params"]["mode"], g["params"]["flag"]) for g in given) == [
         ("accurate", False),
@@ -74,10 +75,24 @@ def test_a_grid_of_text_and_booleans_reaches_the_program_and_the_rows_typed(
     }
     with (tmp_path / "sw" / "results.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    stored = sorted((json.loads(r["parameters"])["mode"], json.loads(r["parameters"])["flag"]) for r in rows)
+    stored = sorted(
+        (json.loads(r["parameters"])["mode"], json.loads(r["parameters"])["flag"])
+        for r in rows
+        if json.loads(r["parameters"])["sleep_ms"] == 0
+    )
     assert stored == [("accurate", False), ("accurate", True), ("fast", False), ("fast", True)]
     assert all(not r["failure"] for r in rows)
     best = json.loads((tmp_path / "sw" / "summary.json").read_text())["best"]["test"]
+    # The figure over the numeric sleep_ms draws a line per text and boolean value, named
+    # as the spec wrote them.
+    configs = json.loads((tmp_path / "sw" / "summary.json").read_text())["configurations"]
+    labels = {
+        line.get_label()
+        for _, fig in threshold_figures(configs)
+        for ax in fig.axes
+        for line in ax.get_lines()
+    }
+    assert "test / flag=true mode=fast" in labels and not any("True" in label for label in labels), labels
     flag, mode = best["parameters"]["flag"], best["parameters"]["mode"]
     assert isinstance(flag, bool) and mode in ("fast", "accurate"), best
     shown = settings_text({"flag": flag, "mode": mode})  # the swept ones, as the spec wrote them

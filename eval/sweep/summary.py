@@ -246,7 +246,9 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         lines: dict[tuple, list] = defaultdict(list)
         for m in members:
             others = sorted(
-                (f, k, str(v)) for f in ("settings", "parameters") for k, v in (m.get(f) or {}).items()
+                (f, k, _shown(v) if isinstance(v, bool) else str(v))  # true, as the spec wrote it
+                for f in ("settings", "parameters")
+                for k, v in (m.get(f) or {}).items()
             )
             fixed = tuple(item for item in others if item[:2] != (field, name))
             if _number(m[field][name]) is not None:
