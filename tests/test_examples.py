@@ -4,6 +4,7 @@ exists wins), and copied into a folder where it runs as it did beside its siblin
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
@@ -231,11 +232,11 @@ def test_companions_are_the_relative_files_beside_a_spec(tmp_path: Path):
 
 
 @pytest.mark.slow
-def test_from_the_wheel_examples_copy_and_names_work(tmp_path: Path):
+def test_from_the_wheel_examples_copy_and_names_work(wheel_venv: Path, tmp_path: Path):
     """A user with the wheel alone (a fresh uv venv, its declared dependencies only): the
     shipped spec and gate file by name and a copy of the spec validate, and the copied
     example tracker is a program."""
-    installed = _wheel_venv(tmp_path / "wheel")
+    installed = wheel_venv
     copied = _run(installed, tmp_path, "depotbench", "examples", "copy", "smallest", "mine")
     assert copied.returncode == 0, copied.stderr
     by_name = _run(
@@ -245,6 +246,32 @@ def test_from_the_wheel_examples_copy_and_names_work(tmp_path: Path):
     assert by_name.stdout.count(": ok: ") == 3
     tracker = _run(installed, tmp_path, "depotbench", "examples", "copy", "my_slam", "trackers")
     assert tracker.returncode == 0 and os.access(tmp_path / "trackers" / "my_slam.py", os.X_OK)
+
+
+@pytest.mark.slow
+def test_from_the_wheel_the_shipped_sweep_runs_by_name_and_a_copied_gate_file_checks(
+    wheel_venv: Path, tmp_path: Path
+):
+    """The issue's user, end to end from an empty folder: depotbench sweep smallest (32 runs),
+    then the gate file copied out and checked there (its suite named, not beside it)."""
+    swept = _run(wheel_venv, tmp_path, "depotbench", "sweep", "smallest", "-o", "s", "--workers", "2")
+    assert swept.returncode == 0, swept.stderr[-2000:]
+    rows = list(csv.DictReader((tmp_path / "s" / "results.csv").open()))
+    assert len(rows) == 4 * (1 + 4 + 3)  # four sequences x none, four k, three epsilon_px
+    assert json.loads((tmp_path / "s" / "summary.json").read_text())["best"]
+    copied = _run(wheel_venv, tmp_path, "depotbench", "examples", "copy", "walking-ci", "gates")
+    assert copied.returncode == 0 and sorted(p.name for p in (tmp_path / "gates").iterdir()) == [
+        "walking-ci.yaml"
+    ]
+    checked = _run(wheel_venv, tmp_path, "depotbench", "check", "gates/walking-ci.yaml", "-o", "c", "--json")
+    assert checked.returncode in (0, 1), checked.stderr[-2000:]  # 1: a budget failed on this machine
+    verdicts = json.loads(checked.stdout)
+    assert verdicts["passed"] == (checked.returncode == 0) and verdicts["results"]
+
+
+@pytest.fixture(scope="module")
+def wheel_venv(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _wheel_venv(tmp_path_factory.mktemp("wheel"))
 
 
 def test_the_python_api_takes_names_too(tmp_path: Path):
