@@ -141,15 +141,20 @@ def _unknown(name: str, kind: Kind) -> str:
     other = examples().get(name)
     if other is not None:
         return f"{name}: a shipped {other.kind}, not a {kind}; shipped {kind}s: {', '.join(of_kind)}"
-    return f"{name}: no such file, nor a shipped {kind}; {_hint(Path(name).stem, of_kind)}"
+    return f"{name}: no such file, nor a shipped {kind}; {hint(Path(name).stem, of_kind)}"
 
 
-def _hint(name: str, known: list[str]) -> str:
+def reads_as_path(text: str) -> bool:
+    """A folder or a suffix: a path, never a name (no shipped name holds either)."""
+    return "/" in text or bool(Path(text).suffix)
+
+
+def hint(name: str, known: list[str], lister: str = "depotbench examples lists them all") -> str:
     """The close names, or every name where none is close (a kind has a handful)."""
     close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
     if close:
-        return f"did you mean {' or '.join(close)}? (depotbench examples lists them all)"
-    return f"shipped: {', '.join(known)}" if known else "none ships"
+        return f"did you mean {' or '.join(close)}? ({lister})"
+    return f"known: {', '.join(known)}" if known else "none ships"
 
 
 def find(text: str | Path, kind: Kind) -> Path:
@@ -157,7 +162,7 @@ def find(text: str | Path, kind: Kind) -> Path:
     (a folder or a suffix: its reader says what is wrong with it), else the shipped example
     of that name and kind; anything else is one line with the close names."""
     path = Path(text)
-    if path.exists() or "/" in str(text) or path.suffix:
+    if path.exists() or reads_as_path(str(text)):
         return path
     example = examples().get(str(text))
     if example is not None and example.kind is kind:

@@ -153,10 +153,12 @@ def test_a_path_that_exists_wins_over_a_name(capsys, tmp_path: Path, monkeypatch
 @pytest.mark.parametrize(
     ("argv", "needles"),
     [
+        (("generate", "dem", "-o", "x"), ("no library scenario named 'dem', nor a shipped suite", "demo?")),
+        (("generate", "walkng_xyz", "-o", "x"), ("did you mean walking_xyz",)),
         (("sweep", "smalest", "-o", "x"), ("smalest", "did you mean smallest?")),
         (("sweep", "walking-ci", "-o", "x"), ("a shipped gate file, not a sweep spec", "smallest")),
         (("check", "walkin-ci"), ("no such file, nor a shipped gate file", "did you mean walking-ci?")),
-        (("check", "nothing-like-it"), ("shipped: walking-ci",)),
+        (("check", "nothing-like-it"), ("known: walking-ci",)),
         (("examples", "copy", "smalest"), ("no shipped example", "did you mean smallest?")),
     ],
 )
@@ -281,7 +283,7 @@ def test_the_python_api_takes_names_too(tmp_path: Path):
 
     with pytest.raises(InputError, match="did you mean smallest"):
         depotbench.sweep("smalest", tmp_path / "s")
-    with pytest.raises(InputError, match="shipped: walking-ci"):
+    with pytest.raises(InputError, match="known: walking-ci"):
         depotbench.check("no-such-gates", tmp_path / "c")
     taken = tmp_path / "taken"
     taken.mkdir()

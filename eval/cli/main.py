@@ -264,9 +264,10 @@ def _png_level(text: str) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
-    from depotbench.core.examples import Kind, named
+    from depotbench.core.examples import Kind, examples, hint, named, reads_as_path
+    from depotbench.scenes import library
     from depotbench.scenes.generation import run_suite
-    from depotbench.scenes.resolve import resolve
+    from depotbench.scenes.resolve import DEFAULT, resolve
     from depotbench.scenes.suite import is_suite_file, load_suite
     from depotbench.sim.generate import generate
 
@@ -299,6 +300,14 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     }
     if args.flow:
         changes["flow"] = True
+    if not path.exists() and not reads_as_path(args.spec) and args.spec != DEFAULT:
+        known = [*library.names(), *(e.name for e in examples().values() if e.kind is Kind.SUITE)]
+        if args.spec not in known:
+            lister = "depotbench scenarios and depotbench examples list them"
+            raise InputError(
+                f"no library scenario named {args.spec!r}, nor a shipped suite or a file; "
+                f"{hint(args.spec, known, lister)}"
+            )
     scenario = resolve(args.spec, changes)
     inputs = (path,) if path.exists() else ()
     out = generate(
