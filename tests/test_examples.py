@@ -316,3 +316,16 @@ def _run(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess:
     env["MUJOCO_GL"] = os.environ.get("MUJOCO_GL", "egl")
     command = [str(venv / "bin" / args[0]), *args[1:]]
     return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_a_specs_suite_is_a_file_beside_it_before_a_shipped_suites_name(capsys, tmp_path: Path):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("sweep: s\nsuite: walking4\nstrategies: [none]\n")
+    code, out, err = cli(capsys, "validate", spec)
+    assert code == 0, err  # the shipped suite
+    (tmp_path / "walking4").write_text("suite: mine\nbase: walking_static\nbogus_field: 1\n")
+    code, out, err = cli(capsys, "validate", spec)
+    assert code == 2 and str(tmp_path / "walking4") in err and "bogus_field" in err
+    spec.write_text("sweep: s\nsuite: walkng4\nstrategies: [none]\n")
+    code, out, err = cli(capsys, "validate", spec)
+    one_error_line(err, "suite:", "walkng4 is not a file, nor a shipped suite's name")
