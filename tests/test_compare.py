@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shlex
+import shutil
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -203,3 +204,41 @@ def test_a_folder_that_holds_no_results_is_refused_naming_it(
 def test_compare_needs_two_folders(sweeps: Path, capsys):
     assert main(["compare", str(sweeps / "a")]) == 2
     assert "two folders or more" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "needle", "compared"),
+    [
+        ("ate_rmse_m", "oops", "not a number", True),
+        ("frames", [1], "not an integer", False),
+        ("settings", "{", "not a JSON object", True),
+        ("knobs", "[1, 2]", "not a JSON object", False),
+    ],
+)
+def test_a_run_record_or_row_edited_by_hand_is_one_line_naming_its_column(
+    sweeps: Path, tmp_path: Path, capsys, column, value, needle, compared
+):
+    """Probe N23: record.json values were not type-checked (a TypeError in a mean) and the
+    store's JSON columns not parsed (a JSONDecodeError in a label). compare reads a store's
+    rows a column at a time: a column it does not use (``compared`` False) is not its
+    business, and the comparison goes on."""
+    import sqlite3
+
+    run = tmp_path / "r"
+    assert main(["run", str(sweeps / "s1"), "-o", str(run), "--strategy", "none"]) == 0
+    record = json.loads((run / "record.json").read_text())
+    (run / "record.json").write_text(json.dumps({**record, column: value}))
+    sweep = tmp_path / "sw"
+    shutil.copytree(sweeps / "a", sweep)
+    with sqlite3.connect(sweep / "results.sqlite") as db:
+        stored = json.dumps(value) if isinstance(value, list) else value
+        db.execute(f"UPDATE runs SET {column} = ?", (stored,))
+    capsys.readouterr()
+    for bad, file in ((run, "record.json"), (sweep, "results.sqlite")):
+        if file == "results.sqlite" and not compared:
+            assert main(["compare", str(sweeps / "a"), str(bad)]) == 0
+            continue
+        assert main(["compare", str(sweeps / "a"), str(bad)]) == 2, file
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "Traceback" not in err[0], err
+        assert str(bad / file) in err[0] and f"{column} is " in err[0] and needle in err[0], err[0]

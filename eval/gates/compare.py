@@ -104,8 +104,9 @@ def load_rows(folder: Path, chosen: tuple[str, ...] = (), option: str = "--finge
     with one program version per tracker (``chosen``: the fingerprints ``option`` gave, for a
     folder holding several; see ``versions.one_version``)."""
     from depotbench.core.files import read_text
+    from depotbench.eval.metrics.record import FIELDS
     from depotbench.eval.metrics.versions import one_version
-    from depotbench.eval.sweep.store import ResultStore
+    from depotbench.eval.sweep.store import ResultStore, checked_row
 
     if (folder / "results.sqlite").is_file():
         with ResultStore(folder / "results.sqlite", readonly=True) as store:
@@ -117,10 +118,16 @@ def load_rows(folder: Path, chosen: tuple[str, ...] = (), option: str = "--finge
             raise InputError(f"{folder / 'record.json'}: not valid JSON ({exc})") from None
         if not isinstance(row, dict) or "key" not in row:
             raise InputError(f"{folder / 'record.json'}: not a run record")
+        known = checked_row(
+            {name: value for name, value in row.items() if name in FIELDS},
+            str(folder / "record.json"),
+            "the file was changed outside depotbench",
+        )
         try:
-            return one_version([RunRecord.from_row(row)], chosen, folder, option)
+            record = RunRecord.from_row(known)
         except KeyError as exc:
             raise InputError(f"{folder / 'record.json'}: not a run record (no {exc.args[0]})") from None
+        return one_version([record], chosen, folder, option)
     raise InputError(f"{folder}: neither a sweep folder (results.sqlite) nor a run folder (record.json)")
 
 

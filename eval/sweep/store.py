@@ -74,6 +74,37 @@ def store_error(path: Path, exc: sqlite3.Error) -> StoreError:
     return StoreError(f"{path}: not a depotbench results database ({text})")
 
 
+JSON_COLUMNS = ("knobs", "parameters", "detector_config", "settings")
+"""Columns that hold a JSON object as text: a table spreads them, a label reads them."""
+
+
+def checked_row(row: dict[str, Any], where: str, remedy: str) -> dict[str, Any]:
+    """``row`` (some or all columns) with each value of its column's type and each JSON
+    column an object, or ``StoreError`` naming ``where`` and the column: a row is read from
+    SQLite (which keeps whatever it is given) or a run's record.json, and a value edited by
+    hand (``ate_rmse_m = 'oops'``, ``settings = '{'``) would otherwise be a TypeError in a
+    mean or a JSONDecodeError in a label, far from its file."""
+    for name, value in row.items():
+        kind = _KINDS[name]
+        if value is None and (name in _NULLABLE or kind is str):
+            continue
+        good = isinstance(value, kind) and not isinstance(value, bool)
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            row[name], good = float(value), True
+        elif kind is int and isinstance(value, float) and value.is_integer():
+            row[name], good = int(value), True  # older stores kept some counts in REAL columns
+        if good and name in JSON_COLUMNS:
+            try:
+                good = isinstance(json.loads(value), dict)
+            except (ValueError, RecursionError):
+                good = False
+            if not good:
+                raise StoreError(f"{where}: {name} is {value[:80]!r}, not a JSON object; {remedy}")
+        if not good:
+            raise StoreError(f"{where}: {name} is {value!r:.80}, not {_KIND_NAMES[kind]}; {remedy}")
+    return row
+
+
 class ResultStore:
     """``readonly`` opens an existing database for reading only: a report never changes it,
     and reads it from a read-only place."""
@@ -303,21 +334,11 @@ class ResultStore:
 
     def _checked(self, key: object, row: dict[str, Any]) -> dict[str, Any]:
         """``row`` (some or all columns) with each value of its column's type, or refused."""
-        for name, value in row.items():
-            kind = _KINDS[name]
-            if value is None and (name in _NULLABLE or kind is str):
-                continue
-            good = isinstance(value, kind) and not isinstance(value, bool)
-            if kind is float and isinstance(value, int):
-                row[name], good = float(value), True
-            elif kind is int and isinstance(value, float) and value.is_integer():
-                row[name], good = int(value), True  # older stores kept some counts in REAL columns
-            if not good:
-                raise StoreError(
-                    f"{self.path}: row {str(key)[:16]}: {name} is {value!r}, not "
-                    f"{_KIND_NAMES[kind]}; the file was changed outside depotbench: give a new output folder"
-                )
-        return row
+        return checked_row(
+            row,
+            f"{self.path}: row {str(key)[:16]}",
+            "the file was changed outside depotbench: give a new output folder",
+        )
 
     def export_csv(self, path: Path, rows: list[dict[str, Any]] | None = None) -> None:
         """The rows as CSV, each suite knob, threshold setting and tracker parameter also in
