@@ -27,9 +27,10 @@ import sys
 import time
 from pathlib import Path
 
-RENDER_S = 1.0
-"""A settings template renders in milliseconds; a template still running after this many
-seconds (processor time is cut one second later) is refused."""
+RENDER_S = 0.5
+"""A settings template renders in milliseconds; one still running after this many seconds is
+refused (processor time is cut at the next whole second and one more), so that a hostile
+template is answered within a second, the child's start included (0.2-0.3 s)."""
 STARTUP_S = 20.0
 """The child's start (Python and Jinja2, 0.3 s on a loaded machine) on top of ``RENDER_S``."""
 MEMORY_BYTES = 256 << 20
