@@ -16,6 +16,17 @@ paces run one after the other on the same sequence. Mean and median milliseconds
 per seed and over the seeds, each strategy's median over ORB-SLAM3's (issue 40's speed
 criterion), for each pace.
 
+Per-frame medians leave out what runs between frames, so each run also reports the whole
+sequence's cost: CPU seconds (user + system, every thread) and wall seconds. The built-in's
+are its process's over ``BuiltinTracker.run`` (``time.process_time``: tracking and its
+synchronous mapping; it runs on one core, so its CPU cannot exceed its wall time), and its
+per-frame column ``track+map`` adds mapping to tracking. ORB-SLAM3's are its worker process's
+(``os.wait4``: tracking, the local-mapping thread and the rest) less its start-up, measured
+alone in a fresh worker (interpreter, imports, vocabulary, ``Shutdown``): what a sequence
+adds. Per seed, built-in / ORB-SLAM3 of tracking and track+map medians (ORB-SLAM3's
+``track_rgbd``: its mapping is in another thread), CPU and wall; over the seeds, each
+ratio's median and range.
+
 ``--kernels both`` tracks each strategy on the NumPy reference path and on the compiled
 kernels (``DEPOTBENCH_KERNELS``, ``depotbench.slam.kernels``) in the order numpy, numba,
 numba, numpy, so that a machine whose load drifts charges both alike; each path's figures
@@ -28,10 +39,13 @@ starts with the kernels loaded (``kernels.warm_up``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -43,10 +57,11 @@ from depotbench.detectors.config import DetectorConfig  # noqa: E402
 from depotbench.eval.run.detections import detect_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
-from depotbench.eval.trackers.orbslam3 import PACE, pace_of  # noqa: E402
+from depotbench.eval.trackers.orbslam3 import PACE, orbslam_settings, pace_of  # noqa: E402
 from depotbench.eval.trackers.registry import parameter_text, tracker_parameters  # noqa: E402
 from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
+from depotbench.sim.camera import orbslam_yaml  # noqa: E402
 from depotbench.sim.generate import generate  # noqa: E402
 from depotbench.sim.sequence import Sequence  # noqa: E402
 from depotbench.slam import kernels  # noqa: E402
@@ -67,8 +82,42 @@ _WARM_UP = (
 )
 
 
+RATIOS = ("tracking", "track+map", "cpu", "wall")
+"""Built-in / ORB-SLAM3: median ms per frame (ORB-SLAM3's ``track_rgbd`` for both), then the
+whole sequence's CPU and wall seconds."""
+COLUMNS = (*STAGES, "track+map")
+
+_STARTUP = (
+    "import sys, json, numpy, pyorbslam3\n"
+    "from depotbench.core.processes import exit_with_parent\n"
+    "from depotbench.sim.sequence import Sequence\n"
+    "slam = pyorbslam3.Slam(sys.argv[1], sys.argv[2], pyorbslam3.Sensor.RGBD, use_viewer=False)\n"
+    "slam.shutdown()\n"
+)
+"""What ORB-SLAM3's worker does before its first frame and after its last, with no frame."""
+
+
+@dataclass(frozen=True)
+class Cost:
+    """One run: per-frame milliseconds and the whole sequence's CPU and wall seconds."""
+
+    tracking_ms: np.ndarray
+    track_map_ms: np.ndarray
+    cpu_s: float
+    wall_s: float
+
+
 def _cell(values: np.ndarray) -> str:
     return f"{values.mean():11.2f} /{np.median(values):10.2f}"
+
+
+def _seconds(cpu_s: float, wall_s: float) -> str:
+    return f"   cpu {cpu_s:8.3f} s  wall {wall_s:8.3f} s"
+
+
+def _spread(values: list[float]) -> str:
+    """Median over the seeds, then their range: few seeds, so no quantiles."""
+    return f"{float(np.median(values)):.2f}x [{min(values):.2f}-{max(values):.2f}]"
 
 
 def _compile_cost() -> str:
@@ -89,11 +138,15 @@ def _compile_cost() -> str:
     )
 
 
-def _run(frames: FrameSource, config: SlamConfig, path: Kernels | None) -> dict[str, np.ndarray]:
-    if path is None:
-        return BuiltinTracker(config).run(frames, False).stage_ms
-    with kernels.using(path):
-        return BuiltinTracker(config).run(frames, False).stage_ms
+def _run(
+    frames: FrameSource, config: SlamConfig, path: Kernels | None
+) -> tuple[dict[str, np.ndarray], float, float]:
+    """Per-frame stage times, then the run's CPU and wall seconds, mapping included."""
+    with kernels.using(path) if path is not None else contextlib.nullcontext():
+        cpu, wall = time.process_time(), time.perf_counter()
+        stage_ms = BuiltinTracker(config).run(frames, False).stage_ms
+        cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    return {**stage_ms, "track+map": stage_ms["tracking_total"] + stage_ms["mapping"]}, cpu, wall
 
 
 def main() -> None:
@@ -144,7 +197,8 @@ def main() -> None:
         kernels.warm_up()
     every_core = os.sched_getaffinity(0)
     ratios: dict[str, list[float]] = {s: [] for s in strategies}
-    to_orbslam3: dict[tuple[str, float], list[float]] = {}
+    to_orbslam3: dict[tuple[str, float], dict[str, list[float]]] = {}
+    startup: dict[str, tuple[float, float]] = {}
     for seed in args.seed or [None]:
         with tempfile.TemporaryDirectory() as tmp:
             update = {"frames": args.frames, "duration_s": None}
@@ -157,54 +211,117 @@ def main() -> None:
                 f"{args.scenario} (seed {scenario.seed}), {len(seq)} frames, 640x480, 1000 ORB features; "
                 f"built-in on core {min(every_core)}, cv2 threads {cv2.getNumThreads()}"
             )
-            print(f"{'tracker / strategy':32s} " + " ".join(f"{s + ' mean/med ms':>24s}" for s in STAGES))
+            print(
+                f"{'tracker / strategy':32s} "
+                + " ".join(f"{s + ' mean/med ms':>24s}" for s in COLUMNS)
+                + "   whole sequence"
+            )
             os.sched_setaffinity(0, {min(every_core)})
-            totals: dict[str, float] = {}
+            builtin: dict[str, Cost] = {}
             for strategy in strategies:
                 config = SlamConfig(strategy=strategy).with_settings(settings)
-                runs: dict[Kernels | None, list[dict[str, np.ndarray]]] = {}
+                runs: dict[Kernels | None, list[tuple[dict[str, np.ndarray], float, float]]] = {}
                 for path in paths:
                     runs.setdefault(path, []).append(_run(frames, config, path))
                 medians = {}
-                for path, stage_runs in runs.items():
-                    stages = {s: np.concatenate([r[s] for r in stage_runs]) for s in STAGES}
+                for path, path_runs in runs.items():
+                    stages = {s: np.concatenate([r[0][s] for r in path_runs]) for s in COLUMNS}
+                    cpu_s = float(np.mean([r[1] for r in path_runs]))  # one run's, as ORB-SLAM3's
+                    wall_s = float(np.mean([r[2] for r in path_runs]))
                     medians[path] = {s: float(np.median(v)) for s, v in stages.items()}
                     label = f"builtin {strategy}" + (f" [{path.value}]" if path else "")
-                    print(f"{label:32s} " + " ".join(f"{_cell(stages[s]):>24s}" for s in STAGES))
-                totals[strategy] = medians[paths[0]]["tracking_total"]
+                    print(
+                        f"{label:32s} "
+                        + " ".join(f"{_cell(stages[s]):>24s}" for s in COLUMNS)
+                        + _seconds(cpu_s, wall_s)
+                    )
+                    if path == paths[0]:
+                        builtin[strategy] = Cost(stages["tracking_total"], stages["track+map"], cpu_s, wall_s)
                 if len(runs) == 2:
-                    ratio = {s: medians[Kernels.NUMPY][s] / medians[Kernels.NUMBA][s] for s in STAGES}
+                    ratio = {s: medians[Kernels.NUMPY][s] / medians[Kernels.NUMBA][s] for s in COLUMNS}
                     ratios[strategy].append(ratio["tracking_total"])
                     print(
-                        f"{'  numpy / numba, medians':32s} " + " ".join(f"{ratio[s]:>23.2f}x" for s in STAGES)
+                        f"{'  numpy / numba, medians':32s} "
+                        + " ".join(f"{ratio[s]:>23.2f}x" for s in COLUMNS)
                     )
             os.sched_setaffinity(0, every_core)
             for pace in () if args.no_orbslam3 else args.orbslam3_pace:
-                orbslam3_ms = _orbslam3(args, seq, pace)
-                if orbslam3_ms is None:
+                orbslam3 = _orbslam3(args, seq, pace, startup)
+                if orbslam3 is None:
                     break
-                for strategy, total in totals.items():
-                    to_orbslam3.setdefault((strategy, pace), []).append(total / orbslam3_ms)
-                print(
-                    f"{f'  built-in / orbslam3 pace {pace:g}':32s} "
-                    + " ".join(f"{s} {to_orbslam3[s, pace][-1]:.2f}x" for s in strategies)
-                )
+                for strategy, cost in builtin.items():
+                    ratio = _ratios(cost, orbslam3)
+                    for name, value in ratio.items():
+                        to_orbslam3.setdefault((strategy, pace), {}).setdefault(name, []).append(value)
+                    print(
+                        f"{f'  built-in / orbslam3 pace {pace:g}':32s} {strategy}: "
+                        + ", ".join(f"{name} {value:.2f}x" for name, value in ratio.items())
+                    )
     if args.kernels == "both":
         print("numpy / numba, median tracking_total per frame, by seed:")
         for strategy, values in ratios.items():
             print(f"  {strategy:20s} " + " ".join(f"{v:.2f}x" for v in values))
     if to_orbslam3:
-        print("built-in / orbslam3, median tracking_total per frame, by seed; median over seeds:")
-        for (strategy, pace), values in to_orbslam3.items():
-            line = " ".join(f"{v:.2f}x" for v in values)
-            print(f"  {strategy:20s} pace {pace:<4g} {line}; {float(np.median(values)):.2f}x")
-    print("built-in: tracking_total = extract + reject + track; mapping (synchronous) apart, per frame")
-    print("orbslam3: track_rgbd per frame (extraction and tracking; mapping in its own thread)")
+        print("built-in / orbslam3 by seed; median [range] over seeds:")
+        for (strategy, pace), by_name in to_orbslam3.items():
+            for name, values in by_name.items():
+                line = " ".join(f"{v:.2f}x" for v in values)
+                print(f"  {strategy:20s} pace {pace:<4g} {name:10s} {line}; {_spread(values)}")
+    print(
+        "built-in: tracking_total = extract + reject + track; track+map adds the synchronous mapping; "
+        "cpu and wall: the whole run, mapping included"
+    )
+    print(
+        "orbslam3: track_rgbd per frame (extraction and tracking; mapping in its own thread); "
+        "cpu and wall: its worker process, every thread, less its start-up"
+    )
 
 
-def _orbslam3(args: argparse.Namespace, seq: Sequence, pace: float) -> float | None:
-    """ORB-SLAM3's median ms per frame, fed at ``pace`` (None where it is not installed). Its
-    tracked frames are printed beside it: a run that got lost tracks nothing and looks fast."""
+def _ratios(builtin: Cost, orbslam3: Cost) -> dict[str, float]:
+    """Built-in over ORB-SLAM3, by RATIOS: ORB-SLAM3 has one per-frame figure, track_rgbd."""
+    values = (
+        np.median(builtin.tracking_ms) / np.median(orbslam3.tracking_ms),
+        np.median(builtin.track_map_ms) / np.median(orbslam3.track_map_ms),
+        builtin.cpu_s / orbslam3.cpu_s if orbslam3.cpu_s > 0 else float("nan"),
+        builtin.wall_s / orbslam3.wall_s if orbslam3.wall_s > 0 else float("nan"),
+    )
+    return dict(zip(RATIOS, (float(v) for v in values), strict=True))
+
+
+def _startup(vocabulary: Path, seq: Sequence) -> tuple[float, float]:
+    """CPU and wall seconds of ORB-SLAM3's worker with no frame (``_STARTUP``), each the
+    median of three fresh processes timed as the worker is (``os.wait4``): one varies by
+    about 0.2 s on this machine, as much as 60 frames' tracking differs."""
+    cpu_s, wall_s = zip(*(_startup_once(vocabulary, seq) for _ in range(3)), strict=True)
+    return float(np.median(cpu_s)), float(np.median(wall_s))
+
+
+def _startup_once(vocabulary: Path, seq: Sequence) -> tuple[float, float]:
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Path(tmp) / "settings.yaml"
+        settings.write_text(orbslam_yaml(seq.intrinsics, orbslam_settings(seq.fps, ())), encoding="utf-8")
+        started = time.perf_counter()
+        child = subprocess.Popen(
+            [sys.executable, "-c", _STARTUP, str(vocabulary.resolve()), str(settings)],
+            cwd=tmp,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        _, status, usage = os.wait4(child.pid, 0)
+        wall_s = time.perf_counter() - started
+        error = child.stderr.read().decode(errors="replace") if child.stderr else ""
+        child.stderr and child.stderr.close()
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"tracking.py: ORB-SLAM3's start-up alone failed: {error.strip()[-500:]}")
+    return usage.ru_utime + usage.ru_stime, wall_s
+
+
+def _orbslam3(
+    args: argparse.Namespace, seq: Sequence, pace: float, startup: dict[str, tuple[float, float]]
+) -> Cost | None:
+    """ORB-SLAM3's run fed at ``pace`` (None where it is not installed), its start-up taken off
+    its whole CPU and wall time (measured once per vocabulary, in ``startup``). Its tracked
+    frames are printed beside it: a run that got lost tracks nothing and looks fast."""
     from depotbench.eval.trackers.orbslam3 import Orbslam3Tracker, available
 
     if not available():
@@ -213,14 +330,31 @@ def _orbslam3(args: argparse.Namespace, seq: Sequence, pace: float) -> float | N
     from depotbench.eval.trackers.vocabulary import default_vocabulary
 
     vocabulary = args.vocabulary or default_vocabulary()
+    if str(vocabulary) not in startup:
+        startup[str(vocabulary)] = _startup(vocabulary, seq)
+        cpu_s, wall_s = startup[str(vocabulary)]
+        blank = " ".join(f"{'':>24s}" for _ in COLUMNS)
+        print(f"{'orbslam3 start-up, no frame':32s} {blank}{_seconds(cpu_s, wall_s)}")
+    startup_cpu_s, startup_wall_s = startup[str(vocabulary)]
     parameters = tracker_parameters("orbslam3", {PACE: str(pace)})
     run = Orbslam3Tracker(vocabulary, parameters=parameters).run(FrameSource(seq), progress=False)
+    if run.cpu_s is None:
+        raise SystemExit("tracking.py: this system has no os.wait4, so ORB-SLAM3's CPU time is unknown")
     tracked = sum(state in TRACKED for state in run.states)
-    print(
-        f"{f'orbslam3 none pace {pace:g}':32s} {'':>24s} {'':>24s} {'':>24s} {_cell(run.track_ms):>24s}"
-        f"   tracked {tracked}/{len(run.states)} frames"
+    cost = Cost(
+        run.track_ms,
+        run.track_ms,
+        max(run.cpu_s - startup_cpu_s, 0.0),
+        max(run.total_s - startup_wall_s, 0.0),
     )
-    return float(np.median(run.track_ms))
+    blank = " ".join(f"{'':>24s}" for _ in ("extract", "reject", "track"))
+    print(
+        f"{f'orbslam3 none pace {pace:g}':32s} {blank} {_cell(run.track_ms):>24s} {'':>24s} "
+        f"{_cell(run.track_ms):>24s}{_seconds(cost.cpu_s, cost.wall_s)}"
+        f"   tracked {tracked}/{len(run.states)} frames; whole process cpu {run.cpu_s:.3f} s, "
+        f"wall {run.total_s:.3f} s"
+    )
+    return cost
 
 
 if __name__ == "__main__":

@@ -119,10 +119,19 @@ def test_the_strategies_table_takes_settings_as_the_command_line_does(tmp_path):
     assert bad.stderr.strip().splitlines()[-1].endswith("--set: setting k='wide' is not a number")
 
 
+_SECONDS = r"cpu\s+(\d+\.\d+) s  wall\s+(\d+\.\d+) s"
+
+
 @pytest.mark.render
 def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_one(tmp_path):
     """benchmarks/tracking.py feeds ORB-SLAM3 at each ``--orbslam3-pace`` in turn, here the
-    stand-in wheel (tests/programs/stub_orbslam3) on 4 frames: a row and a ratio per pace."""
+    stand-in wheel (tests/programs/stub_orbslam3) on 4 frames: a row and ratios per pace,
+    and each run's whole cost beside its per-frame medians, consistent with them.
+
+    The built-in runs alone on one core, so its CPU time cannot exceed its wall time, and
+    its wall time holds every frame's tracking and mapping, which are timed inside it.
+    ORB-SLAM3's worker is the stand-in's process: its whole CPU and wall time hold its
+    start-up, which is taken off (never below 0)."""
     import os
 
     stub = REPO / "tests" / "programs" / "stub_orbslam3"
@@ -132,9 +141,49 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     result = subprocess.run([sys.executable, str(BENCHMARKS / "tracking.py"), *args], cwd=REPO, env=env,
                             capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
+    out = result.stdout
+    header = next(line for line in out.splitlines() if line.startswith("tracker / strategy"))
+    for column in ("tracking_total mean/med ms", "mapping mean/med ms", "track+map mean/med ms"):
+        assert column in header, header
+    assert header.endswith("whole sequence"), header
+
+    row = re.search(r"^builtin none\s+(.*)$", out, re.M)
+    assert row, out
+    cells = re.findall(r"(\d+\.\d\d) /\s+(\d+\.\d\d)", row[1])
+    assert len(cells) == 6, row[0]  # extract, reject, track, tracking_total, mapping, track+map
+    means = [float(mean) for mean, _ in cells]
+    assert means[3] == pytest.approx(sum(means[:3]), abs=0.02)  # tracking_total, to rounding
+    assert means[5] == pytest.approx(means[3] + means[4], abs=0.02)  # track+map adds mapping
+    cpu_s, wall_s = (float(x) for x in re.search(_SECONDS, row[1]).groups())
+    assert 0 < cpu_s <= wall_s + 0.01  # one core: 10 ms for the clocks' granularity
+    assert wall_s >= 4 * means[5] / 1e3 - 0.001  # 4 frames' tracking and mapping, to rounding
+
+    startup = re.search(rf"^orbslam3 start-up, no frame\s+{_SECONDS}$", out, re.M)
+    assert startup and float(startup[1]) > 0 and float(startup[2]) > 0, out
     for pace in ("0", "1"):
-        assert re.search(rf"^orbslam3 none pace {pace}\s.*tracked 0/4 frames$", result.stdout, re.M)
-        assert re.search(rf"^  none\s+pace {pace}\s+[\d.]+x; [\d.]+x$", result.stdout, re.M), result.stdout
+        orbslam3 = re.search(
+            rf"^orbslam3 none pace {pace}\s.*{_SECONDS}   tracked 0/4 frames; "
+            rf"whole process cpu (\d+\.\d+) s, wall (\d+\.\d+) s$",
+            out,
+            re.M,
+        )
+        assert orbslam3, out
+        sequence_cpu, sequence_wall, whole_cpu, whole_wall = (float(x) for x in orbslam3.groups())
+        assert 0 <= sequence_cpu <= whole_cpu and 0 <= sequence_wall <= whole_wall
+        assert whole_cpu > 0 and whole_wall > 0
+        ratios = re.search(
+            rf"^  built-in / orbslam3 pace {pace}\s+none: tracking ([\d.]+)x, track\+map ([\d.]+)x, "
+            rf"cpu ([\d.]+|nan)x, wall ([\d.]+|nan)x$",
+            out,
+            re.M,
+        )
+        assert ratios, out
+        if sequence_cpu > 0.01:  # the ratio of the printed figures, to their rounding
+            assert float(ratios[3]) == pytest.approx(cpu_s / sequence_cpu, rel=0.1, abs=0.01)
+        for name in ("tracking", "track+map", "cpu", "wall"):
+            x = r"(?:[\d.]+|nan)x"
+            summary = rf"^  none\s+pace {pace}\s+{re.escape(name)}\s+{x}; {x} \[[\d.na]+-[\d.na]+\]$"
+            assert re.search(summary, out, re.M), (name, out)
     bad = _run(str(BENCHMARKS / "tracking.py"), "--orbslam3-pace", "11")
     assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
         "--orbslam3-pace: orbslam3: pace = 11 is out of range [0, 10]"
