@@ -32,7 +32,8 @@ def run_folder(walking: Path, tmp_path_factory) -> Path:
 
 
 def _open_in_chromium(page_path: Path, screenshot: Path) -> dict:
-    """Load the page in headless Chromium; return console errors, page errors and image states."""
+    """Load the page in headless Chromium; return console errors, page errors and image states
+    (natural and rendered sizes, in CSS pixels)."""
     playwright = pytest.importorskip("playwright.sync_api")
     executable = next((shutil.which(b) for b in BROWSERS if shutil.which(b)), None)
     if executable is None:
@@ -49,7 +50,8 @@ def _open_in_chromium(page_path: Path, screenshot: Path) -> dict:
         page.goto(page_path.as_uri(), wait_until="load")
         images = page.evaluate(
             "() => Array.from(document.images).map(i => ({alt: i.alt, complete: i.complete,"
-            " width: i.naturalWidth, height: i.naturalHeight}))"
+            " width: i.naturalWidth, height: i.naturalHeight, shownWidth: i.getBoundingClientRect().width,"
+            " shownHeight: i.getBoundingClientRect().height, top: i.getBoundingClientRect().top}))"
         )
         headings = page.evaluate("() => Array.from(document.querySelectorAll('h2')).map(h => h.textContent)")
         page.screenshot(path=str(screenshot), full_page=True)

@@ -46,7 +46,9 @@ from depotbench.eval.metrics.figures import ScoredRun, is_baseline
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
+from depotbench.eval.sweep.family import family_name, family_order, sorted_families
 from depotbench.eval.sweep.summary import (
+    LEGEND_FONT,
     configuration_label,
     pareto_figure,
     pyplot,
@@ -466,7 +468,10 @@ def trajectory_figure(view: RunView):
             ax.plot(est[:, a], est[:, b], "-", c="C3", lw=1.2, label="estimate (SE(3)-aligned)")
             ax.plot(est[0, a], est[0, b], "o", c="C3", ms=5)
         names = "xyz"
-        ax.set(xlabel=f"{names[a]} (m)", ylabel=f"{names[b]} (m)", aspect="equal")
+        ax.set(xlabel=f"{names[a]} (m)", ylabel=f"{names[b]} (m)")
+        # Equal scales by widening the data limits, not by shrinking the box: a walk 0.4 m
+        # across and 6 m along left an axis 0.2 in wide, its tick labels on top of each other.
+        ax.set_aspect("equal", adjustable="datalim")
         ax.xaxis.set_major_locator(plt.MaxNLocator(5))
         ax.yaxis.set_major_locator(plt.MaxNLocator(6))
     elif view.estimate is not None:
@@ -474,7 +479,7 @@ def trajectory_figure(view: RunView):
             view.estimate.positions_m[:, 0], view.estimate.positions_m[:, 1], "-", c="C3", label="estimate"
         )
     ax.set_title("trajectory from above")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=LEGEND_FONT)
     fig.tight_layout()
     return fig
 
@@ -495,12 +500,14 @@ def error_figure(view: RunView):
         ref, est = pair
         errors = np.linalg.norm(est.positions_m - ref.positions_m, axis=1)
         ax.plot(est.timestamps_s - t0, errors * 100, ".-", c="C3", ms=3, lw=1)
+    occurring = set(view.states)
     for state, colour in STATE_COLOURS.items():
-        if colour:
-            ax.plot([], [], "s", c=colour, label=state.lower())
+        if colour and state in occurring:
+            ax.plot([], [], "s", ms=8, c=colour, label=state.lower())
     ax.set(xlabel="time (s)", ylabel="position error (cm)", title="error over time (SE(3)-aligned)")
     ax.set_xlim(times.min() - step if len(times) else 0, times.max() + step if len(times) else 1)
-    ax.legend(fontsize=7, loc="upper left")
+    if ax.get_legend_handles_labels()[0]:  # outside the axes, where it covers no frame's error
+        ax.legend(fontsize=LEGEND_FONT, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     fig.tight_layout()
     return fig
 
@@ -580,7 +587,8 @@ h2{font-size:17px;margin:0 0 10px}h3{font-size:15px;margin:14px 0 6px}
 table{border-collapse:collapse;font-size:13px}
 td,th{border-bottom:1px solid #e5e7eb;padding:3px 10px;text-align:right}
 th{background:#f1f5f9}td:first-child,th:first-child{text-align:left;white-space:nowrap}
-img{max-width:100%;height:auto;border:1px solid #e2e8f0}.plots{display:flex;flex-wrap:wrap;gap:12px}
+img{max-width:100%;height:auto;border:1px solid #e2e8f0}
+.plots{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
 .legend span{display:inline-block;margin-right:14px}.swatch{display:inline-block;width:11px;height:11px;
 border-radius:50%;margin-right:4px;vertical-align:-1px}.fail{color:#b91c1c;font-weight:600}.pass{color:#15803d}
 .notes{background:#fffbeb;border-color:#f59e0b}
@@ -1070,7 +1078,7 @@ def _family_runs(
         tracker = job.job.tracker
         parameters = settings_text(dict(tracker.parameters)) if tracker.parameters else ""
         parts = (f"{tracker.label} {parameters}", f"{job.job.strategy} {shown}", job.job.detector.label)
-        title = f"{family}: {label} — " + " · ".join(part.strip() for part in parts)
+        title = f"{family_name(family)}: {label} — " + " · ".join(part.strip() for part in parts)
         seed = row.get("seed")
         if seed is not None:
             title += f" (seed {seed})"
@@ -1299,8 +1307,9 @@ def _family_section(
         picture += "<h3>Dense maps</h3>" + _img(figure_png(top_views(maps)), f"dense maps of {family}")
     details = "".join(run_section(view, view.title, notes) for view in views)
     return (
-        f"<section><h2>Family: {html.escape(family)}</h2>"
-        f"<p>{len(mine)} configurations, {runs} runs.</p>{chosen}{picture}{details}</section>"
+        f"<section><h2>Family: {html.escape(family_name(family))}</h2>"
+        f"<p>{len(mine)} configurations, {runs} runs; gate files name it "
+        f"<code>{html.escape(family)}</code>.</p>{chosen}{picture}{details}</section>"
     )
 
 
@@ -1319,7 +1328,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     sections = []
     best_rows = [
         [
-            family,
+            family_name(family),
             _configuration(c),
             c["detector"],
             held_cell(c),
@@ -1330,7 +1339,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
             mean_cell(c, "lost_fraction", c["tracked_fraction"], "complement"),
             mean_cell(c, "track_ms_median"),
         ]
-        for family, c in sorted(best.items())
+        for family, c in sorted(best.items(), key=lambda item: family_order(item[0]))
     ]
     header = [
         "family",
@@ -1359,7 +1368,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     if front is not None:
         pareto_rows = [
             [
-                c["family"],
+                family_name(c["family"]),
                 _configuration(c),
                 c["detector"],
                 mean_cell(c, "ate_rmse_m"),
@@ -1374,12 +1383,13 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     difficulty = _difficulty_rows(rows, sequences)
     if difficulty:
         sections.append(f"<section><h2>Scenario difficulty</h2>{difficulty}</section>")
-    families = sorted({c["family"] for c in configs})
+    families = sorted_families(c["family"] for c in configs)
     shown, left = families[:featured], families[featured:]
     if left:
         notes.add(
             f"the sections of {len(left)} of {len(families)} families (the page shows every run of at most "
-            f"{featured} families, the first by name; the tables hold them all): {', '.join(left)}"
+            f"{featured} families, the first in order; the tables hold them all): "
+            + ", ".join(map(family_name, left))
         )
     chosen = {family: _featured_configuration(family, configs, best) for family in shown}
     trackable = {f: c for f, c in chosen.items() if c is not None}
@@ -1393,7 +1403,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         )
     all_rows = [
         [
-            c["family"],
+            family_name(c["family"]),
             _configuration(c),
             c["detector"],
             held_cell(c),
@@ -1403,7 +1413,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
             mean_cell(c, "rejection_recall"),
             mean_cell(c, "track_ms_median"),
         ]
-        for c in configs
+        for c in sorted(configs, key=lambda c: family_order(c["family"]))  # stable: keeps the rest
     ]
     sections.append(
         "<section><h2>Every configuration (means over each family's runs)</h2>"

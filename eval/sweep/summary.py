@@ -28,6 +28,7 @@ from depotbench.eval.metrics.figures import (
 )
 from depotbench.eval.metrics.record import COMPILATION_NOTE, RunRecord, timing_may_include_compilation
 from depotbench.eval.metrics.statistics import SuccessRule, summarize
+from depotbench.eval.sweep.family import family_name, family_order, sorted_families
 
 
 def with_rho(records: list[RunRecord]) -> list[ScoredRun]:
@@ -153,7 +154,8 @@ MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
 """Within a family's colour, one marker per detector and value of the other swept quantities."""
 BAND_ALPHA = 0.18
 FAILED_COLOUR = "#b91c1c"
-LEGEND_FONT = 7
+LEGEND_FONT = 9
+"""Points: a legend is read beside 10 pt axis labels; at 7 pt it was the smallest text."""
 
 
 def family_colours(families) -> dict[str, Any]:
@@ -161,7 +163,7 @@ def family_colours(families) -> dict[str, Any]:
     and figure of a sweep (tab10 up to 10 families, tab20 up to 20, then repeating)."""
     import matplotlib
 
-    names = sorted(set(families))
+    names = sorted_families(families)
     palette = matplotlib.colormaps["tab10" if len(names) <= 10 else "tab20"].colors
     return {name: palette[i % len(palette)] for i, name in enumerate(names)}
 
@@ -177,11 +179,14 @@ def _interval(c: dict[str, Any], metric: str) -> tuple[float, float]:
     return tuple(math.nan if v is None or not math.isfinite(v) else v for v in ends)  # type: ignore[return-value]
 
 
-def _band(ax, xs: list[float], configs: list[dict], metric: str, colour, alpha: float = BAND_ALPHA) -> None:
-    """The shaded 95 % interval of the mean along a curve, where the curve's points have one."""
+def _band(ax, xs: list[float], configs: list[dict], metric: str, colour, alpha: float = BAND_ALPHA) -> bool:
+    """The shaded 95 % interval of the mean along a curve, where the curve's points have one
+    (n >= 2: one seed has no interval); whether anything was drawn."""
     ends = np.array([_interval(c, metric) for c in configs], float).reshape(-1, 2)
     if np.isfinite(ends).all(axis=1).any():
         ax.fill_between(xs, ends[:, 0], ends[:, 1], color=colour, alpha=alpha, lw=0)
+        return True
+    return False
 
 
 def _parameters_key(c: dict[str, Any]) -> str:
@@ -199,7 +204,8 @@ def _none_baselines(configs: list[dict[str, Any]]) -> dict[tuple, dict[str, Any]
 def _legend_columns(labels: list[str], width_in: float) -> int:
     """As many legend columns as the longest label lets fit across the figure."""
     longest = max((len(label) for label in labels), default=10)
-    return max(1, min(len(labels), int(width_in * 100 // (longest * 5.6 + 50))))
+    char_px = 0.8 * LEGEND_FONT  # a character's mean width at 100 dpi
+    return max(1, min(len(labels), int(width_in * 100 // (longest * char_px + 50))))
 
 
 def _legend_below(fig, handles: list, width_in: float) -> None:
@@ -217,7 +223,7 @@ def _legend_below(fig, handles: list, width_in: float) -> None:
 
 def _legend_height(entries: int, columns: int) -> float:
     """Inches a legend of ``entries`` in ``columns`` takes under the panels."""
-    return 0.2 + 0.17 * math.ceil(entries / max(columns, 1))
+    return 0.2 + 0.025 * LEGEND_FONT * math.ceil(entries / max(columns, 1))
 
 
 def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
@@ -260,11 +266,13 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         styles: dict[tuple, str] = {}
         drawn_baselines: set = set()
         plotted: list[tuple] = []
-        for (family, detector, fixed), pts in sorted(lines.items(), key=lambda item: str(item[0])):
+        for (family, detector, fixed), pts in sorted(
+            lines.items(), key=lambda item: (family_order(item[0][0]), str(item[0][1:]))
+        ):
             pts.sort(key=lambda p: p[0])
             varying = " ".join(f"{k}={v}" for _, k, v in fixed if _varies(members, k))
             shown = detector if len({m["detector"] for m in members}) > 1 else ""
-            label = " / ".join(part for part in (family, shown, varying) if part)
+            label = " / ".join(part for part in (family_name(family), shown, varying) if part)
             marker = styles.setdefault((detector, fixed), MARKERS[len(styles) % len(MARKERS)])
             plotted.append((family, detector, pts, label, marker))
         extra = 2 + (2 if rejection else 0)
@@ -272,6 +280,7 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
         height = 3.6 + _legend_height(len(plotted) + extra, columns)
         fig, axes = plt.subplots(1, panels, figsize=(width, height), squeeze=False, layout="constrained")
         ax_ate = axes[0][0]
+        banded = False
         several = len({p[1] for p in plotted}) > 1  # detectors: a none line is marked as its detector
         for family, detector, pts, label, marker in plotted:
             colour = colours[family]
@@ -287,7 +296,7 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
                 label=label,
             )
             handles.append(line)
-            _band(ax_ate, xs, members_of_line, "ate_rmse_m", colour)
+            banded |= _band(ax_ate, xs, members_of_line, "ate_rmse_m", colour)
             if strategy != "none":
                 base = [
                     baselines.get((family, m["tracker"], _parameters_key(m), detector))
@@ -316,13 +325,14 @@ def threshold_figures(configs: list[dict[str, Any]]) -> list[tuple[str, Any]]:
                 ax.plot(
                     xs, [m["rejection_recall"] for m in members_of_line], ":", marker=marker, ms=4, c=colour
                 )
-                _band(ax, xs, members_of_line, "rejection_precision", colour, BAND_ALPHA * 0.7)
-                _band(ax, xs, members_of_line, "rejection_recall", colour, BAND_ALPHA * 0.7)
+                banded |= _band(ax, xs, members_of_line, "rejection_precision", colour, BAND_ALPHA * 0.7)
+                banded |= _band(ax, xs, members_of_line, "rejection_recall", colour, BAND_ALPHA * 0.7)
         if drawn_baselines:
             handles.append(Line2D([], [], ls="--", c="0.3", label="none (dashed): each family's run"))
-        handles.append(
-            Patch(color="0.3", alpha=BAND_ALPHA * 2, lw=0, label="band: 95 % interval of the mean")
-        )
+        if banded:  # one seed per point (n = 1) has no interval: no band, no entry
+            handles.append(
+                Patch(color="0.3", alpha=BAND_ALPHA * 2, lw=0, label="band: 95 % interval of the mean")
+            )
         who = strategy if tracker == "builtin" else f"{tracker} · {strategy}"
         ax_ate.set(xlabel=name, ylabel="ATE RMSE (m), mean over runs", title=f"{who}: ATE against {name}")
         _value_ticks(ax_ate, [x for *_, pts, _l, _m in plotted for x, _ in pts])
@@ -357,6 +367,20 @@ def _log_when_spread(ax, values: list[float | None], spread: float = 10.0) -> No
     positive = [v for v in values if v is not None and math.isfinite(v) and v > 0]
     if positive and max(positive) > spread * min(positive):
         ax.set_yscale("log")
+        one_label_set(ax.yaxis, min(positive), max(positive))
+
+
+def one_label_set(axis, low: float, high: float) -> None:
+    """One set of tick labels on a log axis spanning ``low`` to ``high``: matplotlib labels
+    its minor ticks too on an axis of under two decades ("10⁻²" beside "3×10⁻²", two styles
+    that read as two scales). Major ticks at 1, 2 and 5 per decade up to 2.5 decades (at
+    least three labels from one decade on), one per decade beyond; minor ticks unlabelled."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    decades = math.log10(high / low) if 0 < low < high else 0.0
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0) if decades < 2.5 else (1.0,)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def _varies(members: list[dict], name: str) -> bool:
@@ -385,6 +409,12 @@ def short_label(c: dict[str, Any], limit: int = 40) -> str:
     return label[:head] + "…" + label[len(label) - (limit - head - 1) :]
 
 
+PARETO_LABEL_FONT = 7.5
+PARETO_LABEL_STEP_PX = 6.0
+PARETO_LABEL_TRIES = 40
+"""A Pareto label is raised 6 px at a time, up to 240 px, until its words clear the others'."""
+
+
 def pareto_figure(configs: list[dict[str, Any]]):
     """Mean ATE against median tracking time per configuration, a colour per family; each
     family's Pareto set ringed and labelled; None if nothing to plot."""
@@ -393,11 +423,12 @@ def pareto_figure(configs: list[dict[str, Any]]):
         return None
     plt = pyplot()
     from matplotlib.lines import Line2D
+    from matplotlib.text import Text
 
     colours = family_colours(c["family"] for c in configs)
     front = pareto(configs)
     detectors = len({c["detector"] for c in usable}) > 1
-    families = sorted({c["family"] for c in usable})
+    families = sorted_families(c["family"] for c in usable)
     fig, ax = plt.subplots(figsize=(8.6, 4.8), layout="constrained")
     for family in families:
         mine = [c for c in usable if c["family"] == family]
@@ -418,40 +449,41 @@ def pareto_figure(configs: list[dict[str, Any]]):
         linewidths=0.9,
         zorder=3,
     )
-    positive = all(c["ate_rmse_m"] > 0 for c in usable)
-    ax.set(
-        xlabel="median tracking ms per frame",
-        ylabel="ATE RMSE (m), mean over runs",
-        yscale="log" if positive else "linear",
-    )
+    ax.set(xlabel="median tracking ms per frame", ylabel="ATE RMSE (m), mean over runs")
+    _log_when_spread(ax, [c["ate_rmse_m"] for c in usable])
     ax.set_title("accuracy against time, per configuration (ringed: a family's Pareto set)")
-    placed: list[tuple[float, float]] = []
-    fig.canvas.draw()  # the scales are set: labels are spread in pixels
-    box = ax.get_window_extent()
-    for c in sorted(front, key=lambda c: (c["ate_rmse_m"], c["track_ms_median"])):
-        text = short_label(c) + (f" ({c['detector']})" if detectors else "")
-        x, y = ax.transData.transform((c["track_ms_median"], c["ate_rmse_m"]))
-        left = x > box.x0 + 0.6 * box.width  # near the right edge: the label goes left of its point
-        dy = 4.0
-        while any(abs(px - x) < 160 and abs(py - (y + dy)) < 10 for px, py in placed):
-            dy += 10.0
-        placed.append((x, y + dy))
-        ax.annotate(
-            text,
-            (c["track_ms_median"], c["ate_rmse_m"]),
-            xytext=(-5 if left else 5, dy * 72 / fig.dpi),
-            textcoords="offset points",
-            ha="right" if left else "left",
-            fontsize=6.5,
-            color="0.15",
-            arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.5} if dy > 4.0 else None,
-        )
-    handles = [Line2D([], [], ls="", marker="o", ms=6, color=colours[f], label=f) for f in families] + [
-        Line2D([], [], ls="", marker="o", ms=7, mfc="white", mec="black", label="Pareto set (labelled)")
-    ]
+    handles = [
+        Line2D([], [], ls="", marker="o", ms=6, color=colours[f], label=family_name(f)) for f in families
+    ] + [Line2D([], [], ls="", marker="o", ms=7, mfc="white", mec="black", label="Pareto set (labelled)")]
     ax.legend(
         handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=LEGEND_FONT, frameon=False
     )
+    fig.canvas.draw()  # the scales and the legend are set: labels are placed in pixels,
+    fig.set_layout_engine("none")  # which a second layout would move
+    renderer = fig.canvas.get_renderer()
+    box = ax.get_window_extent()
+    placed: list = []  # the pixel boxes of the labels so far
+    for c in sorted(front, key=lambda c: (c["ate_rmse_m"], c["track_ms_median"])):
+        text = short_label(c) + (f" ({c['detector']})" if detectors else "")
+        x, _ = ax.transData.transform((c["track_ms_median"], c["ate_rmse_m"]))
+        left = x > box.x0 + 0.6 * box.width  # near the right edge: the label goes left of its point
+        for step in range(PARETO_LABEL_TRIES):
+            dy = 4.0 + PARETO_LABEL_STEP_PX * step  # raised until it clears every label placed
+            note = ax.annotate(
+                text,
+                (c["track_ms_median"], c["ate_rmse_m"]),
+                xytext=(-5 if left else 5, dy * 72 / fig.dpi),
+                textcoords="offset points",
+                ha="right" if left else "left",
+                fontsize=PARETO_LABEL_FONT,
+                color="0.15",
+                arrowprops={"arrowstyle": "-", "color": "0.6", "lw": 0.5} if step else None,
+            )
+            extent = Text.get_window_extent(note, renderer).padded(1.0)  # the words, not the leader
+            if not any(extent.overlaps(other) for other in placed) or step == PARETO_LABEL_TRIES - 1:
+                break
+            note.remove()
+        placed.append(extent)
     return fig
 
 
@@ -522,7 +554,7 @@ def strip_figures(
     runs = runs_of_configurations(configs, rows)
     names: set[str] = set()
     figures = []
-    for family in sorted({c["family"] for c in configs}):
+    for family in sorted_families(c["family"] for c in configs):
         if only is not None and family not in only:
             continue
         mine = [c for c in configs if c["family"] == family]
@@ -562,6 +594,7 @@ def strip_figures(
         )
         held_at = blended_transform_factory(ax.transAxes, ax.transData)
         failures = lost = 0
+        intervals = False
         for y, (c, _, members) in enumerate(entries):
             offsets = np.linspace(-0.22, 0.22, len(members)) if len(members) > 1 else np.zeros(len(members))
             good = [
@@ -607,6 +640,7 @@ def strip_figures(
             if mean is not None and math.isfinite(mean):
                 low, high = _interval(c, "ate_rmse_m")
                 if math.isfinite(low) and math.isfinite(high):
+                    intervals = True
                     ax.plot([low, high], [y, y], "-", c="black", lw=1.3, zorder=2)
                 ax.plot([mean], [y], "|", c="black", ms=13, mew=1.6, zorder=4)
             successes = sum(rule.holds(r) for r in members)
@@ -619,6 +653,7 @@ def strip_figures(
         ax.set_ylim(len(entries) - 0.5, -0.5)  # the first configuration on top
         if log:
             ax.set_xscale("log")
+            one_label_set(ax.xaxis, min(values), max(values))
         if failures:
             ax.set_xlim(right=top * (1.15 if log else 1.0) + (0 if log else 0.04 * abs(top)))
         ax.grid(axis="x", color="0.9", lw=0.6)
@@ -627,14 +662,22 @@ def strip_figures(
         runs_count = sum(len(m) for _, _, m in entries)
         ax.set(xlabel="ATE RMSE (m) of each run")
         ax.set_title(
-            f"{family}: every run ({runs_count} runs"
+            f"{family_name(family)}: every run ({runs_count} runs"
             + (f", seeds {', '.join(seeds)}" if seeds else "")
             + ")",
             fontsize=9,
         )
         handles = [
             Line2D([], [], ls="", marker="o", ms=5, color=colour, label="a run (one seed)"),
-            Line2D([], [], ls="-", marker="|", ms=9, c="black", label="mean and its 95 % interval"),
+            Line2D(
+                [],
+                [],
+                ls="-" if intervals else "",
+                marker="|",
+                ms=9,
+                c="black",
+                label="mean and its 95 % interval" if intervals else "mean",
+            ),
         ]
         if lost:
             handles.append(
