@@ -298,21 +298,22 @@ def _startup(vocabulary: Path, seq: Sequence) -> tuple[float, float]:
 
 def _startup_once(vocabulary: Path, seq: Sequence) -> tuple[float, float]:
     with tempfile.TemporaryDirectory() as tmp:
-        settings = Path(tmp) / "settings.yaml"
+        settings, log = Path(tmp) / "settings.yaml", Path(tmp) / "stderr.txt"
         settings.write_text(orbslam_yaml(seq.intrinsics, orbslam_settings(seq.fps, ())), encoding="utf-8")
-        started = time.perf_counter()
-        child = subprocess.Popen(
-            [sys.executable, "-c", _STARTUP, str(vocabulary.resolve()), str(settings)],
-            cwd=tmp,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-        )
-        _, status, usage = os.wait4(child.pid, 0)
-        wall_s = time.perf_counter() - started
-        error = child.stderr.read().decode(errors="replace") if child.stderr else ""
-        child.stderr and child.stderr.close()
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"tracking.py: ORB-SLAM3's start-up alone failed: {error.strip()[-500:]}")
+        with log.open("wb") as stderr:  # a file, not a pipe: wait4 reads no pipe while it waits
+            started = time.perf_counter()
+            child = subprocess.Popen(
+                [sys.executable, "-c", _STARTUP, str(vocabulary.resolve()), str(settings)],
+                cwd=tmp,
+                stdout=subprocess.DEVNULL,
+                stderr=stderr,
+            )
+            _, status, usage = os.wait4(child.pid, 0)
+            wall_s = time.perf_counter() - started
+            child.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+        if child.returncode != 0:
+            error = log.read_text(errors="replace").strip().splitlines() or ["no message"]
+            raise SystemExit(f"tracking.py: ORB-SLAM3's start-up alone failed: {error[-1]}")
     return usage.ru_utime + usage.ru_stime, wall_s
 
 
