@@ -1314,7 +1314,7 @@ def _family_section(
 
 
 def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, workers: int = 1) -> str:
-    """The sweep's page; ``featured``: how many families (sorted by name) get a section;
+    """The sweep's page; ``featured``: how many families (in natural order, numbers by value) get a section;
     ``workers``: processes that track the featured runs again."""
     from depotbench.eval.sweep.store import ResultStore
 
