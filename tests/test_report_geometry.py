@@ -90,11 +90,12 @@ def test_the_error_legend_lists_the_states_that_occur_outside_the_axes():
     pyplot().close(fig)
 
 
-def test_run_legends_are_at_least_9_pt():
-    view = _view(_walk())
+def test_run_legends_are_at_least_9_pt_and_outside_the_axes():
+    view = _view(_walk(across_m=6.0, along_m=0.4)[:, [1, 0, 2]])
     for fig in (trajectory_figure(view), error_figure(view)):
         for legend in _legends(fig):
             assert min(t.get_fontsize() for t in legend.get_texts()) >= 9
+            assert _outside(fig, legend)
         pyplot().close(fig)
 
 

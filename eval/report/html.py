@@ -479,7 +479,8 @@ def trajectory_figure(view: RunView):
             view.estimate.positions_m[:, 0], view.estimate.positions_m[:, 1], "-", c="C3", label="estimate"
         )
     ax.set_title("trajectory from above")
-    ax.legend(fontsize=LEGEND_FONT)
+    # Under the axes: inside, 'best' still sat on a walk that crosses the whole plot.
+    ax.legend(fontsize=LEGEND_FONT, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncols=2, frameon=False)
     fig.tight_layout()
     return fig
 
