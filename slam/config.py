@@ -201,6 +201,11 @@ Setting = int | float | bool
 (``parse_setting``: ``--set``), and every stage after that passes the value."""
 
 
+def setting_names() -> list[str]:
+    """Every setting a strategy's thresholds may name (the fields of both configs), sorted."""
+    return sorted(f.name for c in (RejectionConfig, TrackingConfig) for f in fields(c))
+
+
 def _kind(name: str) -> str:
     """The type of setting ``name``: 'int', 'float' or 'bool' (its field's annotation)."""
     kinds = {f.name: str(f.type) for c in (RejectionConfig, TrackingConfig) for f in fields(c)}

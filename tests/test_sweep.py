@@ -116,7 +116,7 @@ def test_thresholds_are_checked_against_the_slam_configuration_before_anything_r
     )
     assert main(["sweep", str(spec), "-o", str(tmp_path / "out"), "--workers", "1"]) == 2
     err = capsys.readouterr().err
-    assert "thresholds.prior_flow" in err and "unknown setting 'kk'" in err
+    assert "thresholds.prior_flow.kk: unknown setting (known: " in err and "--set" not in err
     assert not (tmp_path / "out" / "results.sqlite").exists()
 
 

@@ -51,12 +51,14 @@ USAGE: dict[str, Usage] = {
         ),
     ),
     "validate": Usage(
-        "Check scenario, suite, sweep and gate files (the kind is recognised from the file) before a "
-        "long run: every problem on its own line naming the file and field. Exit 2 if any file is "
-        "invalid.",
+        "Lint any file the bench reads before a long run: scenarios, suites, sweep specs, gate files, "
+        "camera files, TUM trajectories, sequence folders and results (the kind is recognised from "
+        "what each holds). Every problem in one pass, each a line FILE:LINE: field: what is wrong; a "
+        "sweep's matrix size and run count. Exit 2 if any file is invalid.",
         (
             "depotbench validate my_scene.yaml",
             "depotbench validate smallest walking-ci --json",
+            "depotbench validate seqs/walking_xyz seqs/walking_xyz/camera.yaml runs/smallest",
         ),
     ),
     "scenarios": Usage(

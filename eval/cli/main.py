@@ -320,12 +320,13 @@ def _cmd_generate(args: argparse.Namespace) -> int:
 
 
 def _add_validate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("validate", help="check scenario, suite, sweep and gate files (or library names)")
+    p = sub.add_parser("validate", help="lint any file the bench reads: every problem, its line and field")
     p.add_argument(
         "files",
         nargs="+",
         metavar="FILE",
-        help="scenario, suite, sweep or gate files (the kind is read from the file), or library names",
+        help="scenario, suite, sweep, gate, camera or trajectory files, sequence or sweep folders "
+        "(the kind is read from what they hold), or library and example names",
     )
     p.add_argument("--json", action="store_true", help="print each file's kind, verdict and problems as JSON")
     p.set_defaults(handler=_cmd_validate)

@@ -40,6 +40,7 @@ from typing import Any
 from depotbench.core.errors import InputError
 from depotbench.core.path_text import text_path
 from depotbench.eval.metrics.figures import (
+    BY_NAME,
     FIGURES,
     HIGHER_IS_BETTER,
     ScoredRun,
@@ -91,6 +92,32 @@ def describe(name: str) -> str:
     return METRICS[metric] if aggregate is None else f"{AGGREGATES[aggregate]} {METRICS[metric]}"
 
 
+def budget_problem(name: str, low: float | None, high: float | None) -> str | None:
+    """Why budget ``name`` with bounds ``low`` (min) and ``high`` (max) cannot be meant: an
+    unknown figure, or a bound outside the values the figure takes (``Figure.low``/``high``:
+    ``rejection_recall: {min: 2}`` can never hold, ``{min: -1}`` never fail). A
+    ``vs_baseline`` change is a difference, not the figure itself: its bounds are free."""
+    metric, aggregate = budget_parts(name)
+    if aggregate == "success":
+        figure_range, title = (0.0, 1.0), "a success rate"
+    elif metric not in METRICS or (aggregate and aggregate not in AGGREGATES):
+        return (
+            f"unknown budget {name!r}; choose from {', '.join(METRICS)}, each also as "
+            f"METRIC.{{{','.join(AGGREGATES)}}}, and {SUCCESS_RATE}"
+        )
+    elif aggregate == "vs_baseline":
+        return None
+    else:
+        figure = BY_NAME[metric]
+        figure_range, title = (figure.low, figure.high), f"{metric} ({figure.range_text()})"
+    for which, value in (("min", low), ("max", high)):
+        if value is None or figure_range[0] <= value <= figure_range[1]:
+            continue
+        never = "hold" if (which == "min") == (value > figure_range[1]) else "fail"
+        return f"{which}: {value:g} is outside the values of {title}, so it can never {never}"
+    return None
+
+
 class Bound(Strict):
     min: float | None = None
     max: float | None = None
@@ -130,15 +157,10 @@ class Check(Strict):
 
     @model_validator(mode="after")
     def _known(self) -> Check:
-        for name in sorted(self.budgets):
-            metric, aggregate = budget_parts(name)
-            if aggregate != "success" and (
-                metric not in METRICS or (aggregate and aggregate not in AGGREGATES)
-            ):
-                raise ValueError(
-                    f"unknown budget {name!r}; choose from {', '.join(METRICS)}, each also as "
-                    f"METRIC.{{{','.join(AGGREGATES)}}}, and {SUCCESS_RATE}"
-                )
+        for name, bound in sorted(self.budgets.items()):
+            problem = budget_problem(name, bound.min, bound.max)
+            if problem is not None:
+                raise ValueError(f"budgets.{name}: {problem}")
         return self
 
     def run_budgets(self) -> dict[str, Bound]:

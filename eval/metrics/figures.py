@@ -10,6 +10,7 @@ a gate file names).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -38,6 +39,16 @@ class Figure:
     """Computed from the rows (``with_derived``), not stored with one run."""
     compared: bool = True
     """``depotbench compare`` shows it (a derived time ratio needs a gate file's reference)."""
+    low: float = 0.0
+    high: float = math.inf
+    """The values it can take (errors, times and ratios are >= 0; rates and fractions lie in
+    [0, 1]; rho is at most 100 %): a budget outside them can never hold or never fail, and
+    ``depotbench validate`` and ``check`` refuse it."""
+
+    def range_text(self) -> str:
+        if not math.isfinite(self.low):
+            return f"<= {self.high:g}"
+        return f"[{self.low:g}, {self.high:g}]" if math.isfinite(self.high) else f">= {self.low:g}"
 
 
 FIGURES: tuple[Figure, ...] = (
@@ -45,14 +56,21 @@ FIGURES: tuple[Figure, ...] = (
     Figure("ate_median_m", "median ATE (m)", ratio=True),
     Figure("ate_max_m", "largest ATE (m)", ratio=True),
     Figure("rpe_translation_rmse_m", "RPE translation RMSE (m)", ratio=True),
-    Figure("rpe_rotation_rmse_deg", "RPE rotation RMSE (deg)", ratio=True),
-    Figure("rho_percent", "ATE improvement over the none run (%)", higher_is_better=True, derived=True),
-    Figure("rejection_precision", "rejection precision", higher_is_better=True),
-    Figure("rejection_recall", "rejection recall", higher_is_better=True),
-    Figure("tracked_fraction", "fraction of frames tracked", higher_is_better=True),
-    Figure("map_f_score", "dense map F-score at 5 cm", higher_is_better=True),
-    Figure("ghost_fraction", "share of the dense map that is ghost, at 5 cm"),
-    Figure("lost_fraction", "fraction of frames not tracked", derived=True, compared=False),
+    Figure("rpe_rotation_rmse_deg", "RPE rotation RMSE (deg)", ratio=True, high=180.0),
+    Figure(
+        "rho_percent",
+        "ATE improvement over the none run (%)",
+        higher_is_better=True,
+        derived=True,
+        low=-math.inf,
+        high=100.0,
+    ),
+    Figure("rejection_precision", "rejection precision", higher_is_better=True, high=1.0),
+    Figure("rejection_recall", "rejection recall", higher_is_better=True, high=1.0),
+    Figure("tracked_fraction", "fraction of frames tracked", higher_is_better=True, high=1.0),
+    Figure("map_f_score", "dense map F-score at 5 cm", higher_is_better=True, high=1.0),
+    Figure("ghost_fraction", "share of the dense map that is ghost, at 5 cm", high=1.0),
+    Figure("lost_fraction", "fraction of frames not tracked", derived=True, compared=False, high=1.0),
     Figure("track_ms_mean", "tracking time per frame (ms)", ratio=True, time=True),
     Figure("track_ms_median", "median tracking time per frame (ms)", ratio=True, time=True),
     Figure(

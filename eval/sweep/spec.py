@@ -51,7 +51,7 @@ from depotbench.eval.trackers.registry import (
 )
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError, Strict, load_model
-from depotbench.slam.config import ConfigError, Setting, setting_value
+from depotbench.slam.config import ConfigError, Setting, setting_names, setting_value
 from pydantic import BeforeValidator, Field, field_validator, model_validator
 
 MAX_JOBS = 100_000
@@ -515,8 +515,23 @@ def tracker_variants(spec: SweepSpec, trackers: list[TrackerConfig], source: str
     return out
 
 
+def unknown_thresholds(spec: SweepSpec, source: str) -> list[str]:
+    """A line per threshold name that is no setting, naming it where the spec has it (a
+    ``--set`` flag's message would name a flag the user never typed)."""
+    known = setting_names()
+    return [
+        f"{source}: thresholds.{strategy}.{name}: unknown setting (known: {', '.join(known)})"
+        for strategy, axes in spec.thresholds.items()
+        for name in axes
+        if name not in known
+    ]
+
+
 def check_variants(spec: SweepSpec, found: list[Variant], trackers: list[TrackerConfig], source: str) -> None:
     """Every value against the SLAM configuration and the trackers, before anything runs."""
+    unknown = unknown_thresholds(spec, source)
+    if unknown:
+        raise SpecError("\n".join(unknown))
     builtin = any(t.type.per_keypoint for t in trackers)
     for strategy in spec.strategies:
         if not builtin and strategy not in EXTERNAL_STRATEGIES:
