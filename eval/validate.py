@@ -174,14 +174,19 @@ def _matrix(spec: Any, path: Path, lint: Lint, prefix: str = "") -> str:
             lint.attempt(lambda: sweep_spec.check_variants(spec, found, trackers, source), prefix)
             lint.attempt(lambda: sweep_spec.tracker_variants(spec, trackers, source), prefix)
             lint.attempt(lambda: sweep_spec.check_search(spec, trackers, source), prefix)
-    sequences = 0
+    sequences, first = 0, None
     for i, name in enumerate(spec.sequences):  # each entry on its own: one missing folder hides no other
         one = spec.model_copy(update={"sequences": [name]})
         try:
-            sequences += len(engine.named_sequences(one, path))
+            entries = engine.named_sequences(one, path)
         except InputError as exc:
             said = str(exc).replace(f"{source}: sequences.0:", f"{source}: sequences.{i}:", 1)
             lint.add(said if said.startswith(source) else f"{source}: sequences.{i}: {said}", prefix)
+            continue
+        sequences += len(entries)
+        first = first or (entries[0].root if entries else None)
+    if first is not None and trackers is not None:
+        _templates(trackers, first, source, lint, prefix)
     if spec.suite is not None:
         from depotbench.scenes.suite import load_suite, variations
 
@@ -205,6 +210,21 @@ def _matrix(spec: Any, path: Path, lint: Lint, prefix: str = "") -> str:
     if runs == 0:
         lint.add(f"{source}: sequences: the matrix is empty ({shape}); nothing would run", prefix)
     return shape
+
+
+def _templates(trackers: list, root: Path, source: str, lint: Lint, prefix: str) -> None:
+    """Each tracker's settings template rendered on a real camera (the first sequence's), as
+    ``sweep`` renders it before a run: a template that cannot render is refused here."""
+    from depotbench.eval.trackers.registry import check as check_tracker
+    from depotbench.sim.sequence import Sequence
+
+    opened = Sequence.open(root)  # opened once already by named_sequences
+    for i, tracker in enumerate(trackers):
+        if tracker.settings_template is not None:
+            try:
+                check_tracker(tracker, opened)
+            except InputError as exc:
+                lint.add(f"{source}: trackers.{i}: {tracker.label}: {exc}", prefix)
 
 
 def _runs_per_sequence(spec: Any, tracker: Any) -> int:
@@ -353,6 +373,9 @@ def _suite_folder(path: Path, lint: Lint) -> str:
 
 
 def _head(path: Path) -> bytes:
+    """The first bytes of a regular file (a FIFO or device is never opened: it could block)."""
+    if not path.is_file():
+        return b""
     try:
         with path.open("rb") as handle:
             return handle.read(16)
