@@ -9,6 +9,7 @@ one keypoint a line, the frame named by its RGB timestamp as in ``associations.t
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,20 @@ TIMESTAMP_TOLERANCE_S = 1e-3
 
 class ProtocolError(FileError):
     """A file of the external-tracker protocol that cannot be read: names the file and line."""
+
+
+@contextlib.contextmanager
+def _protocol_file(path: Path, missing: str):
+    """Any failure to read ``path`` as one ``ProtocolError`` naming it (``missing`` when it is
+    not there), so that a program's file is its failure, not the reader's."""
+    try:
+        yield
+    except FileNotFoundError:
+        raise ProtocolError(path, None, missing) from None
+    except ProtocolError:
+        raise
+    except FileError as exc:
+        raise ProtocolError(path, exc.line, exc.problem) from None
 
 
 def write_detections(
@@ -136,7 +151,7 @@ def read_keypoints(path: Path, sequence: Sequence) -> KeypointDecisions:
     size: gathered in pieces and joined, 12M keypoints left 150 MB of freed pieces in the
     process beside their 230 MB of arrays."""
     index = _frame_index(sequence)
-    try:
+    with _protocol_file(path, "the keypoint file is missing"):
         counts = _count_keypoints(path, index, len(sequence))
         points = [np.empty((n, 2), np.float32) for n in counts.tolist()]
         kept = [np.empty(n, bool) for n in counts.tolist()]
@@ -146,12 +161,6 @@ def read_keypoints(path: Path, sequence: Sequence) -> KeypointDecisions:
         for fields in blocks(path, MAX_KEYPOINTS_BYTES, "keypoint file"):
             if len(fields):
                 _keypoint_block(fields, sequence, index, names, (points, kept, codes), filled)
-    except FileNotFoundError:
-        raise ProtocolError(path, None, "the keypoint file is missing") from None
-    except ProtocolError:
-        raise
-    except FileError as exc:
-        raise ProtocolError(path, exc.line, exc.problem) from None
     if not np.array_equal(filled, counts):
         raise ProtocolError(path, None, "changed while it was read")
     reason_names = tuple(word.decode("utf-8") for word in sorted(names, key=names.__getitem__))
@@ -275,19 +284,13 @@ def read_times(path: Path, sequence: Sequence) -> np.ndarray:
     line_of_frame = np.zeros(len(sequence), np.int64)
     times = np.full(len(sequence), np.nan)
     header = False
-    try:
+    with _protocol_file(path, "the times file is missing"):
         for fields in blocks(path, MAX_TIMES_BYTES, "times file"):
             if not header:
                 _check_header(path, fields.data, TIMES_HEADER, "times file")
                 header = True
             if len(fields):
                 _times_block(fields, index, line_of_frame, times)
-    except FileNotFoundError:
-        raise ProtocolError(path, None, "the times file is missing") from None
-    except ProtocolError:
-        raise
-    except FileError as exc:
-        raise ProtocolError(path, exc.line, exc.problem) from None
     if not header:
         raise ProtocolError(
             path, None, f"is empty: a times file begins with {TIMES_HEADER.splitlines()[0]!r}"
@@ -385,17 +388,11 @@ def read_trajectory(path: Path, sequence: Sequence) -> tuple[np.ndarray | None, 
     index = _frame_index(sequence)
     line_of_frame = np.zeros(len(sequence), np.int64)  # 0: no pose yet
     poses = np.tile(np.eye(4), (len(sequence), 1, 1))
-    try:
+    with _protocol_file(path, "the trajectory is missing"):
         # Commas separate fields too, as in TUM's own tools.
         for fields in blocks(path, MAX_TEXT_BYTES, "trajectory", WHITESPACE + b","):
             if len(fields):
                 _trajectory_block(fields, index, line_of_frame, poses)
-    except FileNotFoundError:
-        raise ProtocolError(path, None, "the trajectory is missing") from None
-    except ProtocolError:
-        raise
-    except FileError as exc:
-        raise ProtocolError(path, exc.line, exc.problem) from None
     return tuple(None if line == 0 else poses[i] for i, line in enumerate(line_of_frame.tolist()))
 
 
@@ -437,12 +434,8 @@ def _trajectory_block(
 
 def _data_lines(path: Path, limit: int, what: str, maxsplit: int):
     """(line number, fields) of each data line; comments and blank lines skipped."""
-    try:
+    with _protocol_file(path, f"the {what} is missing"):
         text = read_text(path, limit, what)
-    except FileNotFoundError:
-        raise ProtocolError(path, None, f"the {what} is missing") from None
-    except FileError as exc:
-        raise ProtocolError(path, exc.line, exc.problem) from None
     for number, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
@@ -461,16 +454,13 @@ def read_map(path: Path) -> tuple[np.ndarray, np.ndarray]:
     all sorts on a damaged file)."""
     from depotbench.eval.trackers.ply import NotHere, read_ply_points
 
-    try:
-        points, colours = read_ply_points(path, MAX_MAP_BYTES)
-    except NotHere:
+    with _protocol_file(path, "the map is missing (a link to nothing?)"):
+        try:
+            points, colours = read_ply_points(path, MAX_MAP_BYTES)
+        except NotHere:
+            points = colours = None
+    if points is None:  # a layout the chunked reader leaves aside
         points, colours = _read_map_whole(path)
-    except FileNotFoundError:
-        raise ProtocolError(path, None, "the map is missing (a link to nothing?)") from None
-    except ProtocolError:
-        raise
-    except FileError as exc:
-        raise ProtocolError(path, exc.line, exc.problem) from None
     if not len(points):
         raise ProtocolError(path, None, "holds no points")
     if not np.isfinite(points).all():
