@@ -254,7 +254,8 @@ def test_the_wheel_installs_only_the_namespace(installed: Path, tmp_path: Path):
     assert ours == set()  # no generic top-level package
 
 
-@pytest.mark.render
+@pytest.mark.slow  # 170 s on 2 cores: the default suite runs the demo in-process (test_cli.py)
+@pytest.mark.render  # and installs the wheel (test_the_wheel_installs_only_the_namespace)
 def test_the_installed_wheel_generates_detects_and_runs_the_demo(installed: Path, tmp_path: Path):
     """What broke for a user with the wheel: the cats' fur photograph and the default model
     were not in it, so generate dog_and_cat_roaming and detect-eval failed."""
