@@ -20,6 +20,7 @@ from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
 from depotbench.sim import actor_registry
 from depotbench.sim import spec as sim_spec
+from depotbench.sim.kinds import TUM_WALK
 from depotbench.sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
 from pydantic import (
     BaseModel,
@@ -52,8 +53,6 @@ MIN_CHAIR_SPACING_M = 0.9
 MAX_YAML_NODES = 100_000
 """Values a scenario or suite file may expand to, aliases counted at every use."""
 MAX_YAML_DEPTH = 32
-MAX_MIN_FOVY_DEG = (170.0, 1.0)
-"""Widest and narrowest vertical field of view a MuJoCo camera is given."""
 MIN_VIEW_DISTANCE_M = 0.01
 MIN_PATH_SPAN_M = 0.1
 WALL_MARGIN_M = 0.3
@@ -86,12 +85,23 @@ class Image(Strict):
 
 
 class IntrinsicsSpec(Strict):
-    """Pinhole intrinsics. MuJoCo cameras have square pixels and a centred principal point."""
+    """Pinhole intrinsics in OpenCV's convention (pixel centres at integers), rendered exactly.
+
+    Left out, fy is fx and (cx, cy) the image centre ((W-1)/2, (H-1)/2); TUM fr3's camera is
+    ``{fx: 535.4, fy: 539.2, cx: 320.1, cy: 247.6}`` (ORB-SLAM2's TUM3.yaml).
+    """
 
     fx: PositiveFloat = SCENARIO.focal_px
     fy: PositiveFloat | None = None
     cx: float | None = None
     cy: float | None = None
+
+    def principal(self, width: int, height: int) -> tuple[float, float] | None:
+        """(cx, cy) where either is given, the centre standing in for the other; else None."""
+        if self.cx is None and self.cy is None:
+            return None
+        cx = (width - 1) / 2 if self.cx is None else self.cx
+        return cx, (height - 1) / 2 if self.cy is None else self.cy
 
 
 class Layout(Strict):
@@ -166,7 +176,7 @@ class Actor(Strict):
 
     @model_validator(mode="after")
     def _path_fits_kind(self) -> Actor:
-        paths = actor_registry.get(self.kind).place.paths
+        paths = actor_registry.get(self.kind).paths
         if self.path not in paths:
             raise ValueError(
                 f"path {self.path!r} does not go with kind {self.kind!r}, which takes {_choices(paths)}"
@@ -189,10 +199,37 @@ class Camera(Strict):
     amplitude_deg: float = Field(CAMERA.amplitude_deg, ge=0, le=60)
     period_s: float = Field(CAMERA.period_s, gt=0.2, le=600)
     speed_mps: float = Field(CAMERA.speed_mps, ge=0, le=5)
+    mean_speed_mps: float | None = Field(CAMERA.mean_speed_mps, gt=0, le=2)
+    """Calibrate the hand-held motion to this mean translational speed over the sequence
+    (TUM's per-sequence figure, e.g. 0.208 for fr3/walking_xyz); unset: fixed amplitudes."""
+    mean_angular_speed_dps: float | None = Field(CAMERA.mean_angular_speed_dps, gt=0, le=180)
+    """Calibrate the hand-held motion to this mean angular speed in deg/s (5.49 for
+    fr3/walking_xyz); unset: fixed amplitudes."""
 
 
 class Lighting(Strict):
     intensity: float = Field(SCENARIO.light_intensity, gt=0, le=3)
+
+
+TUM_SENSOR = {
+    # Ringaby and Forssen (IJCV 2011): VGA consumer CMOS sensors at 30 Hz read out in 30-31 ms.
+    "rolling_shutter_readout_s": 0.030,
+    # No published figure: auto white balance moving a channel's gain by ~2 %.
+    "white_balance_drift": 0.02,
+    # TUM fr3 associations (office_val, nstr_tex_near): depth stamped 0.10-0.12 ms after RGB.
+    "depth_delay_mean_s": 0.00012,
+    # Same files: frame intervals vary by 2.0-2.1 ms (std), 1.5 ms per stamp.
+    "timestamp_jitter_s": 0.0015,
+    # Same files: 3.0-4.1 % of the 30 Hz frames are missing.
+    "dropped_frame_rate": 0.035,
+    # Sturm et al. (IROS 2012): motion capture at 100 Hz, millimetre accuracy.
+    "gt_rate_hz": 100.0,
+    "gt_position_noise_m": 0.001,
+    "gt_rotation_noise_deg": 0.1,
+    # Half a motion-capture sample: what aligning two clocks at 100 Hz can leave.
+    "gt_time_offset_s": 0.005,
+}
+"""The TUM profile's additions to ``kinect``; docs/scenarios.md gives each one's source."""
 
 
 class Sensor(Strict):
@@ -203,6 +240,15 @@ class Sensor(Strict):
     rgb_noise_sigma: float = Field(SENSOR.rgb_noise_sigma, ge=0, le=50)
     motion_blur_exposure_s: float = Field(SENSOR.motion_blur_exposure_s, ge=0, le=0.1)
     exposure_variation: float = Field(SENSOR.exposure_variation, ge=0, le=1)
+    rolling_shutter_readout_s: float = Field(SENSOR.rolling_shutter_readout_s, ge=0, le=0.1)
+    white_balance_drift: float = Field(SENSOR.white_balance_drift, ge=0, le=0.5)
+    depth_delay_mean_s: float = Field(SENSOR.depth_delay_mean_s, ge=0, le=0.01)
+    timestamp_jitter_s: float = Field(SENSOR.timestamp_jitter_s, ge=0, le=0.01)
+    dropped_frame_rate: float = Field(SENSOR.dropped_frame_rate, ge=0, le=0.5)
+    gt_rate_hz: float = Field(SENSOR.gt_rate_hz, ge=0, le=1000)
+    gt_position_noise_m: float = Field(SENSOR.gt_position_noise_m, ge=0, le=0.05)
+    gt_rotation_noise_deg: float = Field(SENSOR.gt_rotation_noise_deg, ge=0, le=5)
+    gt_time_offset_s: float = Field(SENSOR.gt_time_offset_s, ge=-0.1, le=0.1)
 
     @field_validator("depth_range_m")
     @classmethod
@@ -223,6 +269,21 @@ class Sensor(Strict):
             exposure_variation=0.05,
         )
 
+    @classmethod
+    def tum(cls) -> Sensor:
+        """A Kinect v1 recorded as TUM fr3 was: ``kinect`` plus the timing, shutter and
+        ground-truth effects, each default from the source docs/scenarios.md names."""
+        return cls.kinect().model_copy(update=TUM_SENSOR)
+
+
+SENSOR_PRESETS = {"perfect": Sensor, "kinect": Sensor.kinect, "tum": Sensor.tum}
+"""The sensors a scenario (``sensor: tum``) or ``depotbench generate --sensor`` names."""
+
+
+def sensor_spec(preset: str) -> sim_spec.SensorSpec:
+    """The simulator's sensor of a named preset."""
+    return sim_spec.SensorSpec(**SENSOR_PRESETS[preset]().model_dump())
+
 
 class Scenario(Strict):
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
@@ -240,7 +301,7 @@ class Scenario(Strict):
     camera: Camera = Camera()
     lighting: Lighting = Lighting()
     sensor: Sensor = Sensor()
-    """``perfect``, ``kinect`` or a mapping of sensor settings."""
+    """``perfect``, ``kinect``, ``tum`` or a mapping of sensor settings."""
     flow: bool = SCENARIO.flow
 
     @field_validator("sensor", mode="before")
@@ -248,10 +309,9 @@ class Scenario(Strict):
     def _sensor_preset(cls, value: Any) -> Any:
         if not isinstance(value, str):
             return value
-        presets = {"perfect": Sensor(), "kinect": Sensor.kinect()}
-        if value not in presets:
-            raise ValueError(f"give {' or '.join(presets)}, or a mapping of sensor settings")
-        return presets[value]
+        if value not in SENSOR_PRESETS:
+            raise ValueError(f"give {' or '.join(SENSOR_PRESETS)}, or a mapping of sensor settings")
+        return SENSOR_PRESETS[value]()
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -272,27 +332,31 @@ class Scenario(Strict):
         for kind, needs in wanted.items():
             if needs == "desk" and not self.layout.desk:
                 raise ValueError(f"layout.desk: a {kind} needs the desk (layout.desk: true)")
+        if not self.layout.desk and any(a.count and a.path == TUM_WALK for a in self.actors):
+            raise ValueError("layout.desk: path 'tum_walk' sits people at the desk (layout.desk: true)")
         self._check_geometry()
+        self._check_camera_targets()
         return self
 
+    def _check_camera_targets(self) -> None:
+        """Speed targets the motion cannot reach within its amplitude caps are refused here,
+        not at generate time: the rig is calibrated as generate will (same seed, frames)."""
+        camera = self.camera
+        if camera.mean_speed_mps is None and camera.mean_angular_speed_dps is None:
+            return
+        from depotbench.sim.camera_rig import CameraRig
+        from depotbench.sim.world import scenario_streams
+
+        _, _, _, camera_rng, _, _ = scenario_streams(self.seed)
+        spec = sim_spec.CameraSpec(**camera.model_dump())
+        CameraRig(spec, camera_rng, duration_s=self.n_frames / self.fps, fps=self.fps)
+
     def _check_intrinsics(self) -> None:
-        k = self.intrinsics
-        w, h = self.image.width, self.image.height
-        if k.fy is not None and not math.isclose(k.fy, k.fx):
-            raise ValueError("intrinsics.fy: fy must equal fx (MuJoCo cameras have square pixels)")
-        for name, value, centre in (("cx", k.cx, (w - 1) / 2), ("cy", k.cy, (h - 1) / 2)):
-            if value is not None and not math.isclose(value, centre):
-                raise ValueError(
-                    f"intrinsics.{name}: must be {centre} for a {w}x{h} image "
-                    "(MuJoCo renders with a centred principal point)"
-                )
-        low, high = (h / 2 / math.tan(math.radians(f / 2)) for f in MAX_MIN_FOVY_DEG)
-        if not low <= k.fx <= high:
-            raise ValueError(
-                f"intrinsics.fx: {k.fx} px gives a vertical field of view outside "
-                f"{MAX_MIN_FOVY_DEG[1]}-{MAX_MIN_FOVY_DEG[0]} degrees; for a {h}-pixel-high image "
-                f"fx must lie in [{low:.1f}, {high:.1f}]"
-            )
+        k, w, h = self.intrinsics, self.image.width, self.image.height
+        cx, cy = k.principal(w, h) or ((w - 1) / 2, (h - 1) / 2)
+        pinhole = (k.fx, k.fx if k.fy is None else k.fy, cx, cy)
+        names = tuple(f"intrinsics.{name}" for name in ("fx", "fy", "cx", "cy"))
+        sim_spec.check_pinhole(w, h, pinhole, names)
 
     def _check_geometry(self) -> None:
         """The camera inside the hall and looking somewhere; paths and chairs on its floor."""
@@ -381,6 +445,8 @@ def to_scenario(scenario: Scenario) -> sim_spec.ScenarioSpec:
         width=scenario.image.width,
         height=scenario.image.height,
         focal_px=scenario.intrinsics.fx,
+        focal_y_px=scenario.intrinsics.fy,
+        principal_px=scenario.intrinsics.principal(scenario.image.width, scenario.image.height),
         layout=lay.to_spec(),
         actors=tuple(actors),
         chairs=tuple(sim_spec.ChairSpec(c.position_m, c.yaw_deg) for c in scenario.chairs),

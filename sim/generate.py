@@ -179,6 +179,7 @@ def _write_frames(
 ) -> dict[str, float]:
     """Simulate, render and write each frame with its ground truth; return the difficulty."""
     sensor = SensorModel(scenario.sensor, scenario_streams(scenario.seed)[4])
+    clock = sensor.clock(scenario.frames, scenario.fps) if scenario.sensor.timing else None
     sim = Simulation(world)
     # Index -1 (the static world, or nothing) reads the appended 0: the world body. Like
     # every body of the static world, it never moves (test_scenes: _assert_only_instances_move).
@@ -187,6 +188,11 @@ def _write_frames(
     period = 1.0 / scenario.fps
     now = sim.snapshot()
     for k in frames:
+        timing = clock.frame(k) if clock is not None else None
+        if timing is not None and timing.dropped:  # lost by the driver: simulated, never rendered
+            sim.advance_to((k + 1) * period)
+            now = sim.snapshot()
+            continue
         frame = renderer.render(sim.data, world.camera_id)
         rgb, depth, geom_ids, instances = frame.rgb, frame.depth, frame.geom_ids, frame.instances
         boxes, counts = visible_boxes(instances, len(world.instances)), frame.counts
@@ -217,9 +223,15 @@ def _write_frames(
         if scenario.sensor.enabled:
             clean = depth
             rgb = sensor.rgb(rgb, flow, scenario.fps)
-            depth = sensor.depth(depth)
+            delay = timing.depth_delay_s * scenario.fps if timing is not None else 0.0
+            depth = sensor.depth(depth, flow, delay)
+        stamp, depth_stamp, recorded = START_TIME_S + k * period, None, None
+        if timing is not None and clock is not None:
+            stamp = START_TIME_S + timing.stamp_s
+            depth_stamp = stamp + timing.depth_delay_s
+            recorded = clock.recorded_pose(k, world.rig.world_from_camera(timing.recorded_s))
         writer.add_frame(
-            START_TIME_S + k * period,
+            stamp,
             rgb,
             depth,
             now.world_from_camera,
@@ -227,6 +239,8 @@ def _write_frames(
             objects,
             flow if scenario.flow else None,
             clean,
+            depth_timestamp_s=depth_stamp,
+            recorded_pose=recorded,
         )
         now = nxt
     return difficulty.summary()

@@ -3,15 +3,25 @@
 Depth follows a Kinect v1: axial noise sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 m
 (Nguyen, Izadi and Lovell, 2012), disparity quantisation, no reading outside the
 working range and, often, at depth edges. RGB gets sensor noise, motion blur
-along each pixel's true motion during the exposure, and slow auto-exposure drift.
+along each pixel's true motion during the exposure, a rolling shutter (each row
+exposed later than the one above it), and slow auto-exposure and white-balance drift.
+
+Timing (``SensorClock``): a frame is stamped when it arrives, not when it was exposed;
+depth is captured a little after RGB; the driver loses some frames; the recorded
+ground truth is a motion-capture sample with noise and a clock offset. Pixel shifts
+over a fraction of a frame (rolling shutter, depth delay, blur) follow each pixel's
+exact flow to first order: a surface moving into view is not uncovered by them.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from depotbench.sim.ipp import without_ipp
 from depotbench.sim.spec import SensorSpec
+from scipy.spatial.transform import Rotation
 
 KINECT_FOCAL_PX = 580.0
 KINECT_BASELINE_M = 0.075
@@ -25,18 +35,45 @@ def kinect_sigma(z_m: np.ndarray) -> np.ndarray:
     return 0.0012 + 0.0019 * (z_m - 0.4) ** 2
 
 
+WHITE_BALANCE_TIME_S = 1.0
+"""Correlation time of the white-balance drift: auto white balance settles over about a second."""
+MAX_JITTER_PERIODS = 0.25
+"""A stamp's jitter is clipped to this share of the frame period, so stamps stay in order."""
+MAX_DEPTH_DELAY_PERIODS = 0.25
+"""The depth delay is clipped to a quarter of a frame period: depth stamps stay in order, each
+nearer its own RGB frame than the next."""
+
+
 class SensorModel:
     def __init__(self, spec: SensorSpec, rng: np.random.Generator) -> None:
         self.spec = spec
         self.rng = rng
         self._gain_state = 0.0
+        # Streams of their own, spawned without drawing from ``rng``: the older effects'
+        # draws (and so the bytes of a sequence using only them) stay as they were.
+        colour, timing = rng.bit_generator.seed_seq.spawn(2)
+        self._colour_rng = np.random.default_rng(colour)
+        self._timing_seed = timing
+        self._balance: np.ndarray | None = None
+
+    def clock(self, frames: int, fps: float) -> SensorClock:
+        """The frames' timing: stamps, depth delays, lost frames, recorded ground truth."""
+        return SensorClock(self.spec, frames, fps, np.random.default_rng(self._timing_seed))
 
     @property
     def needs_flow(self) -> bool:
-        return self.spec.motion_blur_exposure_s > 0
-
-    def depth(self, depth_m: np.ndarray) -> np.ndarray:
         s = self.spec
+        return s.motion_blur_exposure_s > 0 or s.rolling_shutter_readout_s > 0 or s.depth_delay_mean_s > 0
+
+    def depth(
+        self, depth_m: np.ndarray, flow_px: np.ndarray | None = None, delay_frames: float = 0.0
+    ) -> np.ndarray:
+        """The sensor's depth map. ``delay_frames`` (the capture's delay after the RGB's,
+        in frame periods) moves each reading along its pixel's flow, nearest-neighbour:
+        a depth is never blended across an edge."""
+        s = self.spec
+        if delay_frames and flow_px is not None:
+            depth_m = _shift(depth_m, np.nan_to_num(flow_px) * delay_frames, cv2.INTER_NEAREST)
         z = depth_m.astype(np.float64)
         valid = z > 0
         if s.depth_noise:
@@ -61,20 +98,43 @@ class SensorModel:
     def rgb(self, rgb: np.ndarray, flow_px: np.ndarray | None, fps: float) -> np.ndarray:
         s = self.spec
         image = rgb.astype(np.float32)
-        if s.motion_blur_exposure_s > 0 and flow_px is not None:
-            image = self._blur(image, np.nan_to_num(flow_px) * (s.motion_blur_exposure_s * fps))
+        if flow_px is not None and (s.motion_blur_exposure_s > 0 or s.rolling_shutter_readout_s > 0):
+            flow = np.nan_to_num(flow_px)
+            delays = row_delays_frames(image.shape[0], s.rolling_shutter_readout_s, fps)
+            shift = flow * delays[:, None, None]
+            if s.motion_blur_exposure_s > 0:
+                image = self._blur(image, flow * (s.motion_blur_exposure_s * fps), shift)
+            else:
+                image = _shift(image, shift, cv2.INTER_LINEAR)
         if s.exposure_variation > 0:
             self._gain_state = 0.9 * self._gain_state + 0.1 * self.rng.standard_normal()
             image *= float(np.exp(s.exposure_variation * self._gain_state * 3.0))
+        if s.white_balance_drift > 0:
+            image *= self._white_balance(fps).astype(np.float32)
         if s.rgb_noise_sigma > 0:
             image += self.rng.standard_normal(image.shape).astype(np.float32) * s.rgb_noise_sigma
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
+    def _white_balance(self, fps: float) -> np.ndarray:
+        """Per-channel gains: each log gain an AR(1) process whose stationary standard
+        deviation is ``white_balance_drift``, with a correlation time of WHITE_BALANCE_TIME_S;
+        the first frame draws from the stationary distribution."""
+        sigma = self.spec.white_balance_drift
+        a = float(np.exp(-1.0 / (fps * WHITE_BALANCE_TIME_S)))
+        draw = self._colour_rng.standard_normal(3) * sigma
+        self._balance = draw if self._balance is None else a * self._balance + draw * np.sqrt(1 - a * a)
+        return np.exp(self._balance)
+
     @staticmethod
-    def _blur(image: np.ndarray, motion_px: np.ndarray, samples: int = 7) -> np.ndarray:
-        """Average the image along each pixel's motion during the exposure (centred)."""
+    def _blur(
+        image: np.ndarray, motion_px: np.ndarray, shift_px: np.ndarray | None = None, samples: int = 7
+    ) -> np.ndarray:
+        """Average the image along each pixel's motion during the exposure, centred on the
+        exposure's middle, itself moved by ``shift_px`` (the rolling shutter's row delay)."""
         h, w = image.shape[:2]
         v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+        if shift_px is not None:
+            u, v = u - shift_px[:, :, 0], v - shift_px[:, :, 1]
         total = np.zeros_like(image)
         with without_ipp():  # the same bits on every CPU (sim/ipp.py)
             for a in np.linspace(-0.5, 0.5, samples, dtype=np.float32):
@@ -86,3 +146,82 @@ class SensorModel:
                     borderMode=cv2.BORDER_REPLICATE,
                 )
         return total / samples
+
+
+def row_delays_frames(height: int, readout_s: float, fps: float) -> np.ndarray:
+    """Each row's exposure time after the middle row's, in frame periods (float32, one per
+    row): the rows are read out evenly over ``readout_s``, top first."""
+    if height < 2 or readout_s <= 0:
+        return np.zeros(height, np.float32)
+    return ((np.arange(height) / (height - 1) - 0.5) * readout_s * fps).astype(np.float32)
+
+
+def _shift(image: np.ndarray, shift_px: np.ndarray, interpolation: int) -> np.ndarray:
+    """``image`` as seen ``shift_px`` later along each pixel's motion: dst(x) = src(x - shift(x))."""
+    h, w = image.shape[:2]
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    with without_ipp():
+        return cv2.remap(
+            image,
+            u - shift_px[:, :, 0].astype(np.float32),
+            v - shift_px[:, :, 1].astype(np.float32),
+            interpolation,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
+
+
+@dataclass(frozen=True)
+class FrameTiming:
+    """When frame ``index`` was taken and how it was recorded (seconds of simulated time)."""
+
+    capture_s: float
+    """The RGB exposure's middle (the middle row, with a rolling shutter)."""
+    stamp_s: float
+    """The RGB stamp: the capture plus its arrival jitter."""
+    depth_delay_s: float
+    """The depth capture's delay after ``capture_s``; its stamp is ``stamp_s`` plus this."""
+    dropped: bool
+    recorded_s: float
+    """The instant whose pose groundtruth.txt holds for this frame (motion capture's sample)."""
+
+
+class SensorClock:
+    """Every frame's timing, drawn at once from its own stream (so one effect's draws never
+    shift another's)."""
+
+    def __init__(self, spec: SensorSpec, frames: int, fps: float, rng: np.random.Generator) -> None:
+        self.spec = spec
+        period = 1.0 / fps
+        self.captures = np.arange(frames) * period
+        jitter = rng.standard_normal(frames) * spec.timestamp_jitter_s
+        self.stamps = self.captures + np.clip(
+            jitter, -MAX_JITTER_PERIODS * period, MAX_JITTER_PERIODS * period
+        )
+        delays = rng.exponential(1.0, frames) * spec.depth_delay_mean_s
+        self.depth_delays = np.minimum(delays, MAX_DEPTH_DELAY_PERIODS * period)
+        self.dropped = rng.uniform(size=frames) < spec.dropped_frame_rate
+        self.dropped[0] = False  # a sequence starts with a frame
+        self.position_noise = rng.standard_normal((frames, 3)) * spec.gt_position_noise_m
+        self.rotation_noise = np.radians(rng.standard_normal((frames, 3)) * spec.gt_rotation_noise_deg)
+        recorded = self.stamps + spec.gt_time_offset_s
+        if spec.gt_rate_hz > 0:
+            recorded = np.round(recorded * spec.gt_rate_hz) / spec.gt_rate_hz
+        self.recorded = recorded
+
+    def frame(self, index: int) -> FrameTiming:
+        return FrameTiming(
+            capture_s=float(self.captures[index]),
+            stamp_s=float(self.stamps[index]),
+            depth_delay_s=float(self.depth_delays[index]),
+            dropped=bool(self.dropped[index]),
+            recorded_s=float(self.recorded[index]),
+        )
+
+    def recorded_pose(self, index: int, true_pose: np.ndarray) -> np.ndarray:
+        """groundtruth.txt's pose for frame ``index``: the true pose at its recorded instant
+        with the motion capture's noise (position per axis; orientation a rotation vector
+        per axis, applied in the camera frame)."""
+        pose = np.array(true_pose, dtype=np.float64)
+        pose[:3, 3] += self.position_noise[index]
+        pose[:3, :3] = pose[:3, :3] @ Rotation.from_rotvec(self.rotation_noise[index]).as_matrix()
+        return pose

@@ -15,6 +15,7 @@ import zlib
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -255,10 +256,25 @@ class Sequence:
         return self.depth_raw(index).astype(np.float32) / np.float32(self.intrinsics.depth_scale)
 
     def world_from_camera(self, index: int) -> np.ndarray:
-        """True 4x4 pose of frame ``index`` (generated sequences: exact, same timestamp)."""
+        """True 4x4 pose of frame ``index`` at its capture (generated sequences): exact. Where
+        groundtruth.txt is a simulated motion capture's record, gt/camera_poses.txt holds it."""
         if self.groundtruth is None or not self.is_generated:
             raise ValueError(f"{self.root}: per-frame ground truth needs a generated sequence")
-        return pose_matrix(self.groundtruth.positions_m[index], self.groundtruth.quats_xyzw[index])
+        poses = self._exact_poses
+        return pose_matrix(poses.positions_m[index], poses.quats_xyzw[index])
+
+    @cached_property
+    def _exact_poses(self) -> PoseTable:
+        path = self.root / "gt" / "camera_poses.txt"
+        if not path.exists():
+            assert self.groundtruth is not None
+            return self.groundtruth
+        poses = read_pose_file(path, strict=True)
+        if len(poses.timestamps_s) != len(self.frames) or np.any(
+            np.abs(poses.timestamps_s - self.timestamps_s) > 1e-6
+        ):
+            raise SequenceFormatError(path, None, f"does not hold one pose per frame ({len(self.frames)})")
+        return poses
 
     # -- ground-truth extras ---------------------------------------------------
 
@@ -654,8 +670,10 @@ class SequenceWriter:
         self.orbslam = orbslam or OrbSlamSettings(fps=fps)
         self._tmp: Path | None = None
         self._timestamps: list[float] = []
+        self._depth_timestamps: list[float] = []
         self._positions: list[np.ndarray] = []
         self._quats: list[np.ndarray] = []
+        self._recorded: list[np.ndarray] = []
         self._objects: list[str] = []
 
     def __enter__(self) -> SequenceWriter:
@@ -700,11 +718,16 @@ class SequenceWriter:
         objects: tuple[ObjectState, ...] | list[ObjectState],
         flow: np.ndarray | None = None,
         clean_depth_m: np.ndarray | None = None,
+        depth_timestamp_s: float | None = None,
+        recorded_pose: np.ndarray | None = None,
     ) -> None:
         """Add one frame: RGB, metric z-depth, true camera pose (optical frame), ground truth.
 
         ``clean_depth_m`` is the noise-free depth, kept under gt/depth when a sensor
-        model altered ``depth_m``.
+        model altered ``depth_m``. ``depth_timestamp_s`` is the depth map's own stamp
+        (default: the RGB's). ``recorded_pose`` is what groundtruth.txt holds for the frame
+        where a motion capture's noise and timing are simulated; the exact pose then goes
+        to gt/camera_poses.txt. Give it for every frame or for none.
         """
         if self._tmp is None:
             raise RuntimeError("SequenceWriter must be used as a context manager")
@@ -714,6 +737,11 @@ class SequenceWriter:
             raise ValueError(f"frame {index}: timestamp {timestamp_s} does not increase")
         if index and timestamp_name(timestamp_s) == timestamp_name(self._timestamps[-1]):
             raise ValueError(f"frame {index}: timestamp {timestamp_s} collides at 6 decimals")
+        depth_stamp = timestamp_s if depth_timestamp_s is None else float(depth_timestamp_s)
+        if self._depth_timestamps and round(depth_stamp, 6) <= round(self._depth_timestamps[-1], 6):
+            raise ValueError(f"frame {index}: depth timestamp {depth_stamp} does not increase at 6 decimals")
+        if index and (recorded_pose is None) != (not self._recorded):
+            raise ValueError(f"frame {index}: a recorded pose is given for every frame or for none")
         _check_array(f"frame {index} rgb", rgb, (h, w, 3), np.uint8)
         _check_array(f"frame {index} depth_m", depth_m, (h, w), None)
         _check_array(f"frame {index} instances", instances, (h, w), np.uint16)
@@ -722,7 +750,10 @@ class SequenceWriter:
         name = timestamp_name(timestamp_s)
         tmp = self._tmp
         self._write_png(tmp / "rgb" / f"{name}.png", rgb)
-        self._write_png(tmp / "depth" / f"{name}.png", encode_depth(depth_m, self.intrinsics.depth_scale))
+        depth_name = timestamp_name(depth_stamp)
+        self._write_png(
+            tmp / "depth" / f"{depth_name}.png", encode_depth(depth_m, self.intrinsics.depth_scale)
+        )
         self._write_png(tmp / "gt" / "instances" / f"{name}.png", instances)
         if clean_depth_m is not None:
             _check_array(f"frame {index} clean_depth_m", clean_depth_m, (h, w), None)
@@ -736,6 +767,11 @@ class SequenceWriter:
             (tmp / "gt" / "flow").mkdir(exist_ok=True)
             np.savez_compressed(tmp / "gt" / "flow" / f"{name}.npz", flow=flow)
         self._timestamps.append(float(timestamp_s))
+        self._depth_timestamps.append(depth_stamp)
+        if recorded_pose is not None:
+            recorded = np.asarray(recorded_pose, dtype=np.float64)
+            _check_pose(f"frame {index} recorded_pose", recorded)
+            self._recorded.append(recorded)
         self._positions.append(pose[:3, 3].copy())
         self._quats.append(Rotation.from_matrix(pose[:3, :3]).as_quat(canonical=True))
         record = {"timestamp": name, "objects": [o.to_json() for o in objects]}
@@ -757,19 +793,40 @@ class SequenceWriter:
             raise ValueError(f"{self.root}: a sequence needs at least one frame")
         tmp = self._tmp
         stamps = np.array(self._timestamps)
+        depth_stamps = np.array(self._depth_timestamps)
         names = [timestamp_name(t) for t in stamps]
+        depth_names = [timestamp_name(t) for t in depth_stamps]
         write_frame_list(tmp / "rgb.txt", "color images", stamps, [f"rgb/{n}.png" for n in names])
-        write_frame_list(tmp / "depth.txt", "depth maps", stamps, [f"depth/{n}.png" for n in names])
+        write_frame_list(
+            tmp / "depth.txt", "depth maps", depth_stamps, [f"depth/{n}.png" for n in depth_names]
+        )
         (tmp / "associations.txt").write_text(
-            "".join(f"{n} rgb/{n}.png {n} depth/{n}.png\n" for n in names), encoding="utf-8"
+            "".join(f"{n} rgb/{n}.png {d} depth/{d}.png\n" for n, d in zip(names, depth_names, strict=True)),
+            encoding="utf-8",
         )
-        write_pose_file(
-            tmp / "groundtruth.txt",
-            stamps,
-            np.array(self._positions),
-            np.array(self._quats),
-            header="ground truth trajectory (world_from_camera, optical frame)",
-        )
+        exact = (np.array(self._positions), np.array(self._quats))
+        if self._recorded:
+            recorded = np.array(self._recorded)
+            write_pose_file(
+                tmp / "gt" / "camera_poses.txt",
+                stamps,
+                *exact,
+                header="exact camera poses (world_from_camera, optical frame) at each frame's capture",
+            )
+            write_pose_file(
+                tmp / "groundtruth.txt",
+                stamps,
+                recorded[:, :3, 3],
+                Rotation.from_matrix(recorded[:, :3, :3]).as_quat(canonical=True),
+                header="ground truth as a motion capture records it (noise, clock offset, sample rate)",
+            )
+        else:
+            write_pose_file(
+                tmp / "groundtruth.txt",
+                stamps,
+                *exact,
+                header="ground truth trajectory (world_from_camera, optical frame)",
+            )
         (tmp / "camera.yaml").write_text(orbslam_yaml(self.intrinsics, self.orbslam), encoding="utf-8")
         (tmp / "gt" / "objects.jsonl").write_text("\n".join(self._objects) + "\n", encoding="utf-8")
         meta = {

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 
 from depotbench.core.version import FORMAT_VERSION, generator_version
@@ -23,6 +24,10 @@ SPEED_RANGE_MPS = (0.0, 5.0)
 """An actor's speed: a brisk run at most."""
 FPS_RANGE = (1.0, 240.0)
 MIN_IMAGE_SIDE = 16
+FIELD_OF_VIEW_DEG = (1.0, 170.0)
+"""Narrowest and widest field of view across an image side: fx spans the width, fy the height."""
+PIXEL_ASPECT_RANGE = (0.5, 2.0)
+"""fy / fx of a real sensor: TUM fr3 1.007, a Kinect v1 1.0; 2 is already an anamorphic lens."""
 
 
 @dataclass(frozen=True)
@@ -75,6 +80,11 @@ class CameraSpec:
     amplitude_deg: float = 12.0
     period_s: float = 6.0
     speed_mps: float = 0.6
+    mean_speed_mps: float | None = None
+    """Calibrate a hand-held motion to this mean translational speed over the sequence's
+    frames (jitter included; TUM lists it per sequence). None: the fixed amplitudes."""
+    mean_angular_speed_dps: float | None = None
+    """Calibrate a hand-held motion to this mean angular speed (deg/s), as ``mean_speed_mps``."""
 
     def __post_init__(self) -> None:
         if self.motion not in CAMERA_MOTIONS:
@@ -92,10 +102,41 @@ class SensorSpec:
     rgb_noise_sigma: float = 0.0
     motion_blur_exposure_s: float = 0.0
     exposure_variation: float = 0.0
+    rolling_shutter_readout_s: float = 0.0
+    """Time from the first image row's exposure to the last's (0: a global shutter)."""
+    white_balance_drift: float = 0.0
+    """Stationary standard deviation of each colour channel's log gain (auto white balance)."""
+    depth_delay_mean_s: float = 0.0
+    """Mean of the per-frame delay of the depth capture after the RGB capture (exponential)."""
+    timestamp_jitter_s: float = 0.0
+    """Standard deviation of a frame's stamp about its capture time (USB arrival)."""
+    dropped_frame_rate: float = 0.0
+    """Share of frames the driver loses: they are absent from every list."""
+    gt_rate_hz: float = 0.0
+    """Motion-capture rate: groundtruth.txt's poses are the samples nearest each frame (0: exact times)."""
+    gt_position_noise_m: float = 0.0
+    """Standard deviation of groundtruth.txt's position noise, per axis."""
+    gt_rotation_noise_deg: float = 0.0
+    """Standard deviation of groundtruth.txt's orientation noise, per axis."""
+    gt_time_offset_s: float = 0.0
+    """Fixed offset of the motion-capture clock: a row stamped t holds the pose at t + offset."""
 
     @property
     def enabled(self) -> bool:
         return self != SensorSpec()
+
+    @property
+    def timing(self) -> bool:
+        """Whether frame times, stamps or the recorded ground truth differ from the exact ones."""
+        return bool(
+            self.depth_delay_mean_s
+            or self.timestamp_jitter_s
+            or self.dropped_frame_rate
+            or self.gt_rate_hz
+            or self.gt_position_noise_m
+            or self.gt_rotation_noise_deg
+            or self.gt_time_offset_s
+        )
 
 
 @dataclass(frozen=True)
@@ -107,6 +148,12 @@ class ScenarioSpec:
     width: int = 640
     height: int = 480
     focal_px: float = 525.0
+    """fx, in pixels; also fy where ``focal_y_px`` is None (square pixels)."""
+    focal_y_px: float | None = None
+    """fy, in pixels (TUM fr3: 539.2 beside fx 535.4); None: equal to fx."""
+    principal_px: tuple[float, float] | None = None
+    """(cx, cy) in OpenCV's convention (pixel centres at integers); None: the image centre
+    ((W-1)/2, (H-1)/2), as a plain MuJoCo camera renders, and as every sequence before had."""
     layout: LayoutSpec = field(default_factory=LayoutSpec)
     actors: tuple[ActorSpec, ...] = ()
     chairs: tuple[ChairSpec, ...] = ()
@@ -128,6 +175,47 @@ class ScenarioSpec:
         sides = (MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
         if not (sides[0] <= self.width <= sides[1] and sides[0] <= self.height <= sides[1]):
             raise ValueError(f"image size {self.width}x{self.height} is out of range")
+        cx, cy = self.principal_px or ((self.width - 1) / 2, (self.height - 1) / 2)
+        fy = self.focal_px if self.focal_y_px is None else self.focal_y_px
+        check_pinhole(self.width, self.height, (self.focal_px, fy, cx, cy), PINHOLE_FIELDS)
+
+
+PINHOLE_FIELDS = ("focal_px", "focal_y_px", "principal_px[0]", "principal_px[1]")
+"""ScenarioSpec's names of fx, fy, cx, cy, for ``check_pinhole``'s messages."""
+
+
+def check_pinhole(
+    width: int, height: int, pinhole: tuple[float, float, float, float], names: tuple[str, ...]
+) -> None:
+    """Refuse a camera the simulator cannot render as given, in one line naming the field
+    (``names``: what fx, fy, cx, cy are called where they were given).
+
+    Each focal length must give a field of view in ``FIELD_OF_VIEW_DEG`` across its side, fy / fx
+    must lie in ``PIXEL_ASPECT_RANGE``, and the principal point must lie on the image: inside
+    [-0.5, W - 0.5] x [-0.5, H - 0.5], the outer edges of the border pixels.
+    """
+    fx, fy, cx, cy = pinhole
+    for name, value in zip(names, pinhole, strict=True):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ValueError(f"{name}: must be a finite number, got {value!r}")
+    for name, focal, side in ((names[0], fx, width), (names[1], fy, height)):
+        low, high = (side / 2 / math.tan(math.radians(f / 2)) for f in reversed(FIELD_OF_VIEW_DEG))
+        if not low <= focal <= high:
+            raise ValueError(
+                f"{name}: {focal:g} px gives a field of view outside {FIELD_OF_VIEW_DEG[0]:g}-"
+                f"{FIELD_OF_VIEW_DEG[1]:g} degrees across {side} pixels; "
+                f"it must lie in [{low:.1f}, {high:.1f}]"
+            )
+    low, high = PIXEL_ASPECT_RANGE
+    if not low <= fy / fx <= high:
+        raise ValueError(
+            f"{names[1]}: fy / fx = {fy / fx:.3g} is outside the {low:g}-{high:g} of a real sensor"
+        )
+    for name, value, side in ((names[2], cx, width), (names[3], cy, height)):
+        if not -0.5 <= value <= side - 0.5:
+            raise ValueError(
+                f"{name}: {value:g} px lies off the image (-0.5 to {side - 0.5:g} for {side} pixels)"
+            )
 
 
 def default_scenario(frames: int = 90, seed: int = 0) -> ScenarioSpec:

@@ -227,6 +227,12 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="random seed (overrides the spec)")
     p.add_argument("--flow", action="store_true", help="also write exact optical flow (gt/flow)")
     p.add_argument(
+        "--sensor",
+        choices=("perfect", "kinect", "tum"),
+        help="the sensor model (overrides the spec): perfect gives exact pixels, tum (the TUM analogs' "
+        "default) a Kinect recorded as TUM fr3 was (docs/scenarios.md)",
+    )
+    p.add_argument(
         "--overwrite",
         action="store_true",
         help="replace an existing output of depotbench (a suite: regenerate every sequence)",
@@ -264,10 +270,13 @@ def _png_level(text: str) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from depotbench.core.examples import Kind, examples, hint, named, reads_as_path
     from depotbench.scenes import library
     from depotbench.scenes.generation import run_suite
     from depotbench.scenes.resolve import DEFAULT, resolve
+    from depotbench.scenes.schema import sensor_spec
     from depotbench.scenes.suite import is_suite_file, load_suite
     from depotbench.sim.generate import generate
 
@@ -278,8 +287,10 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     if args.address and args.backend != "ray":
         raise InputError("--address applies to --backend ray only")
     if path.is_file() and is_suite_file(path):
-        if args.frames is not None or args.seed is not None or args.flow:
-            raise InputError("--frames, --seed and --flow apply to one scenario; set them in the suite")
+        if args.frames is not None or args.seed is not None or args.flow or args.sensor:
+            raise InputError(
+                "--frames, --seed, --flow and --sensor apply to one scenario; set them in the suite"
+            )
         index = run_suite(
             load_suite(path),
             path,
@@ -309,6 +320,8 @@ def _cmd_generate(args: argparse.Namespace) -> int:
                 f"{hint(args.spec, known, lister)}"
             )
     scenario = resolve(args.spec, changes)
+    if args.sensor:
+        scenario = dataclasses.replace(scenario, sensor=sensor_spec(args.sensor))
     inputs = (path,) if path.exists() else ()
     out = generate(
         scenario, args.output, overwrite=args.overwrite, inputs=inputs, png_compression=args.png_compression
