@@ -446,7 +446,7 @@ def build_world(scenario: ScenarioSpec) -> World:
             bodies.append(body)
         actor_bodies.append(bodies)
     chair_bodies = [_add_chair(spec, chair, k) for k, chair in enumerate(scenario.chairs)]
-    rig = CameraRig(scenario.camera, camera_rng)
+    rig = CameraRig(scenario.camera, camera_rng, duration_s=scenario.frames / scenario.fps, fps=scenario.fps)
     pose0 = rig.world_from_camera(0.0)
     cam_body = world_body.add_body(
         name="camera_rig",
