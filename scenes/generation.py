@@ -32,7 +32,8 @@ from depotbench.core.progress import progress_bar
 from depotbench.scenes.schema import Scenario, to_scenario
 from depotbench.scenes.store import SequenceStore
 from depotbench.scenes.suite import Suite, variations
-from depotbench.sim.spec import content_key
+from depotbench.sim.sensor_profiles import profile_name
+from depotbench.sim.spec import SensorSpec, content_key
 
 LOG = logging.getLogger(__name__)
 
@@ -177,6 +178,7 @@ def run_suite(
                     "knobs": knobs,
                     "seed": sc.seed,
                     "frames": sc.n_frames,
+                    "sensor_profile": profile_name(SensorSpec(**sc.sensor.model_dump())),
                     "content_key": keys[name],
                     "difficulty": read_difficulty(root / name),
                 }

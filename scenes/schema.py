@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MAX_SPEC_BYTES, read_text
-from depotbench.sim import actor_registry
+from depotbench.sim import actor_registry, sensor_profiles
 from depotbench.sim import spec as sim_spec
 from depotbench.sim.kinds import TUM_WALK
 from depotbench.sim.layout import CHAIR_HALF_M, fixed_footprints, overlaps
@@ -211,25 +211,8 @@ class Lighting(Strict):
     intensity: float = Field(SCENARIO.light_intensity, gt=0, le=3)
 
 
-TUM_SENSOR = {
-    # Ringaby and Forssen (IJCV 2011): VGA consumer CMOS sensors at 30 Hz read out in 30-31 ms.
-    "rolling_shutter_readout_s": 0.030,
-    # No published figure: auto white balance moving a channel's gain by ~2 %.
-    "white_balance_drift": 0.02,
-    # TUM fr3 associations (office_val, nstr_tex_near): depth stamped 0.10-0.12 ms after RGB.
-    "depth_delay_mean_s": 0.00012,
-    # Same files: frame intervals vary by 2.0-2.1 ms (std), 1.5 ms per stamp.
-    "timestamp_jitter_s": 0.0015,
-    # Same files: 3.0-4.1 % of the 30 Hz frames are missing.
-    "dropped_frame_rate": 0.035,
-    # Sturm et al. (IROS 2012): motion capture at 100 Hz, millimetre accuracy.
-    "gt_rate_hz": 100.0,
-    "gt_position_noise_m": 0.001,
-    "gt_rotation_noise_deg": 0.1,
-    # Half a motion-capture sample: what aligning two clocks at 100 Hz can leave.
-    "gt_time_offset_s": 0.005,
-}
-"""The TUM profile's additions to ``kinect``; docs/scenarios.md gives each one's source."""
+TUM_SENSOR = sensor_profiles.TUM_ADDITIONS
+"""The TUM profile's additions to ``kinect`` (sim/sensor_profiles.py gives their sources)."""
 
 
 class Sensor(Strict):
@@ -259,21 +242,13 @@ class Sensor(Strict):
 
     @classmethod
     def kinect(cls) -> Sensor:
-        return cls(
-            depth_noise=True,
-            disparity_quantisation=True,
-            depth_range_m=(0.4, 8.0),
-            edge_dropout=0.5,
-            rgb_noise_sigma=2.0,
-            motion_blur_exposure_s=0.01,
-            exposure_variation=0.05,
-        )
+        return cls(**dataclasses.asdict(sensor_profiles.KINECT))
 
     @classmethod
     def tum(cls) -> Sensor:
         """A Kinect v1 recorded as TUM fr3 was: ``kinect`` plus the timing, shutter and
         ground-truth effects, each default from the source docs/scenarios.md names."""
-        return cls.kinect().model_copy(update=TUM_SENSOR)
+        return cls(**dataclasses.asdict(sensor_profiles.TUM))
 
 
 SENSOR_PRESETS = {"perfect": Sensor, "kinect": Sensor.kinect, "tum": Sensor.tum}

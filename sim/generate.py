@@ -17,6 +17,7 @@ from depotbench.sim.mujoco_env import mujoco
 from depotbench.sim.products import product
 from depotbench.sim.render import FrameRenderer
 from depotbench.sim.sensor import SensorModel
+from depotbench.sim.sensor_profiles import profile_name
 from depotbench.sim.sequence import SequenceWriter
 from depotbench.sim.simulation import Simulation, Snapshot
 from depotbench.sim.spec import ScenarioSpec, content_key
@@ -140,7 +141,11 @@ def generate(
         out,
         intrinsics_of(scenario),
         fps=scenario.fps,
-        meta={"scenario": dataclasses.asdict(scenario), "seed": scenario.seed},
+        meta={
+            "scenario": dataclasses.asdict(scenario),
+            "seed": scenario.seed,
+            "sensor_profile": profile_name(scenario.sensor),
+        },
         overwrite=overwrite,
         content_key=content_key(scenario),
         inputs=inputs,

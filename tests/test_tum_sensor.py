@@ -178,6 +178,7 @@ def _digest(root: Path) -> str:
     return digest.hexdigest()
 
 
+@pytest.mark.slow
 def test_tum_profile_is_byte_identical_per_seed_and_keeps_the_exact_truth(tmp_path: Path) -> None:
     tum = sensor_spec("tum")
     first = _generate(tmp_path / "a", tum, frames=12)

@@ -651,7 +651,11 @@ def difficulty_table(view: RunView) -> str:
     difficulty = (sequence.meta or {}).get("difficulty")
     if not isinstance(difficulty, dict) or not difficulty:
         return "<p>No difficulty recorded (not a generated sequence).</p>"
-    return table(["measure", "value"], [[k.replace("_", " "), v] for k, v in sorted(difficulty.items())])
+    rows = [[k.replace("_", " "), v] for k, v in sorted(difficulty.items())]
+    profile = (sequence.meta or {}).get("sensor_profile")
+    if isinstance(profile, str):  # sequences from 0.7 and before name none
+        rows.insert(0, ["sensor profile", profile])
+    return table(["measure", "value"], rows)
 
 
 def _strip_html(view: RunView, notes: Notes) -> str:
