@@ -335,9 +335,10 @@ class FrameRenderer:
             world.reshape(-1, 3) - data.cam_xpos[camera_id], data.cam_xmat[camera_id].reshape(3, 3)
         )
         depth = -camera[:, 2]  # MuJoCo cameras look along -z
-        focal = (self.height / 2) / np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
+        view = camera_view(self.model, camera_id, self.width, self.height)
         with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: replaced below
-            u, v = focal * camera[:, 0] / depth, -focal * camera[:, 1] / depth
+            u = view.fx * camera[:, 0] / depth + view.shift_px[0]
+            v = -view.fy * camera[:, 1] / depth + view.shift_px[1]
         owner = np.repeat(self.geom_instance[geoms], len(_BOX_CORNERS))
         boxes = np.empty((len(instances), 4))
         for row, instance in enumerate(instances):
@@ -376,10 +377,9 @@ class FrameRenderer:
         camera = product(data.geom_xpos - data.cam_xpos[camera_id], data.cam_xmat[camera_id].reshape(3, 3))
         x, y, z = camera[:, 0], camera[:, 1], -camera[:, 2]  # MuJoCo cameras look along -z
         radius = self._cull_radius
-        tan_v = np.tan(np.radians(self.model.cam_fovy[camera_id]) / 2)
-        tan_u = tan_v * self.width / self.height
+        left, right, down, up = camera_view(self.model, camera_id, self.width, self.height).tangents
         outside = z < -radius
-        for offset, tan in ((x, tan_u), (-x, tan_u), (y, tan_v), (-y, tan_v)):
+        for offset, tan in ((x, right), (-x, left), (y, up), (-y, down)):
             outside |= offset - tan * z > radius * np.sqrt(1 + tan * tan)  # distance to the plane
         return outside & self._cullable
 
@@ -397,6 +397,35 @@ class FrameRenderer:
     def close(self) -> None:
         self._context.free()
         self._gl.free()
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraView:
+    """How a MuJoCo camera maps its frame onto a width x height image, as MuJoCo draws it."""
+
+    fx: float
+    fy: float
+    shift_px: tuple[float, float]
+    """Where the optical axis meets the image, right and down of the image's centre."""
+    tangents: tuple[float, float, float, float]
+    """Tangents of the view's half-angles to the left, right, down and up of the axis."""
+
+
+def camera_view(model: mujoco.MjModel, camera_id: int, width: int, height: int) -> CameraView:
+    """The view of a ``fovy`` camera (square pixels, centred axis, the image's aspect) or of
+    one with a sensor size, whose frustum spans (S/2 -+ p) / f either side of the axis
+    (engine_vis_visualize.c getFrustum; ``world.camera_attributes`` writes it)."""
+    sensor = model.cam_sensorsize[camera_id].astype(np.float64)
+    if not sensor[1] > 0:
+        tan_v = np.tan(np.radians(model.cam_fovy[camera_id]) / 2)
+        tan_u = tan_v * width / height
+        focal = (height / 2) / tan_v
+        return CameraView(focal, focal, (0.0, 0.0), (tan_u, tan_u, tan_v, tan_v))
+    f_x, f_y, p_x, p_y = model.cam_intrinsic[camera_id].astype(np.float64)
+    left, right = (sensor[0] / 2 - p_x) / f_x, (sensor[0] / 2 + p_x) / f_x
+    up, down = (sensor[1] / 2 - p_y) / f_y, (sensor[1] / 2 + p_y) / f_y
+    fx, fy = width / (left + right), height / (up + down)
+    return CameraView(fx, fy, (left * fx - width / 2, up * fy - height / 2), (left, right, down, up))
 
 
 def _sample_textures_bilinear(model: mujoco.MjModel, context: mujoco.MjrContext) -> None:

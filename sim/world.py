@@ -330,12 +330,43 @@ def chair_footprints(chairs: tuple[ChairSpec, ...]) -> tuple[Rect, ...]:
 
 
 def intrinsics_of(scenario: ScenarioSpec) -> Intrinsics:
-    """The intrinsics of the scenario's MuJoCo camera (square pixels, centred principal point)."""
-    return Intrinsics.from_fovy(
-        2 * math.degrees(math.atan((scenario.height / 2) / scenario.focal_px)),
-        scenario.width,
-        scenario.height,
-    )
+    """The intrinsics of the scenario's camera, exactly as it is rendered.
+
+    Without ``focal_y_px`` and ``principal_px`` it is a plain MuJoCo camera (square pixels,
+    centre at ((W-1)/2, (H-1)/2)), derived through its ``fovy`` as every sequence before was,
+    so that their bytes stay the same; with them, the given pinhole (``camera_attributes``).
+    """
+    if scenario.focal_y_px is None and scenario.principal_px is None:
+        return Intrinsics.from_fovy(
+            2 * math.degrees(math.atan((scenario.height / 2) / scenario.focal_px)),
+            scenario.width,
+            scenario.height,
+        )
+    w, h = scenario.width, scenario.height
+    fy = scenario.focal_px if scenario.focal_y_px is None else scenario.focal_y_px
+    cx, cy = scenario.principal_px or ((w - 1) / 2, (h - 1) / 2)
+    return Intrinsics(fx=scenario.focal_px, fy=fy, cx=cx, cy=cy, width=w, height=h)
+
+
+def camera_attributes(intrinsics: Intrinsics) -> dict:
+    """MjSpec attributes of a camera that renders ``intrinsics`` (OpenCV convention) exactly.
+
+    A square, centred pinhole gets ``fovy`` (what every sequence before was made with). Any
+    other gets MuJoCo's intrinsic attributes, with a sensor one length unit per pixel: its
+    frustum spans (W/2 -+ p) / f on either side of the axis (engine_vis_visualize.c,
+    getFrustum), so ``principalpixel`` p is the image centre minus the principal point, not
+    the principal point: cx = (W-1)/2 - p_x and, rows counted down, cy = (H-1)/2 - p_y.
+    """
+    k = intrinsics
+    centre = ((k.width - 1) / 2, (k.height - 1) / 2)
+    if k.fx == k.fy and (k.cx, k.cy) == centre:
+        return {"fovy": k.fovy_deg()}
+    return {
+        "resolution": [k.width, k.height],
+        "sensor_size": [float(k.width), float(k.height)],
+        "focal_pixel": [k.fx, k.fy],
+        "principal_pixel": [centre[0] - k.cx, centre[1] - k.cy],
+    }
 
 
 def build_world(scenario: ScenarioSpec) -> World:
@@ -454,7 +485,7 @@ def build_world(scenario: ScenarioSpec) -> World:
         pos=list(pose0[:3, 3]),
         quat=list(quat_wxyz(gl_from_cv_rotation(pose0[:3, :3]))),
     )
-    cam_body.add_camera(name="camera", fovy=intrinsics.fovy_deg())
+    cam_body.add_camera(name="camera", **camera_attributes(intrinsics))
 
     model = spec.compile()
     mocap_of = {int(b.id): int(model.body_mocapid[b.id]) for bodies in actor_bodies for b in bodies}

@@ -1167,7 +1167,15 @@ def geometry(draw) -> dict:
             "position_m": draw(st.one_of(inside, inside, point3)),
             "target_m": draw(st.one_of(point3, st.just([0.0, 0.0, 0.0]))),
         },
-        "intrinsics": {"fx": draw(st.one_of(st.floats(0.5, 5000), st.floats(15, 150), st.floats(15, 150)))},
+        "intrinsics": {
+            "fx": draw(st.one_of(st.floats(0.5, 5000), st.floats(15, 150), st.floats(15, 150))),
+            # a full pinhole (48x36 images): fy, and a principal point on, at the edge of, or off the image
+            **(
+                {"fy": draw(st.floats(10, 200)), "cx": draw(st.floats(-2, 50)), "cy": draw(st.floats(-2, 38))}
+                if draw(st.booleans())
+                else {}
+            ),
+        },
         "layout": {"props": draw(st.integers(0, 60)), "rack_rows": draw(st.integers(0, 4))},
         "actors": [
             {

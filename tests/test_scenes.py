@@ -214,8 +214,8 @@ MALFORMED = {
     "bad_name.yaml": ("name: 'has spaces/and slashes'\n", "name: String should match pattern"),
     "missing_name.yaml": ("seed: 3\n", "name: Field required"),
     "bad_range.yaml": ("name: a\nsensor: {depth_range_m: [5, 1]}\n", "sensor"),
-    "fy_differs.yaml": ("name: a\nintrinsics: {fx: 500, fy: 520}\n", "fy must equal fx"),
-    "off_centre.yaml": ("name: a\nintrinsics: {cx: 300}\n", "intrinsics.cx: must be 319.5"),
+    "fy_anamorphic.yaml": ("name: a\nintrinsics: {fx: 500, fy: 1500}\n", "intrinsics.fy: fy / fx = 3"),
+    "off_image.yaml": ("name: a\nintrinsics: {cx: 700}\n", "intrinsics.cx: 700 px lies off the image"),
     "frames_and_duration.yaml": (
         "name: a\nframes: 10\nduration_s: 2\n",
         "give frames or duration_s",
