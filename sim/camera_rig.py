@@ -62,6 +62,9 @@ TRANSLATION_WEIGHTS = np.array([1.0, 0.6, 0.8])
 """Per-axis share of a deliberate translation (camera x, y, z): mostly sideways and depth."""
 ROTATION_WEIGHTS = np.array([0.6, 1.0, 0.5])
 """Per-axis share of a deliberate rotation (pitch, yaw, roll about camera x, y, z)."""
+PERIOD_SPREAD = (0.8, 1.25)
+"""A calibrated motion's axes run at period_s over 0.8-1.25 (the fixed-amplitude motions'
+0.6-1.4 would let a seed's amplitudes, and so its excursion, differ 2.3x for one speed)."""
 SCALE_TOLERANCE = 1e-12
 """How closely a scale is solved: far below any statistic's rounding (1e-12 m, 1e-12 deg)."""
 PROBE = 1e-6
@@ -197,7 +200,7 @@ class CalibratedMotion:
         self._window_speeds = partial(window_speeds, times, starts=starts, ends=ends[starts])
         self._still_positions = np.zeros((len(times), 3))
         self._still_rotations = np.broadcast_to(np.eye(3), (len(times), 3, 3))
-        self.freqs = rng.uniform(0.6, 1.4, (2, 3)) * 2 * math.pi / spec.period_s
+        self.freqs = rng.uniform(*PERIOD_SPREAD, (2, 3)) * 2 * math.pi / spec.period_s
         self.phases = rng.uniform(0, 2 * math.pi, (2, 3))
         # One term per band, the bands log-spaced over JITTER_BAND_HZ, so every draw has a
         # slow sway and a fast tremor; amplitudes fall as f^-JITTER_FALL.

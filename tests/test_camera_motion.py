@@ -24,9 +24,10 @@ FPS = 30.0
 WALKING = {"position_m": (0.0, -0.6, 1.4), "target_m": (0.0, 1.6, 1.0)}
 SITTING = {"position_m": (0.0, -1.4, 1.35), "target_m": (0.0, 2.0, 0.95)}
 """The viewpoints of scenes/library/walking_*.yaml and sitting_*.yaml."""
-PERIOD_S = {"static": 6.0, "xyz": 10.0, "rpy": 10.0, "halfsphere": 10.0}
-"""The period each TUM analog's camera uses (a 10 s period keeps the 30 Hz path within
-10 % of TUM's: TUM's speeds are over 1 s, and a faster sway adds path they do not see)."""
+PERIOD_S = {"static": 6.0, "xyz": 10.0, "rpy": 8.0, "halfsphere": 10.0}
+"""The period each TUM analog's camera uses: 8-10 s keeps the 30 Hz path within 10 % of
+TUM's (TUM's speeds are over 1 s, and a faster sway adds path they do not see); rpy's 8 s
+leaves its 45 deg cap room at every seed."""
 
 
 def tum_rig(name: str, seed: int = 0, duration_s: float | None = None) -> CameraRig:
@@ -278,15 +279,16 @@ OLD_POSES = {  # world_from_camera rows 0-2 at t = 0, 1.3, 4.7 s, seed 7, before
 
 @pytest.mark.parametrize("name", sorted(TUM_MOTION))
 def test_a_tum_analog_moves_as_tum_moved(name):
-    """Each of TUM fr3's seven dynamic sequences: with TUM's duration and mean speeds as
-    targets, the whole motion (jitter included) has those means to 1 %, and its path length
-    lands within 10 % of TUM's (it is not a target: it follows from the motion's shape)."""
+    """Each of TUM fr3's seven dynamic sequences, at five seeds: with TUM's duration and mean
+    speeds as targets, the whole motion (jitter included) has those means to 1 %, and its
+    path length lands within 10 % of TUM's (not a target: it follows from the motion)."""
     tum = TUM_MOTION[name]
-    measured = stats_of(tum_rig(name), tum.duration_s)
-    assert measured.mean_speed_mps == pytest.approx(tum.mean_speed_mps, rel=0.01)
-    assert measured.mean_angular_speed_dps == pytest.approx(tum.mean_angular_speed_dps, rel=0.01)
-    assert measured.duration_s == pytest.approx(tum.duration_s, rel=0.01)
-    assert measured.path_length_m == pytest.approx(tum.path_length_m, rel=0.10)
+    for seed in range(5):
+        measured = stats_of(tum_rig(name, seed), tum.duration_s)
+        assert measured.mean_speed_mps == pytest.approx(tum.mean_speed_mps, rel=0.01), seed
+        assert measured.mean_angular_speed_dps == pytest.approx(tum.mean_angular_speed_dps, rel=0.01), seed
+        assert measured.duration_s == pytest.approx(tum.duration_s, rel=0.01), seed
+        assert measured.path_length_m == pytest.approx(tum.path_length_m, rel=0.10), seed
 
 
 def test_world_from_camera_is_the_calibrated_pose():
