@@ -36,7 +36,6 @@ loop as "other" and the world's build apart.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import multiprocessing as mp
 import tempfile
 import time
@@ -71,6 +70,7 @@ def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: s
     """The default scenario, or a library scene, at this image size and seed, with
     ``frames`` frames (None: the scenario's own length). render.py uses it too."""
     from depotbench.sim.spec import default_scenario
+    from depotbench.sim.world import at_size
 
     if scene is None:
         spec = default_scenario(seed=seed) if frames is None else default_scenario(frames=frames, seed=seed)
@@ -80,7 +80,7 @@ def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: s
 
         update = {"seed": seed} if frames is None else {"frames": frames, "duration_s": None, "seed": seed}
         spec = to_scenario(library.get(scene).model_copy(update=update))
-    return dataclasses.replace(spec, width=width, height=height, focal_px=525.0 * width / 640)
+    return at_size(spec, width, height)
 
 
 def check_scene(parser: argparse.ArgumentParser, scene: str | None) -> None:

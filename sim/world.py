@@ -348,6 +348,26 @@ def intrinsics_of(scenario: ScenarioSpec) -> Intrinsics:
     return Intrinsics(fx=scenario.focal_px, fy=fy, cx=cx, cy=cy, width=w, height=h)
 
 
+def at_size(scenario: ScenarioSpec, width: int, height: int) -> ScenarioSpec:
+    """The same scenario and field of view at another image size: each focal length scales
+    with its side, and the principal point with the pixels' edges (c' = (c + 0.5) s - 0.5),
+    so that a shrunk TUM analog keeps fr3's off-centre axis instead of leaving the image."""
+    sx, sy = width / scenario.width, height / scenario.height
+    principal = None
+    if scenario.principal_px is not None:
+        cx, cy = scenario.principal_px
+        principal = ((cx + 0.5) * sx - 0.5, (cy + 0.5) * sy - 0.5)
+    fy = None if scenario.focal_y_px is None else scenario.focal_y_px * sy
+    return replace(
+        scenario,
+        width=width,
+        height=height,
+        focal_px=scenario.focal_px * sx,
+        focal_y_px=fy,
+        principal_px=principal,
+    )
+
+
 def camera_attributes(intrinsics: Intrinsics) -> dict:
     """MjSpec attributes of a camera that renders ``intrinsics`` (OpenCV convention) exactly.
 

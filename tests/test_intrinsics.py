@@ -17,7 +17,7 @@ from depotbench.core.camera import Intrinsics
 from depotbench.core.errors import InputError
 from depotbench.scenes.schema import parse_scenario, to_scenario
 from depotbench.sim.spec import CameraSpec, ScenarioSpec, default_scenario, spec_from_dict
-from depotbench.sim.world import build_world, camera_attributes, intrinsics_of
+from depotbench.sim.world import at_size, build_world, camera_attributes, intrinsics_of
 
 TUM_FR3 = {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6}
 """TUM fr3's camera at 640x480 (ORB-SLAM2's Examples/RGB-D/TUM3.yaml)."""
@@ -158,17 +158,26 @@ def _scenario(**changes) -> ScenarioSpec:
 
 @pytest.mark.render
 def test_a_generated_sequences_floor_back_projects_to_z_zero(tmp_path):
-    """TUM fr3's camera scaled to 64x48 through the whole simulator: camera.yaml holds it,
+    """TUM fr3's camera shrunk to 64x48 (at_size) through the whole simulator: camera.yaml holds it,
     meta.json gives the spec back, and every pixel's depth back-projected with camera.yaml's
     intrinsics and the ground-truth pose lands on or above the floor (z = 0), a quarter or
     more of them on it to within 2 mm; with centred intrinsics the floor tilts to -1 cm."""
     from depotbench.sim.generate import generate
     from depotbench.sim.sequence import Sequence
 
-    scale = 0.1  # pixel edges scale, not centres: c' = (c + 0.5) s - 0.5
-    fr3 = TUM_FR3
-    principal = ((fr3["cx"] + 0.5) * scale - 0.5, (fr3["cy"] + 0.5) * scale - 0.5)
-    spec = _scenario(focal_px=fr3["fx"] * scale, focal_y_px=fr3["fy"] * scale, principal_px=principal)
+    fr3 = TUM_FR3  # at_size scales pixel edges, not centres: c' = (c + 0.5) s - 0.5
+    full = dataclasses.replace(
+        _scenario(),
+        width=640,
+        height=480,
+        focal_px=fr3["fx"],
+        focal_y_px=fr3["fy"],
+        principal_px=(320.1, 247.6),
+    )
+    spec = at_size(full, 64, 48)
+    principal = ((fr3["cx"] + 0.5) * 0.1 - 0.5, (fr3["cy"] + 0.5) * 0.1 - 0.5)
+    assert (spec.focal_px, spec.focal_y_px) == pytest.approx((53.54, 53.92), abs=1e-12)
+    assert spec.principal_px == pytest.approx(principal, abs=1e-12)
     sequence = Sequence.open(generate(spec, tmp_path / "fr3", progress=False))
     k = sequence.intrinsics
     assert (k.fx, k.fy, k.cx, k.cy) == pytest.approx((53.54, 53.92, principal[0], principal[1]), abs=1e-9)

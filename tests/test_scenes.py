@@ -24,13 +24,18 @@ from tests.conftest import REPO
 
 
 def small(scenario: Scenario, frames: int, width: int = 96) -> Scenario:
+    """The scenario at ``width`` pixels wide, its camera (a TUM analog's fr3 pinhole too) scaled."""
     height = width * 3 // 4
+    k = scenario.intrinsics
+    s = width / scenario.image.width
+    camera = {"fx": k.fx * s, "fy": k.fy and k.fy * s}
+    camera |= {name: (c + 0.5) * s - 0.5 for name, c in (("cx", k.cx), ("cy", k.cy)) if c is not None}
     return scenario.model_copy(
         update={
             "frames": frames,
             "duration_s": None,
             "image": scenario.image.model_copy(update={"width": width, "height": height}),
-            "intrinsics": scenario.intrinsics.model_copy(update={"fx": 525.0 * width / 640}),
+            "intrinsics": k.model_copy(update=camera),
         }
     )
 
