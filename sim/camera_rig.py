@@ -26,6 +26,8 @@ from depotbench.sim.spec import CameraSpec
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
+CALIBRATION_MIN_S = 2.0
+"""A speed target is met over at least this span: twice the 1 s that TUM's speeds are taken over."""
 ROBOT_LOOP = np.array([[-2.6, -2.0], [2.6, -2.0], [2.6, 2.95], [-2.6, 2.95]])
 ROBOT_CAMERA_HEIGHT_M = 0.45
 
@@ -102,8 +104,10 @@ class CameraRig:
             if duration_s is None:
                 raise ValueError("camera.mean_speed_mps: a speed target needs the sequence's duration")
             assert self.base is not None
-            times = np.arange(max(1, round(duration_s * fps))) / fps
-            self.calibrated = CalibratedMotion(spec, self.base, rng, times)
+            # Calibrated at the frame times; a sequence shorter than CALIBRATION_MIN_S moves as
+            # the start of one that long at its rate (the speeds are taken over 1 s).
+            frames = max(round(duration_s * fps), math.ceil(CALIBRATION_MIN_S * fps) + 1)
+            self.calibrated = CalibratedMotion(spec, self.base, rng, np.arange(frames) / fps)
 
     def _wave(self, row: int, t: float) -> np.ndarray:
         return np.sin(self.freqs[row] * t + self.phases[row])
