@@ -8,6 +8,7 @@ kinematics. So feet do not slide, whatever the speed or the path's curvature.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -25,8 +26,9 @@ from depotbench.sim.figures import (
     quadruped_surfaces,
 )
 from depotbench.sim.kinds import QuadrupedBody
-from depotbench.sim.paths import Path
+from depotbench.sim.paths import OpenPath, Path, Walk
 from depotbench.sim.products import product
+from scipy.spatial.transform import Rotation
 
 FD_STEP_S = 1e-3
 """Step of the central differences that give an actor's velocity."""
@@ -93,7 +95,7 @@ class Gait:
     """Foot placement along a path: where each foot is at time t."""
 
     def __init__(
-        self, path: Path, speed: float, stride: float, duty: float, lift: float, start_s: float
+        self, path: Path | OpenPath, speed: float, stride: float, duty: float, lift: float, start_s: float
     ) -> None:
         self.path, self.speed, self.stride, self.duty, self.lift = path, speed, stride, duty, lift
         self.start_s = start_s
@@ -130,6 +132,11 @@ class Gait:
         normal = np.array([-t[1], t[0]])
         xy = p + lateral * normal
         return np.array([xy[0], xy[1], z])
+
+
+def natural_stride(speed: float, scale: float) -> float:
+    """One gait cycle's travel (two steps) at ``speed`` for a person of ``scale``."""
+    return float(np.clip(1.25 * scale * math.sqrt(max(speed, 0.05) / 1.2), 0.4 * scale, 1.5 * scale))
 
 
 class Actor:
@@ -215,18 +222,19 @@ class Walker(Actor):
 
     def __init__(
         self,
-        path: Path,
+        path: Path | OpenPath,
         speed: float,
         scale: float,
         materials: dict[str, str],
         start_s: float,
         push: bool = False,
         look: Look | None = None,
+        stride: float | None = None,
     ) -> None:
         self.scale = s = scale
         self.push = push
         self.l_thigh, self.l_shin, self.ankle_h = 0.45 * s, 0.45 * s, 0.08 * s
-        self.stride = float(np.clip(1.25 * s * math.sqrt(max(speed, 0.05) / 1.2), 0.4 * s, 1.5 * s))
+        self.stride = stride or natural_stride(speed, s)
         duty = 0.62
         reach = 0.985 * (self.l_thigh + self.l_shin)
         offset = duty / 2 * self.stride
@@ -302,8 +310,28 @@ class Walker(Actor):
         return np.array(positions), np.array(rotations)
 
 
+GESTURE_S = (1.0, 2.5)
+"""How long one hand gesture lasts (raise, hold, lower)."""
+GESTURE_GAP_S = (1.5, 6.0)
+"""Pause between one hand's gestures: TUM's sitting people 'talk to each other and
+gesture a little', so each hand rises every few seconds, for as long as the sequence."""
+GESTURE_HORIZON_S = 600.0
+"""Gestures are drawn for this long and then repeat (a sequence's 36,000 frames at 60 fps)."""
+
+
+def _gestures(rng: np.random.Generator) -> np.ndarray:
+    """(start, end) of one hand's gestures over ``GESTURE_HORIZON_S``."""
+    events, t = [], float(rng.uniform(0.0, GESTURE_GAP_S[1]))
+    while t < GESTURE_HORIZON_S:
+        span = float(rng.uniform(*GESTURE_S))
+        events.append((t, t + span))
+        t += span + float(rng.uniform(*GESTURE_GAP_S))
+    return np.array(events)
+
+
 class SittingPerson(Actor):
-    """A person seated at the desk: small torso sway, head turns, typing hands."""
+    """A person seated at the desk, talking: torso sway and lean, head turns, hands that
+    type and now and then rise to gesture."""
 
     def __init__(
         self,
@@ -317,7 +345,20 @@ class SittingPerson(Actor):
         self.seat = seat
         self.phases = rng.uniform(0, 2 * math.pi, 6)
         self.rates = rng.uniform(0.6, 1.4, 6)
+        self.gestures = (_gestures(rng), _gestures(rng))
         self.parts = person_parts(s, materials, 0.21 * s, 0.2 * s, look)
+
+    def gesture(self, hand: int, t: float) -> float:
+        """How far hand 0 (left) or 1 (right) is raised in a gesture at t: 0 resting, 1 up
+        (a third of the gesture's time to rise, a third held, a third to come down)."""
+        events = self.gestures[hand]
+        t %= GESTURE_HORIZON_S
+        k = int(np.searchsorted(events[:, 0], t, side="right")) - 1
+        if k < 0 or t >= events[k, 1]:
+            return 0.0
+        t0, t1 = events[k]
+        x = 3 * (t - t0) / (t1 - t0)
+        return smoothstep(x) if x < 1.5 else smoothstep(3 - x)
 
     def _wave(self, k: int, t: float, amplitude: float) -> float:
         return amplitude * math.sin(self.rates[k] * t + self.phases[k])
@@ -330,9 +371,10 @@ class SittingPerson(Actor):
         s = self.scale
         pelvis, body = self.root(t)
         fwd, left, up = body[:, 0], body[:, 1], body[:, 2]
+        raised = max(self.gesture(0, t), self.gesture(1, t))
         sway = product(
             product(
-                axis_rotation(left, math.radians(6.0) + self._wave(0, t, math.radians(4.0))),
+                axis_rotation(left, math.radians(6.0 + 2.0 * raised) + self._wave(0, t, math.radians(4.0))),
                 axis_rotation(fwd, self._wave(1, t, math.radians(3.0))),
             ),
             body,
@@ -342,12 +384,15 @@ class SittingPerson(Actor):
         positions.append(pelvis + product(sway, np.array([0.0, 0.0, 0.72 * s])))
         rotations = [body, sway, head_turn]
         uppers, fores = [], []
-        for k, sign in ((3, 1.0), (4, -1.0)):
+        for hand, (k, sign) in enumerate(((3, 1.0), (4, -1.0))):
             shoulder = pelvis + product(sway, np.array([0.0, sign * SHOULDER_Y * s, 0.52 * s]))
-            lift = math.radians(35.0) + self._wave(k, 2.5 * t, math.radians(8.0))
+            # A gesture lifts the upper arm 25 degrees and the forearm 45: the hand rises
+            # from the desk to chest height (0.3 m higher), and never dips below it.
+            g = self.gesture(hand, t)
+            lift = math.radians(35.0 + 25.0 * g) + self._wave(k, 2.5 * t, math.radians(8.0))
             down = product(axis_rotation(left, -lift), -sway[:, 2])
             elbow = shoulder + 0.3 * s * down
-            fore = product(axis_rotation(left, -(lift + math.radians(55.0))), -sway[:, 2])
+            fore = product(axis_rotation(left, -(lift + math.radians(55.0 + 20.0 * g))), -sway[:, 2])
             hand = elbow + 0.3 * s * fore
             uppers.append(((shoulder + elbow) / 2, frame_along(elbow - shoulder, fwd)))
             fores.append(((elbow + hand) / 2, frame_along(hand - elbow, fwd)))
@@ -366,6 +411,147 @@ class SittingPerson(Actor):
             positions.append(p)
             rotations.append(r)
         return np.array(positions), np.array(rotations)
+
+
+SIT_TRANSITION_S = 1.2
+"""Sitting down or standing up: about a second for an unhurried adult (sit-to-stand
+takes 1.0-1.5 s in gait labs)."""
+WALK_RAMP_S = 0.6
+"""Starting off from standing, or coming to a stop: about one step's time."""
+DOUBLE_STANCE = (0.06, 0.56)
+"""Gait cycles (mod 1) at which both feet of ``Walker``'s legs are planted (phases 0 and
+0.5, duty 0.62): a stretch of walking is made to end on one, so the person stops
+standing on both feet."""
+
+
+def _ramped_arc(t: float, length: float, speed: float, ramp_in: float, ramp_out: float) -> float:
+    """Distance walked at t along a stretch of ``length``: up to ``speed`` over
+    ``ramp_in`` s and down to rest over ``ramp_out`` s (smoothstep velocities, whose
+    integral x^3 - x^4/2 covers half a ramp's time at full speed)."""
+    cruise = (length - speed * (ramp_in + ramp_out) / 2) / speed
+    end = ramp_in + cruise + ramp_out
+    t = min(max(t, 0.0), end)
+    if t < ramp_in:
+        x = t / ramp_in
+        return speed * ramp_in * (x**3 - x**4 / 2)
+    if t > ramp_in + cruise and ramp_out > 0:
+        x = (end - t) / ramp_out
+        return length - speed * ramp_out * (x**3 - x**4 / 2)
+    return speed * ramp_in / 2 + speed * (t - ramp_in)
+
+
+def _blend(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], w: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every part from pose ``a`` towards pose ``b`` by ``w``: positions along a line,
+    rotations along the shortest arc (slerp)."""
+    ra = Rotation.from_matrix(a[1].reshape(-1, 3, 3))
+    rb = Rotation.from_matrix(b[1].reshape(-1, 3, 3))
+    rotations = (ra * Rotation.from_rotvec(w * (ra.inv() * rb).as_rotvec())).as_matrix()
+    return a[0] + w * (b[0] - a[0]), rotations.reshape(a[1].shape)
+
+
+@dataclass(frozen=True)
+class _Stretch:
+    """One segment of a TUM walker's time line, from ``t0`` to ``t1``."""
+
+    t0: float
+    t1: float
+    what: str
+    """'walk', 'sit down', 'sit' or 'stand up'."""
+    walker: Walker | None = None
+    length: float = 0.0
+    ramps: tuple[float, float] = (0.0, 0.0)
+
+
+class TumWalker(Actor):
+    """A person who walks as TUM fr3's walkers do (``path: tum_walk``): errands across the
+    view near the desk, out of the view and back, and to a seat at the desk to sit a few
+    seconds and stand up again (``paths.plan_errands``). Walking is ``Walker``'s gait on
+    each stretch, seated is ``SittingPerson``'s talking and gesturing; between them the
+    parts move from one pose to the other over ``SIT_TRANSITION_S``."""
+
+    def __init__(
+        self,
+        walks: list[Walk],
+        seat: tuple[float, float, float],
+        scale: float,
+        materials: dict[str, str],
+        rng: np.random.Generator,
+        look: Look | None = None,
+    ) -> None:
+        self.scale = scale
+        self.speed_bound = max(w.speed_mps for w in walks)
+        """No part of a stretch is walked faster than this (m/s)."""
+        self.sitter = SittingPerson(seat, scale, materials, rng)
+        self.stretches: list[_Stretch] = []
+        t = 0.0
+        for k, walk in enumerate(walks):
+            path = OpenPath(walk.waypoints)
+            ramps = (WALK_RAMP_S if k > 0 else 0.0, WALK_RAMP_S if walk.sit_s > 0 else 0.0)
+            stride = natural_stride(walk.speed_mps, scale)
+            if walk.sit_s > 0:
+                # Round the stretch to end on a double stance (half a cycle at most off).
+                cycles = max(0.5, round((path.length / stride - DOUBLE_STANCE[0]) * 2) / 2)
+                stride = path.length / (cycles + DOUBLE_STANCE[0])
+            walker = Walker(path, walk.speed_mps, scale, materials, 0.0, stride=stride)
+            ramps = (
+                min(ramps[0], path.length / walk.speed_mps),
+                min(ramps[1], path.length / walk.speed_mps),
+            )
+            cruise = path.length / walk.speed_mps - (ramps[0] + ramps[1]) / 2
+            self.stretches.append(_Stretch(t, t + sum(ramps) + cruise, "walk", walker, path.length, ramps))
+            t = self.stretches[-1].t1
+            if walk.sit_s > 0:
+                for what, span in (
+                    ("sit down", SIT_TRANSITION_S),
+                    ("sit", walk.sit_s),
+                    ("stand up", SIT_TRANSITION_S),
+                ):
+                    self.stretches.append(_Stretch(t, t + span, what))
+                    t += span
+        self._starts = [s.t0 for s in self.stretches]
+        self.parts = person_parts(scale, materials, 0.225 * scale, 0.225 * scale, look)
+
+    def stretch(self, t: float) -> tuple[int, _Stretch]:
+        """The stretch the person is in at t (the first before 0, the last after the end)."""
+        k = min(max(bisect.bisect_right(self._starts, t) - 1, 0), len(self.stretches) - 1)
+        return k, self.stretches[k]
+
+    def _walk_time(self, stretch: _Stretch, t: float) -> float:
+        """The time at which ``stretch.walker`` (walking at constant speed) has got as far."""
+        assert stretch.walker is not None
+        arc = _ramped_arc(t - stretch.t0, stretch.length, stretch.walker.gait.speed, *stretch.ramps)
+        return arc / stretch.walker.gait.speed
+
+    def _at(self, t: float, root: bool) -> tuple[np.ndarray, np.ndarray]:
+        k, here = self.stretch(t)
+        seated = self.sitter.root(t) if root else self.sitter.pose(t)
+        if here.what == "walk":
+            assert here.walker is not None
+            tw = self._walk_time(here, t)
+            return here.walker.root(tw) if root else here.walker.pose(tw)
+        if here.what == "sit":
+            return seated
+        u = smoothstep((t - here.t0) / (here.t1 - here.t0))
+        if here.what == "sit down":
+            before = self.stretches[k - 1]
+            walker, tw = before.walker, self._walk_time(before, before.t1)
+            assert walker is not None
+            return _blend(walker.root(tw) if root else walker.pose(tw), seated, u)
+        walker = self.stretches[k + 1].walker
+        assert walker is not None
+        return _blend(seated, walker.root(0.0) if root else walker.pose(0.0), u)
+
+    def root(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._at(t, root=True)
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._at(t, root=False)
+
+    def sitting(self, t: float) -> bool:
+        """Seated, or on the way down or up."""
+        return self.stretch(t)[1].what != "walk"
 
 
 class Quadruped(Actor):

@@ -20,8 +20,11 @@ PRIORS = ("dynamic", "potential", "static")
 
 WALKS = ("loop", "random_walk")
 """Paths of an actor that moves about the hall: round a loop, or an open wander."""
+TUM_WALK = "tum_walk"
+"""A person's errands as in TUM fr3's walking sequences: across the view near the desk,
+out of it and back, and to a seat at the desk to sit a few seconds (``actors.TumWalker``)."""
 SEATED = "seated"
-PATH_MODES = (*WALKS, SEATED)
+PATH_MODES = (*WALKS, TUM_WALK, SEATED)
 """Every value of an actor's ``path``."""
 
 
@@ -157,6 +160,14 @@ class ActorKind:
     place: Place = Place.HALL
     prior: str = "dynamic"
     """How likely the class is to move (``PRIORS``)."""
+
+    @property
+    def paths(self) -> tuple[str, ...]:
+        """The values of ``path`` it takes: its place's, and for a person in the hall
+        also TUM's errands (only people sit down)."""
+        if self.place is Place.HALL and isinstance(self.body, PersonBody):
+            return (*self.place.paths, TUM_WALK)
+        return self.place.paths
 
     def __post_init__(self) -> None:
         if not re.fullmatch(r"[a-z][a-z0-9_]{0,31}", self.name):

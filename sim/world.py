@@ -13,15 +13,24 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from depotbench.core.camera import Intrinsics
 from depotbench.sim import actor_registry, textures
-from depotbench.sim.actors import Actor, Bird, Quadruped, SittingPerson, Walker
+from depotbench.sim.actors import Actor, Bird, Quadruped, SittingPerson, TumWalker, Walker
 from depotbench.sim.camera_rig import CameraRig
 from depotbench.sim.conventions import gl_from_cv_rotation, quat_wxyz
 from depotbench.sim.draws import pick
 from depotbench.sim.figures import AnimalLook, Look, Surface
-from depotbench.sim.kinds import ActorKind, BirdBody, PersonBody, Place, QuadrupedBody
-from depotbench.sim.layout import CENTRAL_AREA, CHAIR_HALF_M, Layout, Piece, Rect, plan_layout
+from depotbench.sim.kinds import TUM_WALK, ActorKind, BirdBody, PersonBody, Place, QuadrupedBody
+from depotbench.sim.layout import (
+    CENTRAL_AREA,
+    CHAIR_HALF_M,
+    DESK_CENTRE,
+    DESK_HALF,
+    Layout,
+    Piece,
+    Rect,
+    plan_layout,
+)
 from depotbench.sim.mujoco_env import mujoco
-from depotbench.sim.paths import Path, plan_loop
+from depotbench.sim.paths import Path, plan_errands, plan_loop
 from depotbench.sim.render import FAR_SUFFIX, HIDDEN_GROUP
 from depotbench.sim.spec import CLOTHING, ActorSpec, ChairSpec, ScenarioSpec
 
@@ -248,6 +257,15 @@ def _make_actor(
         path = Path(waypoints, smoothing_m=0.3)
         return Walker(path, spec.speed_mps, scale, materials, start_s=0.0, push=True, look=person_look)
     obstacles = layout.obstacles + chair_footprints(chairs)
+    if spec.path == TUM_WALK:
+        if not layout.seats:
+            raise ValueError(f"path {TUM_WALK!r} needs a desk (layout.desk: true)")
+        seat = layout.seats[seat_index % len(layout.seats)]
+        (x, y), (hx, hy) = DESK_CENTRE, DESK_HALF
+        walks = plan_errands(
+            rng, seat, (x - hx, y - hy, x + hx, y + hy), obstacles, bounds, duration_s, spec.speed_mps
+        )
+        return TumWalker(walks, seat, scale, materials, rng, person_look)
     if spec.waypoints:
         waypoints = np.array(spec.waypoints, dtype=float)
     else:
@@ -398,7 +416,9 @@ def build_world(scenario: ScenarioSpec) -> World:
     layout = plan_layout(scenario.layout, layout_rng, keep_out=chair_footprints(scenario.chairs))
     duration = scenario.frames / scenario.fps
     kinds = [actor_registry.get(a.kind) for a in scenario.actors]
-    seated = [kind.place is Place.DESK for kind in kinds]
+    seated = [
+        kind.place is Place.DESK or a.path == TUM_WALK for a, kind in zip(scenario.actors, kinds, strict=True)
+    ]
     seat_of = np.cumsum(seated) - 1
     looks: list[Look | AnimalLook | None] = [
         Look.draw(figure_rng)

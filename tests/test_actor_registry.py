@@ -88,10 +88,10 @@ def test_the_schema_accepts_exactly_the_registry_kinds_and_their_paths_and_needs
     assert schema["kind"]["enum"] == list(actor_registry.names())
     for kind in actor_registry.kinds():
         needs = {"chair": {"chairs": [{"position_m": [2.0, -1.0]}]}, "desk": {}}.get(kind.place.needs, {})
-        for path in kind.place.paths:
+        for path in kind.paths:
             data = {"name": "k", "actors": [{"kind": kind.name, "path": path}], **needs}
             assert to_scenario(parse_scenario(data, "k.yaml")).actors[0].kind == kind.name
-        for path in set(sim_spec.PATH_MODES) - set(kind.place.paths):
+        for path in set(sim_spec.PATH_MODES) - set(kind.paths):
             with pytest.raises(SpecError, match=f"actors.0: .*path '{path}' does not go with kind"):
                 parse_scenario({"name": "k", "actors": [{"kind": kind.name, "path": path}]}, "k.yaml")
         if kind.place.needs == "chair":
