@@ -274,7 +274,9 @@ def _draw_free(
 
 def _turn_deg(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
     u, v = b - a, c - b
-    cos = float(np.dot(u, v)) / max(_length(u) * _length(v), 1e-9)
+    # Written out, not np.dot: a dot product goes through BLAS, whose kernels differ in
+    # their last bits from one CPU type to another (see ``Path``).
+    cos = (u[0] * v[0] + u[1] * v[1]) / max(_length(u) * _length(v), 1e-9)
     return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
 
 

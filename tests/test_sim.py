@@ -371,6 +371,7 @@ def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
         frames=4,
         actors=[
             {"kind": "person"},
+            {"kind": "person", "path": "tum_walk"},
             {"kind": "chair_pusher", "speed_mps": 0.8},
             {"kind": "sitting_person", "path": "seated", "speed_mps": 0},
             {"kind": "dog", "speed_mps": 1.3},
