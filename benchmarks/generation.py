@@ -45,11 +45,11 @@ from pathlib import Path
 import numpy as np
 
 
-def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[float, float]:
+def _run(args: tuple) -> tuple[float, float]:
     """(seconds to build the world, seconds to generate, world building included), both
     of one ``generate`` call: the build is timed inside it, since a build timed apart and
     subtracted is off by its own drift (on a tiny run under load, a negative rate)."""
-    frames, width, height, seed, out, one_thread, png_compression, scene = args
+    frames, width, height, seed, out, one_thread, png_compression, scene, *sensor = args
     if one_thread:
         from depotbench.core.executors import single_threaded
 
@@ -57,7 +57,7 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
     import depotbench.sim.generate
     from depotbench.sim.world import build_world
 
-    spec = scenario_at(frames, width, height, seed, scene)
+    spec = scenario_at(frames, width, height, seed, scene, *sensor)
     build_world(scenario_at(frames, width, height, seed + 1000, scene))  # warm imports and code paths
     built: dict[str, float] = defaultdict(float)
     depotbench.sim.generate.build_world = _timed(build_world, "build", built, time.perf_counter)
@@ -66,9 +66,12 @@ def _run(args: tuple[int, int, int, int, str, bool, int, str | None]) -> tuple[f
     return built["build"], time.perf_counter() - start
 
 
-def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: str | None):
+def scenario_at(
+    frames: int | None, width: int, height: int, seed: int, scene: str | None, sensor: str | None = None
+):
     """The default scenario, or a library scene, at this image size and seed, with
-    ``frames`` frames (None: the scenario's own length). render.py uses it too."""
+    ``frames`` frames (None: the scenario's own length) and ``sensor`` (a profile's name;
+    None: the scenario's own). render.py uses it too."""
     from depotbench.sim.spec import default_scenario
     from depotbench.sim.world import at_size
 
@@ -80,6 +83,12 @@ def scenario_at(frames: int | None, width: int, height: int, seed: int, scene: s
 
         update = {"seed": seed} if frames is None else {"frames": frames, "duration_s": None, "seed": seed}
         spec = to_scenario(library.get(scene).model_copy(update=update))
+    if sensor is not None:
+        import dataclasses
+
+        from depotbench.sim.sensor_profiles import PROFILES
+
+        spec = dataclasses.replace(spec, sensor=PROFILES[sensor])
     return at_size(spec, width, height)
 
 
@@ -259,6 +268,14 @@ def main() -> None:
         "--peer", action="store_true", help="also measure MuJoCo alone rendering the same worlds, for ratios"
     )
     parser.add_argument("--seed", type=int, default=0, help="--stages: the seed")
+    parser.add_argument(
+        "--sensors",
+        nargs=2,
+        metavar=("BASE", "OTHER"),
+        choices=["perfect", "kinect", "tum"],
+        help="instead: one process's rate with each sensor profile, measured in turn (--repeat times), "
+        "and OTHER's rate as a share of BASE's (e.g. perfect tum)",
+    )
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
@@ -266,6 +283,9 @@ def main() -> None:
         parser.error("--peer goes with whole runs, not --stages (which times one process's stages)")
     ctx = mp.get_context("spawn")
     check_scene(parser, args.scene)
+    if args.sensors:
+        _compare_sensors(ctx, args)
+        return
     if args.stages:  # at the first PNG level asked
         _stages(args.frames, args.width, args.height, args.seed, args.png_compression[0], args.scene)
         return
@@ -309,6 +329,34 @@ def main() -> None:
                 print(f"  MuJoCo alone, 2 processes : {peer}  (RGB and depth, segmentation)")
                 shares = _summary([(d[0] / p,) for d, p in zip(doubles, peers, strict=True)], digits=2)
                 print(f"  2 processes / MuJoCo alone: {shares}  (each run's own)")
+
+
+def _compare_sensors(ctx, args: argparse.Namespace) -> None:
+    """One process's rate with each of two sensor profiles, alternated run by run so both see
+    the same machine, and the second's rate as a share of the first's (the ratio per run)."""
+    base, other = args.sensors
+    level = args.png_compression[0]
+    name = args.scene or "default scenario"
+    print(f"{name}, {args.width}x{args.height}, {args.frames} frames, one process, PNG level {level}")
+    rates: dict[str, list[tuple[float, float]]] = {base: [], other: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for run in range(args.repeat):
+            for sensor in (base, other):
+                job = (
+                    args.frames,
+                    args.width,
+                    args.height,
+                    0,
+                    f"{tmp}/{sensor}-{run}",
+                    False,
+                    level,
+                    args.scene,
+                )
+                rates[sensor].append(_measure(ctx, [(*job, sensor)]))
+    for sensor in (base, other):
+        print(f"  sensor {sensor:8s}: {_summary(rates[sensor])} frames/s (once built | with building)")
+    shares = [(o[0] / b[0],) for b, o in zip(rates[base], rates[other], strict=True)]
+    print(f"  {other} / {base}: {_summary(shares, digits=2)} of the rate, once built (each run's own)")
 
 
 def _summary(rates: list[tuple[float, ...]], digits: int = 1) -> str:

@@ -15,6 +15,7 @@ exact flow to first order: a surface moving into view is not uncovered by them.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -112,7 +113,7 @@ class SensorModel:
         if s.white_balance_drift > 0:
             image *= self._white_balance(fps).astype(np.float32)
         if s.rgb_noise_sigma > 0:
-            image += self.rng.standard_normal(image.shape).astype(np.float32) * s.rgb_noise_sigma
+            image += self.rng.standard_normal(image.shape, dtype=np.float32) * np.float32(s.rgb_noise_sigma)
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
     def _white_balance(self, fps: float) -> np.ndarray:
@@ -131,8 +132,7 @@ class SensorModel:
     ) -> np.ndarray:
         """Average the image along each pixel's motion during the exposure, centred on the
         exposure's middle, itself moved by ``shift_px`` (the rolling shutter's row delay)."""
-        h, w = image.shape[:2]
-        v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+        v, u = _grid(*image.shape[:2])
         if shift_px is not None:
             u, v = u - shift_px[:, :, 0], v - shift_px[:, :, 1]
         total = np.zeros_like(image)
@@ -148,6 +148,15 @@ class SensorModel:
         return total / samples
 
 
+@functools.cache
+def _grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel's row and column (float32), made once per image size."""
+    v, u = np.mgrid[0:height, 0:width].astype(np.float32)
+    v.setflags(write=False)
+    u.setflags(write=False)
+    return v, u
+
+
 def row_delays_frames(height: int, readout_s: float, fps: float) -> np.ndarray:
     """Each row's exposure time after the middle row's, in frame periods (float32, one per
     row): the rows are read out evenly over ``readout_s``, top first."""
@@ -158,8 +167,7 @@ def row_delays_frames(height: int, readout_s: float, fps: float) -> np.ndarray:
 
 def _shift(image: np.ndarray, shift_px: np.ndarray, interpolation: int) -> np.ndarray:
     """``image`` as seen ``shift_px`` later along each pixel's motion: dst(x) = src(x - shift(x))."""
-    h, w = image.shape[:2]
-    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    v, u = _grid(*image.shape[:2])
     with without_ipp():
         return cv2.remap(
             image,
