@@ -27,7 +27,8 @@ from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
 CALIBRATION_MIN_S = 2.0
-"""A speed target is met over at least this span: twice the 1 s that TUM's speeds are taken over."""
+"""A speed target is met over at least this span (and two of the motion's periods): twice
+the 1 s that TUM's speeds are taken over."""
 ROBOT_LOOP = np.array([[-2.6, -2.0], [2.6, -2.0], [2.6, 2.95], [-2.6, 2.95]])
 ROBOT_CAMERA_HEIGHT_M = 0.45
 
@@ -104,9 +105,11 @@ class CameraRig:
             if duration_s is None:
                 raise ValueError("camera.mean_speed_mps: a speed target needs the sequence's duration")
             assert self.base is not None
-            # Calibrated at the frame times; a sequence shorter than CALIBRATION_MIN_S moves as
-            # the start of one that long at its rate (the speeds are taken over 1 s).
-            frames = max(round(duration_s * fps), math.ceil(CALIBRATION_MIN_S * fps) + 1)
+            # Calibrated at the frame times; a shorter sequence moves as the start of one
+            # CALIBRATION_MIN_S or two periods long at its rate (speeds are taken over 1 s,
+            # and a fraction of a period cannot reach a speed its whole swing does).
+            span = max(CALIBRATION_MIN_S, 2 * spec.period_s)
+            frames = max(round(duration_s * fps), math.ceil(span * fps) + 1)
             self.calibrated = CalibratedMotion(spec, self.base, rng, np.arange(frames) / fps)
 
     def _wave(self, row: int, t: float) -> np.ndarray:

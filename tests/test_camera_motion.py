@@ -428,17 +428,21 @@ def test_an_unreachable_target_is_one_line_naming_its_field(camera, field):
 
 def test_a_sequence_shorter_than_the_speed_window_moves_as_the_start_of_a_longer_one():
     """TUM's speeds are taken over 1 s: a 0.5 s sequence (a test's, a preview's) is not
-    refused but moves as the first frames of a 2 s one calibrated at its rate."""
-    from depotbench.sim.camera_rig import CALIBRATION_MIN_S
-
-    short = parse_scenario({**scenario("{motion: xyz, mean_speed_mps: 0.2}"), "duration_s": 0.5}, "s.yaml")
+    refused but moves as the first frames of one two periods long calibrated at its rate
+    (walking_rpy's 20.9 deg/s within the 45 deg cap needs its whole 8 s swing)."""
+    short = parse_scenario(
+        {**scenario("{motion: rpy, period_s: 8, mean_angular_speed_dps: 20.903}"), "duration_s": 0.5},
+        "s.yaml",
+    )
     spec = CameraSpec(**short.camera.model_dump())
     rig = CameraRig(spec, np.random.default_rng(3), duration_s=0.5, fps=30.0)
-    longer = CameraRig(spec, np.random.default_rng(3), duration_s=CALIBRATION_MIN_S, fps=30.0)
+    longer = CameraRig(spec, np.random.default_rng(3), duration_s=16.0, fps=30.0)
     times = np.arange(15) / 30.0
     assert np.allclose(rig.poses(times), longer.poses(times))
-    full = np.arange(round(CALIBRATION_MIN_S * 30) + 1) / 30.0
-    assert MotionStats.of_poses(full, rig.poses(full)).mean_speed_mps == pytest.approx(0.2, rel=1e-6)
+    full = np.arange(16 * 30 + 1) / 30.0
+    assert MotionStats.of_poses(full, rig.poses(full)).mean_angular_speed_dps == pytest.approx(
+        20.903, rel=1e-6
+    )
 
 
 def test_the_simulator_calibrates_at_the_scenarios_frame_times():
