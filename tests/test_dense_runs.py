@@ -25,7 +25,20 @@ pytestmark = pytest.mark.render
 @pytest.fixture(scope="module")
 def walking(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dense") / "walking"
-    assert main(["generate", "walking_static", "-o", str(out), "--frames", "30", "--seed", "1"]) == 0
+    # The perfect sensor: a program's own map is checked point for point against the bench's.
+    args = [
+        "generate",
+        "walking_static",
+        "-o",
+        str(out),
+        "--frames",
+        "30",
+        "--seed",
+        "1",
+        "--sensor",
+        "perfect",
+    ]
+    assert main(args) == 0
     return out
 
 
