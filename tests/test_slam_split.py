@@ -35,8 +35,9 @@ from scipy.spatial.transform import Rotation
 
 pytestmark = pytest.mark.render
 
-SEQUENCES = {"walking_xyz": 1, "crowd": 2}
-"""Scenario and seed; 19 frames of each are tracked."""
+SEQUENCES = {"walking_xyz": 3, "crowd": 2}
+"""Scenario and seed; 19 frames of each are tracked (walking_xyz: seed 3 loses none of its
+first 19 frames under the tum profile, and its walkers are in view, so the strategies differ)."""
 FRAMES = 19
 
 TOLERANCE = 1e-6
@@ -55,24 +56,24 @@ class Outcome:
 EXPECTED = {
     ("walking_xyz", "none"): Outcome(
         "OOOOOOOOOOLLLROOOOO",
-        "ba76c43603d7f9f01e463148367a0910e31e93ff354123d0ea7d252724caf62d",
-        (-0.10829095, 0.041952971, 0.023492432),
-        (-0.217414769, 0.095222723, 0.067880522),
-        (-0.006223435, 0.025111122, -0.012741647),
+        "c2ca92dffba5a7c2acde6314ca18c3083ec5e314c661db2ce153354167be4e74",
+        (0.013507797, -0.032480446, -0.044524913),
+        (0.033938389, -0.067519391, -0.090473506),
+        (0.019927836, -0.077640586, 0.025403713),
     ),
     ("walking_xyz", "box_rule"): Outcome(
         "OOOOOOOOOOLLLROOOOO",
-        "26acb934d7b4d147ac3baa4f0ce88aed3ea3d886e57a4f723a92f42b0978c0d8",
-        (-0.042536592, 0.056688707, 0.038960996),
-        (-0.068330616, 0.112322576, 0.090951056),
-        (-0.002961143, -0.003762862, -0.00328756),
+        "2a9223c8b0ecafb7edf82ab81136057802c1378138811fcc7d820a8c9ccfc24d",
+        (0.012641069, -0.032261358, -0.045552644),
+        (0.032598641, -0.06867054, -0.092990332),
+        (0.019648217, -0.077421082, 0.024929336),
     ),
     ("walking_xyz", "box_epipolar_flow"): Outcome(
         "OOOOOOOOOOLLLROOOOO",
-        "6a79609eb45dd64c87efc54b1ce3fb1eef8502fdcb372d8f615500317c694855",
-        (-0.028646379, 0.057619653, 0.042608212),
-        (-0.051420814, 0.106143516, 0.098900681),
-        (-0.006282594, -0.007899548, 0.00048457),
+        "8ca83cbebe5c6c53838c182ff885d31540acec330edcdfd77fd2ef24b755553b",
+        (0.012714005, -0.032227123, -0.045418987),
+        (0.033112256, -0.068454842, -0.092210869),
+        (0.019699991, -0.077507757, 0.025191923),
     ),
     ("crowd", "none"): Outcome(
         "OOOOOOOOOOLLLROOOOO",
