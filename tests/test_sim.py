@@ -128,7 +128,12 @@ def test_flow_ground_truth_matches_reprojection_and_moving_instances(walking: Se
         grey0 = cv2.cvtColor(walking.rgb(i), cv2.COLOR_RGB2GRAY).astype(np.float32)
         grey1 = cv2.cvtColor(walking.rgb(i + 1), cv2.COLOR_RGB2GRAY).astype(np.float32)
         for obj in walking.objects()[i]:
-            if not (obj.moving and obj.visible_pixels > 200):
+            # Mostly unoccluded movers only: where something passes in front of an instance,
+            # its pixels' flow lands on the occluder in the next frame (a dog behind a seated
+            # person's gesturing arm: 1379 of 3029 pixels visible, 75 % landing on the dog).
+            if not (
+                obj.moving and obj.visible_pixels > 200 and obj.visible_pixels > 0.8 * obj.unoccluded_pixels
+            ):
                 continue
             vv, uu = np.nonzero(inst0 == obj.instance_id)
             tu, tv = uu + flow[vv, uu, 0], vv + flow[vv, uu, 1]
@@ -516,23 +521,27 @@ def test_bird_hops_and_flies():
 def test_people_carry_orb_features_like_the_background(tmp_path: Path):
     """Clothes, hair and skin give ORB corners: on TUM's walking sequences ORB-SLAM2 fails
     because people carry features; featureless people would make rejection moot. Keypoint
-    density (per pixel) on people must be at least 0.4x that on the static world (measured
-    0.49 on walking_static; the earlier smooth clothing gave 0.13)."""
+    density (per pixel) on people must be at least 0.25x that on the static world (measured
+    on walking_static, perfect sensor: 0.49 with 0.7's walkers 1-2 m away; 0.29 median,
+    0.21-0.51, with 0.8's TUM walkers, who come to 1-1.35 m, where their clothes' texture is
+    magnified; the earlier smooth clothing gave 0.13)."""
     from depotbench.core.camera import Intrinsics
     from depotbench.scenes import library
-    from depotbench.scenes.schema import to_scenario
+    from depotbench.scenes.schema import Sensor, to_scenario
     from depotbench.sim.generate import generate
     from depotbench.slam.config import TrackingConfig
     from depotbench.slam.features import FeatureExtractor
 
-    scenario = library.get("walking_static").model_copy(update={"frames": 40, "duration_s": None})
+    # The perfect sensor: the property is the figures' textures', not the sensor's noise.
+    update = {"frames": 40, "duration_s": None, "sensor": Sensor()}
+    scenario = library.get("walking_static").model_copy(update=update)
     seq = Sequence.open(generate(to_scenario(scenario), tmp_path / "seq", progress=False))
     extractor = FeatureExtractor(TrackingConfig())
     k = seq.intrinsics
     camera = Intrinsics(k.fx, k.fy, k.cx, k.cy, k.width, k.height)
     objects = seq.objects()
     ratios = []
-    for i in range(0, len(seq), 4):
+    for i in range(0, len(seq), 2):  # TUM's walkers are out of view for part of the time
         person_ids = [o.instance_id for o in objects[i] if o.class_name == "person"]
         people = np.isin(seq.instances(i), person_ids)
         if people.mean() < 0.05:
@@ -541,7 +550,7 @@ def test_people_carry_orb_features_like_the_background(tmp_path: Path):
         on = people[np.clip(uv[:, 1], 0, people.shape[0] - 1), np.clip(uv[:, 0], 0, people.shape[1] - 1)]
         ratios.append((on.mean() / people.mean()) / ((~on).mean() / (~people).mean()))
     assert len(ratios) >= 5
-    assert np.median(ratios) >= 0.4, ratios
+    assert np.median(ratios) >= 0.25, ratios
 
 
 def _pixel_centres(low: float, high: float) -> int:
