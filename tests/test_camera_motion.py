@@ -446,20 +446,20 @@ def test_a_sequence_shorter_than_the_speed_window_moves_as_the_start_of_a_longer
 
 
 def test_the_simulator_calibrates_at_the_scenarios_frame_times():
-    """build_world hands the rig the scenario's duration and fps: a 100-frame, 20 fps
-    scenario is calibrated over its own 100 frame times."""
+    """build_world hands the rig the scenario's duration and fps: a 260-frame, 20 fps
+    scenario (longer than two of its 6 s periods) is calibrated over its own frame times."""
     from depotbench.scenes.schema import to_scenario
     from depotbench.sim.world import build_world
 
     spec = to_scenario(
         parse_scenario(
             scenario("{motion: xyz, mean_speed_mps: 0.2, mean_angular_speed_dps: 5}", "fps: 20\n")
-            | {"duration_s": 5, "image": {"width": 64, "height": 48}},
+            | {"duration_s": 13, "image": {"width": 64, "height": 48}},
             "s.yaml",
         )
     )
     rig = build_world(spec).rig
-    times = np.arange(100) / 20.0
+    times = np.arange(260) / 20.0
     stats = MotionStats.of_poses(times, np.array([rig.world_from_camera(t) for t in times]))
     assert stats.mean_speed_mps == pytest.approx(0.2, rel=1e-6)
     assert stats.mean_angular_speed_dps == pytest.approx(5.0, rel=1e-6)
