@@ -140,9 +140,11 @@ checks:
     budgets:
       ate_rmse_m: {{max: 0.5}}
       lost_fraction: {{max: 0.5}}
-      rejection_recall: {{min: 0.5}}
+      rejection_recall: {{min: 0.2}}
       time_ratio: {{max: 20}}
 """
+"""Budgets the sequence below meets with room: box_rule's rejection recall was 0.38 on it
+(0.8.0's walkers sit down at the desk, where method 2's rule keeps their points)."""
 IMPOSSIBLE = (
     PASSING
     + """\
