@@ -90,11 +90,11 @@ def test_generation_refuses_peer_with_stages_in_one_line():
 
 @pytest.mark.render
 def test_recognition_counts_what_a_tiny_run_sees():
-    """Two frames of walking_static, seed 1: the people in view are counted (found <= seen)
-    and every group of the issue's targets gets a line."""
+    """Two frames of walking_xyz, seed 3 (its walkers in view at once): the people in view
+    are counted (found <= seen) and every group of the issue's targets gets a line."""
     result = _run(
         str(BENCHMARKS / "recognition.py"),
-        *("--scenes", "walking_static", "--seeds", "1", "--frames", "2", "--workers", "1"),
+        *("--scenes", "walking_xyz", "--seeds", "3", "--frames", "2", "--workers", "1"),
     )
     assert result.returncode == 0, result.stderr
     counts = re.findall(r"^recall standing[^(]*\((\d+)/(\d+);", result.stdout, re.M)
@@ -156,13 +156,16 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     assert means[5] == pytest.approx(means[3] + means[4], abs=0.02)  # track+map adds mapping
     cpu_s, wall_s = (float(x) for x in re.search(_SECONDS, row[1]).groups())
     assert 0 < cpu_s <= wall_s + 0.01  # one core: 10 ms for the clocks' granularity
-    assert wall_s >= 4 * means[5] / 1e3 - 0.001  # 4 frames' tracking and mapping, to rounding
+    # 4 frames asked; the analog's tum sensor may lose one, as TUM's driver did.
+    frames = int(re.search(r"tracked 0/(\d+) frames", out)[1])
+    assert 3 <= frames <= 4
+    assert wall_s >= frames * means[5] / 1e3 - 0.001  # every frame's tracking and mapping, to rounding
 
     startup = re.search(rf"^orbslam3 start-up, no frame\s+{_SECONDS}$", out, re.M)
     assert startup and float(startup[1]) > 0 and float(startup[2]) > 0, out
     for pace in ("0", "1"):
         orbslam3 = re.search(
-            rf"^orbslam3 none pace {pace}\s.*{_SECONDS}   tracked 0/4 frames; "
+            rf"^orbslam3 none pace {pace}\s.*{_SECONDS}   tracked 0/{frames} frames; "
             rf"whole process cpu (\d+\.\d+) s, wall (\d+\.\d+) s$",
             out,
             re.M,
