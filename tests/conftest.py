@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import functools
+import importlib.util
 import os
+import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -12,6 +16,18 @@ pytest_plugins = ["pytester"]  # the depotbench pytest plugin is tested in a chi
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 TUM_TRAJECTORIES = SHARED / "data" / "tum-trajectories"
+
+
+@functools.cache
+def benchmark_module(name: str) -> ModuleType:
+    """benchmarks/NAME.py as a module, loaded once (benchmarks/ is not a package); registered
+    in sys.modules, where its dataclasses look their module up while it loads."""
+    spec = importlib.util.spec_from_file_location(f"{name}_benchmark", REPO / "benchmarks" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture

@@ -4,7 +4,6 @@ notes quote, and nothing else exercises them. A renamed function (generation.py'
 
 from __future__ import annotations
 
-import functools
 import importlib
 import importlib.util
 import re
@@ -13,7 +12,7 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import REPO, benchmark_module
 
 BENCHMARKS = REPO / "benchmarks"
 SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py") if p.name != "sheets.py")  # sheets: a helper
@@ -25,14 +24,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     )
 
 
-@functools.cache
 def _generation_module():
-    """benchmarks/generation.py, loaded once (benchmarks/ is not a package)."""
-    spec = importlib.util.spec_from_file_location("generation_benchmark", BENCHMARKS / "generation.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("generation")
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -208,10 +201,7 @@ def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
     settings went in as text until they were typed, and it crashed), and ``--baseline`` runs
     the same sweep with depotbench imported from the revision's files (settings as that code
     took them, its cache switch), then prints the speed-up over it."""
-    spec = importlib.util.spec_from_file_location("sweep_benchmark", BENCHMARKS / "sweep.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = benchmark_module("sweep")
     if not _has_commit(module.BEFORE_ISSUE_40):
         pytest.skip(f"this clone lacks commit {module.BEFORE_ISSUE_40}")
     toy = ("--frames", "3", "--seeds", "1", "--configs", "2", "--workers", "1", "--skip-naive")

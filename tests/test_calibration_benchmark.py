@@ -4,8 +4,6 @@ its per-analog figures against the same figures worked out by hand."""
 
 from __future__ import annotations
 
-import functools
-import importlib.util
 import math
 import re
 import subprocess
@@ -13,20 +11,14 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import REPO, benchmark_module
 
 SCRIPT = REPO / "benchmarks" / "calibration.py"
 TARGETS = REPO.parent / "shared" / "calibration-targets.md"
 
 
-@functools.cache
 def _calibration():
-    spec = importlib.util.spec_from_file_location("calibration_benchmark", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while it loads
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("calibration")
 
 
 def _table(heading: str) -> dict[str, list[float | None]]:

@@ -5,8 +5,6 @@ fidelity.json is checked against the run folders' own metrics.json."""
 
 from __future__ import annotations
 
-import functools
-import importlib.util
 import itertools
 import json
 import math
@@ -16,19 +14,13 @@ import sys
 
 import pytest
 
-from tests.conftest import REPO
+from tests.conftest import REPO, benchmark_module
 
 SCRIPT = REPO / "benchmarks" / "fidelity.py"
 
 
-@functools.cache
 def _fidelity():
-    spec = importlib.util.spec_from_file_location("fidelity_benchmark", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while it loads
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_module("fidelity")
 
 
 def _exact_two_sided_p(x: list[float], y: list[float]) -> float:
