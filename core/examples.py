@@ -35,9 +35,15 @@ class Kind(StrEnum):
     SUITE = "suite"
     TRACKER = "example tracker"
     TRAJECTORY = "trajectory"
+    BENCHMARK = "benchmark"
 
 
-KEYS: dict[str, Kind] = {"sweep": Kind.SWEEP, "gates": Kind.GATES, "suite": Kind.SUITE}
+KEYS: dict[str, Kind] = {
+    "sweep": Kind.SWEEP,
+    "gates": Kind.GATES,
+    "suite": Kind.SUITE,
+    "benchmark": Kind.BENCHMARK,
+}
 """The top-level key that marks a YAML file's kind (a gate file's matrix is under ``run``)."""
 
 
@@ -56,6 +62,7 @@ SHELVES: tuple[Shelf, ...] = (
     Shelf("depotbench.scenes", "suites", "*.yaml"),  # the scenes' suites: data only, no code imported
     Shelf("depotbench.assets", "examples/external", "*.py"),
     Shelf("depotbench.assets", "examples", "*.txt"),
+    Shelf("depotbench.assets", "benchmarks", "*.yaml"),  # each with its lock, NAME.lock.json
 )
 
 
@@ -182,6 +189,8 @@ def _references(data: dict[str, Any]) -> list[str]:
     sweep runs it) and settings template."""
     matrix = data.get("run") if isinstance(data.get("run"), dict) else data
     names = [matrix.get("suite"), data.get("base"), *(matrix.get("sequences") or [])]
+    if "benchmark" in data:  # its lock, NAME-VERSION.lock.json (eval/benchmark/spec.py)
+        names.append(f"{data['benchmark']}-{data.get('version')}.lock.json")
     for tracker in matrix.get("trackers") or []:
         if not isinstance(tracker, dict):
             continue

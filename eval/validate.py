@@ -147,6 +147,21 @@ def _suite(path: Path, lint: Lint) -> str:
     return f"{len(jobs)} sequences, {sum(sc.n_frames for _, _, sc in jobs)} frames in all"
 
 
+def _benchmark(path: Path, lint: Lint) -> str:
+    from depotbench.eval.benchmark.sequences import check_specs
+    from depotbench.eval.benchmark.spec import load_benchmark
+
+    benchmark = lint.attempt(lambda: load_benchmark(path))
+    if benchmark is None or lint.attempt(lambda: check_specs(benchmark) or True) is None:
+        return ""
+    frozen = sum(s.files_key is not None for s in benchmark.sequences)
+    return (
+        f"'{benchmark.name}', {_plural(len(benchmark.spec.scenarios), 'scenario')}, "
+        f"{_plural(len(benchmark.sequences), 'sequence')} ({frozen} frozen), "
+        f"{sum(s.frames for s in benchmark.sequences)} frames"
+    )
+
+
 def _matrix(spec: Any, path: Path, lint: Lint, prefix: str = "") -> str:
     """Every semantic check of a sweep's matrix, each adding its own lines; its size when all hold."""
     from depotbench.eval.sweep import engine
@@ -424,6 +439,7 @@ KINDS: dict[str, Kind] = {
     "gate file": Kind(_yaml_kind("gates"), _gates),
     "sweep spec": Kind(_yaml_kind("sweep"), _sweep),
     "suite": Kind(_yaml_kind("suite"), _suite),
+    "benchmark": Kind(_yaml_kind("benchmark"), _benchmark),
 }
 SCENARIO = "scenario"
 """A file of none of the kinds above, or a library scenario's name."""

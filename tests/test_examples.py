@@ -27,6 +27,7 @@ SHELVES = {
     "scenes/suites": "*.yaml",
     "assets/examples/external": "*.py",
     "assets/examples": "*.txt",
+    "assets/benchmarks": "*.yaml",
 }
 """Where the checkout keeps what the wheel ships as examples (pyproject's package data)."""
 
@@ -203,7 +204,9 @@ def test_copy_all_gives_every_example_and_each_validates_in_its_new_folder(capsy
     folder = tmp_path / "examples"
     code, out, err = cli(capsys, "examples", "copy", "--all", folder, "--json")
     assert code == 0, err
-    assert sorted(p.stem for p in folder.iterdir()) == sorted(shipped_files())
+    locks = sorted(p.name for p in folder.iterdir() if p.name.endswith(".lock.json"))
+    assert sorted(p.stem for p in folder.iterdir() if p.name not in locks) == sorted(shipped_files())
+    assert locks == sorted(f"{p.stem}.lock.json" for p in (REPO / "assets" / "benchmarks").glob("*.yaml"))
     for program in folder.glob("*.py"):
         assert os.access(program, os.X_OK), program  # a sweep runs it by its path
     monkeypatch.chdir(tmp_path)

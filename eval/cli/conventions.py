@@ -163,6 +163,22 @@ USAGE: dict[str, Usage] = {
             "depotbench compare runs/main runs/branch --fail-on-regression --tolerance 0.05 --json",
         ),
     ),
+    "benchmark": Usage(
+        "Frozen, named benchmarks (docs/benchmarks.md): a shipped set of sequences keyed to the byte, "
+        "one tracker configuration scored on every sequence (a tracker that is not deterministic "
+        "at least 3 times each), a results file anyone can recompute, and the papers' tables "
+        "against any results file as the baseline.",
+        (
+            "depotbench benchmark list",
+            "depotbench benchmark run smoke-1 -o bench/none",
+            "depotbench benchmark run tum-dyn-1 -o bench/flow --strategy box_epipolar_flow --detector onnx",
+            "depotbench benchmark run tum-dyn-1 -o bench/orb --slam orbslam3 --repeats 5",
+            "depotbench benchmark run tum-dyn-1 -o bench/mine --slam cmd --command './my_slam {sequence} "
+            "{trajectory}' --not-deterministic",
+            "depotbench benchmark table bench/flow bench/orb --baseline bench/none -o tables/tum",
+            "depotbench benchmark verify bench/flow",
+        ),
+    ),
     "cache": Usage(
         "Show or clear depotbench's caches: the tracking stages (detections, features, flow), the "
         "generated sequences and the ORB vocabularies. They live under one root, "

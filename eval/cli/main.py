@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 from depotbench.core.errors import InputError
 from depotbench.core.processes import OutsideImports  # light: the handler is set before any heavy import
+from depotbench.eval.cli.benchmark import add_benchmark
 from depotbench.eval.cli.cache import add_cache
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.compare import add_compare
@@ -38,14 +39,13 @@ from depotbench.eval.cli.detectors import (
     add_detector_options,
     add_export_dataset,
     detector_config,
-    pairs,
 )
 from depotbench.eval.cli.examples import add_examples
 from depotbench.eval.cli.gates import add_check
 from depotbench.eval.cli.report import add_report
 from depotbench.eval.cli.rosbag import add_export_rosbag
 from depotbench.eval.cli.sweep import add_sweep
-from depotbench.eval.trackers.placeholders import PLACEHOLDERS
+from depotbench.eval.cli.trackers import add_tracker_options, tracker_from_args
 
 if TYPE_CHECKING:
     from depotbench.eval.metrics.accuracy import Statistics
@@ -58,8 +58,6 @@ EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
 """``depotbench.core.files.DEFAULT_PNG_COMPRESSION``, named here so that ``--help`` imports no numpy
 (a test holds the two equal)."""
-COMMAND_PLACEHOLDERS = " ".join(f"{{{name}}}" for name in PLACEHOLDERS)
-"""Every placeholder of the external-program protocol, as ``run --help`` lists them."""
 MAX_PREVIEW_FRAMES = 16
 """Rows of one preview picture (each 3 frames wide)."""
 EXIT_INTERRUPTED = 128 + signal.SIGINT
@@ -387,67 +385,11 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    from depotbench.eval.trackers.registry import TRACKERS  # data only: imports no tracker
-
     p = sub.add_parser("run", help="track a sequence with SLAM and a rejection strategy; write metrics")
     p.add_argument("sequence", type=Path, help="a generated sequence or a TUM RGB-D folder")
-    p.add_argument(
-        "--slam",
-        choices=list(TRACKERS),
-        default="builtin",
-        help="the tracker (default: builtin): "
-        + "; ".join(f"{name}: {t.summary}" for name, t in TRACKERS.items()).replace("%", "%%"),
-    )
-    p.add_argument(
-        "--strategy",
-        choices=choices.STRATEGIES,
-        default="none",
-        help="dynamic-feature rejection; 'mask' blanks dynamic boxes in RGB and depth before the "
-        "tracker sees the frames (any tracker); the others are the built-in tracker's",
-    )
+    add_tracker_options(p)
     add_detector_options(p, default=None)
     add_camera_options(p)
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="override a threshold, e.g. --set k=2.5 --set epsilon_px=0.8 (repeatable)",
-    )
-    p.add_argument(
-        "--command",
-        metavar="TEMPLATE",
-        help=f"--slam cmd: the program and its arguments, with {COMMAND_PLACEHOLDERS} and {{NAME}} of each "
-        "--param as whole words, run without a shell (a shell script takes them as arguments, "
-        '"$1", or from $DEPOTBENCH_SEQUENCE and the like; docs/external-trackers.md)',
-    )
-    p.add_argument(
-        "--param",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="--slam cmd: a parameter of the program, as {NAME} in the template, in {parameters} and "
-        "in the settings template; --slam orbslam3: one of its settings, e.g. ThDepth=50 or "
-        "ORBextractor.nFeatures=1500 (repeatable)",
-    )
-    p.add_argument(
-        "--settings-template",
-        type=Path,
-        metavar="FILE",
-        help="--slam cmd: a Jinja2 template rendered to {settings} with camera, params and "
-        "orbslam_camera (docs/external-trackers.md)",
-    )
-    p.add_argument(
-        "--vocabulary",
-        type=Path,
-        help="--slam orbslam3|cmd: a DBoW2 text vocabulary (default: the bench's, built once)",
-    )
-    p.add_argument(
-        "--timeout",
-        type=positive_float,
-        default=3600.0,
-        help="--slam orbslam3|cmd: seconds before the program is stopped (default: 3600)",
-    )
     p.add_argument(
         "--map",
         action="store_true",
@@ -470,44 +412,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.eval.run.cache import StageCache
     from depotbench.eval.run.harness import run_sequence
-    from depotbench.eval.trackers.registry import TRACKERS, TrackerConfig, tracker_parameters, tracker_type
-    from depotbench.eval.trackers.registry import check as check_tracker
-    from depotbench.slam.config import ConfigError, parse_settings
 
-    try:  # the one place --set's text becomes values
-        settings = parse_settings(args.set)
-    except ConfigError as exc:
-        raise InputError(f"--set: {exc}") from None
+    tracker, settings = tracker_from_args(args)
     detector = detector_config(args)
-    kind = tracker_type(args.slam)
-
-    def takers(flag: str) -> str:
-        return " and ".join(name for name, t in TRACKERS.items() if getattr(t, flag))
-
-    if args.command is not None and not kind.command:
-        raise InputError(f"--command applies to --slam {takers('command')} only")
-    if args.vocabulary is not None and not kind.vocabulary:
-        raise InputError(f"--vocabulary applies to --slam {takers('vocabulary')} only")
-    if args.vocabulary is not None:
-        from depotbench.eval.trackers.vocabulary import vocabulary_problem
-
-        if (problem := vocabulary_problem(args.vocabulary)) is not None:
-            raise InputError(f"{args.vocabulary}: {problem}")
-    if args.param and not kind.parameters:
-        raise InputError(
-            f"--param applies to --slam {takers('parameters')} (the built-in tracker takes --set)"
-        )
-    if args.settings_template is not None and not kind.command:
-        raise InputError(f"--settings-template applies to --slam {takers('command')} only")
-    tracker = TrackerConfig(
-        kind.name,
-        args.command,
-        args.vocabulary,
-        args.timeout,
-        parameters=tracker_parameters(kind.name, pairs(args.param, "--param")),
-        settings_template=args.settings_template,
-    )
-    check_tracker(tracker)
     metrics = run_sequence(
         args.sequence,
         args.output,
@@ -729,6 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
         add_check,
         add_report,
         add_compare,
+        add_benchmark,
         add_cache,
         _add_completion,
     ):

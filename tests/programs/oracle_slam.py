@@ -6,12 +6,15 @@ seeded offset of ``noise_m``; it "extracts" a grid of keypoints and rejects thos
 a dynamic box grown by ``margin_px``. Its parameters come from ``{parameters}``; ``mode``
 selects a misbehaviour: ``hang``, ``flood`` (1 GB on stdout), ``fork`` (a child that
 sleeps forever), ``bad_trajectory``, ``nan_keypoint``, ``outside_keypoint``, ``exit3``.
+``run_noise_m`` adds noise drawn anew on every run (from the OS), for a program whose runs
+differ as a multi-threaded SLAM system's do.
 
     oracle_slam.py SEQUENCE DETECTIONS PARAMETERS TRAJECTORY KEYPOINTS
 """
 
 import json
 import os
+import random
 import subprocess
 import sys
 import time
@@ -35,6 +38,8 @@ def main() -> int:
         print("giving up: a deliberate failure", file=sys.stderr)
         return 3
     noise, margin = float(params.get("noise_m", 0.0)), float(params.get("margin_px", 0.0))
+    run_noise = float(params.get("run_noise_m", 0.0))
+    draw = random.Random(os.urandom(16))
     boxes = _boxes(detections)
     width, height = _size(sequence / "camera.yaml")
     lines = []
@@ -47,6 +52,7 @@ def main() -> int:
             stamp, *pose = line.split()
             offset = (zlib.crc32(stamp.encode()) % 1000 / 1000.0 - 0.5) * 2 * noise
             x, y, z = (float(v) for v in pose[:3])
+            x += draw.gauss(0.0, run_noise) if run_noise else 0.0
             lines.append(f"{stamp} {x + offset!r} {y - offset!r} {z!r} {' '.join(pose[3:])}\n")
             for px in range(8, width, 16):
                 for py in range(8, height, 16):

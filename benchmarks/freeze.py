@@ -1,0 +1,108 @@
+"""Freeze a benchmark: write its lock (``assets/benchmarks/NAME.lock.json``) with every
+sequence's spec key and files key.
+
+Usage: python benchmarks/freeze.py NAME [-o FOLDER] [--workers N]
+       python benchmarks/freeze.py NAME --sequences FOLDER   (hash what FOLDER holds; generate nothing)
+
+``-o`` generates every sequence into FOLDER (resumable; the machine's sequence store
+serves those it holds) and hashes each. ``--sequences`` hashes the complete sequences of
+FOLDER (``FOLDER/SCENARIO/NAME``, as ``benchmark run`` and ``benchmarks/calibration.py``
+lay them out) whose marker holds the asked spec key and leaves the others unfrozen (no
+files key): a long benchmark is frozen as its sequences are made. A files key already in
+the lock is kept for a sequence whose spec key is unchanged and that FOLDER does not hold;
+one FOLDER holds with other bytes stops the freeze (the same spec must give the same bytes).
+
+A benchmark is frozen once per version: when its sequences would change (a new generator),
+its file is copied to NAME-(VERSION+1).yaml and frozen anew; the old one stays for those
+who cite it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def main() -> None:
+    from depotbench.core.errors import InputError
+    from depotbench.core.version import generator_version
+    from depotbench.eval.benchmark.sequences import expand
+    from depotbench.eval.benchmark.spec import (
+        BenchmarkFile,
+        BenchSequence,
+        load_benchmark,
+        lock_path,
+        write_lock,
+    )
+    from depotbench.eval.run.detections import sequence_fingerprint
+    from depotbench.scenes.generation import is_complete, run_suite
+    from depotbench.scenes.schema import load_model
+    from depotbench.sim.sequence import Sequence
+
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("benchmark", help="a shipped benchmark's name or a benchmark file")
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("-o", "--output", type=Path, help="generate every sequence here, then hash it")
+    where.add_argument("--sequences", type=Path, help="hash the complete sequences this folder holds")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+
+    from depotbench.core.examples import Kind, find
+
+    path = find(args.benchmark, Kind.BENCHMARK)
+    spec = load_model(BenchmarkFile, path)
+    if spec.generator != generator_version():
+        sys.exit(
+            f"{path}: frozen for generator {spec.generator}, this is {generator_version()}: copy it to a new "
+            "version (its name's number and version: field) and freeze that"
+        )
+    asked = expand(spec, path)
+    kept: dict[str, str | None] = {}
+    if lock_path(path).is_file():
+        try:
+            old = load_benchmark(path)
+            kept = {s.folder: s.files_key for s in old.sequences}
+            old_specs = {s.folder: s.spec_key for s in old.sequences}
+            kept = {
+                k: v
+                for k, v in kept.items()
+                if any(a.folder == k and a.spec_key == old_specs[k] for a in asked)
+            }
+        except InputError as exc:
+            print(f"the old lock is not read ({exc}); freezing anew", flush=True)
+    started = time.perf_counter()
+    root = args.output or args.sequences
+    if args.output is not None:
+        for entry in spec.scenarios:
+            run_suite(entry.suite(), path, root / entry.scenario, args.workers)
+    frozen = []
+    for sequence in asked:
+        folder = root / sequence.folder
+        key = kept.get(sequence.folder)
+        if is_complete(folder, sequence.spec_key):
+            hashed = sequence_fingerprint(Sequence.open(folder))
+            if key is not None and key != hashed:
+                sys.exit(
+                    f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the same "
+                    "spec: the generator is not deterministic across these machines; nothing written"
+                )
+            key = hashed
+        frozen.append(
+            BenchSequence(
+                sequence.name, sequence.scenario, sequence.seed, sequence.frames, sequence.spec_key, key
+            )
+        )
+    write_lock(path, spec, frozen)
+    done = sum(s.files_key is not None for s in frozen)
+    print(
+        f"wrote {lock_path(path)}: {len(frozen)} sequences, {done} frozen, {len(frozen) - done} waiting "
+        f"({time.perf_counter() - started:.0f} s)"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,190 @@
+"""``benchmark run``: one tracker configuration over every sequence of a benchmark, repeated
+where the tracker is not deterministic, into a results file others can check.
+
+Each run leaves its folder (``runs/SCENARIO/NAME/rK``: trajectory, metrics, record). The
+figures in ``results.json`` are computed from the trajectory file as written, the way
+``benchmark verify`` recomputes them, so a result and its check read the same bytes. A run
+whose record holds the job's key (sequence bytes, tracker and program, detector, strategy,
+settings, bench version) is kept when the command is given again: an interrupted benchmark
+resumes. A run that fails (a program's exit, a time limit) is a failed run in the results,
+counted and shown, never dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from depotbench.core.errors import InputError
+from depotbench.core.files import file_digest, read_json
+from depotbench.eval.benchmark.results import FORMAT, FORMAT_VERSION, figures_of
+from depotbench.eval.benchmark.sequences import prepare
+from depotbench.eval.benchmark.spec import Benchmark
+from depotbench.eval.run.harness import RunJob
+
+LOG = logging.getLogger(__name__)
+RESULTS_NAME = "results.json"
+MIN_REPEATS = 3
+"""Runs per sequence of a tracker that is not deterministic: ORB-SLAM3 gave 390 and 119 mm
+on one walking sequence in two runs, so one run is never the answer, and three give a median."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a benchmark run scores: a job template (its sequence replaced per sequence)."""
+
+    job: RunJob
+    repeats: int
+    deterministic: bool
+
+
+def repeats_for(deterministic: bool, asked: int | None) -> int:
+    """The built-in tracker repeats itself bit for bit (a test holds it): once. Any other
+    runs ``asked`` times, at least ``MIN_REPEATS``."""
+    if deterministic:
+        if asked not in (None, 1):
+            raise InputError(
+                f"--repeats {asked}: this tracker is deterministic (its runs repeat bit for bit): "
+                "it runs once"
+            )
+        return 1
+    if asked is None:
+        return MIN_REPEATS
+    if asked < MIN_REPEATS:
+        raise InputError(
+            f"--repeats {asked}: a tracker that is not deterministic runs at least {MIN_REPEATS} times a "
+            "sequence (one run is no answer: its spread is the finding)"
+        )
+    return asked
+
+
+def _run_one(job: RunJob, target: str, key: str | None) -> dict[str, Any]:
+    """Worker: one run into ``target`` (kept where its record holds ``key``); its figures."""
+    from depotbench.eval.run.harness import run_job
+    from depotbench.eval.trackers.base import TrackerError
+
+    folder = Path(target)
+    record = folder / "record.json"
+    if key is not None and record.is_file():
+        kept = read_json(record, 1 << 20, "run record")
+        if isinstance(kept, dict) and kept.get("key") == key and (folder / "metrics.json").is_file():
+            return _figures(job, folder, resumed=True)
+    try:
+        run_job(job, folder, progress=False, overwrite=True)
+    except TrackerError as exc:
+        return {"status": "failed", "failure": str(exc).splitlines()[0], "resumed": False}
+    return _figures(job, folder, resumed=False)
+
+
+def _figures(job: RunJob, folder: Path, resumed: bool) -> dict[str, Any]:
+    metrics = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+    trajectory = folder / "trajectory.txt"
+    figures = figures_of(job.sequence, trajectory if trajectory.is_file() else None, metrics["frames"])
+    return {
+        "status": "ok",
+        "resumed": resumed,
+        "figures": figures.to_dict(),
+        "trajectory_sha256": file_digest(trajectory, "trajectory").hex() if trajectory.is_file() else None,
+        "wall_time_s": metrics["wall_time_s"],
+    }
+
+
+def run_benchmark(
+    benchmark: Benchmark,
+    plan: Plan,
+    out: Path,
+    workers: int,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Generate and check the benchmark's sequences under ``out/sequences``, run the plan on
+    each (``plan.repeats`` times), write ``out/results.json`` and return its content."""
+    from depotbench.core.executors import make_pool
+    from depotbench.core.output import write_text_atomic
+    from depotbench.core.progress import progress_bar
+    from depotbench.core.version import generator_version
+    from depotbench.eval.run.harness import job_key, tracker_fingerprint, tracker_identity
+
+    started = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    prepared = prepare(benchmark, out / "sequences", workers, progress)
+    identity = tracker_identity(plan.job.tracker)
+    items = []
+    for p in prepared:
+        job = RunJob(
+            p.path,
+            plan.job.strategy,
+            plan.job.detector,
+            plan.job.settings,
+            plan.job.tracker,
+        )
+        key = job_key(p.files_key, identity, job.detector, job.strategy, job.settings)
+        for repeat in range(plan.repeats):
+            items.append((job, str(out / "runs" / p.sequence.folder / f"r{repeat}"), key))
+    # An external program runs alone: ORB-SLAM3's mapping thread falls behind on shared cores.
+    pool = make_pool("local", 1 if plan.job.tracker.type.external else workers)
+    outcomes: dict[str, dict[str, Any]] = {}
+    bar = progress_bar(total=len(items), unit="run", desc=benchmark.name, disable=not progress)
+    failed = True
+    try:
+        for (_, target, _), outcome in pool.map_unordered(_run_one, items):
+            outcomes[target] = outcome
+            bar.update(1)
+        failed = False
+    finally:
+        bar.close()
+        pool.close(failed)
+    sequences = []
+    for p in prepared:
+        runs = []
+        for repeat in range(plan.repeats):
+            target = out / "runs" / p.sequence.folder / f"r{repeat}"
+            outcome = dict(outcomes[str(target)])
+            outcome.pop("resumed")
+            runs.append({"repeat": repeat, "folder": target.relative_to(out).as_posix(), **outcome})
+        sequences.append(
+            {
+                "name": p.sequence.folder,
+                "scenario": p.sequence.scenario,
+                "seed": p.sequence.seed,
+                "frames": p.sequence.frames,
+                "files_key": p.files_key,
+                "frozen": p.sequence.files_key is not None,
+                "runs": runs,
+            }
+        )
+    tracker = plan.job.tracker
+    results = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "benchmark": benchmark.name,
+        "benchmark_generator": benchmark.spec.generator,
+        "depotbench": generator_version(),
+        "tracker": {
+            "label": tracker.label,
+            "kind": tracker.kind,
+            "fingerprint": tracker_fingerprint(identity),
+            "identity": {k: _plain(v) for k, v in identity},
+            "parameters": dict(tracker.parameters),
+            "strategy": plan.job.strategy,
+            "detector": plan.job.detector.label,
+            "detector_config": plan.job.detector.to_dict(),
+            "settings": {k: v for k, v in plan.job.settings},
+            "deterministic": plan.deterministic,
+        },
+        "repeats": plan.repeats,
+        "seconds": time.perf_counter() - started,
+        "resumed_runs": sum(o["resumed"] for o in outcomes.values()),
+        "sequences": sequences,
+    }
+    write_text_atomic(out / RESULTS_NAME, json.dumps(results, indent=1) + "\n")
+    return results
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value

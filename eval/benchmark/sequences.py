@@ -1,0 +1,94 @@
+"""A benchmark's sequences: what its file asks the generator for, generated where missing
+and checked against the lock, key by key."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+from depotbench.core.errors import InputError
+from depotbench.eval.benchmark.spec import Benchmark, BenchmarkFile, BenchSequence
+from depotbench.scenes.schema import to_scenario
+from depotbench.scenes.suite import variations
+from depotbench.sim.spec import content_key
+
+LOG = logging.getLogger(__name__)
+
+
+def expand(spec: BenchmarkFile, source: Path) -> list[BenchSequence]:
+    """Every sequence the file asks for, with its spec key (no files key: nothing is generated)."""
+    found = []
+    for entry in spec.scenarios:
+        for name, knobs, scenario in variations(entry.suite(), source):
+            found.append(
+                BenchSequence(
+                    name,
+                    entry.scenario,
+                    knobs["seed"],
+                    scenario.n_frames,
+                    content_key(to_scenario(scenario)),
+                    None,
+                )
+            )
+    return found
+
+
+def check_specs(benchmark: Benchmark) -> None:
+    """Refuse, before anything is generated, a benchmark this package would generate other
+    sequences for: another generator version, or a file edited since its lock was written."""
+    from depotbench.core.version import generator_version
+
+    asked = expand(benchmark.spec, benchmark.path)
+    locked = benchmark.by_name()
+    if [s.folder for s in asked] != [s.folder for s in benchmark.sequences]:
+        raise InputError(
+            f"{benchmark.path}: its scenarios and seeds are not its lock's; the file was edited after "
+            "benchmarks/freeze.py wrote the lock"
+        )
+    for sequence in asked:
+        if sequence.spec_key != locked[sequence.folder].spec_key:
+            running = generator_version()
+            why = (
+                f"this depotbench ({running}) generates other sequences than {benchmark.spec.generator}, "
+                f"which froze it: install depotbench=={benchmark.spec.generator} to score it"
+                if running != benchmark.spec.generator
+                else "its scenario changed since the benchmark was frozen"
+            )
+            raise InputError(f"{benchmark.name}: sequence {sequence.folder}: {why}")
+
+
+@dataclass(frozen=True)
+class Prepared:
+    sequence: BenchSequence
+    path: Path
+    files_key: str
+
+
+def prepare(benchmark: Benchmark, root: Path, workers: int, progress: bool = True) -> list[Prepared]:
+    """Each sequence under ``root/SCENARIO/NAME``: generated where missing (or copied from the
+    machine's sequence store), then hashed and checked against the lock. A sequence whose
+    bytes are not the lock's is refused by name, so a result never mixes other bytes in."""
+    from depotbench.eval.run.detections import sequence_fingerprint
+    from depotbench.scenes.generation import run_suite
+    from depotbench.sim.sequence import Sequence
+
+    check_specs(benchmark)
+    for entry in benchmark.spec.scenarios:
+        run_suite(entry.suite(), benchmark.path, root / entry.scenario, workers, progress=progress)
+    prepared = []
+    for sequence in benchmark.sequences:
+        path = root / sequence.folder
+        key = sequence_fingerprint(Sequence.open(path))
+        if sequence.files_key is None:
+            LOG.warning(
+                f"{benchmark.name}: {sequence.folder} is not frozen yet (no files key): "
+                "its bytes are unchecked"
+            )
+        elif key != sequence.files_key:
+            raise InputError(
+                f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
+                f"{sequence.files_key}): changed after generation, or made by another renderer"
+            )
+        prepared.append(Prepared(sequence, path, key))
+    return prepared
