@@ -56,6 +56,7 @@ def test_generation_stages_prints_every_stage_with_its_time():
         assert re.search(rf"^  {re.escape(label)}\s+\d+\.\d\d", result.stdout, re.M), (label, result.stdout)
 
 
+@pytest.mark.slow  # 60 s of rendering; generation_stages checks the benchmark script in the default run
 @pytest.mark.render
 def test_generation_peer_prints_mujoco_alone_and_the_ratio_of_the_same_run():
     """``--peer``: MuJoCo alone in two processes, and the two-process rate over it, which is
@@ -115,6 +116,7 @@ def test_the_strategies_table_takes_settings_as_the_command_line_does(tmp_path):
 _SECONDS = r"cpu\s+(\d+\.\d+) s  wall\s+(\d+\.\d+) s"
 
 
+@pytest.mark.slow  # 17 s of ORB-SLAM3 at camera pace
 @pytest.mark.render
 def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_one(tmp_path):
     """benchmarks/tracking.py feeds ORB-SLAM3 at each ``--orbslam3-pace`` in turn, here the
@@ -195,6 +197,7 @@ def _has_commit(rev: str) -> bool:
     )
 
 
+@pytest.mark.slow  # 20 s
 @pytest.mark.render
 def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
     """sweep.py on a toy sweep (1 sequence of 3 frames, 2 configurations): its modes run (the

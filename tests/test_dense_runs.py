@@ -127,6 +127,7 @@ def test_the_map_is_placed_by_its_first_keyframe(walking: Path):
         np.testing.assert_allclose(centre, sequence.world_from_camera(i)[:3, 3], atol=1e-9)
 
 
+@pytest.mark.slow  # 45 s; the map of a single run is checked in the default run
 def test_a_sweep_with_dense_maps_gives_each_row_the_figures_of_its_run_alone(walking: Path, tmp_path: Path):
     """Rows of a dense_map sweep (tracked once while their decisions agree, then forked; rows
     with the same decisions and reasons shared) carry the map figures the same job gives run

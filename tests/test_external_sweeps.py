@@ -239,6 +239,7 @@ def test_processes_of_a_hung_program_do_not_outlive_the_sweep(sequences: Path, t
 WRAPPER = REPO / "assets" / "examples" / "external" / "builtin_tracker.py"
 
 
+@pytest.mark.slow  # 60 s; test_example_trackers.py checks the wrapper run by run in the default run
 def test_the_built_in_tracker_through_the_protocol_gives_the_built_in_rows(sequences: Path, tmp_path: Path):
     """Issue 35 point 5, through the engine: the wrapped built-in tracker, handed the
     bench's boxes (faulted too) and parameters, scores the same ATE and rejection
@@ -352,6 +353,7 @@ def test_an_external_sweep_is_the_same_with_ray_and_after_five_sigkills(tmp_path
     assert same(table(tmp_path / "killed")) == same(reference)
 
 
+@pytest.mark.slow  # 20 s
 def test_a_search_over_a_programs_parameter_and_the_report_of_the_sweep(
     sequences: Path, tmp_path: Path, capsys
 ):

@@ -1131,6 +1131,7 @@ def _oversized_cases(tmp: Path) -> dict[str, tuple[list[str], str]]:
     }
 
 
+@pytest.mark.slow  # 25 s
 def test_oversized_and_endless_inputs_stay_under_300_mb(tmp_path: Path):
     cases = _oversized_cases(tmp_path)
     peaks = {}

@@ -306,7 +306,7 @@ def test_a_perfect_depth_map_of_a_static_scene_scores_one(tmp_path: Path):
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # 28 s each
 def test_a_noisy_depth_map_is_as_accurate_as_the_sensor_allows(tmp_path: Path, seed: int):
     """static_depot, 10 frames, the Kinect sensor model (axial noise, disparity quantisation,
     0.4-8 m range, edge dropout). The map from the true poses and the sensor's depth: its
@@ -342,7 +342,14 @@ def test_a_noisy_depth_map_is_as_accurate_as_the_sensor_allows(tmp_path: Path, s
 
 
 @pytest.mark.render
-@pytest.mark.parametrize(("name", "seed"), [("walking_static", 0), ("walking_static", 2), ("walking_xyz", 0)])
+@pytest.mark.parametrize(
+    ("name", "seed"),
+    [
+        pytest.param("walking_static", 0, marks=pytest.mark.slow),  # 30-40 s each: walking_xyz stays
+        pytest.param("walking_static", 2, marks=pytest.mark.slow),
+        ("walking_xyz", 0),
+    ],
+)
 def test_people_left_in_a_map_are_ghosts_and_masking_them_leaves_none(tmp_path: Path, name: str, seed: int):
     """walking sequences, 10 frames, perfect sensor. Back-projecting every pixel from the true
     poses leaves the walking people in the map: the ghosts are the people's points, each

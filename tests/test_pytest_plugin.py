@@ -95,6 +95,7 @@ checks: [{name: runs, strategies: [box_rule], budgets: {lost_fraction: {max: 1.0
 """
 
 
+@pytest.mark.slow  # 30 s of two pytest sessions
 @pytest.mark.render
 def test_two_processes_sharing_the_dir_ask_for_the_same_sequence_run_and_gates_at_once(pytester):
     """C17: pytest-xdist workers sharing --depotbench-dir both saw a sequence missing and

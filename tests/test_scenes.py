@@ -74,6 +74,7 @@ def _assert_only_instances_move(world, name: str) -> None:
         assert model.body(body).name == "camera_rig" and not (model.geom_bodyid == body).any(), name
 
 
+@pytest.mark.slow  # 100 s: every library scene; the default run generates each kind of actor elsewhere
 @pytest.mark.render
 def test_every_library_scenario_generates_and_difficulty_orders_them(tmp_path: Path, monkeypatch):
     """Every library scene generates a sequence that verifies, its difficulty measures
@@ -383,6 +384,7 @@ def test_suite_twice_gives_identical_files_and_resumes_after_a_kill(tmp_path: Pa
     assert json.loads(files_c["index.json"]) == json.loads(files_a["index.json"])
 
 
+@pytest.mark.slow  # 27 s
 def test_difficultys_mean_flow_on_a_grid_is_within_half_a_percent_of_every_pixels(
     tmp_path: Path, monkeypatch
 ):

@@ -360,6 +360,7 @@ def test_textures_and_motion_blur_do_not_depend_on_intel_ipps_cpu_path():
     assert len(set(digests.values())) == 1, digests
 
 
+@pytest.mark.slow  # 27 s; two processes give the same bytes in the default run
 def test_same_spec_and_seed_same_bytes_on_two_blas_kernels(tmp_path: Path):
     """OpenBLAS picks its kernels by CPU type, and Haswell's fuse multiply and add where
     Nehalem's do not: poses, meshes and ground truth computed through ``@`` (and paths
@@ -750,7 +751,10 @@ def test_unoccluded_area_of_a_scene_matches_drawing_each_instance_alone():
         renderer.close()
 
 
-@pytest.mark.parametrize(("scene", "seed"), [(None, 0), ("crowd", 1), ("dog_and_cat_roaming", 2)])
+@pytest.mark.parametrize(
+    ("scene", "seed"),
+    [(None, 0), pytest.param("crowd", 1, marks=pytest.mark.slow), ("dog_and_cat_roaming", 2)],  # crowd: 22 s
+)
 def test_instance_pass_shows_what_a_segmentation_pass_of_the_whole_scene_shows(scene, seed):
     """MuJoCo's own segmentation of the whole scene (the world drawn too, with the depth
     test) is the reference: the instance pass, whose pixels count where its depth equals

@@ -56,6 +56,7 @@ def test_static_scene_is_tracked_to_millimetres(static_seq: Path, tmp_path: Path
     assert diagnostics["inlier"].mean() > 0.3
 
 
+@pytest.mark.slow  # 30 s; test_benchmark.py runs the built-in tracker twice on smoke-1 and compares the bytes
 def test_same_input_same_trajectory(static_seq: Path, tmp_path: Path):
     for name in ("a", "b"):
         run_sequence(static_seq, tmp_path / name, "box_epipolar_flow", progress=False)
@@ -95,7 +96,9 @@ def test_crowd_degrades_the_baseline_and_every_strategy_improves_on_it(crowd_seq
 
 @pytest.fixture(scope="module")
 def walking_seq(tmp_path_factory) -> Path:
-    return _generate(tmp_path_factory, "walking_static", 150)
+    # 60 frames (2 s) hold the claim at a tenth of the cost of 150 (265 s at TUM's 640x480):
+    # none 18 mm against 2.8-3.2 mm for the strategies at 0.8.0.
+    return _generate(tmp_path_factory, "walking_static", 60)
 
 
 def test_walkers_degrade_the_baseline_and_the_strategies_reject_them(walking_seq: Path, tmp_path: Path):

@@ -157,6 +157,7 @@ def _command(spec: Path, out: Path) -> list[str]:
     ]
 
 
+@pytest.mark.slow  # 60 s; test_kill.py kills a run at random moments in the default run
 def test_a_sweep_killed_at_random_moments_and_resumed_equals_an_uninterrupted_one(tmp_path: Path):
     spec = _sweep_setup(tmp_path)
     env = {**os.environ, "DEPOTBENCH_CACHE": "off"}
@@ -320,6 +321,7 @@ def _summary_search(out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())["search"]
 
 
+@pytest.mark.slow  # 25 s of Optuna studies
 def test_a_search_whose_space_or_objective_changed_starts_a_study_of_its_own(tmp_path: Path, capsys):
     """Probe D3: the study resumed by the sweep's name; after k in [1, 4] became [5, 6] the
     report's best was k = 2.6, outside the space asked for."""
@@ -335,7 +337,9 @@ def test_a_search_whose_space_or_objective_changed_starts_a_study_of_its_own(tmp
     assert _summary_search(out)["trials"] == 3 and _summary_search(out)["objective"] == "ate_time"
 
 
-@pytest.mark.parametrize("damage", ["truncated", "not sqlite"])
+@pytest.mark.parametrize(
+    "damage", ["truncated", pytest.param("not sqlite", marks=pytest.mark.slow)]
+)  # 22 s each
 def test_a_damaged_study_is_one_line_naming_it(tmp_path: Path, capsys, damage: str):
     """Probe C9: an 84-line SQLAlchemy traceback for a truncated optuna.sqlite."""
     pytest.importorskip("optuna")

@@ -78,6 +78,7 @@ def test_vocabulary_text_is_dbow2s_and_reads_back(tmp_path: Path):
     assert max(depth) == 3 and all(depth[n] == 3 for n in range(len(depth)) if vocabulary.leaf[n])
 
 
+@pytest.mark.slow  # 30 s
 @pytest.mark.render
 def test_a_vocabulary_built_in_two_workers_is_the_one_built_in_one_process(tmp_path: Path):
     """``--workers``: each training scene is rendered and extracted in a worker of its own and
