@@ -19,7 +19,7 @@ from depotbench.eval.benchmark.results import load_results, verify
 from depotbench.eval.benchmark.runner import MIN_REPEATS, repeats_for
 from depotbench.eval.benchmark.sequences import check_specs, prepare
 from depotbench.eval.benchmark.spec import load_benchmark
-from depotbench.eval.benchmark.table import csv_text, latex, markdown, rows
+from depotbench.eval.benchmark.table import csv_text, fresh_comparison, fresh_markdown, latex, markdown, rows
 from depotbench.eval.cli.main import main
 
 from tests.conftest import REPO
@@ -237,3 +237,30 @@ def test_verify_finds_a_changed_trajectory_and_a_changed_figure(smoke: Path, tmp
     capsys.readouterr()
     assert main(["benchmark", "verify", str(out)]) == 1
     assert "problems in 3 runs" in capsys.readouterr().out
+
+
+def _fresh(smoke: Path, out: Path, *params: str) -> dict:
+    shutil.copytree(smoke / "sequences", out / "sequences")
+    words = ["--slam", "cmd", "--command", ORACLE_COMMAND, "--fresh-seeds", "3", "--fresh-entropy", "7"]
+    for param in params:
+        words += ["--param", param]
+    assert main(["benchmark", "run", "smoke-1", "-o", str(out), "--workers", "1", *words]) == 0
+    return load_results(out)
+
+
+def test_fresh_seeds_tell_a_tracker_tuned_to_the_frozen_seeds_from_one_that_is_not(
+    smoke: Path, tmp_path: Path
+):
+    """The oracle program tuned to smoke-1's seeds (1, 2, 3: 2 mm of noise there, 50 mm
+    elsewhere) against the same program with 50 mm everywhere, on three fresh seeds each."""
+    tuned = _fresh(smoke, tmp_path / "tuned", "noise_m=0.05", "tuned_seeds=1;2;3", "tuned_noise_m=0.002")
+    honest = _fresh(smoke, tmp_path / "honest", "noise_m=0.05")
+    assert tuned["fresh"]["seeds"] == honest["fresh"]["seeds"]  # the same entropy draws the same seeds
+    fresh_seeds = tuned["fresh"]["seeds"]["smoke"]
+    assert len(set(fresh_seeds)) == 3 and not set(fresh_seeds) & {1, 2, 3}
+    overfit, fair = fresh_comparison(tuned), fresh_comparison(honest)
+    assert overfit.pairs == fair.pairs == 3
+    assert overfit.change > 5 and overfit.p_worse < 0.05 and overfit.carries_over is False
+    assert abs(fair.change) < 0.5 and fair.p_worse > 0.05 and fair.carries_over
+    assert verify(tmp_path / "tuned") == []
+    assert "do not carry over" in fresh_markdown(overfit, 3)

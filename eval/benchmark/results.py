@@ -89,20 +89,23 @@ def verify(path: Path) -> list[str]:
     results = load_results(path)
     root = Path(results["_path"]).parent
     problems = []
-    for sequence in results["sequences"]:
-        folder = root / "sequences" / sequence["name"]
+    fresh = (results.get("fresh") or {}).get("sequences") or []
+    for sequence, label in [
+        *((s, s["name"]) for s in results["sequences"]),
+        *((s, f"fresh {s['name']}") for s in fresh),
+    ]:
+        folder = root / sequence["folder"]
         if not folder.is_dir():
-            problems.append(f"{sequence['name']}: its sequence folder {folder} is missing")
+            problems.append(f"{label}: its sequence folder {folder} is missing")
             continue
         key = sequence_fingerprint(Sequence.open(folder))
         if key != sequence["files_key"]:
             problems.append(
-                f"{sequence['name']}: the sequence's files changed (key {key}, "
-                f"results name {sequence['files_key']})"
+                f"{label}: the sequence's files changed (key {key}, results name {sequence['files_key']})"
             )
             continue
         for run in sequence["runs"]:
-            where = f"{sequence['name']} run {run['repeat'] + 1}"
+            where = f"{label} run {run['repeat'] + 1}"
             if run["status"] != "ok":
                 continue
             trajectory = root / run["folder"] / "trajectory.txt"

@@ -22,7 +22,7 @@ from typing import Any
 from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest, read_json
 from depotbench.eval.benchmark.results import FORMAT, FORMAT_VERSION, figures_of
-from depotbench.eval.benchmark.sequences import prepare
+from depotbench.eval.benchmark.sequences import Prepared, draw_fresh_seeds, prepare, prepare_fresh
 from depotbench.eval.benchmark.spec import Benchmark
 from depotbench.eval.run.harness import RunJob
 
@@ -93,41 +93,26 @@ def _figures(job: RunJob, folder: Path, resumed: bool) -> dict[str, Any]:
     }
 
 
-def run_benchmark(
-    benchmark: Benchmark,
-    plan: Plan,
-    out: Path,
-    workers: int,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """Generate and check the benchmark's sequences under ``out/sequences``, run the plan on
-    each (``plan.repeats`` times), write ``out/results.json`` and return its content."""
+def _score(
+    prepared: list[Prepared], plan: Plan, out: Path, runs: str, workers: int, progress: bool, desc: str
+) -> tuple[list[dict[str, Any]], int]:
+    """Every sequence's runs (``plan.repeats`` each, under ``out/runs``), as results entries;
+    and how many runs were kept from an earlier command."""
     from depotbench.core.executors import make_pool
-    from depotbench.core.output import write_text_atomic
     from depotbench.core.progress import progress_bar
-    from depotbench.core.version import generator_version
-    from depotbench.eval.run.harness import job_key, tracker_fingerprint, tracker_identity
+    from depotbench.eval.run.harness import job_key, tracker_identity
 
-    started = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
-    prepared = prepare(benchmark, out / "sequences", workers, progress)
     identity = tracker_identity(plan.job.tracker)
     items = []
     for p in prepared:
-        job = RunJob(
-            p.path,
-            plan.job.strategy,
-            plan.job.detector,
-            plan.job.settings,
-            plan.job.tracker,
-        )
+        job = RunJob(p.path, plan.job.strategy, plan.job.detector, plan.job.settings, plan.job.tracker)
         key = job_key(p.files_key, identity, job.detector, job.strategy, job.settings)
         for repeat in range(plan.repeats):
-            items.append((job, str(out / "runs" / p.sequence.folder / f"r{repeat}"), key))
+            items.append((job, str(out / runs / p.sequence.folder / f"r{repeat}"), key))
     # An external program runs alone: ORB-SLAM3's mapping thread falls behind on shared cores.
     pool = make_pool("local", 1 if plan.job.tracker.type.external else workers)
     outcomes: dict[str, dict[str, Any]] = {}
-    bar = progress_bar(total=len(items), unit="run", desc=benchmark.name, disable=not progress)
+    bar = progress_bar(total=len(items), unit="run", desc=desc, disable=not progress)
     failed = True
     try:
         for (_, target, _), outcome in pool.map_unordered(_run_one, items):
@@ -139,24 +124,61 @@ def run_benchmark(
         pool.close(failed)
     sequences = []
     for p in prepared:
-        runs = []
+        entries = []
         for repeat in range(plan.repeats):
-            target = out / "runs" / p.sequence.folder / f"r{repeat}"
-            outcome = dict(outcomes[str(target)])
-            outcome.pop("resumed")
-            runs.append({"repeat": repeat, "folder": target.relative_to(out).as_posix(), **outcome})
+            target = out / runs / p.sequence.folder / f"r{repeat}"
+            outcome = {k: v for k, v in outcomes[str(target)].items() if k != "resumed"}
+            entries.append({"repeat": repeat, "folder": target.relative_to(out).as_posix(), **outcome})
         sequences.append(
             {
                 "name": p.sequence.folder,
+                "folder": p.path.relative_to(out).as_posix(),
                 "scenario": p.sequence.scenario,
                 "seed": p.sequence.seed,
                 "frames": p.sequence.frames,
                 "files_key": p.files_key,
                 "frozen": p.sequence.files_key is not None,
-                "runs": runs,
+                "runs": entries,
             }
         )
+    return sequences, sum(o["resumed"] for o in outcomes.values())
+
+
+def run_benchmark(
+    benchmark: Benchmark,
+    plan: Plan,
+    out: Path,
+    workers: int,
+    progress: bool = True,
+    fresh_seeds: int = 0,
+    entropy: int | None = None,
+) -> dict[str, Any]:
+    """Generate and check the benchmark's sequences under ``out/sequences``, run the plan on
+    each (``plan.repeats`` times), write ``out/results.json`` and return its content.
+
+    ``fresh_seeds``: as many new seeds per scenario, drawn now (from ``entropy``, or the
+    operating system's, recorded either way) and scored alike under ``out/fresh``: a tracker
+    tuned on the frozen seeds shows there whether its tuning carries over."""
+    import numpy as np
+    from depotbench.core.output import write_text_atomic
+    from depotbench.core.version import generator_version
+    from depotbench.eval.run.harness import tracker_fingerprint, tracker_identity
+
+    started = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    prepared = prepare(benchmark, out / "sequences", workers, progress)
+    sequences, resumed = _score(prepared, plan, out, "runs", workers, progress, benchmark.name)
+    fresh = None
+    if fresh_seeds:
+        if entropy is None:
+            entropy = int(np.random.SeedSequence().entropy)
+        drawn = draw_fresh_seeds(benchmark, fresh_seeds, entropy)
+        found = prepare_fresh(benchmark, drawn, out / "fresh", workers, progress)
+        scored, again = _score(found, plan, out, "fresh-runs", workers, progress, f"{benchmark.name} fresh")
+        fresh = {"entropy": str(entropy), "seeds": drawn, "sequences": scored}
+        resumed += again
     tracker = plan.job.tracker
+    identity = tracker_identity(tracker)
     results = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -177,8 +199,9 @@ def run_benchmark(
         },
         "repeats": plan.repeats,
         "seconds": time.perf_counter() - started,
-        "resumed_runs": sum(o["resumed"] for o in outcomes.values()),
+        "resumed_runs": resumed,
         "sequences": sequences,
+        "fresh": fresh,
     }
     write_text_atomic(out / RESULTS_NAME, json.dumps(results, indent=1) + "\n")
     return results

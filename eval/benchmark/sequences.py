@@ -92,3 +92,53 @@ def prepare(benchmark: Benchmark, root: Path, workers: int, progress: bool = Tru
             )
         prepared.append(Prepared(sequence, path, key))
     return prepared
+
+
+FRESH_SEEDS_FROM = 1_000_000
+"""Fresh seeds are drawn from [10^6, 2^32): no shipped benchmark or suite uses seeds there."""
+
+
+def draw_fresh_seeds(benchmark: Benchmark, count: int, entropy: int) -> dict[str, list[int]]:
+    """``count`` new seeds per scenario, none of them the benchmark's, from a generator
+    seeded with ``entropy`` (recorded in the results, so the draw can be made again)."""
+    import numpy as np
+
+    rng = np.random.default_rng(entropy)
+    taken = {s.seed for s in benchmark.sequences}
+    drawn: dict[str, list[int]] = {}
+    for entry in benchmark.spec.scenarios:
+        seeds: list[int] = []
+        while len(seeds) < count:
+            seed = int(rng.integers(FRESH_SEEDS_FROM, 2**32))
+            if seed not in taken and seed not in seeds:
+                seeds.append(seed)
+        drawn[entry.scenario] = seeds
+    return drawn
+
+
+def prepare_fresh(
+    benchmark: Benchmark, seeds: dict[str, list[int]], root: Path, workers: int, progress: bool = True
+) -> list[Prepared]:
+    """The fresh seeds' sequences under ``root/SCENARIO``: the benchmark's scenarios at its
+    lengths, generated here (no lock holds their keys; their bytes are hashed into the results)."""
+    from depotbench.eval.benchmark.spec import Entry
+    from depotbench.eval.run.detections import sequence_fingerprint
+    from depotbench.scenes.generation import run_suite
+    from depotbench.sim.sequence import Sequence
+
+    prepared = []
+    for entry in benchmark.spec.scenarios:
+        fresh = Entry(scenario=entry.scenario, seeds=seeds[entry.scenario], frames=entry.frames)
+        run_suite(fresh.suite(), benchmark.path, root / entry.scenario, workers, progress=progress)
+        for name, knobs, scenario in variations(fresh.suite(), benchmark.path):
+            sequence = BenchSequence(
+                name,
+                entry.scenario,
+                knobs["seed"],
+                scenario.n_frames,
+                content_key(to_scenario(scenario)),
+                None,
+            )
+            path = root / sequence.folder
+            prepared.append(Prepared(sequence, path, sequence_fingerprint(Sequence.open(path))))
+    return prepared

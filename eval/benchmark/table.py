@@ -300,3 +300,92 @@ def csv_text(results: list[dict[str, Any]], baseline: dict[str, Any] | None) -> 
             cells.append(rho)
             writer.writerow(cells)
     return buffer.getvalue()
+
+
+@dataclass(frozen=True)
+class FreshComparison:
+    """A tracker's ATE RMSE on the benchmark's seeds beside fresh ones: does its tuning carry
+    over? Each fresh sequence is paired with a frozen one of its scenario (the i-th with the
+    i-th), so the comparison is within scenarios; the change is the geometric mean of the
+    fresh/frozen ratios less 1, with its 95 % bootstrap interval and the one-sided paired
+    t-test on the log ratios that the fresh seeds are worse (``paired_change``)."""
+
+    scenarios: list[tuple[str, float | None, float | None]]
+    """(scenario, median over its frozen sequences, over its fresh ones) in metres."""
+    pairs: int
+    change: float | None
+    ci_low: float | None
+    ci_high: float | None
+    p_worse: float | None
+
+    @property
+    def carries_over(self) -> bool | None:
+        return None if self.p_worse is None else self.p_worse >= 0.05
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"carries_over": self.carries_over}
+
+
+def fresh_comparison(results: dict[str, Any]) -> FreshComparison | None:
+    from depotbench.eval.metrics.statistics import paired_change
+
+    fresh = results.get("fresh")
+    if not fresh:
+        return None
+
+    def medians(sequences: list[dict[str, Any]]) -> dict[str, list[float | None]]:
+        by_scenario: dict[str, list[float | None]] = {}
+        for q in per_sequence({"sequences": sequences}).values():
+            values = q["values"][("ate_m", "rmse")]
+            by_scenario.setdefault(q["scenario"], []).append(float(np.median(values)) if values else None)
+        return by_scenario
+
+    frozen, drawn = medians(results["sequences"]), medians(fresh["sequences"])
+    base: list[float | None] = []
+    other: list[float | None] = []
+    scenarios = []
+    for scenario, theirs in drawn.items():
+        ours = frozen.get(scenario, [])
+        base += ours[: len(theirs)]
+        other += theirs[: len(ours)]
+
+        def median(values: list[float | None]) -> float | None:
+            kept = [v for v in values if v is not None]
+            return float(np.median(kept)) if kept else None
+
+        scenarios.append((scenario, median(ours), median(theirs)))
+    change = paired_change("ate_rmse_m", base, other)
+    return FreshComparison(
+        scenarios, change.pairs, change.change, change.ci_low, change.ci_high, change.p_worse
+    )
+
+
+def fresh_markdown(comparison: FreshComparison, count: int) -> str:
+    lines = [
+        f"## Frozen seeds beside {count} fresh seeds a scenario (ATE RMSE, mm)",
+        "",
+        "| scenario | frozen seeds | fresh seeds |",
+        "|---|---|---|",
+    ]
+    for scenario, ours, theirs in comparison.scenarios:
+        show = [("-" if v is None else f"{v * 1000:.1f}") for v in (ours, theirs)]
+        lines.append(f"| {scenario} | {show[0]} | {show[1]} |")
+    if comparison.change is None:
+        verdict = "no pair of scored runs to compare"
+    else:
+        interval = (
+            ""
+            if comparison.ci_low is None
+            else f" (95 % interval {comparison.ci_low * 100:+.0f} to {comparison.ci_high * 100:+.0f} %)"
+        )
+        p = "n/a" if comparison.p_worse is None else f"{comparison.p_worse:.3g}"
+        verdict = (
+            f"fresh seeds {comparison.change * 100:+.0f} %{interval} over {comparison.pairs} pairs, "
+            f"p = {p} that they are worse: "
+            + (
+                "the figures on the frozen seeds do not carry over (tuned to them?)"
+                if comparison.carries_over is False
+                else "no evidence that the frozen seeds flatter this tracker"
+            )
+        )
+    return "\n".join([*lines, "", verdict]) + "\n"

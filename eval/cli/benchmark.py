@@ -43,6 +43,20 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="--slam cmd: the program's runs differ from one another (threads, random draws): repeat them",
     )
+    run.add_argument(
+        "--fresh-seeds",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also score N new seeds a scenario, drawn now: the table sets the frozen seeds' figures "
+        "beside theirs with a paired test, so a tuning fitted to the frozen seeds shows",
+    )
+    run.add_argument(
+        "--fresh-entropy",
+        type=int,
+        metavar="E",
+        help="--fresh-seeds: draw them from this number, to draw them again (results.json records it)",
+    )
     run.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
     run.set_defaults(handler=_cmd_run)
 
@@ -126,7 +140,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.detectors.config import DetectorConfig
     from depotbench.eval.benchmark.runner import Plan, repeats_for, run_benchmark
     from depotbench.eval.benchmark.spec import load_benchmark
-    from depotbench.eval.benchmark.table import markdown, rows
+    from depotbench.eval.benchmark.table import fresh_comparison, fresh_markdown, markdown, rows
     from depotbench.eval.run.harness import RunJob
 
     tracker, settings = tracker_from_args(args)
@@ -134,13 +148,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise InputError("--not-deterministic applies to --slam cmd (ORB-SLAM3 is repeated anyway)")
     deterministic = tracker.kind == "builtin" or (tracker.type.command and not args.not_deterministic)
     repeats = repeats_for(deterministic, args.repeats)
+    if args.fresh_seeds < 0 or args.fresh_seeds > 1000:
+        raise InputError(f"--fresh-seeds: 0 to 1000 a scenario, got {args.fresh_seeds}")
+    if args.fresh_entropy is not None and (not args.fresh_seeds or args.fresh_entropy < 0):
+        raise InputError("--fresh-entropy: a number of 0 or more, with --fresh-seeds")
     benchmark = load_benchmark(args.benchmark)
     detector = detector_config(args) or DetectorConfig()
     job = RunJob(Path("."), args.strategy, detector, tuple(sorted(settings.items())), tracker)
-    results = run_benchmark(benchmark, Plan(job, repeats, deterministic), args.output, args.workers)
+    plan = Plan(job, repeats, deterministic)
+    results = run_benchmark(
+        benchmark, plan, args.output, args.workers, fresh_seeds=args.fresh_seeds, entropy=args.fresh_entropy
+    )
     results["_path"] = str(args.output / "results.json")
     failed = sum(r["status"] != "ok" for s in results["sequences"] for r in s["runs"])
     text = markdown(rows(results), f"{benchmark.name}: {results['tracker']['label']}", repeats > 1)
+    comparison = fresh_comparison(results)
+    if comparison is not None:
+        text += "\n" + fresh_markdown(comparison, args.fresh_seeds)
     text += f"\nwrote {args.output / 'results.json'} ({failed} failed runs) in {results['seconds']:.0f} s"
     print_result(args, {k: v for k, v in results.items() if k != "_path"}, text)
     return 0
@@ -149,7 +173,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_table(args: argparse.Namespace) -> int:
     from depotbench.core.output import write_text_atomic
     from depotbench.eval.benchmark.results import load_results
-    from depotbench.eval.benchmark.table import csv_text, latex, markdown, rows
+    from depotbench.eval.benchmark.table import (
+        csv_text,
+        fresh_comparison,
+        fresh_markdown,
+        latex,
+        markdown,
+        rows,
+    )
 
     loaded = [load_results(p) for p in args.results]
     names = {r["benchmark"] for r in loaded}
@@ -166,6 +197,13 @@ def _cmd_table(args: argparse.Namespace) -> int:
         f", rho against {baseline['tracker']['label']} {baseline['tracker']['strategy']}" if baseline else ""
     )
     text = markdown(all_rows, title, repeats)
+    fresh = {}
+    for results in loaded:
+        comparison = fresh_comparison(results)
+        if comparison is not None:
+            fresh[results["_path"]] = comparison.to_dict()
+            count = len(next(iter(results["fresh"]["seeds"].values())))
+            text += f"\n{results['_path']}:\n" + fresh_markdown(comparison, count)
     written = []
     if args.output is not None:
         args.output.parent.mkdir(parents=True, exist_ok=True)
@@ -177,7 +215,8 @@ def _cmd_table(args: argparse.Namespace) -> int:
             written.append(args.output.with_name(args.output.name + suffix))
             write_text_atomic(written[-1], content)
         text += f"\nwrote {args.output}.md, .tex and .csv"
-    print_result(args, {"rows": [row.to_dict() for row in all_rows], "files": written}, text)
+    result = {"rows": [row.to_dict() for row in all_rows], "fresh": fresh, "files": written}
+    print_result(args, result, text)
     return 0
 
 
@@ -186,11 +225,12 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
     problems = verify(args.results)
     results = load_results(args.results)
-    runs = sum(len(s["runs"]) for s in results["sequences"])
+    sequences = [*results["sequences"], *((results.get("fresh") or {}).get("sequences") or [])]
+    runs = sum(len(s["runs"]) for s in sequences)
     if problems:
         text = "\n".join([*problems, f"{results['_path']}: {len(problems)} problems in {runs} runs"])
     else:
-        count = len(results["sequences"])
+        count = len(sequences)
         text = f"{results['_path']}: every figure of {runs} runs on {count} sequences recomputed"
     print_result(args, {"results": Path(results["_path"]), "runs": runs, "problems": problems}, text)
     return 1 if problems else 0

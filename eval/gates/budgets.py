@@ -43,6 +43,7 @@ from depotbench.eval.metrics.figures import (
     BY_NAME,
     FIGURES,
     HIGHER_IS_BETTER,
+    Baseline,
     ScoredRun,
     configuration_of,
     with_derived,
@@ -363,7 +364,10 @@ def _same_settings(row: RunRecord, wanted: dict[str, float]) -> bool:
 
 
 def derived_rows(
-    records: list[RunRecord], reference: str, reference_settings: dict[str, float] | None = None
+    records: list[RunRecord],
+    reference: str,
+    reference_settings: dict[str, float] | None = None,
+    baseline: Baseline | None = None,
 ) -> list[ScoredRun]:
     """The runs with rho, the fraction of frames not tracked and the time ratio: a run's time
     per frame over the one run of the ``reference`` strategy with exactly
@@ -376,7 +380,7 @@ def derived_rows(
         if r.strategy == reference and _same_settings(r, wanted):
             references[(r.sequence, r.tracker, r.detector)] = r
     out = []
-    for run in with_derived(records):
+    for run in with_derived(records, baseline):
         base = references.get((run.sequence, run.tracker, run.detector))
         basis = time_basis(run.record)
         mine, theirs = run.get(basis), None if base is None else base.get(basis)
@@ -405,8 +409,13 @@ def evaluate(
     configurations (the runs of one family with one tracker, detector, strategy and
     settings: the seeds) against its aggregate budgets; ``vs_baseline`` budgets pair the
     configuration's runs with ``baseline``'s on the same sequences."""
-    rows = derived_rows(records, gates.reference, gates.reference_settings)
-    base = derived_rows(baseline, gates.reference, gates.reference_settings) if baseline is not None else None
+    chosen = None if gates.run.baseline is None else gates.run.baseline.to_baseline()
+    rows = derived_rows(records, gates.reference, gates.reference_settings, chosen)
+    base = (
+        derived_rows(baseline, gates.reference, gates.reference_settings, chosen)
+        if baseline is not None
+        else None
+    )
     rule = SuccessRule(gates.run.statistics.min_tracked_fraction)
     reference = gates.reference_label()
     tags: dict[str, set[str]] = {}

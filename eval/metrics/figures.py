@@ -170,18 +170,114 @@ DERIVED_COLUMNS = ("rho_percent", "lost_fraction", "time_ratio")
 """The figures ``ScoredRun`` adds to a record."""
 
 
-def with_derived(records: Iterable[RunRecord]) -> list[ScoredRun]:
-    """The runs with rho (against the baseline run of their sequence, tracker, parameters and
-    detector; None without one or without an ATE) and the fraction of frames lost."""
+@dataclass(frozen=True)
+class Baseline:
+    """A configuration chosen as every rho's baseline (a sweep's or gate file's ``baseline:``):
+    on each sequence, the one run matching every field given here is the baseline of every
+    run on that sequence, whatever its tracker, parameters or detector. ORB-SLAM3, a user's
+    program with its own rejection off (``parameters: {reject: 0}``) or a strategy with tuned
+    settings can be the baseline; without one, each run's is its own ``none``."""
+
+    tracker: str | None = None
+    parameters: tuple[tuple[str, str], ...] | None = None
+    """Values as text (``parameter_text``): rows store them typed."""
+    detector: str | None = None
+    strategy: str | None = None
+    settings: tuple[tuple[str, float | int | bool], ...] | None = None
+
+    def matches(self, run: Any) -> bool:
+        from depotbench.eval.trackers.registry import parameter_text
+
+        if self.tracker is not None and run["tracker"] != self.tracker:
+            return False
+        if self.detector is not None and run["detector"] != self.detector:
+            return False
+        if self.strategy is not None and run["strategy"] != self.strategy:
+            return False
+        if self.parameters is not None:
+            given = {k: parameter_text(v) for k, v in _json(parameters_of(run)).items()}
+            if given != dict(self.parameters):
+                return False
+        return self.settings is None or _json(run["settings"]) == dict(self.settings)
+
+    def label(self) -> str:
+        parts = [
+            f"{name} {value}"
+            for name, value in (("tracker", self.tracker), ("strategy", self.strategy))
+            if value
+        ]
+        parts += [f"detector {self.detector}"] if self.detector else []
+        parts += [f"{k}={v}" for k, v in self.parameters or ()] + [f"{k}={v}" for k, v in self.settings or ()]
+        return ", ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "tracker": self.tracker,
+            "parameters": None if self.parameters is None else dict(self.parameters),
+            "detector": self.detector,
+            "strategy": self.strategy,
+            "settings": None if self.settings is None else dict(self.settings),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> Baseline | None:
+        if not data:
+            return None
+        parameters, settings = data.get("parameters"), data.get("settings")
+        return cls(
+            data.get("tracker"),
+            None if parameters is None else tuple(sorted(parameters.items())),
+            data.get("detector"),
+            data.get("strategy"),
+            None if settings is None else tuple(sorted(settings.items())),
+        )
+
+
+def _json(value: Any) -> dict[str, Any]:
+    import json
+
+    if isinstance(value, dict):
+        return value
+    return json.loads(value) if value else {}
+
+
+def _chosen_baselines(records: list[RunRecord], baseline: Baseline) -> dict[str, float | None]:
+    """The chosen baseline's ATE on each sequence; two runs of one sequence matching it are
+    one line naming them (the baseline must say more)."""
+    from depotbench.core.errors import InputError
+
+    found: dict[str, RunRecord] = {}
+    for r in records:
+        if not baseline.matches(r):
+            continue
+        other = found.setdefault(r.sequence, r)
+        if other is not r:
+            raise InputError(
+                f"baseline ({baseline.label()}): two runs on {r.sequence} match it ({other.tracker} "
+                f"{other.strategy} {other.settings} {parameters_of(other)} {other.detector}; {r.tracker} "
+                f"{r.strategy} {r.settings} {parameters_of(r)} {r.detector}): name its tracker, parameters, "
+                "detector, strategy and settings"
+            )
+    return {sequence: r.ate_rmse_m for sequence, r in found.items()}
+
+
+def with_derived(records: Iterable[RunRecord], baseline: Baseline | None = None) -> list[ScoredRun]:
+    """The runs with rho (against the run of ``baseline`` on their sequence, or without one
+    against the ``none`` run of their sequence, tracker, parameters and detector; None
+    without one or without an ATE) and the fraction of frames lost."""
     from depotbench.eval.metrics.accuracy import improvement_rate  # numpy and scipy: when used
 
     records = list(records)
-    baseline = {
+    chosen = _chosen_baselines(records, baseline) if baseline is not None else None
+    own = {
         (r.sequence, r.tracker, parameters_of(r), r.detector): r.ate_rmse_m for r in records if is_baseline(r)
     }
     out = []
     for r in records:
-        base = baseline.get((r.sequence, r.tracker, parameters_of(r), r.detector))
+        if chosen is not None:
+            base = chosen.get(r.sequence)
+        else:
+            base = own.get((r.sequence, r.tracker, parameters_of(r), r.detector))
         rho = None
         if base is not None and r.ate_rmse_m is not None and base > 0:
             rho = improvement_rate(base, r.ate_rmse_m)

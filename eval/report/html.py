@@ -42,7 +42,7 @@ from depotbench.core.errors import FileError, InputError
 from depotbench.core.files import MIB, open_regular, read_text
 from depotbench.core.path_text import text_path
 from depotbench.eval.metrics.alignment import Alignment, align
-from depotbench.eval.metrics.figures import ScoredRun, is_baseline
+from depotbench.eval.metrics.figures import Baseline, ScoredRun, is_baseline
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
@@ -1325,7 +1325,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
 
     summary = read_summary(folder / "summary.json")
     with ResultStore(folder / "results.sqlite", readonly=True) as store:
-        rows = with_rho(store.current_records())  # an older program's rows stay apart
+        # an older program's rows stay apart; rho against the sweep's chosen baseline, if any
+        rows = with_rho(store.current_records(), Baseline.from_dict(summary.get("baseline")))
     sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]
@@ -1358,8 +1359,15 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         "tracked",
         "ms",
     ]
+    chosen_baseline = Baseline.from_dict(summary.get("baseline"))
+    against = (
+        "each run's own run without rejection (none) on its sequence"
+        if chosen_baseline is None
+        else f"the sweep's chosen baseline ({html.escape(chosen_baseline.label())}) on its sequence"
+    )
     sections.append(
         f"<section><h2>Best configuration per family</h2>{table(header, best_rows)}"
+        f"<p>ρ: the ATE improvement over {against}.</p>"
         f"{_unqualified_text(summary)}{_held_text(summary)}</section>"
     )
     plots = [_img(figure_png(fig), name) for name, fig in threshold_figures(configs)]

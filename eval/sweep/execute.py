@@ -83,6 +83,7 @@ def execute_sweep(
     from depotbench.eval.sweep.search import run_search
 
     where = {"backend": backend, "address": address}
+    baseline = None if spec.baseline is None else spec.baseline.to_baseline()
     sequences = sequences_of(spec, spec_path, out, workers, progress=progress, **where)
     jobs = expand(spec, spec_path, sequences, anchor=out)
     with open_store(out, spec, spec_path) as store:
@@ -119,7 +120,7 @@ def execute_sweep(
             search = run_search(spec, spec_path, sequences, store, out, workers, **where)
             family |= search.pop("families")
         records = [replace(r, family=family[r.key]) for r in store.records() if r.key in family]
-        store.export_csv(out / "results.csv", [run.to_row() for run in with_rho(records)])
+        store.export_csv(out / "results.csv", [run.to_row() for run in with_rho(records, baseline)])
         # Rows name a sequence inside the sweep folder relative to it (a moved sweep keeps its
         # figures); those handed on (gates, the plugin) name it absolutely.
         records = [
@@ -127,7 +128,7 @@ def execute_sweep(
             for r in records
         ]
     rule = SuccessRule(spec.statistics.min_tracked_fraction)
-    configs = configurations(records, rule)
+    configs = configurations(records, rule, baseline)
     best = best_per_family(configs, spec.statistics.best_min_success_rate)
     summary = {
         "best": best,
@@ -137,6 +138,7 @@ def execute_sweep(
             "best_min_success_rate": spec.statistics.best_min_success_rate,
         },
         "pareto": pareto(configs),
+        "baseline": None if baseline is None else baseline.to_dict(),
         "configurations": configs,
         "search": search,
     }

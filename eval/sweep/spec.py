@@ -41,6 +41,7 @@ from depotbench.detectors.config import (
     check_model_file,
     parse_detector,
 )
+from depotbench.eval.metrics.figures import Baseline
 from depotbench.eval.run.harness import EXTERNAL_STRATEGIES, STRATEGY_CHOICES, slam_config
 from depotbench.eval.trackers.registry import (
     EXTERNAL,
@@ -270,6 +271,47 @@ class DetectorEntry(Strict):
     class_priors: dict[str, str] = Field(default_factory=dict)
 
 
+class BaselineEntry(Strict):
+    """``baseline:``: the configuration every rho is taken against, in place of each run's own
+    ``none`` (``figures.Baseline``). The fields given must pick one run on each sequence:
+
+    ```yaml
+    baseline: {tracker: orbslam3}                       # the real ORB-SLAM3 as the baseline
+    baseline: {tracker: my_slam, parameters: {reject: 0}}   # a program with its rejection off
+    baseline: {strategy: box_rule, settings: {}}        # the box rule at its defaults
+    ```
+    """
+
+    tracker: str | None = None
+    parameters: dict[str, float | int | bool | str] | None = None
+    detector: str | None = None
+    strategy: str | None = None
+    settings: dict[str, float | int | bool] | None = None
+
+    @model_validator(mode="after")
+    def _names_something(self) -> BaselineEntry:
+        if all(
+            v is None for v in (self.tracker, self.parameters, self.detector, self.strategy, self.settings)
+        ):
+            raise ValueError("name the baseline's tracker, parameters, detector, strategy and/or settings")
+        return self
+
+    def to_baseline(self) -> Baseline:
+        parameters = self.parameters
+        settings = self.settings
+        return Baseline(
+            self.tracker,
+            None
+            if parameters is None
+            else tuple(sorted((k, parameter_text(v)) for k, v in parameters.items())),
+            self.detector,
+            self.strategy,
+            None
+            if settings is None
+            else tuple(sorted((k, threshold_value(k, v)) for k, v in settings.items())),
+        )
+
+
 class SweepSpec(Strict):
     sweep: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")
     description: str = ""
@@ -284,6 +326,8 @@ class SweepSpec(Strict):
     hold text and booleans as well as numbers)."""
     search: Search | None = None
     statistics: Statistics = Field(default_factory=Statistics)
+    baseline: BaselineEntry | None = None
+    """The configuration rho is taken against; each run's own ``none`` where not given."""
     dense_map: bool = False
     """Also build each built-in run's dense map and score it against the exact static world
     (``eval/run/dense.py``): rows then carry map_f_score, map_accuracy, map_completeness and
@@ -315,6 +359,17 @@ class SweepSpec(Strict):
                         f"parameters.{tracker}.{undeclared[0]}: not a parameter of {tracker} "
                         "(declare it, with its default, under the tracker's parameters)"
                     )
+        baseline = self.baseline
+        if baseline is not None and baseline.tracker is not None and baseline.tracker not in names:
+            raise ValueError(
+                f"baseline.tracker {baseline.tracker!r} is not a tracker of this sweep ({', '.join(names)})"
+            )
+        if (
+            baseline is not None
+            and baseline.strategy is not None
+            and baseline.strategy not in self.strategies
+        ):
+            raise ValueError(f"baseline.strategy {baseline.strategy!r} is not among the strategies")
         if self.search is not None and self.search.tracker is not None and self.search.tracker not in entries:
             raise ValueError(f"search.tracker {self.search.tracker!r} is not a named tracker of this sweep")
         return self

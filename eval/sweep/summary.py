@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 from depotbench.eval.metrics.figures import (
     FIGURES,
+    Baseline,
     ScoredRun,
     configuration_of,
     is_baseline,
@@ -31,9 +32,10 @@ from depotbench.eval.metrics.statistics import SuccessRule, summarize
 from depotbench.eval.sweep.family import family_name, family_order, sorted_families
 
 
-def with_rho(records: list[RunRecord]) -> list[ScoredRun]:
-    """The runs with their derived figures (rho, lost fraction: ``figures.with_derived``)."""
-    return with_derived(records)
+def with_rho(records: list[RunRecord], baseline: Baseline | None = None) -> list[ScoredRun]:
+    """The runs with their derived figures (rho against ``baseline``, else each run's own
+    ``none``; lost fraction: ``figures.with_derived``)."""
+    return with_derived(records, baseline)
 
 
 def _mean(values: list[float | None]) -> float | None:
@@ -41,13 +43,15 @@ def _mean(values: list[float | None]) -> float | None:
     return float(np.mean(finite)) if finite else None
 
 
-def configurations(rows: list[RunRecord], rule: SuccessRule | None = None) -> list[dict[str, Any]]:
+def configurations(
+    rows: list[RunRecord], rule: SuccessRule | None = None, baseline: Baseline | None = None
+) -> list[dict[str, Any]]:
     """Per family and configuration: its runs (the family's sequences, its seeds), how many
     succeeded (``rule``), every figure's statistics over them (``stats``: n, mean, median,
     std, worst, p90, 95 % interval), and the means at the top level, as plots read them."""
     rule = rule or SuccessRule()
     groups: dict[tuple, list[dict]] = defaultdict(list)
-    for r in with_derived(rows):
+    for r in with_derived(rows, baseline):
         groups[configuration_of(r)].append(r)
     varied = _varied_parameters(rows)
     out = []
