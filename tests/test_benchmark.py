@@ -264,3 +264,39 @@ def test_fresh_seeds_tell_a_tracker_tuned_to_the_frozen_seeds_from_one_that_is_n
     assert abs(fair.change) < 0.5 and fair.p_worse > 0.05 and fair.carries_over
     assert verify(tmp_path / "tuned") == []
     assert "do not carry over" in fresh_markdown(overfit, 3)
+
+
+def test_the_leaderboard_is_a_row_per_results_file_best_first_and_escapes_labels(tmp_path: Path):
+    from html.parser import HTMLParser
+
+    from depotbench.eval.benchmark.leaderboard import page
+
+    mine = _results("<script>alert(1)</script>", {"a": [0.010, 0.030], "b": [0.050, 0.040]}, "mine.json")
+    base = _results("base", {"a": [0.100, 0.120], "b": [0.090, 0.070]}, "base.json")
+    for r in (mine, base):
+        r["depotbench"] = "0.8.0"
+    text = page([base, mine], base)
+
+    class Cells(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.rows: list[list[str]] = []
+            self.scripts = 0
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "tr":
+                self.rows.append([])
+            if tag == "td":
+                self.rows[-1].append(dict(attrs)["data-value"])
+            self.scripts += tag == "script"
+
+    cells = Cells()
+    cells.feed(text)
+    header, *body = cells.rows
+    assert cells.scripts == 1  # the page's own sorting script; the label's is text
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
+    assert [row[0] for row in body] == ["<script>alert(1)</script>", "base"]  # best overall ATE first
+    overall = float(body[0][4])
+    assert overall == pytest.approx(np.median([np.median([0.010, 0.030]), np.median([0.050, 0.040])]))
+    base_overall = np.median([0.110, 0.080])
+    assert float(body[0][6]) == pytest.approx((base_overall - overall) / base_overall * 100, rel=1e-5)

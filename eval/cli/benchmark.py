@@ -77,6 +77,17 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
     )
     table.set_defaults(handler=_cmd_table)
 
+    board = actions.add_parser(
+        "leaderboard",
+        help="a static HTML page over results files of one benchmark: a row per tracker, sortable, "
+        "with the spread over seeds",
+    )
+    board.add_argument("results", nargs="+", type=Path, help="results.json files (or their folders)")
+    board.add_argument("--baseline", type=Path, help="results rho is taken against (a column of its own)")
+    board.add_argument("-o", "--output", type=Path, required=True, help="the page to write (an .html file)")
+    board.add_argument("--overwrite", action="store_true", help="replace an existing page")
+    board.set_defaults(handler=_cmd_leaderboard)
+
     verify = actions.add_parser(
         "verify",
         help="recompute every figure of a results file from the trajectories and sequences it names",
@@ -87,6 +98,11 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
         (listing, "the benchmarks, their scenarios, seeds and state", ["depotbench benchmark list"]),
         (run, "results.json's content", ["depotbench benchmark run smoke-1 -o bench/none"]),
         (table, "the table's rows", ["depotbench benchmark table bench/flow --baseline bench/none -o t"]),
+        (
+            board,
+            "the page written",
+            ["depotbench benchmark leaderboard bench/* --baseline bench/none -o board.html"],
+        ),
         (
             verify,
             "the problems found (none: every figure recomputed)",
@@ -217,6 +233,28 @@ def _cmd_table(args: argparse.Namespace) -> int:
         text += f"\nwrote {args.output}.md, .tex and .csv"
     result = {"rows": [row.to_dict() for row in all_rows], "fresh": fresh, "files": written}
     print_result(args, result, text)
+    return 0
+
+
+def _cmd_leaderboard(args: argparse.Namespace) -> int:
+    from depotbench.core.output import write_text_atomic
+    from depotbench.eval.benchmark.leaderboard import page
+    from depotbench.eval.benchmark.results import load_results
+
+    if args.output.exists() and not args.overwrite:
+        raise InputError(f"{args.output}: exists; --overwrite replaces it")
+    if args.output.suffix.lower() not in (".html", ".htm"):
+        raise InputError(f"{args.output}: the page is an .html file")
+    loaded = [load_results(p) for p in args.results]
+    baseline = load_results(args.baseline) if args.baseline is not None else None
+    text = page(loaded, baseline)
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.output, text)
+    print_result(
+        args,
+        {"page": args.output, "results": len(loaded)},
+        f"wrote {args.output} ({len(loaded)} results files)",
+    )
     return 0
 
 
