@@ -554,8 +554,8 @@ def main() -> None:
     if args.orbslam3_runs < 1 or args.workers < 1:
         parser.error("--orbslam3-runs and --workers: at least 1")
     from depotbench.core.errors import InputError
+    from depotbench.core.parameters import parameter_text
     from depotbench.eval.trackers.orbslam3 import PACE, pace_of
-    from depotbench.eval.trackers.registry import parameter_text
 
     try:  # checked as the tracker checks its pace parameter
         pace_of(((PACE, parameter_text(args.orbslam3_pace)),))

@@ -53,12 +53,13 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from depotbench.core.errors import InputError  # noqa: E402
+from depotbench.core.parameters import parameter_text  # noqa: E402
 from depotbench.detectors.config import DetectorConfig  # noqa: E402
 from depotbench.eval.run.detections import detect_sequence  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
 from depotbench.eval.trackers.orbslam3 import PACE, orbslam_settings, pace_of  # noqa: E402
-from depotbench.eval.trackers.registry import parameter_text, tracker_parameters  # noqa: E402
+from depotbench.eval.trackers.registry import tracker_parameters  # noqa: E402
 from depotbench.scenes import library  # noqa: E402
 from depotbench.scenes.schema import to_scenario  # noqa: E402
 from depotbench.sim.camera import orbslam_yaml  # noqa: E402

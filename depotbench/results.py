@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from depotbench.eval.gates.compare import SetComparison
-from depotbench.eval.metrics.figures import ScoredRun
+from depotbench.eval.metrics.figures import Baseline, ScoredRun
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import Stats
 
@@ -144,6 +144,8 @@ class SweepSummary:
     best_min_success_rate: float
     search: dict[str, Any] | None = None
     """The search section's trials and result, where the spec had one (as summary.json's)."""
+    baseline: Baseline | None = None
+    """The configuration every rho is against (the spec's ``baseline:``); None: each run's own none."""
 
     @classmethod
     def of(cls, summary: Mapping[str, Any]) -> SweepSummary:
@@ -157,6 +159,7 @@ class SweepSummary:
             min_tracked_fraction=rule["min_tracked_fraction"],
             best_min_success_rate=rule["best_min_success_rate"],
             search=summary.get("search"),
+            baseline=Baseline.from_dict(summary.get("baseline")),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -171,6 +174,7 @@ class SweepSummary:
             "pareto": [c.to_dict() for c in self.pareto],
             "configurations": [c.to_dict() for c in self.configurations],
             "search": self.search,
+            "baseline": None if self.baseline is None else self.baseline.to_dict(),
         }
 
     def to_pandas(self) -> pandas.DataFrame:

@@ -103,7 +103,7 @@ def test_a_grid_of_text_and_booleans_reaches_the_program_and_the_rows_typed(
 def test_parameter_text_round_trips_through_typed():
     """What a spec's value becomes for the program, and what a row reads back from it."""
     spec_values = [True, False, "fast", 3, 2.5, "True", "yes"]
-    from depotbench.eval.trackers.registry import parameter_text
+    from depotbench.core.parameters import parameter_text
 
     texts = [parameter_text(v) for v in spec_values]
     assert texts == ["true", "false", "fast", "3", "2.5", "True", "yes"]

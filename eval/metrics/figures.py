@@ -186,7 +186,7 @@ class Baseline:
     settings: tuple[tuple[str, float | int | bool], ...] | None = None
 
     def matches(self, run: Any) -> bool:
-        from depotbench.eval.trackers.registry import parameter_text
+        from depotbench.core.parameters import parameter_text
 
         if self.tracker is not None and run["tracker"] != self.tracker:
             return False

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from depotbench.core.errors import InputError
 from depotbench.core.files import open_regular
+from depotbench.core.parameters import parameter_text
 from depotbench.detectors.config import DetectorConfig
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.run.cache import content_hash
@@ -37,7 +38,7 @@ from depotbench.eval.sweep.spec import (
     tracker_configs,
 )
 from depotbench.eval.sweep.store import SQLITE_HEADER, ResultStore
-from depotbench.eval.trackers.registry import TrackerConfig, parameter_text, tracker_parameters
+from depotbench.eval.trackers.registry import TrackerConfig, tracker_parameters
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.sim.sequence import Sequence
 

@@ -34,6 +34,7 @@ from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from depotbench.core.errors import InputError
+from depotbench.core.parameters import parameter_text
 from depotbench.detectors.config import (
     DetectorConfig,
     DetectorConfigError,
@@ -47,7 +48,6 @@ from depotbench.eval.trackers.registry import (
     EXTERNAL,
     TRACKERS,
     TrackerConfig,
-    parameter_text,
     tracker_parameters,
 )
 from depotbench.eval.trackers.registry import check as check_tracker

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 from depotbench.core.errors import InputError
+from depotbench.core.parameters import parameter_text
 from depotbench.eval.trackers.base import TrackerError, TrackerRun
 from depotbench.eval.trackers.external import run_child
 from depotbench.eval.trackers.frames import FrameSource
 from depotbench.eval.trackers.reaper import Scratch
-from depotbench.eval.trackers.registry import parameter_text
 from depotbench.eval.trackers.vocabulary import vocabulary_problem
 from depotbench.sim.camera import OrbSlamSettings, orbslam_yaml
 from depotbench.slam.types import TrackingState

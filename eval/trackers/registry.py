@@ -137,18 +137,6 @@ def check(tracker: TrackerConfig, camera_sequence: Any = None) -> None:
     _module(tracker).check(tracker, camera_sequence)
 
 
-def parameter_text(value: float | bool | str) -> str:
-    """A value as a tracker parameter's text: integers without a point (a program's integer
-    field refuses '2.0'), other numbers as ``repr`` gives them, a boolean as YAML and JSON
-    spell it (``true``; ``typed`` reads it back as a boolean), text as it is."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return value
-    v = float(value)
-    return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
-
-
 def tracker_parameters(kind: str, given: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
     """A run's parameters, sorted: the kind's defaults overridden by ``given``, each spelled
     as the kind keys it. ORB-SLAM3's are numbers, so ``pace=1``, ``pace=1.0`` and a spec's

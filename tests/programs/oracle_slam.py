@@ -40,9 +40,10 @@ def main() -> int:
         return 3
     noise, margin = float(params.get("noise_m", 0.0)), float(params.get("margin_px", 0.0))
     run_noise = float(params.get("run_noise_m", 0.0))
-    seed = json.loads((sequence / "meta.json").read_text()).get("seed")
-    if str(seed) in str(params.get("tuned_seeds", "")).split(";"):
-        noise = float(params["tuned_noise_m"])
+    if "tuned_seeds" in params:  # a masked copy of the sequence has no meta.json
+        seed = json.loads((sequence / "meta.json").read_text()).get("seed")
+        if str(seed) in str(params["tuned_seeds"]).split(";"):
+            noise = float(params["tuned_noise_m"])
     draw = random.Random(os.urandom(16))
     boxes = _boxes(detections)
     width, height = _size(sequence / "camera.yaml")
