@@ -223,6 +223,7 @@ def test_a_run_without_its_row_is_an_error_naming_the_job():
         the_row([row], "box_rule", "depotbench_run('smoke')")
 
 
+@pytest.mark.slow  # 11 s; external programs are gated by test_external_sweeps.py by default
 @pytest.mark.render
 def test_an_external_tracker_is_run_and_gated_from_pytest_twice_with_one_output_folder(pytester):
     """Issue 35: the user's own program in depotbench_run, with its parameters and budgets;

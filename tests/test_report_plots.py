@@ -281,6 +281,7 @@ def test_every_family_gets_its_section_with_every_run_and_its_best_run(page: str
     assert "http://" not in page and "https://" not in page and "<script" not in page
 
 
+@pytest.mark.slow  # 12 s
 @pytest.mark.render
 def test_featured_runs_tracked_again_in_two_workers_equal_those_tracked_here(sweep: Path, monkeypatch):
     """``--workers``: the runs a page tracks again are shared among processes (here from 0

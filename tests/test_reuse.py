@@ -196,6 +196,7 @@ depotbench.sim.generate.generate = _counted
 """
 
 
+@pytest.mark.slow  # 15 s of two pytest sessions; the store is tested without the plugin by default
 @pytest.mark.render
 def test_the_plugins_second_session_with_a_fresh_dir_renders_nothing(pytester, tmp_path: Path):
     """Before: every session without the first one's --depotbench-dir rendered every

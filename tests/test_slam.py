@@ -353,6 +353,7 @@ def test_constant_velocity_chain_stays_a_rigid_motion():
     assert np.abs(naive_current[:3, :3].T @ naive_current[:3, :3] - np.eye(3)).max() > 1e-3
 
 
+@pytest.mark.slow  # 9 s
 def test_tracking_without_per_frame_ransac_matches_the_ransac_mode(static_seq: Path, tmp_path: Path):
     """ORB-SLAM2's motion-model tracking (no RANSAC unless it fails) stays on the static scene."""
     metrics = {
