@@ -131,7 +131,7 @@ seeds: [1, 2, 3]
 """
 
 
-@pytest.mark.slow  # 90 s; the run and sweep kill tests and the suite resume test stay in the default run
+@pytest.mark.slow  # 90 s; the run kill test and the suite resume test stay in the default run
 def test_suite_generation_killed_at_random_moments(tmp_path: Path):
     token = f"kill-suite-{os.getpid()}-{time.time_ns()}"
     versions = {}
