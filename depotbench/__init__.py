@@ -2,8 +2,9 @@
 
 ``import depotbench`` gives the command line's jobs as functions on typed values
 (``depotbench.api``): ``scenario``, ``generate``, ``generate_suite``, ``run``, ``sweep``,
-``check``, ``compare``, ``report`` and ``evaluate``, and the typed results they return
-(``SweepResult``, ``SweepSummary``, ``Configuration``, ``Comparisons``). The import itself
+``check``, ``compare``, ``report``, ``benchmark`` and ``evaluate``, and the typed results
+they return (``SweepResult``, ``SweepSummary``, ``Configuration``, ``Comparisons``,
+``BenchmarkResult``). The import itself
 stays light (no MuJoCo, OpenCV or ONNX Runtime): the API loads at the first use of one of
 its names (about 1 s, the types its signatures name), MuJoCo and ONNX Runtime when a
 function needs them.
@@ -22,11 +23,13 @@ import importlib
 TYPE_CHECKING = False  # typing itself costs 5 ms of the time before Ctrl-C is handled
 if TYPE_CHECKING:
     from depotbench.api import (
+        BenchmarkResult,
         Comparisons,
         Configuration,
         MissingExtra,
         SweepResult,
         SweepSummary,
+        benchmark,
         check,
         compare,
         evaluate,
@@ -40,12 +43,14 @@ if TYPE_CHECKING:
 
 
 __all__ = [
+    "BenchmarkResult",
     "Comparisons",
     "Configuration",
     "MissingExtra",
     "SweepResult",
     "SweepSummary",
     "__version__",
+    "benchmark",
     "check",
     "compare",
     "evaluate",

@@ -10,6 +10,8 @@ types of the parts), and returns a typed result instead of printing one:
 - ``check``: a gate file's budgets, as a ``GateReport``;
 - ``compare``: sets of runs against a base, as ``Comparisons`` (a ``SetComparison`` per set);
 - ``report``: the self-contained HTML page of a run or a sweep;
+- ``benchmark``: one tracker configuration scored on a frozen benchmark, as a
+  ``BenchmarkResult`` (the papers' table, ``to_pandas()``, ``verify()``);
 - ``evaluate``: ATE and RPE of an estimate against a reference trajectory.
 
 Inputs are checked as the command line checks them (the same functions do it), and a bad
@@ -36,11 +38,19 @@ from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.trajectory import Trajectory
 from depotbench.eval.trackers.registry import TrackerConfig
-from depotbench.results import Comparisons, Configuration, MissingExtra, SweepResult, SweepSummary
+from depotbench.results import (
+    BenchmarkResult,
+    Comparisons,
+    Configuration,
+    MissingExtra,
+    SweepResult,
+    SweepSummary,
+)
 from depotbench.sim.sequence import Sequence
 from depotbench.sim.spec import ScenarioSpec
 
 __all__ = [
+    "BenchmarkResult",
     "CameraOverride",
     "Comparison",
     "ComparisonOptions",
@@ -59,6 +69,7 @@ __all__ = [
     "SweepSummary",
     "TrackerConfig",
     "Trajectory",
+    "benchmark",
     "check",
     "compare",
     "evaluate",
@@ -271,11 +282,14 @@ def sweep(
         address=address,
         retry_failed=retry_failed,
     )
+    summary = SweepSummary.of(outcome.summary)
     return SweepResult(
         out,
         outcome.records,
-        with_derived(outcome.records),
-        SweepSummary.of(outcome.summary),
+        with_derived(
+            outcome.records, summary.baseline
+        ),  # rho against the spec's baseline, as in summary.json
+        summary,
         outcome.written,
         outcome.plots,
     )
@@ -327,6 +341,49 @@ def report(source: str | Path, out: str | Path, workers: int = 1) -> Path:
 
     require_main_guard("workers", workers)
     return report_folder(Path(source), Path(out), workers=workers).page
+
+
+def benchmark(
+    name: str | Path,
+    out: str | Path,
+    *,
+    tracker: TrackerConfig | str = "builtin",
+    strategy: str = "none",
+    detector: DetectorConfig | str = "groundtruth",
+    settings: Mapping[str, Setting] | None = None,
+    parameters: Mapping[str, Setting] | None = None,
+    repeats: int | None = None,
+    deterministic: bool | None = None,
+    fresh_seeds: int = 0,
+    entropy: int | None = None,
+    workers: int = 1,
+    progress: bool = False,
+) -> BenchmarkResult:
+    """One tracker configuration scored on a frozen benchmark (``tum-dyn-1``, ``depot-1``,
+    ``smoke-1`` or a benchmark file), as ``depotbench benchmark run`` does: its sequences
+    generated or reused under ``out/sequences`` and checked against its lock, each run
+    ``repeats`` times where the tracker is not deterministic (ORB-SLAM3 always; a ``cmd``
+    program when ``deterministic=False``), results.json written. ``fresh_seeds``: as many new
+    seeds a scenario scored beside them (``entropy`` draws the same ones again)."""
+    from depotbench.core.errors import InputError
+    from depotbench.eval.benchmark.runner import Plan, repeats_for, run_benchmark
+    from depotbench.eval.benchmark.spec import load_benchmark
+    from depotbench.eval.run.harness import STRATEGY_CHOICES, RunJob
+
+    require_main_guard("workers", workers)
+    if strategy not in STRATEGY_CHOICES:
+        raise InputError(f"strategy: {strategy!r}; choose from {', '.join(STRATEGY_CHOICES)}")
+    config = _tracker(tracker, parameters or {})
+    if deterministic is None:
+        deterministic = not config.type.external or config.type.command
+    elif deterministic and config.kind == "orbslam3":
+        raise InputError("deterministic: ORB-SLAM3's runs differ from one another; it is repeated")
+    job = RunJob(Path("."), strategy, _detector(detector), _settings(settings or {}), config)
+    plan = Plan(job, repeats_for(deterministic, repeats), deterministic)
+    run_benchmark(
+        load_benchmark(name), plan, Path(out), workers, progress, fresh_seeds=fresh_seeds, entropy=entropy
+    )
+    return BenchmarkResult.read(Path(out))
 
 
 def evaluate(

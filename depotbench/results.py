@@ -331,3 +331,97 @@ class Comparisons(Mapping[Path, SetComparison]):
                 f"{len(found.regressions(0.0))} worse"
             )
         return "\n".join(lines) + ")"
+
+
+@dataclass(frozen=True, repr=False)
+class BenchmarkResult:
+    """A benchmark's results file (``depotbench benchmark run``): its tracker, sequences and
+    every run's figures, with the papers' table and one row per run as a DataFrame."""
+
+    path: Path
+    data: dict[str, Any]
+    """results.json's content (docs/benchmarks.md)."""
+
+    @classmethod
+    def read(cls, path: str | Path) -> BenchmarkResult:
+        from depotbench.eval.benchmark.results import load_results
+
+        data = load_results(Path(path))
+        return cls(Path(data["_path"]), data)
+
+    @property
+    def benchmark(self) -> str:
+        return self.data["benchmark"]
+
+    @property
+    def fingerprint(self) -> str:
+        """The tracker's: its program's bytes, command, vocabulary (``tracker_fingerprint``)."""
+        return self.data["tracker"]["fingerprint"]
+
+    def rows(self, baseline: BenchmarkResult | None = None) -> list[Any]:
+        """The table's rows (``eval.benchmark.table.Row``): per scenario each figure's median,
+        spread over seeds and repeats, and rho against ``baseline``."""
+        from depotbench.eval.benchmark.table import rows
+
+        return rows(self.data, None if baseline is None else baseline.data)
+
+    def table(self, baseline: BenchmarkResult | None = None) -> str:
+        """The papers' table as Markdown (``depotbench benchmark table``)."""
+        from depotbench.eval.benchmark.table import markdown
+
+        title = f"{self.benchmark}: {self.data['tracker']['label']}"
+        return markdown(self.rows(baseline), title, self.data["repeats"] > 1)
+
+    def verify(self) -> list[str]:
+        """Every figure recomputed from the trajectories and sequences it names: the problems."""
+        from depotbench.eval.benchmark.results import verify
+
+        return verify(self.path)
+
+    def to_pandas(self) -> pandas.DataFrame:
+        """One row per run (fresh seeds' too, ``fresh`` True): benchmark, tracker, fingerprint,
+        scenario, sequence, seed, repeat, status, each error's RMSE, mean, median and STD
+        (``ate_m_rmse``...), and the tracked share; figures NaN where a run failed."""
+        from depotbench.eval.benchmark.results import METRICS, STATISTICS
+
+        pd = _pandas()
+        fresh = (self.data.get("fresh") or {}).get("sequences") or []
+        rows = []
+        for sequence, is_fresh in [
+            *((s, False) for s in self.data["sequences"]),
+            *((s, True) for s in fresh),
+        ]:
+            for run in sequence["runs"]:
+                figures = run.get("figures") or {}
+                errors = figures.get("errors") or {}
+                row: dict[str, Any] = {
+                    "benchmark": self.benchmark,
+                    "tracker": self.data["tracker"]["label"],
+                    "strategy": self.data["tracker"]["strategy"],
+                    "fingerprint": self.fingerprint,
+                    "scenario": sequence["scenario"],
+                    "sequence": sequence["name"],
+                    "seed": sequence["seed"],
+                    "fresh": is_fresh,
+                    "repeat": run["repeat"],
+                    "status": run["status"],
+                }
+                for metric in METRICS:
+                    for stat in STATISTICS:
+                        row[f"{metric}_{stat}"] = (errors.get(metric) or {}).get(stat)
+                row["tracked_share"] = figures.get("tracked_share")
+                rows.append(row)
+        texts = ("benchmark", "tracker", "strategy", "fingerprint", "scenario", "sequence", "status")
+        return _typed_frame(pd, rows, ints=("seed", "repeat"), texts=texts)
+
+    def __repr__(self) -> str:
+        sequences = self.data["sequences"]
+        runs = sum(len(s["runs"]) for s in sequences)
+        failed = sum(r["status"] != "ok" for s in sequences for r in s["runs"])
+        fresh = self.data.get("fresh")
+        extra = f", {len(fresh['sequences'])} fresh sequences" if fresh else ""
+        return (
+            f"BenchmarkResult({self.benchmark}, {self.data['tracker']['label']} "
+            f"{self.data['tracker']['strategy']}: {len(sequences)} sequences x {self.data['repeats']} "
+            f"({runs} runs, {failed} failed){extra}; {str(self.path)!r})"
+        )

@@ -302,3 +302,24 @@ def test_the_leaderboard_is_a_row_per_results_file_best_first_and_escapes_labels
     assert overall == pytest.approx(np.median([np.median([0.010, 0.030]), np.median([0.050, 0.040])]))
     base_overall = np.median([0.110, 0.080])
     assert float(body[0][6]) == pytest.approx((base_overall - overall) / base_overall * 100, rel=1e-5)
+
+
+def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, tmp_path: Path):
+    import depotbench
+
+    pytest.importorskip("pandas")
+    out = tmp_path / "api"
+    shutil.copytree(smoke / "sequences", out / "sequences")
+    result = depotbench.benchmark("smoke-1", out, strategy="box_epipolar_flow")
+    again = depotbench.BenchmarkResult.read(out / "results.json")
+    assert again.data == result.data and result.verify() == []
+    frame = result.to_pandas()
+    assert len(frame) == 3 and list(frame["seed"]) == [1, 2, 3] and not frame["fresh"].any()
+    stored = [s["runs"][0]["figures"]["errors"]["ate_m"]["rmse"] for s in result.data["sequences"]]
+    assert list(frame["ate_m_rmse"]) == stored and str(frame["ate_m_rmse"].dtype) == "float64"
+    assert "| smoke | builtin box_epipolar_flow | 3 x 1 |" in result.table()
+    assert repr(result).startswith(
+        "BenchmarkResult(smoke-1, builtin box_epipolar_flow: 3 sequences x 1 (3 runs"
+    )
+    with pytest.raises(InputError, match="ORB-SLAM3's runs differ"):
+        depotbench.benchmark("smoke-1", tmp_path / "orb", tracker="orbslam3", deterministic=True)
