@@ -1124,6 +1124,8 @@ def _featured_runs(
     what it is, ``best``), and its none run, tracked again from the cache, ``workers`` runs at
     a time (the views come in the families' order whatever order the runs finish in)."""
     from depotbench.core.executors import make_pool
+    from depotbench.eval.report import view_cache
+    from depotbench.eval.run.cache import StageCache
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
 
     if not featured:
@@ -1161,14 +1163,17 @@ def _featured_runs(
         if sequence is None:
             continue  # noted by ``sequences``
         wanted += _family_runs(family, config, chosen, rows, sequence, grid, notes, role)
+    # A run tracked again for an earlier page is read back (``view_cache``): a finished
+    # sweep's page is written again without tracking anything.
+    cache = StageCache.from_env()
+    kept = {i: view_cache.load(cache, w.job.key, w.title, w.sequence) for i, w in enumerate(wanted)}
+    todo = [i for i, view in kept.items() if view is None]
     tracked: dict[int, tuple] = {}
-    frames = sum(len(w.sequence) for w in wanted)
-    pool = make_pool("local", max(1, min(workers, len(wanted))) if frames >= PARALLEL_FRAMES else 1)
+    frames = sum(len(wanted[i].sequence) for i in todo)
+    pool = make_pool("local", max(1, min(workers, len(todo))) if frames >= PARALLEL_FRAMES else 1)
     failed = True
     try:
-        for _, (index, *answer) in pool.map_unordered(
-            _track_again, [(i, w.job.job) for i, w in enumerate(wanted)]
-        ):
+        for _, (index, *answer) in pool.map_unordered(_track_again, [(i, wanted[i].job.job) for i in todo]):
             tracked[index] = answer
         failed = False
     finally:
@@ -1176,6 +1181,10 @@ def _featured_runs(
     views: dict[str, list[RunView]] = {}
     damaged: set[str] = set()
     for index, run in enumerate(wanted):
+        if kept[index] is not None:
+            if run.recorded not in damaged:
+                views.setdefault(run.family, []).append(kept[index])
+            continue
         result, unreadable = tracked[index]
         if run.recorded in damaged:
             views.pop(run.family, None)  # left out from the first bad frame file on
@@ -1188,7 +1197,9 @@ def _featured_runs(
             damaged.add(run.recorded)
             views.pop(run.family, None)
             continue
-        views.setdefault(run.family, []).append(view_of(run.title, result, run.sequence))
+        view = view_of(run.title, result, run.sequence)
+        view_cache.store(cache, run.job.key, view)
+        views.setdefault(run.family, []).append(view)
     return views
 
 

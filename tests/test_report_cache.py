@@ -1,0 +1,56 @@
+"""A finished sweep's page is written again from the runs its first page tracked again
+(``eval/report/view_cache.py``): nothing is tracked the second time, and the page is the
+same, byte for byte (a page tracked again differs in its timings only)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from depotbench.eval.cli.main import main
+from depotbench.eval.report import html
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("cached")
+    assert main(["generate", "smoke", "-o", str(root / "seq"), "--seed", "2", "--frames", "24"]) == 0
+    spec = root / "sweep.yaml"
+    spec.write_text(f"sweep: cached\nsequences: [{root / 'seq'}]\nstrategies: [none, box_rule]\n")
+    assert main(["sweep", str(spec), "-o", str(root / "sweep"), "--workers", "1"]) == 0
+    return root / "sweep"
+
+
+def test_a_second_page_of_a_finished_sweep_tracks_nothing_and_is_the_same(
+    sweep: Path, tmp_path: Path, monkeypatch
+):
+    calls = []
+    track_again = html._track_again
+    monkeypatch.setattr(html, "_track_again", lambda *a: calls.append(a) or track_again(*a))
+    assert main(["report", str(sweep), "-o", str(tmp_path / "first")]) == 0
+    assert len(calls) == 2  # the best run and its none run, tracked again for the first page
+    monkeypatch.setattr(html, "_track_again", lambda *a: pytest.fail("tracked again for the second page"))
+    assert main(["report", str(sweep), "-o", str(tmp_path / "second")]) == 0
+    first = (tmp_path / "first" / "index.html").read_bytes()
+    assert first == (tmp_path / "second" / "index.html").read_bytes()
+    assert b"trajectory" in first.lower()
+
+
+def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monkeypatch):
+    from depotbench.eval.report.view_cache import STAGE
+    from depotbench.eval.run.cache import StageCache
+
+    assert main(["report", str(sweep), "-o", str(tmp_path / "first")]) == 0
+    cache = StageCache.from_env()
+    entries = sorted((cache.root / STAGE).iterdir())
+    assert len(entries) >= 2
+    for entry in entries:
+        data = bytearray(entry.read_bytes())
+        data[-100] ^= 0xFF  # a flipped byte: its digest no longer matches
+        entry.write_bytes(bytes(data))
+    calls = []
+    track_again = html._track_again
+    monkeypatch.setattr(html, "_track_again", lambda *a: calls.append(a) or track_again(*a))
+    assert main(["report", str(sweep), "-o", str(tmp_path / "second")]) == 0
+    assert len(calls) == 2  # each damaged entry is a miss: tracked again, and stored again whole
+    assert all(cache.get(STAGE, entry.name) is not None for entry in entries)
