@@ -54,3 +54,15 @@ def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monk
     assert main(["report", str(sweep), "-o", str(tmp_path / "second")]) == 0
     assert len(calls) == 2  # each damaged entry is a miss: tracked again, and stored again whole
     assert all(cache.get(STAGE, entry.name) is not None for entry in entries)
+
+
+def test_a_resumed_sweep_with_nothing_new_keeps_its_plots_and_redraws_a_changed_one(sweep: Path):
+    spec = sweep.parent / "sweep.yaml"
+    plots = sorted((sweep / "plots").glob("*.png"))
+    assert plots
+    before = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in plots}
+    assert main(["sweep", str(spec), "-o", str(sweep), "--workers", "1"]) == 0
+    assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in plots} == before  # not drawn again
+    plots[0].write_bytes(b"not a plot")
+    assert main(["sweep", str(spec), "-o", str(sweep), "--workers", "1"]) == 0
+    assert plots[0].read_bytes() == before[plots[0].name][1]  # drawn again, the same picture
