@@ -57,7 +57,7 @@ readme-images: $(VENV)/.installed browser
 	$(JPEG) build/readme/cat_views.png assets/readme/cat_views.jpg 1
 	$(BIN)/depotbench demo -o build/readme/demo
 	$(BIN)/python benchmarks/screenshots.py build/readme/demo/report/index.html \
-		--top assets/readme/report_sweep.png --run "actors.0.count=12: best" assets/readme/report_run.jpg
+		--top assets/readme/report_sweep.png --run "actors[0].count = 12: best" assets/readme/report_run.jpg
 	$(BIN)/python benchmarks/ghost_pictures.py --scenario walking_xyz --seed 21 --frames 90 \
 		--strategies none box_epipolar_flow -o build/readme/ghosts.png
 	$(JPEG) build/readme/ghosts.png assets/readme/ghosts.jpg 1

@@ -119,3 +119,20 @@ def test_near_equal_values_get_the_percentile_interval_without_a_warning():
         warnings.simplefilter("error")
         s = stats(values)
     assert s.ci_low == pytest.approx(1.0) and s.ci_high == pytest.approx(1.0)
+
+
+def test_the_best_table_lists_families_in_natural_order():
+    """'demo actors.0.count=12' came before '...=6' (sorted as text)."""
+    from depotbench.eval.sweep.summary import format_best
+
+    rows = [
+        _row(seed, ate, family=f"demo actors.0.count={count}")
+        for count in (12, 0, 6)
+        for seed, ate in enumerate(ATES)
+    ]
+    lines = format_best(best_per_family(configurations(rows)), {"demo actors.0.count=10": 0.5}).splitlines()
+    assert [line.split()[1] for line in lines[1:4]] == [
+        "actors.0.count=0",
+        "actors.0.count=6",
+        "actors.0.count=12",
+    ]

@@ -776,7 +776,8 @@ def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | Non
         f"{'family':{fw}s}{'best configuration':{nw}s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
         f"{'held':>7s}"
     ]
-    for family, c in sorted(best.items()):
+    for family in sorted_families(best):  # natural order: count=6 before count=12
+        c = best[family]
         rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
         prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
         rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"
@@ -784,6 +785,7 @@ def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | Non
         lines.append(
             f"{family:{fw}s}{names[family]:{nw}s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}{held:>7s}"
         )
-    for family, rate in sorted((missing or {}).items()):
+    for family in sorted_families(missing or {}):
+        rate = (missing or {})[family]
         lines.append(f"{family:{fw}s}(no configuration held on enough seeds: the best held on {rate:.0%})")
     return "\n".join(lines)
