@@ -1166,7 +1166,10 @@ def _featured_runs(
     # A run tracked again for an earlier page is read back (``view_cache``): a finished
     # sweep's page is written again without tracking anything.
     cache = StageCache.from_env()
-    kept = {i: view_cache.load(cache, w.job.key, w.title, w.sequence) for i, w in enumerate(wanted)}
+    kept: dict[int, RunView | None] = {}
+    for i, w in enumerate(wanted):
+        fields = view_cache.load(cache, w.job.key)
+        kept[i] = None if fields is None else RunView(title=w.title, sequence=w.sequence, **fields)
     todo = [i for i, view in kept.items() if view is None]
     tracked: dict[int, tuple] = {}
     frames = sum(len(wanted[i].sequence) for i in todo)

@@ -59,10 +59,9 @@ def to_bytes(view: Any) -> bytes:
     return buffer.getvalue()
 
 
-def from_bytes(data: bytes, title: str, sequence: Any) -> Any | None:
-    """The view an archive holds, titled ``title`` on ``sequence``; None where it is not one
-    this version wrote (recomputed then)."""
-    from depotbench.eval.report.html import RunView
+def from_bytes(data: bytes) -> dict[str, Any] | None:
+    """The fields of the ``RunView`` an archive holds (but its title and sequence, which the
+    page gives); None where it is not one this version wrote (tracked again then)."""
     from depotbench.eval.report.maps import PlacedMap
 
     try:
@@ -90,23 +89,22 @@ def from_bytes(data: bytes, title: str, sequence: Any) -> Any | None:
             arrays["map.kinds"],
             meta["map"]["figures"],
         )
-    return RunView(
-        title=title,
-        metrics=meta["metrics"],
-        timestamps_s=arrays["timestamps_s"],
-        states=tuple(str(s) for s in arrays["states"]),
-        estimate=estimate,
-        sequence=sequence,
-        diagnostics=diagnostics,
-        placed=placed,
-    )
+    return {
+        "metrics": meta["metrics"],
+        "timestamps_s": arrays["timestamps_s"],
+        "states": tuple(str(s) for s in arrays["states"]),
+        "estimate": estimate,
+        "diagnostics": diagnostics,
+        "placed": placed,
+    }
 
 
-def load(cache: StageCache | None, job_key: str, title: str, sequence: Any) -> Any | None:
+def load(cache: StageCache | None, job_key: str) -> dict[str, Any] | None:
+    """The stored view's fields of the run ``job_key``, or None (not stored, or damaged)."""
     if cache is None:
         return None
     data = cache.get(STAGE, view_key(job_key))
-    return None if data is None else from_bytes(data, title, sequence)
+    return None if data is None else from_bytes(data)
 
 
 def store(cache: StageCache | None, job_key: str, view: Any) -> None:
