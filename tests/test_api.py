@@ -62,9 +62,9 @@ def session(tmp_path_factory) -> tuple[Path, str]:
 
 def test_the_documented_example_runs_and_says_what_it_did(session):
     work, out = session
-    # 30 frames asked; the analog's tum sensor loses about 3.5 % of them, as TUM's driver did.
+    # 20 frames asked; the analog's tum sensor loses about 3.5 % of them, as TUM's driver did.
     written = re.search(r"^(\d+) frames of walking_static$", out, flags=re.M)
-    assert written and 26 <= int(written.group(1)) <= 30, out
+    assert written and 17 <= int(written.group(1)) <= 20, out
     assert "gates passed" in out
     assert (work / "report" / "index.html").is_file()
     assert (work / "run-box_rule" / "record.json").is_file()

@@ -21,6 +21,7 @@ FAST_S = 5.0
 (about 2 s for 3 smoke frames) and before an ORB vocabulary build (about 4 min)."""
 
 
+@pytest.mark.slow  # 11 s
 @pytest.mark.render
 def test_a_relative_depotbench_dir_is_resolved_once_against_where_pytest_started(pytester):
     """C16: a relative --depotbench-dir reached the sweep as a relative ``sequences:`` entry,
