@@ -109,6 +109,7 @@ def test_console_script_and_module_entry_point():
     assert result.returncode == 2 and "estimate" in result.stderr
 
 
+@pytest.mark.slow  # 9 s
 def test_png_compression_changes_file_sizes_not_pixels(tmp_path: Path, capsys):
     """`generate --png-compression 0` writes the same pixels as the default level, in larger
     files; a level outside 0-9 is refused before anything is written."""

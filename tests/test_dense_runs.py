@@ -171,6 +171,7 @@ def test_a_sweep_with_dense_maps_gives_each_row_the_figures_of_its_run_alone(wal
     assert page.count("<h3>Dense maps</h3>") == 1 and 'alt="dense maps of ' in page
 
 
+@pytest.mark.slow  # 19 s; test_report.py opens a run page in Chromium by default
 def test_the_run_page_shows_the_map_and_names_a_damaged_one(walking: Path, tmp_path: Path, capsys):
     run = tmp_path / "run"
     _map_run(walking, run, "box_rule")
