@@ -33,8 +33,20 @@ def flow_at(
     x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
     # Camera 1 from camera 0 through each body's motion: one 3x4 per body, not per pixel.
     through = product(product(rigid_inverse(world_from_cam1), body_motion), world_from_cam0)
-    t = through[bodies, :3]
-    cam1 = t[:, :, 0] * x[:, None] + t[:, :, 1] * y[:, None] + t[:, :, 2] * z[:, None] + t[:, :, 3]
+    # Every pixel through the static world's transform (body 0: most of a frame, with scalar
+    # coefficients), then the others' through their bodies'. Each element sees the same
+    # products and sums in the same order as one gathered 3x4 per pixel, so the flow is the
+    # same to the bit (tests/test_flow_per_body.py), in 18-26 ms a 640x480 frame where
+    # gathering for every pixel took 42-52 ms (5-20 % of the pixels moving, a loaded machine).
+    cam1 = np.empty((len(x), 3))
+    world = through[0, :3]
+    for r in range(3):
+        cam1[:, r] = world[r, 0] * x + world[r, 1] * y + world[r, 2] * z + world[r, 3]
+    others = np.flatnonzero(bodies != 0)
+    if len(others):
+        t = through[bodies[others], :3]
+        xo, yo, zo = x[others, None], y[others, None], z[others, None]
+        cam1[others] = t[:, :, 0] * xo + t[:, :, 1] * yo + t[:, :, 2] * zo + t[:, :, 3]
     u1 = k.fx * cam1[:, 0] / cam1[:, 2] + k.cx
     v1 = k.fy * cam1[:, 1] / cam1[:, 2] + k.cy
     return np.stack([u1 - u, v1 - v], axis=-1)
