@@ -323,3 +323,20 @@ def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, 
     )
     with pytest.raises(InputError, match="ORB-SLAM3's runs differ"):
         depotbench.benchmark("smoke-1", tmp_path / "orb", tracker="orbslam3", deterministic=True)
+
+
+def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, tmp_path: Path, caplog):
+    source = load_benchmark("smoke-1").path
+    (tmp_path / "smoke-1.yaml").write_text(source.read_text())
+    lock = json.loads(source.with_name("smoke-1.lock.json").read_text())
+    for entry in lock["sequences"]:
+        entry["files_key"] = None
+    (tmp_path / "smoke-1.lock.json").write_text(json.dumps(lock))
+    shutil.copytree(smoke / "sequences", tmp_path / "sequences")
+    with caplog.at_level("WARNING", logger="depotbench"):
+        prepared = prepare(
+            load_benchmark(tmp_path / "smoke-1.yaml"), tmp_path / "sequences", 1, progress=False
+        )
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and warned[0].startswith("smoke-1: 3 of 3 sequences are not frozen yet")
+    assert [p.files_key for p in prepared] == [s.files_key for s in load_benchmark("smoke-1").sequences]

@@ -80,17 +80,19 @@ def prepare(benchmark: Benchmark, root: Path, workers: int, progress: bool = Tru
     for sequence in benchmark.sequences:
         path = root / sequence.folder
         key = sequence_fingerprint(Sequence.open(path))
-        if sequence.files_key is None:
-            LOG.warning(
-                f"{benchmark.name}: {sequence.folder} is not frozen yet (no files key): "
-                "its bytes are unchecked"
-            )
-        elif key != sequence.files_key:
+        if sequence.files_key is not None and key != sequence.files_key:
             raise InputError(
                 f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
                 f"{sequence.files_key}): changed after generation, or made by another renderer"
             )
         prepared.append(Prepared(sequence, path, key))
+    unfrozen = [s.folder for s in benchmark.sequences if s.files_key is None]
+    if unfrozen:  # one line, however many: tum-dyn-1 is frozen as its sequences are made
+        shown = ", ".join(unfrozen[:3]) + (f" and {len(unfrozen) - 3} more" if len(unfrozen) > 3 else "")
+        LOG.warning(
+            f"{benchmark.name}: {len(unfrozen)} of {len(benchmark.sequences)} sequences are not frozen yet "
+            f"(no files key in the lock: their bytes are hashed into the results, not checked): {shown}"
+        )
     return prepared
 
 
