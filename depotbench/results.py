@@ -374,9 +374,9 @@ class BenchmarkResult:
 
     def verify(self) -> list[str]:
         """Every figure recomputed from the trajectories and sequences it names: the problems."""
-        from depotbench.eval.benchmark.results import verify
+        from depotbench.eval.benchmark.results import verify_results
 
-        return verify(self.path)
+        return verify_results(self.data)
 
     def to_pandas(self) -> pandas.DataFrame:
         """One row per run (fresh seeds' too, ``fresh`` True): benchmark, tracker, fingerprint,

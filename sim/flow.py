@@ -37,7 +37,7 @@ def flow_at(
     # coefficients), then the others' through their bodies'. Each element sees the same
     # products and sums in the same order as one gathered 3x4 per pixel, so the flow is the
     # same to the bit (tests/test_flow_per_body.py), in 18-26 ms a 640x480 frame where
-    # gathering for every pixel took 42-52 ms (5-20 % of the pixels moving, a loaded machine).
+    # gathering for every pixel took 42-52 ms (5-20 % of the pixels moving).
     cam1 = np.empty((len(x), 3))
     world = through[0, :3]
     for r in range(3):

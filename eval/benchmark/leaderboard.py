@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.benchmark.table import _label, check_comparable, per_sequence, rows
+from depotbench.eval.benchmark.table import ate_medians, check_comparable, per_sequence, rows, tracker_label
 
 
 def _cell(median: float | None, low: float | None = None, high: float | None = None) -> dict[str, Any]:
@@ -18,6 +18,12 @@ def _cell(median: float | None, low: float | None = None, high: float | None = N
         return {"text": "-", "sort": "", "spread": ""}
     spread = "" if low is None or high is None or high <= low else f"{low * 1000:.1f}-{high * 1000:.1f}"
     return {"text": f"{median * 1000:.1f}", "sort": f"{median:.9g}", "spread": spread}
+
+
+def _overall(results: dict[str, Any]) -> float | None:
+    """The median over sequences of each sequence's median ATE RMSE."""
+    medians = [m for _, m in ate_medians(results["sequences"]) if m is not None]
+    return float(np.median(medians)) if medians else None
 
 
 def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tuple[list[str], list[dict]]:
@@ -30,12 +36,7 @@ def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tu
     scenarios = list(dict.fromkeys(s["scenario"] for r in loaded for s in r["sequences"]))
     base_all = None
     if baseline is not None:
-        medians = [
-            np.median(q["values"][("ate_m", "rmse")])
-            for q in per_sequence(baseline).values()
-            if q["values"][("ate_m", "rmse")]
-        ]
-        base_all = float(np.median(medians)) if medians else None
+        base_all = _overall(baseline)
     found = []
     for results in loaded:
         if baseline is not None:
@@ -46,11 +47,7 @@ def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tu
             figure = by_scenario[scenario].figures[("ate_m", "rmse")] if scenario in by_scenario else None
             cells.append(_cell(None) if figure is None else _cell(figure.median, figure.low, figure.high))
         sequences = per_sequence(results)
-        medians = [
-            float(np.median(q["values"][("ate_m", "rmse")]))
-            for q in sequences.values()
-            if q["values"][("ate_m", "rmse")]
-        ]
+        medians = [m for _, m in ate_medians(results["sequences"]) if m is not None]
         overall = float(np.median(medians)) if medians else None
         rho = (
             None
@@ -59,7 +56,7 @@ def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tu
         )
         found.append(
             {
-                "label": _label(results),
+                "label": tracker_label(results),
                 "fingerprint": results["tracker"]["fingerprint"],
                 "path": results["_path"],
                 "version": results["depotbench"],
@@ -86,7 +83,7 @@ def page(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None = None) -
     folder = resources.files("depotbench.eval.benchmark.templates")
     environment = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
     template = environment.from_string(folder.joinpath("leaderboard.html.j2").read_text(encoding="utf-8"))
-    label = None if baseline is None else _label(baseline)
+    label = None if baseline is None else tracker_label(baseline)
     return template.render(
         benchmark=loaded[0]["benchmark"],
         scenarios=scenarios,

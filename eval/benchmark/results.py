@@ -80,13 +80,17 @@ def _close(a: float | None, b: float | None) -> bool:
 
 
 def verify(path: Path) -> list[str]:
-    """Every problem of a results file: a trajectory changed since it was scored (its
-    SHA-256), a figure that its trajectory does not give, a sequence whose bytes are not the
-    ones it names. Empty when every figure is recomputed as recorded."""
+    """Every problem of a results file (``verify_results``)."""
+    return verify_results(load_results(path))
+
+
+def verify_results(results: dict[str, Any]) -> list[str]:
+    """Every problem of loaded results (``load_results``): a trajectory changed since it was
+    scored (its SHA-256), a figure that its trajectory does not give, a sequence whose bytes
+    are not the ones it names. Empty when every figure is recomputed as recorded."""
     from depotbench.eval.run.detections import sequence_fingerprint
     from depotbench.sim.sequence import Sequence
 
-    results = load_results(path)
     root = Path(results["_path"]).parent
     problems = []
     fresh = (results.get("fresh") or {}).get("sequences") or []

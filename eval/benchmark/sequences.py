@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from depotbench.core.errors import InputError
-from depotbench.eval.benchmark.spec import Benchmark, BenchmarkFile, BenchSequence
+from depotbench.eval.benchmark.spec import Benchmark, BenchmarkFile, BenchSequence, Entry
 from depotbench.scenes.schema import to_scenario
 from depotbench.scenes.suite import variations
 from depotbench.sim.spec import content_key
@@ -18,20 +18,17 @@ LOG = logging.getLogger(__name__)
 
 def expand(spec: BenchmarkFile, source: Path) -> list[BenchSequence]:
     """Every sequence the file asks for, with its spec key (no files key: nothing is generated)."""
-    found = []
-    for entry in spec.scenarios:
-        for name, knobs, scenario in variations(entry.suite(), source):
-            found.append(
-                BenchSequence(
-                    name,
-                    entry.scenario,
-                    knobs["seed"],
-                    scenario.n_frames,
-                    content_key(to_scenario(scenario)),
-                    None,
-                )
-            )
-    return found
+    return [sequence for entry in spec.scenarios for sequence in _entry_sequences(entry, source)]
+
+
+def _entry_sequences(entry: Entry, source: Path) -> list[BenchSequence]:
+    """An entry's sequences as its suite names them, each with its spec key."""
+    return [
+        BenchSequence(
+            name, entry.scenario, knobs["seed"], scenario.n_frames, content_key(to_scenario(scenario)), None
+        )
+        for name, knobs, scenario in variations(entry.suite(), source)
+    ]
 
 
 def check_specs(benchmark: Benchmark) -> None:
@@ -123,7 +120,6 @@ def prepare_fresh(
 ) -> list[Prepared]:
     """The fresh seeds' sequences under ``root/SCENARIO``: the benchmark's scenarios at its
     lengths, generated here (no lock holds their keys; their bytes are hashed into the results)."""
-    from depotbench.eval.benchmark.spec import Entry
     from depotbench.eval.run.detections import sequence_fingerprint
     from depotbench.scenes.generation import run_suite
     from depotbench.sim.sequence import Sequence
@@ -132,15 +128,7 @@ def prepare_fresh(
     for entry in benchmark.spec.scenarios:
         fresh = Entry(scenario=entry.scenario, seeds=seeds[entry.scenario], frames=entry.frames)
         run_suite(fresh.suite(), benchmark.path, root / entry.scenario, workers, progress=progress)
-        for name, knobs, scenario in variations(fresh.suite(), benchmark.path):
-            sequence = BenchSequence(
-                name,
-                entry.scenario,
-                knobs["seed"],
-                scenario.n_frames,
-                content_key(to_scenario(scenario)),
-                None,
-            )
+        for sequence in _entry_sequences(fresh, benchmark.path):
             path = root / sequence.folder
             prepared.append(Prepared(sequence, path, sequence_fingerprint(Sequence.open(path))))
     return prepared

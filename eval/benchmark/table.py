@@ -72,13 +72,22 @@ class Row:
         }
 
 
-def _label(results: dict[str, Any]) -> str:
+def tracker_label(results: dict[str, Any]) -> str:
     t = results["tracker"]
     params = " ".join(f"{k}={v}" for k, v in sorted(t.get("parameters", {}).items()))
     label = t["label"] if t["kind"] != "builtin" else f"builtin {t['strategy']}"
     if t["kind"] != "builtin" and t["strategy"] != "none":
         label += f" {t['strategy']}"
     return f"{label} {params}".strip()
+
+
+def ate_medians(sequences: list[dict[str, Any]]) -> list[tuple[str, float | None]]:
+    """Each sequence's scenario and its median ATE RMSE over its scored repeats (None where
+    no repeat was scored), in the results' order."""
+    return [
+        (q["scenario"], float(np.median(v)) if (v := q["values"][("ate_m", "rmse")]) else None)
+        for q in per_sequence({"sequences": sequences}).values()
+    ]
 
 
 def per_sequence(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -146,7 +155,7 @@ def rows(results: dict[str, Any], baseline: dict[str, Any] | None = None) -> lis
         found.append(
             Row(
                 scenario,
-                _label(results),
+                tracker_label(results),
                 len(mine),
                 sum(q["runs"] for q in mine),
                 sum(q["failed"] for q in mine),
@@ -280,7 +289,7 @@ def csv_text(results: list[dict[str, Any]], baseline: dict[str, Any] | None) -> 
         for name, q in per_sequence(r).items():
             cells: list[Any] = [
                 r["benchmark"],
-                _label(r),
+                tracker_label(r),
                 r["tracker"]["fingerprint"],
                 q["scenario"],
                 name,
@@ -335,9 +344,8 @@ def fresh_comparison(results: dict[str, Any]) -> FreshComparison | None:
 
     def medians(sequences: list[dict[str, Any]]) -> dict[str, list[float | None]]:
         by_scenario: dict[str, list[float | None]] = {}
-        for q in per_sequence({"sequences": sequences}).values():
-            values = q["values"][("ate_m", "rmse")]
-            by_scenario.setdefault(q["scenario"], []).append(float(np.median(values)) if values else None)
+        for scenario, value in ate_medians(sequences):
+            by_scenario.setdefault(scenario, []).append(value)
         return by_scenario
 
     frozen, drawn = medians(results["sequences"]), medians(fresh["sequences"])

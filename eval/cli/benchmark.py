@@ -259,10 +259,10 @@ def _cmd_leaderboard(args: argparse.Namespace) -> int:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    from depotbench.eval.benchmark.results import load_results, verify
+    from depotbench.eval.benchmark.results import load_results, verify_results
 
-    problems = verify(args.results)
     results = load_results(args.results)
+    problems = verify_results(results)
     sequences = [*results["sequences"], *((results.get("fresh") or {}).get("sequences") or [])]
     runs = sum(len(s["runs"]) for s in sequences)
     if problems:
