@@ -187,6 +187,7 @@ def test_the_run_page_shows_the_map_and_names_a_damaged_one(walking: Path, tmp_p
     assert "map.ply: cannot be read" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 17 s; test_report.py reads a run's recording back by default
 def test_the_rerun_recording_holds_the_map_as_a_point_cloud(walking: Path, tmp_path: Path):
     pytest.importorskip("rerun")
     from rerun.chunk import RrdReader

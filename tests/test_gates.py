@@ -226,13 +226,13 @@ def test_the_pytest_plugin_runs_gates_and_budgets_as_fixtures(walking: Path, tmp
             pass
 
         def test_run(depotbench_run):
-            row = depotbench_run("walking_static", strategy="box_rule", frames=24,
+            row = depotbench_run("walking_static", strategy="box_rule", frames=10,
                                  budgets={"ate_rmse_m": {"max": 0.5}})
             assert row["strategy"] == "box_rule" and row["rho_percent"] is not None
 
         @pytest.mark.depotbench_budgets(ate_median_m={"max": 1e-9})  # possible, never met
         def test_marked(depotbench_run):
-            depotbench_run("walking_static", strategy="box_rule", frames=24)
+            depotbench_run("walking_static", strategy="box_rule", frames=10)
         """
     )
     result = pytester.runpytest_subprocess(

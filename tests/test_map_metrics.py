@@ -290,11 +290,11 @@ def _line(label: str, result) -> str:
 
 @pytest.mark.render
 def test_a_perfect_depth_map_of_a_static_scene_scores_one(tmp_path: Path):
-    """static_depot, 10 frames, the library's perfect sensor (depth quantised to 0.2 mm): the
+    """static_depot, 5 frames, the library's perfect sensor (depth quantised to 0.2 mm): the
     map of every frame's depth from the true poses scores accuracy, completeness and F 1.000 at
-    2, 5 and 10 cm (measured; the reference's 1 cm voxels put points 2.4 mm from it on
-    average, 1 cm at most)."""
-    sequence = _generate(tmp_path, "static_depot", 0, 10, "perfect")
+    2, 5 and 10 cm (the reference's 1 cm voxels put points under 4 mm from it on average,
+    1 cm at most)."""
+    sequence = _generate(tmp_path, "static_depot", 0, 5, "perfect")
     reference = reference_clouds(sequence)
     assert reference.moving == ()
     result = map_metrics(back_project(sequence), reference)
@@ -345,26 +345,27 @@ def test_a_noisy_depth_map_is_as_accurate_as_the_sensor_allows(tmp_path: Path, s
 @pytest.mark.parametrize(
     ("name", "seed"),
     [
-        pytest.param("walking_static", 0, marks=pytest.mark.slow),  # 30-40 s each: walking_xyz stays
+        pytest.param("walking_static", 0, marks=pytest.mark.slow),  # 15 s each: walking_xyz stays
         pytest.param("walking_static", 2, marks=pytest.mark.slow),
         ("walking_xyz", 0),
     ],
 )
 def test_people_left_in_a_map_are_ghosts_and_masking_them_leaves_none(tmp_path: Path, name: str, seed: int):
-    """walking sequences, 10 frames, perfect sensor. Back-projecting every pixel from the true
+    """walking sequences, 6 frames, perfect sensor. Back-projecting every pixel from the true
     poses leaves the walking people in the map: the ghosts are the people's points, each
-    person's ghost count at least 0.8x the points of its own pixels (measured: 0.85-1; a
+    person's ghost count at least 0.75x the points of its own pixels (measured: 0.78-1; a
     point within t of a static surface counts as static, and a person sitting down or
-    walking past a stool has many). Leaving out instance pixels leaves no ghost (exactly 0:
-    each point lies in a reference voxel of its own depth).
+    walking past a stool has many: person 6 of walking_static seed 0 keeps 0.97 at 2 cm,
+    0.78 at 10 cm). Leaving out instance pixels leaves no ghost (exactly 0: each point lies
+    in a reference voxel of its own depth).
 
     Measured ghost fractions at 2 / 10 cm, every pixel / instances left out (0.8.0):
-    walking_static seed 0: 0.190 / 0.187 / 0.000 (person 6: 59260 of 60277 pixels at 2 cm)
-    walking_static seed 2: 0.181 / 0.181 / 0.000 (person 8: 557156)
-    walking_xyz seed 0:    0.175 / 0.171 / 0.000 (person 6: 120825, person 7: 415175)
-    Accuracy 0.81-0.83 with the people, 1.000 without; completeness 1.000 with them,
-    0.945-0.952 without (the desk and the other still objects are instance pixels too)."""
-    sequence = _generate(tmp_path, name, seed, 10, "perfect")
+    walking_static seed 0: 0.182 / 0.179 / 0.000 (person 6: 24879 of 25595 pixels at 2 cm)
+    walking_static seed 2: 0.182 / 0.182 / 0.000 (person 8: 335539)
+    walking_xyz seed 0:    0.167 / 0.163 / 0.000 (person 6: 59746 of 60504, person 7: 247522)
+    Accuracy 0.82-0.84 with the people, 1.000 without; completeness 1.000 with them,
+    0.936-0.948 without (the desk and the other still objects are instance pixels too)."""
+    sequence = _generate(tmp_path, name, seed, 6, "perfect")
     reference = reference_clouds(sequence)
     people = {c.label: c.instance_id for c in reference.moving}
     assert people and all(label.startswith("person ") for label in people)
@@ -382,7 +383,7 @@ def test_people_left_in_a_map_are_ghosts_and_masking_them_leaves_none(tmp_path: 
         assert score.ghost_fraction > 0.05
         assert sum(score.ghosts.values()) == round(score.ghost_fraction * full.map_points)
         for label, count in score.ghosts.items():
-            assert 0.8 * pixels[label] <= count <= pixels[label]
+            assert 0.75 * pixels[label] <= count <= pixels[label]
         assert score.neither_fraction < 1e-4
     for score in masked.scores:
         assert score.ghost_fraction == 0.0 and score.accuracy == 1.0
