@@ -68,6 +68,9 @@ class LocalPool:
     interrupted command (which ends by ``os._exit``) drew three lines from the resource
     tracker about leaked semaphores (probe N27)."""
 
+    ships = False
+    """Workers share this machine's folders: jobs name their sequences by path."""
+
     def __init__(self, workers: int, in_process: bool = True) -> None:
         self.workers = workers
         self.parallel = workers > 1 or not in_process
@@ -125,10 +128,21 @@ def _on_ray(fn: Callable, *args: Any) -> Any:
     return fn(*args)
 
 
+NODE_RETRIES = 3
+"""How often Ray runs a task again when its node or worker process dies under it (a job's
+own error is never retried: it is the job's outcome). A job computes the same bytes
+wherever it runs and the driver writes each row once, so a retry changes no result."""
+CLUSTER_LOCAL_VARIABLES = ("DEPOTBENCH_CACHE",)
+"""Variables (and their ``_*`` family) naming this machine's folders: not sent to a cluster's
+nodes, which keep their own caches where their own environment says."""
+
+
 class RayPool:
     """Jobs as Ray tasks: a local Ray instance with ``workers`` CPUs, or the cluster at
-    ``address``. Every node must see the sequences and the stage cache at the same paths
-    (a shared file system), and run the same depotbench."""
+    ``address``. On a cluster (``ships``) nothing is shared but Ray: jobs carry their
+    sequences by content (``depotbench.scenes.shipping``), each node keeps its own caches,
+    and results come back through Ray to this process, which alone writes the output. Every
+    node runs the same depotbench (a different one fails its jobs with one line)."""
 
     def __init__(self, workers: int, address: str | None) -> None:
         try:
@@ -144,11 +158,19 @@ class RayPool:
             else:
                 options |= {"num_cpus": workers, "object_store_memory": 200 * 1024 * 1024}
             env = {k: v for k, v in os.environ.items() if k.startswith("DEPOTBENCH_")}
+            if address:
+                env = {k: v for k, v in env.items() if not _names_a_folder_here(k)}
             ray.init(runtime_env={"env_vars": env} if env else None, **options)
+        self.ships = address is not None
+        """Whether jobs carry their sequences (a cluster: no folder of this machine is read there)."""
         self.workers = workers if not address else max(1, int(ray.cluster_resources().get("CPU", 1)))
         where = f"the cluster at {address}" if address else "a local Ray"
         LOG.log(DETAIL, "Ray: %s jobs at a time on %s", self.workers, where)
-        self.remote = ray.remote(num_cpus=1, max_retries=0)(_on_ray)
+        self.remote = ray.remote(num_cpus=1, max_retries=NODE_RETRIES)(_on_ray)
+
+    def put(self, value: Any) -> Any:
+        """``value`` in Ray's object store, for the nodes that need it."""
+        return self.ray.put(value)
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
         running: dict[Any, tuple] = {}
@@ -177,6 +199,10 @@ class RayPool:
     def close(self, failed: bool) -> None:
         if self.started:
             self.ray.shutdown()
+
+
+def _names_a_folder_here(variable: str) -> bool:
+    return any(variable == v or variable.startswith(v + "_") for v in CLUSTER_LOCAL_VARIABLES)
 
 
 def make_pool(

@@ -30,6 +30,7 @@ from depotbench.core.output import (
 )
 from depotbench.core.progress import progress_bar
 from depotbench.scenes.schema import Scenario, to_scenario
+from depotbench.scenes.shipping import render_on_node, unpack_sequence
 from depotbench.scenes.store import SequenceStore
 from depotbench.scenes.suite import Suite, variations
 from depotbench.sim.sensor_profiles import profile_name
@@ -80,13 +81,18 @@ def _generate_all(
     pool = make_pool(backend, workers, address, in_process=False)
     failed = True
     try:
-        items = [(sc.model_dump(mode="json"), str(out_dir / name), png_compression) for name, sc in pending]
-        frames = {str(out_dir / name): (name, sc.n_frames) for name, sc in pending}
-        for (_, out, _), _ in pool.map_unordered(generate_job, items):  # a failure raises its own error
-            name, count = frames[out]
+        # On a cluster a node renders and sends the sequence back: only this process writes here.
+        where = (lambda name: name) if pool.ships else (lambda name: str(out_dir / name))
+        items = [(sc.model_dump(mode="json"), where(name), png_compression) for name, sc in pending]
+        results = pool.map_unordered(render_on_node if pool.ships else generate_job, items)
+        scenarios = dict(pending)
+        for (_, out, _), packed in results:  # a failure raises its own error
+            name = Path(out).name
+            if pool.ships:
+                unpack_sequence(packed, out_dir / name, content_key(to_scenario(scenarios[name])))
             if done is not None:
                 done(name)
-            bar.update(count)
+            bar.update(scenarios[name].n_frames)
         failed = False
     finally:
         pool.close(failed)

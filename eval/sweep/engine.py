@@ -18,6 +18,7 @@ from typing import Any
 
 from depotbench.core.errors import InputError
 from depotbench.core.executors import make_pool
+from depotbench.core.logs import DETAIL
 from depotbench.core.progress import progress_bar
 from depotbench.core.version import generator_version
 from depotbench.detectors.config import DetectorConfig
@@ -63,6 +64,7 @@ from depotbench.eval.trackers.evidence import Evidence, write_evidence
 from depotbench.eval.trackers.registry import TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
+from depotbench.scenes.shipping import SequenceSource, local_sequence, node_name, source_of
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import TrackingConfig
 
@@ -513,6 +515,86 @@ def _split(tasks: list[list[Decision]], target: int) -> list[list[Decision]]:
     return tasks
 
 
+def _sources(jobs: list[SweepJob], pool) -> dict[str, SequenceSource]:
+    """For a cluster: each sequence of ``jobs`` packed once into Ray's object store, by the
+    folder its jobs name here (``depotbench.scenes.shipping``)."""
+    sources: dict[str, SequenceSource] = {}
+    for job in jobs:
+        root = str(job.job.sequence)
+        if root not in sources:
+            sources[root] = source_of(Path(root), job.fingerprint, pool.put)
+    LOG.log(DETAIL, "%d sequences put into Ray's object store for the cluster's nodes", len(sources))
+    return sources
+
+
+def _tasks(fn, items: list[tuple], sources: dict[str, SequenceSource] | None) -> tuple:
+    """``fn`` over ``items`` as the pool runs them: as they are, or on a cluster through
+    ``_on_node`` with the sources of the sequences each item's jobs name."""
+    if sources is None:
+        return fn, items
+    return _on_node, [(fn, {k: sources[k] for k in _roots(item)}, item) for item in items]
+
+
+def _roots(value) -> set[str]:
+    if isinstance(value, SweepJob):
+        return {str(value.job.sequence)}
+    if isinstance(value, (list, tuple)):
+        return set().union(*(_roots(v) for v in value)) if value else set()
+    return set()
+
+
+def _on_node(fn, sources: dict[str, SequenceSource], args: tuple):
+    """Worker entry point on a cluster's node: each job's sequence made on this node
+    (``local_sequence``) and its program checked against the driver's, then ``fn``."""
+    if fn is _dispatch:  # phase 2: (run_job | run_branches, their arguments)
+        inner, inner_args = args
+        inner_args = _localized(inner_args, sources)
+        if inner is run_job:
+            differs = _program_differs(inner_args[0])
+            if differs is not None:  # a failed row, as for a program that fails
+                return [Failure(_failed(inner_args[0], differs, 0.0, inner_args[1]), "", None)]
+        return inner(*inner_args)
+    return fn(*_localized(args, sources))
+
+
+def _localized(value, sources: dict[str, SequenceSource]):
+    if isinstance(value, SweepJob):
+        local = local_sequence(sources[str(value.job.sequence)])
+        return replace(value, job=replace(value.job, sequence=local))
+    if isinstance(value, list):
+        return [_localized(v, sources) for v in value]
+    if isinstance(value, tuple):
+        return tuple(_localized(v, sources) for v in value)
+    return value
+
+
+_PROGRAMS: dict[tuple, str] = {}
+"""This node's fingerprint of each external tracker it was asked to run."""
+
+
+def _program_differs(job: SweepJob) -> str | None:
+    """One line when this node's program (or a file its command names) is not the bytes the
+    driver keyed the job with: its rows would be another program's under this one's key."""
+    tracker = job.job.tracker
+    expected = job.run.tracker_fingerprint
+    if not tracker.type.external or expected is None:
+        return None
+    memo = (tracker.label, tracker.command, str(tracker.vocabulary), tracker.settings_template)
+    if memo not in _PROGRAMS:
+        try:
+            _PROGRAMS[memo] = tracker_fingerprint(tracker_identity(tracker))
+        except InputError as exc:  # the program or a file it names is missing here
+            return f"node {node_name()}: {exc}"
+    found = _PROGRAMS[memo]
+    if found == expected:
+        return None
+    return (
+        f"node {node_name()}: tracker {tracker.label}'s program or the files its command names "
+        f"differ from the driver's (fingerprint {found}, the driver's {expected}): install the "
+        "same program on every node"
+    )
+
+
 def run_jobs(
     jobs: list[SweepJob],
     store: ResultStore,
@@ -541,18 +623,20 @@ def run_jobs(
     pool = make_pool(backend, workers, address)
     failed = True
     try:
+        sources = _sources(pending, pool) if pool.ships else None
         decisions = [Decision(j.key, None, None, None) for j in pending]
         if StageCache.from_env() is not None:
             groups = stage_groups(pending)
             bar = progress_bar(total=len(groups), desc="stages", unit="seq", disable=not progress)
             with bar:
-                for _ in pool.map_unordered(compute_stages, [(j,) for j in groups]):
+                for _ in pool.map_unordered(*_tasks(compute_stages, [(j,) for j in groups], sources)):
                     bar.update(1)
         if dedupe and pending:
             bar = progress_bar(total=len(pending), desc="decisions", unit="run", disable=not progress)
             decisions = []
             with bar:
-                for _, answer in pool.map_unordered(decide, [(c,) for c in _chunks(pending, 4 * workers)]):
+                chunks = [(c,) for c in _chunks(pending, 4 * workers)]
+                for _, answer in pool.map_unordered(*_tasks(decide, chunks, sources)):
                     decisions.extend(answer)
                     bar.update(len(answer))
             order = {j.key: i for i, j in enumerate(pending)}
@@ -597,7 +681,7 @@ def run_jobs(
         tracked = 0
         failures = []
         with bar:
-            for _, records in pool.map_unordered(_dispatch, tasks):
+            for _, records in pool.map_unordered(*_tasks(_dispatch, tasks, sources)):
                 for record in records:
                     if isinstance(record, Failure):
                         if record.evidence is not None or record.log:  # the program ran
