@@ -86,8 +86,26 @@ class LocalCluster:
             (own / "cache").mkdir(parents=True, exist_ok=True)
             hidden = [*self.hide, *(f for f in folders if f != own)]
             mounts = " && ".join(f"mount -t tmpfs none {shlex.quote(str(p))}" for p in hidden if p.is_dir())
+            # Nodes of one machine would race for the same default ports (the agent's 52365):
+            # each gets free ones, and starts after the one before it is up.
+            ports = [
+                f"--{name}-port={free_port()}"
+                for name in (
+                    "dashboard-agent-listen",
+                    "dashboard-agent-grpc",
+                    "metrics-export",
+                    "runtime-env-agent",
+                )
+            ]
             start = shlex.join(
-                [ray, "start", f"--address={self.address}", f"--num-cpus={self.cpus_per_node}", *common]
+                [
+                    ray,
+                    "start",
+                    f"--address={self.address}",
+                    f"--num-cpus={self.cpus_per_node}",
+                    *common,
+                    *ports,
+                ]
             )
             script = f"{mounts} && exec {start}" if mounts else f"exec {start}"
             node_env = env | {"DEPOTBENCH_CACHE": str(own / "cache")}
@@ -98,10 +116,10 @@ class LocalCluster:
                     env=node_env,
                     start_new_session=True,
                     stdout=subprocess.DEVNULL,
-                    stderr=subprocess.DEVNULL,
+                    stderr=(self.base / f"{own.name}.log").open("w"),  # why a node did not start
                 )
             )
-        self._wait_for(self.workers)
+            self._wait_for(len(self.nodes))
         return self
 
     def _wait_for(self, workers: int) -> None:
@@ -123,7 +141,11 @@ class LocalCluster:
                 return
             time.sleep(1.0)
         self.__exit__(None, None, None)
-        raise RuntimeError(f"the local Ray cluster at {self.address} did not start {workers} worker nodes")
+        logs = sorted(self.base.glob("node*.log"))
+        raise RuntimeError(
+            f"the local Ray cluster at {self.address} did not start {workers} worker nodes; "
+            f"their output: {', '.join(map(str, logs)) or 'none'}"
+        )
 
     def kill_node(self, i: int) -> None:
         """SIGKILL worker node ``i`` whole (its raylet, object store and workers)."""

@@ -192,7 +192,8 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
     get its sequence through Ray. Run 1: the whole sweep on the cluster equals the local
     sweep row for row and its generated suite byte for byte. Run 2: worker node 0 is killed
     (SIGKILL, its raylet and workers) once rows start to come back; its jobs run again on
-    node 1 and the rows are the same again."""
+    node 1 and the rows are the same again. Run 3: the driver is killed (SIGKILL) mid-sweep
+    and run again: it runs what is missing and the rows are the same again."""
     unavailable = _cluster_unavailable()
     if unavailable:
         pytest.skip(unavailable)
@@ -235,6 +236,18 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
         killed = _sweep(spec, driver / "killed", cluster.driver_env, cluster.address)
         while _count(driver / "killed" / "results.sqlite") < 5 and killed.poll() is None:
             time.sleep(0.2)
-        cluster.kill_node(0)
+        assert killed.poll() is None and _count(driver / "killed" / "results.sqlite") < 40
+        cluster.kill_node(0)  # mid-sweep: its jobs in flight run again on node 1
         assert killed.wait(600) == 0, killed.stderr.read()
-    assert _rows(driver / "killed" / "results.sqlite") == expected
+        assert _rows(driver / "killed" / "results.sqlite") == expected
+
+        dead = _sweep(spec, driver / "resumed", cluster.driver_env, cluster.address)  # the driver dies
+        while _count(driver / "resumed" / "results.sqlite") < 5 and dead.poll() is None:
+            time.sleep(0.2)
+        assert dead.poll() is None
+        dead.send_signal(signal.SIGKILL)
+        dead.wait()
+        kept = _count(driver / "resumed" / "results.sqlite")
+        resumed = _sweep(spec, driver / "resumed", cluster.driver_env, cluster.address)
+        assert resumed.wait(600) == 0, resumed.stderr.read()
+        assert 5 <= kept < 40 and _rows(driver / "resumed" / "results.sqlite") == expected
