@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import shlex
+import signal
 import sqlite3
 import subprocess
 import sys
