@@ -34,11 +34,11 @@ from benchmarks.local_cluster import LocalCluster, can_hide_folders  # noqa: E40
 SPEC = """\
 sweep: cluster-benchmark
 suite: suite.yaml
-detectors: [groundtruth, {{detector: groundtruth, faults: {{miss: 0.5}}}}]
+detectors: [groundtruth, {detector: groundtruth, faults: {miss: 0.5}}]
 strategies: [none, box_rule, prior_flow, box_epipolar_flow]
 thresholds:
-  prior_flow: {{k: {{grid: [1.5, 2.0, 2.5, 3.0, 3.5]}}}}
-  box_epipolar_flow: {{epsilon_px: {{grid: [0.25, 0.5, 1.0, 1.5, 2.0, 4.0]}}}}
+  prior_flow: {k: {grid: [1.5, 2.0, 2.5, 3.0, 3.5]}}
+  box_epipolar_flow: {epsilon_px: {grid: [0.25, 0.5, 1.0, 1.5, 2.0, 4.0]}}
 """
 
 

@@ -30,7 +30,7 @@ from depotbench.core.output import (
 )
 from depotbench.core.progress import progress_bar
 from depotbench.scenes.schema import Scenario, to_scenario
-from depotbench.scenes.shipping import render_on_node, unpack_sequence
+from depotbench.scenes.shipping import render_on_node, unpack_output
 from depotbench.scenes.store import SequenceStore
 from depotbench.scenes.suite import Suite, variations
 from depotbench.sim.sensor_profiles import profile_name
@@ -89,7 +89,8 @@ def _generate_all(
         for (_, out, _), packed in results:  # a failure raises its own error
             name = Path(out).name
             if pool.ships:
-                unpack_sequence(packed, out_dir / name, content_key(to_scenario(scenarios[name])))
+                key = content_key(to_scenario(scenarios[name]))
+                unpack_output(packed, out_dir / name, OutputKind.SEQUENCE, key)
             if done is not None:
                 done(name)
             bar.update(scenarios[name].n_frames)

@@ -25,10 +25,11 @@ from pathlib import Path
 import pytest
 from depotbench.core.errors import InputError
 from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
+from depotbench.eval.run import nodes
 from depotbench.eval.run.detections import sequence_fingerprint
+from depotbench.eval.run.nodes import SequenceSource, local_sequence
 from depotbench.eval.sweep.store import ResultStore
-from depotbench.scenes import shipping
-from depotbench.scenes.shipping import SequenceSource, local_sequence, pack, unpack
+from depotbench.scenes.shipping import pack, unpack
 from depotbench.sim.sequence import Sequence
 
 from tests.conftest import REPO, benchmark_module
@@ -53,7 +54,7 @@ def node(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict:
 
     monkeypatch.setitem(sys.modules, "ray", types.SimpleNamespace(get=get, is_initialized=lambda: False))
     monkeypatch.setenv("DEPOTBENCH_CACHE", str(tmp_path / "node-cache"))
-    monkeypatch.setattr(shipping, "_LOCAL", {})
+    monkeypatch.setattr(nodes, "_LOCAL", {})
     return {"fetched": fetched, "root": tmp_path / "node-cache"}
 
 
@@ -75,9 +76,9 @@ def test_a_node_makes_a_sequence_once_checks_it_and_makes_a_damaged_one_again(tm
     path = local_sequence(source)
     assert path == node["root"] / "shipped" / key / "seq" and _files_key(path) == key
     assert local_sequence(source) == path and len(node["fetched"]) == 1  # this process: once
-    shipping._LOCAL.clear()  # another worker process of the node: finds it made
+    nodes._LOCAL.clear()  # another worker process of the node: finds it made
     assert local_sequence(source) == path and len(node["fetched"]) == 1
-    shipping._LOCAL.clear()
+    nodes._LOCAL.clear()
     first_rgb = sorted((path / "rgb").iterdir())[0]
     first_rgb.write_bytes(first_rgb.read_bytes()[:-1])  # damaged on the node
     assert local_sequence(source) == path and len(node["fetched"]) == 2 and _files_key(path) == key
@@ -95,8 +96,9 @@ def test_a_generated_sequence_the_nodes_store_holds_is_taken_from_it_not_the_dri
     tmp_path: Path, node: dict, monkeypatch: pytest.MonkeyPatch
 ):
     from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+    from depotbench.core.output import OutputKind
     from depotbench.scenes.schema import to_scenario
-    from depotbench.scenes.shipping import render_on_node, unpack_sequence
+    from depotbench.scenes.shipping import render_on_node, unpack_output
     from depotbench.scenes.store import SequenceStore
     from depotbench.scenes.suite import load_suite, variations
     from depotbench.sim.spec import content_key
@@ -108,14 +110,16 @@ def test_a_generated_sequence_the_nodes_store_holds_is_taken_from_it_not_the_dri
     packed = render_on_node(scenario.model_dump(mode="json"), name, DEFAULT_PNG_COMPRESSION)
     key = content_key(to_scenario(scenario))
     assert SequenceStore.from_env().has(key)
-    unpack_sequence(packed, tmp_path / "driver" / name, key)  # what the driver writes of it
+    unpack_output(
+        packed, tmp_path / "driver" / name, OutputKind.SEQUENCE, key
+    )  # what the driver writes of it
     files_key = _files_key(tmp_path / "driver" / name)
     path = local_sequence(SequenceSource(files_key, name, key, None))  # None: fetching would fail
     assert _files_key(path) == files_key and node["fetched"] == []
 
 
 def test_a_node_whose_program_differs_from_the_drivers_fails_its_jobs_in_one_line(tmp_path: Path):
-    from depotbench.eval.sweep.engine import _program_differs, expand
+    from depotbench.eval.sweep.engine import expand
     from depotbench.eval.sweep.spec import load_sweep
 
     write_sequence(tmp_path / "seq", n=4)
@@ -127,11 +131,10 @@ def test_a_node_whose_program_differs_from_the_drivers_fails_its_jobs_in_one_lin
         f"sweep: s\nsequences: [{tmp_path / 'seq'}]\ntrackers:\n  - name: mine\n    command: {command!r}\n"
     )
     (job,) = expand(load_sweep(spec), spec, [(tmp_path / "seq", "f")])
-    assert _program_differs(job) is None
+    assert nodes.program_differs(job.job.tracker, job.run.tracker_fingerprint) is None
     program.write_text("print('v2')\n")  # this node holds another version
-    shipping_memo = __import__("depotbench.eval.sweep.engine", fromlist=["_PROGRAMS"])._PROGRAMS
-    shipping_memo.clear()
-    message = _program_differs(job)
+    nodes._PROGRAMS.clear()
+    message = nodes.program_differs(job.job.tracker, job.run.tracker_fingerprint)
     assert message is not None and message.startswith("node ") and "\n" not in message
     assert "tracker mine's program or the files its command names differ from the driver's" in message
 

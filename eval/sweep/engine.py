@@ -43,6 +43,7 @@ from depotbench.eval.run.harness import (
     tracker_identity,
     uses_stages,
 )
+from depotbench.eval.run.nodes import SequenceSource, local_sequence, program_differs, source_of
 from depotbench.eval.run.stages import decision_path, decision_signature, features_key, sequence_stages
 from depotbench.eval.sweep.spec import (
     MAX_JOBS,
@@ -64,7 +65,6 @@ from depotbench.eval.trackers.evidence import Evidence, write_evidence
 from depotbench.eval.trackers.registry import TrackerConfig
 from depotbench.eval.trackers.registry import check as check_tracker
 from depotbench.scenes.schema import SpecError
-from depotbench.scenes.shipping import SequenceSource, local_sequence, node_name, source_of
 from depotbench.sim.sequence import Sequence
 from depotbench.slam.config import TrackingConfig
 
@@ -550,9 +550,10 @@ def _on_node(fn, sources: dict[str, SequenceSource], args: tuple):
         inner, inner_args = args
         inner_args = _localized(inner_args, sources)
         if inner is run_job:
-            differs = _program_differs(inner_args[0])
+            job = inner_args[0]
+            differs = program_differs(job.job.tracker, job.run.tracker_fingerprint)
             if differs is not None:  # a failed row, as for a program that fails
-                return [Failure(_failed(inner_args[0], differs, 0.0, inner_args[1]), "", None)]
+                return [Failure(_failed(job, differs, 0.0, inner_args[1]), "", None)]
         return inner(*inner_args)
     return fn(*_localized(args, sources))
 
@@ -566,33 +567,6 @@ def _localized(value, sources: dict[str, SequenceSource]):
     if isinstance(value, tuple):
         return tuple(_localized(v, sources) for v in value)
     return value
-
-
-_PROGRAMS: dict[tuple, str] = {}
-"""This node's fingerprint of each external tracker it was asked to run."""
-
-
-def _program_differs(job: SweepJob) -> str | None:
-    """One line when this node's program (or a file its command names) is not the bytes the
-    driver keyed the job with: its rows would be another program's under this one's key."""
-    tracker = job.job.tracker
-    expected = job.run.tracker_fingerprint
-    if not tracker.type.external or expected is None:
-        return None
-    memo = (tracker.label, tracker.command, str(tracker.vocabulary), tracker.settings_template)
-    if memo not in _PROGRAMS:
-        try:
-            _PROGRAMS[memo] = tracker_fingerprint(tracker_identity(tracker))
-        except InputError as exc:  # the program or a file it names is missing here
-            return f"node {node_name()}: {exc}"
-    found = _PROGRAMS[memo]
-    if found == expected:
-        return None
-    return (
-        f"node {node_name()}: tracker {tracker.label}'s program or the files its command names "
-        f"differ from the driver's (fingerprint {found}, the driver's {expected}): install the "
-        "same program on every node"
-    )
 
 
 def run_jobs(
