@@ -197,7 +197,8 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
     sweep row for row and its generated suite byte for byte. Run 2: worker node 0 is killed
     (SIGKILL, its raylet and workers) once rows start to come back; its jobs run again on
     node 1 and the rows are the same again. Run 3: the driver is killed (SIGKILL) mid-sweep
-    and run again: it runs what is missing and the rows are the same again."""
+    and run again: it runs what is missing and the rows are the same again. Then smoke-1 is
+    scored on the cluster: the figures and trajectories of one machine."""
     unavailable = _cluster_unavailable()
     if unavailable:
         pytest.skip(unavailable)
@@ -255,3 +256,22 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
         resumed = _sweep(spec, driver / "resumed", cluster.driver_env, cluster.address)
         assert resumed.wait(600) == 0, resumed.stderr.read()
         assert 5 <= kept < 40 and _rows(driver / "resumed" / "results.sqlite") == expected
+
+        # a benchmark: its sequences rendered on the nodes, its runs' folders sent back
+        bench = _benchmark(driver / "bench-cluster", cluster.driver_env, cluster.address)
+    assert bench == _benchmark(driver / "bench-local", {})
+
+
+def _benchmark(out: Path, env: dict, address: str | None = None) -> list:
+    """smoke-1 scored by the built-in tracker: each run's figures and trajectory's hash."""
+    import json
+
+    args = [sys.executable, "-m", "depotbench.eval.cli.main", "benchmark", "run", "smoke-1", "-o", str(out)]
+    args += ["-q", "--workers", "2"] + (["--backend", "ray", "--address", address] if address else [])
+    done = subprocess.run(args, env=os.environ | env, cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    results = json.loads((out / "results.json").read_text())
+    runs = [(s["name"], s["files_key"], r) for s in results["sequences"] for r in s["runs"]]
+    assert len(runs) == 3 and all(r["status"] == "ok" for _, _, r in runs)
+    assert all((out / r["folder"] / "trajectory.txt").is_file() for _, _, r in runs)
+    return [(name, key, r["figures"], r["trajectory_sha256"]) for name, key, r in runs]

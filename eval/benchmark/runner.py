@@ -64,20 +64,86 @@ def repeats_for(deterministic: bool, asked: int | None) -> int:
 
 def _run_one(job: RunJob, target: str, key: str | None) -> dict[str, Any]:
     """Worker: one run into ``target`` (kept where its record holds ``key``); its figures."""
+    folder = Path(target)
+    if _kept(folder, key):
+        return _figures(job, folder, resumed=True)
+    failed = _run_into(job, folder)
+    return failed if failed is not None else _figures(job, folder, resumed=False)
+
+
+def _kept(folder: Path, key: str | None) -> bool:
+    """Whether ``folder`` holds a finished run of the job keyed ``key`` (an earlier command's)."""
+    record = folder / "record.json"
+    if key is None or not record.is_file():
+        return False
+    kept = read_json(record, 1 << 20, "run record")
+    return isinstance(kept, dict) and kept.get("key") == key and (folder / "metrics.json").is_file()
+
+
+def _run_into(job: RunJob, folder: Path) -> dict[str, Any] | None:
+    """One run into ``folder``; None, or the failed outcome of a program that failed."""
     from depotbench.eval.run.harness import run_job
     from depotbench.eval.trackers.base import TrackerError
 
-    folder = Path(target)
-    record = folder / "record.json"
-    if key is not None and record.is_file():
-        kept = read_json(record, 1 << 20, "run record")
-        if isinstance(kept, dict) and kept.get("key") == key and (folder / "metrics.json").is_file():
-            return _figures(job, folder, resumed=True)
     try:
         run_job(job, folder, progress=False, overwrite=True)
     except TrackerError as exc:
-        return {"status": "failed", "failure": str(exc).splitlines()[0], "resumed": False}
-    return _figures(job, folder, resumed=False)
+        return _failed(str(exc).splitlines()[0])
+    return None
+
+
+def _failed(reason: str) -> dict[str, Any]:
+    return {"status": "failed", "failure": reason, "resumed": False}
+
+
+def _run_on_node(job: RunJob, source: Any, fingerprint: str | None) -> bytes | dict[str, Any]:
+    """Worker entry point on a cluster's node: the run in a folder of the node's own, sent
+    back packed for the driver to write; or the failed outcome (a program that failed, or
+    this node's program not the driver's)."""
+    import tempfile
+    from dataclasses import replace
+
+    from depotbench.eval.run.nodes import local_sequence, program_differs
+    from depotbench.scenes.shipping import node_root_made, pack_folder
+
+    differs = program_differs(job.tracker, fingerprint)
+    if differs is not None:
+        return _failed(differs)
+    job = replace(job, sequence=local_sequence(source))
+    with tempfile.TemporaryDirectory(prefix="depotbench-run-", dir=node_root_made()) as work:
+        folder = Path(work) / "run"
+        failed = _run_into(job, folder)
+        return failed if failed is not None else pack_folder(folder)
+
+
+def _on_nodes(pool: Any, items: list[tuple], prepared: list[Prepared], fingerprint: str):
+    """``_run_one`` over ``items`` on a cluster whose nodes share no folder with this
+    machine: runs kept from an earlier command are found here, each sequence is put into
+    Ray's object store once, and each run's folder comes back to be written here."""
+    from depotbench.core.output import OutputKind
+    from depotbench.eval.run.nodes import source_of
+    from depotbench.scenes.shipping import unpack_output
+
+    files_keys = {str(p.path): p.files_key for p in prepared}
+    sources: dict[str, Any] = {}
+    todo = []
+    for job, target, key in items:
+        if _kept(Path(target), key):
+            yield (job, target, key), _figures(job, Path(target), resumed=True)
+            continue
+        root = str(job.sequence)
+        if root not in sources:
+            sources[root] = source_of(job.sequence, files_keys[root], pool.put)
+        todo.append((job, target, key))
+    calls = [(job, sources[str(job.sequence)], fingerprint) for job, _, _ in todo]
+    by_call = {id(call): item for call, item in zip(calls, todo, strict=True)}
+    for call, answer in pool.map_unordered(_run_on_node, calls):
+        job, target, key = by_call[id(call)]
+        if isinstance(answer, dict):
+            yield (job, target, key), answer
+            continue
+        unpack_output(answer, Path(target), OutputKind.RUN)
+        yield (job, target, key), _figures(job, Path(target), resumed=False)
 
 
 def _figures(job: RunJob, folder: Path, resumed: bool) -> dict[str, Any]:
@@ -94,13 +160,21 @@ def _figures(job: RunJob, folder: Path, resumed: bool) -> dict[str, Any]:
 
 
 def _score(
-    prepared: list[Prepared], plan: Plan, out: Path, runs: str, workers: int, progress: bool, desc: str
+    prepared: list[Prepared],
+    plan: Plan,
+    out: Path,
+    runs: str,
+    workers: int,
+    progress: bool,
+    desc: str,
+    backend: str = "local",
+    address: str | None = None,
 ) -> tuple[list[dict[str, Any]], int]:
     """Every sequence's runs (``plan.repeats`` each, under ``out/runs``), as results entries;
     and how many runs were kept from an earlier command."""
     from depotbench.core.executors import make_pool
     from depotbench.core.progress import progress_bar
-    from depotbench.eval.run.harness import job_key, tracker_identity
+    from depotbench.eval.run.harness import job_key, tracker_fingerprint, tracker_identity
 
     identity = tracker_identity(plan.job.tracker)
     items = []
@@ -109,13 +183,19 @@ def _score(
         key = job_key(p.files_key, identity, job.detector, job.strategy, job.settings)
         for repeat in range(plan.repeats):
             items.append((job, str(out / runs / p.sequence.folder / f"r{repeat}"), key))
-    # An external program runs alone: ORB-SLAM3's mapping thread falls behind on shared cores.
-    pool = make_pool("local", 1 if plan.job.tracker.type.external else workers)
+    # An external program runs alone here: ORB-SLAM3's mapping thread falls behind on shared
+    # cores. A cluster runs one job per CPU its nodes give.
+    alone = plan.job.tracker.type.external and backend == "local"
+    pool = make_pool(backend, 1 if alone else workers, address)
     outcomes: dict[str, dict[str, Any]] = {}
     bar = progress_bar(total=len(items), unit="run", desc=desc, disable=not progress)
     failed = True
     try:
-        for (_, target, _), outcome in pool.map_unordered(_run_one, items):
+        if pool.ships:
+            answers = _on_nodes(pool, items, prepared, tracker_fingerprint(identity))
+        else:
+            answers = pool.map_unordered(_run_one, items)
+        for (_, target, _), outcome in answers:
             outcomes[target] = outcome
             bar.update(1)
         failed = False
@@ -152,13 +232,18 @@ def run_benchmark(
     progress: bool = True,
     fresh_seeds: int = 0,
     entropy: int | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> dict[str, Any]:
     """Generate and check the benchmark's sequences under ``out/sequences``, run the plan on
     each (``plan.repeats`` times), write ``out/results.json`` and return its content.
 
     ``fresh_seeds``: as many new seeds per scenario, drawn now (from ``entropy``, or the
     operating system's, recorded either way) and scored alike under ``out/fresh``: a tracker
-    tuned on the frozen seeds shows there whether its tuning carries over."""
+    tuned on the frozen seeds shows there whether its tuning carries over.
+
+    ``backend`` ``ray`` with ``address``: generation and runs on a Ray cluster whose nodes
+    share no folder with this machine (``docs/cluster.md``); the results are the same."""
     import numpy as np
     from depotbench.core.output import write_text_atomic
     from depotbench.core.version import generator_version
@@ -166,15 +251,18 @@ def run_benchmark(
 
     started = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    prepared = prepare(benchmark, out / "sequences", workers, progress)
-    sequences, resumed = _score(prepared, plan, out, "runs", workers, progress, benchmark.name)
+    where = {"backend": backend, "address": address}
+    prepared = prepare(benchmark, out / "sequences", workers, progress, **where)
+    sequences, resumed = _score(prepared, plan, out, "runs", workers, progress, benchmark.name, **where)
     fresh = None
     if fresh_seeds:
         if entropy is None:
             entropy = int(np.random.SeedSequence().entropy)
         drawn = draw_fresh_seeds(benchmark, fresh_seeds, entropy)
-        found = prepare_fresh(benchmark, drawn, out / "fresh", workers, progress)
-        scored, again = _score(found, plan, out, "fresh-runs", workers, progress, f"{benchmark.name} fresh")
+        found = prepare_fresh(benchmark, drawn, out / "fresh", workers, progress, **where)
+        scored, again = _score(
+            found, plan, out, "fresh-runs", workers, progress, f"{benchmark.name} fresh", **where
+        )
         fresh = {"entropy": str(entropy), "seeds": drawn, "sequences": scored}
         resumed += again
     tracker = plan.job.tracker

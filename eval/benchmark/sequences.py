@@ -62,7 +62,14 @@ class Prepared:
     files_key: str
 
 
-def prepare(benchmark: Benchmark, root: Path, workers: int, progress: bool = True) -> list[Prepared]:
+def prepare(
+    benchmark: Benchmark,
+    root: Path,
+    workers: int,
+    progress: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> list[Prepared]:
     """Each sequence under ``root/SCENARIO/NAME``: generated where missing (or copied from the
     machine's sequence store), then hashed and checked against the lock. A sequence whose
     bytes are not the lock's is refused by name, so a result never mixes other bytes in."""
@@ -72,7 +79,10 @@ def prepare(benchmark: Benchmark, root: Path, workers: int, progress: bool = Tru
 
     check_specs(benchmark)
     for entry in benchmark.spec.scenarios:
-        run_suite(entry.suite(), benchmark.path, root / entry.scenario, workers, progress=progress)
+        suite = entry.suite()
+        run_suite(
+            suite, benchmark.path, root / entry.scenario, workers, progress, backend=backend, address=address
+        )
     prepared = []
     for sequence in benchmark.sequences:
         path = root / sequence.folder
@@ -116,7 +126,13 @@ def draw_fresh_seeds(benchmark: Benchmark, count: int, entropy: int) -> dict[str
 
 
 def prepare_fresh(
-    benchmark: Benchmark, seeds: dict[str, list[int]], root: Path, workers: int, progress: bool = True
+    benchmark: Benchmark,
+    seeds: dict[str, list[int]],
+    root: Path,
+    workers: int,
+    progress: bool = True,
+    backend: str = "local",
+    address: str | None = None,
 ) -> list[Prepared]:
     """The fresh seeds' sequences under ``root/SCENARIO``: the benchmark's scenarios at its
     lengths, generated here (no lock holds their keys; their bytes are hashed into the results)."""
@@ -127,7 +143,10 @@ def prepare_fresh(
     prepared = []
     for entry in benchmark.spec.scenarios:
         fresh = Entry(scenario=entry.scenario, seeds=seeds[entry.scenario], frames=entry.frames)
-        run_suite(fresh.suite(), benchmark.path, root / entry.scenario, workers, progress=progress)
+        suite = fresh.suite()
+        run_suite(
+            suite, benchmark.path, root / entry.scenario, workers, progress, backend=backend, address=address
+        )
         for sequence in _entry_sequences(fresh, benchmark.path):
             path = root / sequence.folder
             prepared.append(Prepared(sequence, path, sequence_fingerprint(Sequence.open(path))))

@@ -40,3 +40,24 @@ def workers(text: str) -> int:
     if not 1 <= value <= 256:
         raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
     return value
+
+
+def add_backend(parser: argparse.ArgumentParser) -> None:
+    """``--backend`` and ``--address``: where jobs run (``docs/cluster.md``)."""
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where runs execute: local worker processes, or Ray (extra [ray]; a local instance, "
+        "or the cluster at --address)",
+    )
+    parser.add_argument("--address", help="--backend ray: the cluster's address (default: start a local Ray)")
+
+
+def backend_of(args: argparse.Namespace) -> dict[str, str | None]:
+    """The parsed ``add_backend`` options, checked together."""
+    from depotbench.core.errors import InputError
+
+    if args.address and args.backend != "ray":
+        raise InputError("--address applies to --backend ray only")
+    return {"backend": args.backend, "address": args.address}

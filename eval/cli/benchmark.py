@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from depotbench.core.errors import InputError
-from depotbench.eval.cli.args import one_per_core, workers
+from depotbench.eval.cli.args import add_backend, backend_of, one_per_core, workers
 from depotbench.eval.cli.conventions import add_json, add_verbosity, add_version, print_result
 from depotbench.eval.cli.detectors import add_detector_options, detector_config
 from depotbench.eval.cli.trackers import add_tracker_options, tracker_from_args
@@ -58,6 +58,7 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
         help="--fresh-seeds: draw them from this number, to draw them again (results.json records it)",
     )
     run.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
+    add_backend(run)
     run.set_defaults(handler=_cmd_run)
 
     table = actions.add_parser(
@@ -173,7 +174,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     job = RunJob(Path("."), args.strategy, detector, tuple(sorted(settings.items())), tracker)
     plan = Plan(job, repeats, deterministic)
     results = run_benchmark(
-        benchmark, plan, args.output, args.workers, fresh_seeds=args.fresh_seeds, entropy=args.fresh_entropy
+        benchmark,
+        plan,
+        args.output,
+        args.workers,
+        fresh_seeds=args.fresh_seeds,
+        entropy=args.fresh_entropy,
+        **backend_of(args),
     )
     results["_path"] = str(args.output / "results.json")
     failed = sum(r["status"] != "ok" for s in results["sequences"] for r in s["runs"])

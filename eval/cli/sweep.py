@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from depotbench.core.errors import InputError
-from depotbench.eval.cli.args import one_per_core, workers
+from depotbench.eval.cli.args import add_backend, backend_of, one_per_core, workers
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
@@ -21,14 +20,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
     p.add_argument("--workers", type=workers, default=one_per_core(), help="worker processes")
-    p.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="where runs execute: local worker processes, or Ray (extra [ray]; a local instance, "
-        "or the cluster at --address)",
-    )
-    p.add_argument("--address", help="--backend ray: the cluster's address (default: start a local Ray)")
+    add_backend(p)
     p.add_argument(
         "--no-dedupe",
         action="store_true",
@@ -60,15 +52,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from depotbench.eval.sweep.execute import sweep_folder
     from depotbench.eval.sweep.summary import format_best
 
-    if args.address and args.backend != "ray":
-        raise InputError("--address applies to --backend ray only")
     outcome = sweep_folder(
         find(args.spec, Kind.SWEEP),
         args.output,
         args.workers,
         dedupe=not args.no_dedupe,
-        backend=args.backend,
-        address=args.address,
+        **backend_of(args),
         retry_failed=args.retry_failed,
         prune_stale=args.prune_stale,
     )
