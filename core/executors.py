@@ -152,7 +152,12 @@ class RayPool:
         self.ray = ray
         self.started = not ray.is_initialized()
         if self.started:
-            options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+            # Ray's own INFO lines ("Connecting to existing Ray cluster") are no output of ours.
+            options: dict[str, Any] = {
+                "include_dashboard": False,
+                "log_to_driver": False,
+                "logging_level": logging.WARNING,
+            }
             if address:
                 options["address"] = address
             else:
