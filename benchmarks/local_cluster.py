@@ -2,6 +2,9 @@
 benchmark (``tests/test_cluster.py``, ``benchmarks/cluster.py``), and for a user trying a
 cluster before renting one.
 
+Usage: python benchmarks/local_cluster.py [--workers 2] [--cpus 1] [--hide FOLDER ...] [-o FOLDER]
+(prints the address and the token the driver needs, then holds the cluster until Ctrl-C)
+
 The head runs no job (``--num-cpus 0``). Each worker node is a ``ray start`` of its own in a
 mount namespace of its own (``unshare -m``, so root, or a user namespace) where the folders
 it must not read (the driver's, the other nodes') are covered by an empty tmpfs: a job
@@ -11,6 +14,7 @@ that opens a path valid only on the driver finds nothing there. Each node's
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import shlex
@@ -164,3 +168,30 @@ class LocalCluster:
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
+
+
+def main() -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--workers", type=int, default=2, help="worker nodes")
+    parser.add_argument("--cpus", type=int, default=1, help="CPUs (jobs at a time) per worker node")
+    parser.add_argument(
+        "--hide", type=Path, nargs="*", default=[], help="folders the worker nodes must not see"
+    )
+    parser.add_argument("-o", type=Path, default=None, help="the nodes' folders (default: a temporary one)")
+    args = parser.parse_args()
+    import tempfile
+
+    base = args.o or Path(tempfile.mkdtemp(prefix="depotbench-nodes-"))
+    with LocalCluster(base, workers=args.workers, hide=args.hide, cpus_per_node=args.cpus) as cluster:
+        exports = " ".join(f"{k}={v}" for k, v in cluster.driver_env.items())
+        print(f"{exports} depotbench sweep SPEC -o OUT --backend ray --address {cluster.address}", flush=True)
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C: the nodes are stopped on the way out
+            signal.pause()
+
+
+if __name__ == "__main__":
+    main()

@@ -97,10 +97,14 @@ class LocalPool:
             return
         pool = self._executor()
         running: dict[Future, tuple] = {}
-        queue = list(items)
-        while queue or running:
-            while queue and len(running) < 2 * self.workers:
-                item = queue.pop(0)
+        queue = iter(items)  # taken as jobs are submitted: an item may be made when needed
+        exhausted = False
+        while not exhausted or running:
+            while not exhausted and len(running) < 2 * self.workers:
+                item = next(queue, None)
+                if item is None:
+                    exhausted = True
+                    break
                 with children_block_sigint():  # the first submit spawns the workers
                     running[pool.submit(fn, *item)] = item
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -123,9 +127,12 @@ class LocalPool:
             self.pool.shutdown(wait=True)
 
 
-def _on_ray(fn: Callable, *args: Any) -> Any:
+def _on_ray(fn: Callable, *args: Any) -> tuple[str, Any]:
+    """A job on a Ray worker, with the node it ran on (the driver counts jobs per node)."""
+    import ray
+
     single_threaded()
-    return fn(*args)
+    return ray.get_runtime_context().get_node_id()[:8], fn(*args)
 
 
 NODE_RETRIES = 3
@@ -172,6 +179,8 @@ class RayPool:
         where = f"the cluster at {address}" if address else "a local Ray"
         LOG.log(DETAIL, "Ray: %s jobs at a time on %s", self.workers, where)
         self.remote = ray.remote(num_cpus=1, max_retries=NODE_RETRIES)(_on_ray)
+        self.jobs_per_node: dict[str, int] = {}
+        """Jobs finished per node (its Ray id's first 8 digits), logged when the pool closes."""
 
     def put(self, value: Any) -> Any:
         """``value`` in Ray's object store, for the nodes that need it."""
@@ -179,15 +188,23 @@ class RayPool:
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
         running: dict[Any, tuple] = {}
-        queue = list(items)
-        while queue or running:
-            while queue and len(running) < 2 * self.workers:
-                item = queue.pop(0)
+        queue = iter(items)  # taken as jobs are submitted: a sequence is put when first needed
+        exhausted = False
+        while not exhausted or running:
+            while not exhausted and len(running) < 2 * self.workers:
+                item = next(queue, None)
+                if item is None:
+                    exhausted = True
+                    break
                 running[self.remote.remote(fn, *item)] = item
+            if not running:
+                break
             finished, _ = self.ray.wait(list(running), num_returns=1)
             for ref in finished:
                 item = running.pop(ref)
-                yield item, self._result(ref)
+                node, result = self._result(ref)
+                self.jobs_per_node[node] = self.jobs_per_node.get(node, 0) + 1
+                yield item, result
 
     def _result(self, ref: Any) -> Any:
         """A task's value, or the error it raised: a user's error (a bad file, a missing
@@ -202,6 +219,9 @@ class RayPool:
             raise
 
     def close(self, failed: bool) -> None:
+        if self.ships and self.jobs_per_node:
+            counts = ", ".join(f"{node} {n}" for node, n in sorted(self.jobs_per_node.items()))
+            LOG.info(f"Ray: jobs per node: {counts}")
         if self.started:
             self.ray.shutdown()
 

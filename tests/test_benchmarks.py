@@ -45,6 +45,7 @@ def test_every_stage_generation_times_names_a_function_that_exists():
 
 
 @pytest.mark.render
+@pytest.mark.slow  # 10 s; the stage names are checked against the code by default
 def test_generation_stages_prints_every_stage_with_its_time():
     small = ("--frames", "2", "--width", "80", "--height", "60")
     result = _run(str(BENCHMARKS / "generation.py"), "--stages", *small)

@@ -210,6 +210,7 @@ def test_check_refuses_a_bad_gate_file_with_exit_2(tmp_path: Path, capsys):
 
 
 @pytest.mark.render
+@pytest.mark.slow  # 15 s; test_pytest_plugin.py runs depotbench_gates and depotbench_run by default
 def test_the_pytest_plugin_runs_gates_and_budgets_as_fixtures(walking: Path, tmp_path: Path, pytester):
     (pytester.path / "good.yaml").write_text(PASSING.format(walking=walking))
     (pytester.path / "bad.yaml").write_text(IMPOSSIBLE.format(walking=walking))

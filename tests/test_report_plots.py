@@ -222,7 +222,7 @@ COUNTS = (1, 2, 3, 4)
 def sweep(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("families")
     (root / "suite.yaml").write_text(
-        f"suite: walkers\nbase: smoke\noverrides: {{frames: 10}}\ngrid:\n  actors.0.count: {list(COUNTS)}\n"
+        f"suite: walkers\nbase: smoke\noverrides: {{frames: 6}}\ngrid:\n  actors.0.count: {list(COUNTS)}\n"
         "seeds: [1, 2]\n"
     )
     (root / "spec.yaml").write_text(
@@ -288,6 +288,7 @@ def test_featured_runs_tracked_again_in_two_workers_equal_those_tracked_here(swe
     frames, not 300), and come back with the same trajectories, states and keypoint decisions,
     in the families' order."""
     import depotbench.eval.report.html as html
+    from depotbench.eval.report import view_cache
 
     seen: dict[int, list] = {1: [], 2: []}
     view_of = html.view_of
@@ -300,6 +301,7 @@ def test_featured_runs_tracked_again_in_two_workers_equal_those_tracked_here(swe
 
         monkeypatch.setattr(html, "view_of", capture)
         monkeypatch.setattr(html, "PARALLEL_FRAMES", 0)
+        monkeypatch.setattr(view_cache, "load", lambda cache, key: None)  # tracked, not read back
         html.sweep_page(sweep, html.Notes(), workers=workers)
     assert len(seen[1]) >= len(COUNTS) and [s[0] for s in seen[1]] == [s[0] for s in seen[2]]
     for (_, estimate1, states1, kept1), (_, estimate2, states2, kept2) in zip(seen[1], seen[2], strict=True):
