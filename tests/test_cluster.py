@@ -139,6 +139,41 @@ def test_a_node_whose_program_differs_from_the_drivers_fails_its_jobs_in_one_lin
     assert "tracker mine's program or the files its command names differ from the driver's" in message
 
 
+def test_the_driver_puts_a_sequence_when_its_first_job_is_taken_and_lets_it_go_after_its_last(
+    tmp_path: Path,
+):
+    """Ray frees an object once no one holds its reference: the driver holds a sequence's
+    only while jobs that need it are still to be taken."""
+    import gc
+    import weakref
+
+    from depotbench.eval.run.nodes import Shipments
+
+    class Ref:  # what ray.put returns, here
+        pass
+
+    for name in ("a", "b"):
+        write_sequence(tmp_path / name, n=2)
+    refs: dict[str, weakref.ref] = {}
+
+    def put(data: bytes) -> Ref:
+        ref = Ref()
+        refs["a" if not refs else "b"] = weakref.ref(ref)
+        return ref
+
+    shipments = Shipments(put, {str(tmp_path / n): n for n in "ab"})
+    taken = shipments.around([{"a"}, {"a"}, {"b"}], lambda item: {str(tmp_path / n) for n in item})
+    first = next(taken)
+    assert list(refs) == ["a"] and first[1][str(tmp_path / "a")].fingerprint == "a"  # b not yet
+    second = next(taken)
+    assert second[1][str(tmp_path / "a")] is first[1][str(tmp_path / "a")]  # put once
+    del first, second  # the jobs submitted (Ray holds their arguments while they run)
+    third = next(taken)
+    gc.collect()
+    assert refs["a"]() is None and refs["b"]() is third[1][str(tmp_path / "b")].packed
+    assert list(taken) == [] and shipments.put_count == 2
+
+
 def test_a_clusters_nodes_keep_their_own_cache_folders():
     from depotbench.core.executors import _names_a_folder_here
 
@@ -180,8 +215,11 @@ def _count(database: Path) -> int:
         return 0
 
 
-def _sweep(spec: Path, out: Path, env: dict, address: str | None = None) -> subprocess.Popen:
-    args = [sys.executable, "-m", "depotbench.eval.cli.main", "sweep", str(spec), "-o", str(out), "-q"]
+def _sweep(
+    spec: Path, out: Path, env: dict, address: str | None = None, quiet: bool = True
+) -> subprocess.Popen:
+    args = [sys.executable, "-m", "depotbench.eval.cli.main", "sweep", str(spec), "-o", str(out)]
+    args += ["-q"] if quiet else []
     args += ["--workers", "2"] + (["--backend", "ray", "--address", address] if address else [])
     return subprocess.Popen(args, env=os.environ | env, cwd=REPO, stderr=subprocess.PIPE, text=True)
 
@@ -218,9 +256,12 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
     nodes = tmp_path_factory.mktemp("nodes")  # outside the driver's folders, which the nodes lose
     with local_cluster.LocalCluster(nodes, workers=2, hide=[driver, session_caches]) as cluster:
         started = time.perf_counter()
-        whole = _sweep(spec, driver / "cluster", cluster.driver_env, cluster.address)
-        assert whole.wait(600) == 0, whole.stderr.read()
+        whole = _sweep(spec, driver / "cluster", cluster.driver_env, cluster.address, quiet=False)
+        said = whole.communicate(timeout=600)[1]
+        assert whole.returncode == 0, said
         whole_s = time.perf_counter() - started
+        per_node = [line for line in said.splitlines() if "jobs per node" in line]
+        assert len(per_node) == 2  # the suite's generation, the sweep's jobs
         assert _rows(driver / "cluster" / "results.sqlite") == expected
         for name in ("walk-0000", "walk-0001"):
             assert _files_key(driver / "cluster" / "sequences" / name) == _files_key(
@@ -237,6 +278,7 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
         )
         counts = [len(m) for m in made.values()]
         print(f"cluster sweep: 40 runs in {whole_s:.1f} s; sequences made per node {counts}, {shipped} bytes")
+        print("\n".join(per_node))
 
         killed = _sweep(spec, driver / "killed", cluster.driver_env, cluster.address)
         while _count(driver / "killed" / "results.sqlite") < 5 and killed.poll() is None:

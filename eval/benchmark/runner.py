@@ -119,26 +119,29 @@ def _run_on_node(job: RunJob, source: Any, fingerprint: str | None) -> bytes | d
 def _on_nodes(pool: Any, items: list[tuple], prepared: list[Prepared], fingerprint: str):
     """``_run_one`` over ``items`` on a cluster whose nodes share no folder with this
     machine: runs kept from an earlier command are found here, each sequence is put into
-    Ray's object store once, and each run's folder comes back to be written here."""
+    Ray's object store as its first run is submitted (``Shipments``), and each run's folder
+    comes back to be written here."""
     from depotbench.core.output import OutputKind
-    from depotbench.eval.run.nodes import source_of
+    from depotbench.eval.run.nodes import Shipments
     from depotbench.scenes.shipping import unpack_output
 
-    files_keys = {str(p.path): p.files_key for p in prepared}
-    sources: dict[str, Any] = {}
     todo = []
     for job, target, key in items:
         if _kept(Path(target), key):
             yield (job, target, key), _figures(job, Path(target), resumed=True)
-            continue
-        root = str(job.sequence)
-        if root not in sources:
-            sources[root] = source_of(job.sequence, files_keys[root], pool.put)
-        todo.append((job, target, key))
-    calls = [(job, sources[str(job.sequence)], fingerprint) for job, _, _ in todo]
-    by_call = {id(call): item for call, item in zip(calls, todo, strict=True)}
-    for call, answer in pool.map_unordered(_run_on_node, calls):
-        job, target, key = by_call[id(call)]
+        else:
+            todo.append((job, target, key))
+    shipments = Shipments(pool.put, {str(p.path): p.files_key for p in prepared})
+    by_call: dict[int, tuple] = {}
+
+    def calls():
+        for (job, target, key), sources in shipments.around(todo, lambda item: {str(item[0].sequence)}):
+            call = (job, sources[str(job.sequence)], fingerprint)
+            by_call[id(call)] = (job, target, key)
+            yield call
+
+    for call, answer in pool.map_unordered(_run_on_node, calls()):
+        job, target, key = by_call.pop(id(call))
         if isinstance(answer, dict):
             yield (job, target, key), answer
             continue

@@ -63,6 +63,36 @@ def source_of(root: Path, fingerprint: str, put: Any) -> SequenceSource:
     return SequenceSource(fingerprint, root.name, key, put(pack(root)))
 
 
+class Shipments:
+    """The driver's side over one phase of jobs: each sequence packed and put into Ray's
+    object store when the first job that needs it is submitted, and let go by the driver
+    once the last one is (Ray keeps an object while a submitted job holds it, a job run
+    again after its node died included). So the store holds the sequences of the jobs in
+    flight, not every sequence of a sweep: tum-dyn-1's 70 would be about 45 GB."""
+
+    def __init__(self, put: Any, files_keys: dict[str, str]) -> None:
+        self.put = put
+        self.files_keys = files_keys
+        """Each sequence's files key, by the folder its jobs name here."""
+        self.put_count = 0
+
+    def around(self, items: list, roots_of: Any) -> Any:
+        """``(item, {folder: SequenceSource})`` for each of ``items`` in order, made as they
+        are taken; ``roots_of(item)``: the folders the item's jobs name."""
+        needs = [sorted(roots_of(item)) for item in items]
+        last = {root: i for i, roots in enumerate(needs) for root in roots}
+        held: dict[str, SequenceSource] = {}
+        for i, (item, roots) in enumerate(zip(items, needs, strict=True)):
+            for root in roots:
+                if root not in held:
+                    held[root] = source_of(Path(root), self.files_keys[root], self.put)
+                    self.put_count += 1
+            yield item, {root: held[root] for root in roots}
+            for root in roots:
+                if last[root] == i:
+                    del held[root]
+
+
 _LOCAL: dict[str, Path] = {}
 """This worker process's sequences by files key: each is found or made once."""
 

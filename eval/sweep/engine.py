@@ -43,7 +43,7 @@ from depotbench.eval.run.harness import (
     tracker_identity,
     uses_stages,
 )
-from depotbench.eval.run.nodes import SequenceSource, local_sequence, program_differs, source_of
+from depotbench.eval.run.nodes import SequenceSource, Shipments, local_sequence, program_differs
 from depotbench.eval.run.stages import decision_path, decision_signature, features_key, sequence_stages
 from depotbench.eval.sweep.spec import (
     MAX_JOBS,
@@ -515,24 +515,13 @@ def _split(tasks: list[list[Decision]], target: int) -> list[list[Decision]]:
     return tasks
 
 
-def _sources(jobs: list[SweepJob], pool) -> dict[str, SequenceSource]:
-    """For a cluster: each sequence of ``jobs`` packed once into Ray's object store, by the
-    folder its jobs name here (``depotbench.scenes.shipping``)."""
-    sources: dict[str, SequenceSource] = {}
-    for job in jobs:
-        root = str(job.job.sequence)
-        if root not in sources:
-            sources[root] = source_of(Path(root), job.fingerprint, pool.put)
-    LOG.log(DETAIL, "%d sequences put into Ray's object store for the cluster's nodes", len(sources))
-    return sources
-
-
-def _tasks(fn, items: list[tuple], sources: dict[str, SequenceSource] | None) -> tuple:
+def _tasks(fn, items: list[tuple], shipments: Shipments | None) -> tuple:
     """``fn`` over ``items`` as the pool runs them: as they are, or on a cluster through
-    ``_on_node`` with the sources of the sequences each item's jobs name."""
-    if sources is None:
+    ``_on_node`` with the sources of the sequences each item's jobs name (put into Ray's
+    object store as the items are taken: ``Shipments``)."""
+    if shipments is None:
         return fn, items
-    return _on_node, [(fn, {k: sources[k] for k in _roots(item)}, item) for item in items]
+    return _on_node, ((fn, sources, item) for item, sources in shipments.around(items, _roots))
 
 
 def _roots(value) -> set[str]:
@@ -597,20 +586,22 @@ def run_jobs(
     pool = make_pool(backend, workers, address)
     failed = True
     try:
-        sources = _sources(pending, pool) if pool.ships else None
+        shipments = None
+        if pool.ships:  # a cluster: sequences travel with the jobs (eval/run/nodes.py)
+            shipments = Shipments(pool.put, {str(j.job.sequence): j.fingerprint for j in pending})
         decisions = [Decision(j.key, None, None, None) for j in pending]
         if StageCache.from_env() is not None:
             groups = stage_groups(pending)
             bar = progress_bar(total=len(groups), desc="stages", unit="seq", disable=not progress)
             with bar:
-                for _ in pool.map_unordered(*_tasks(compute_stages, [(j,) for j in groups], sources)):
+                for _ in pool.map_unordered(*_tasks(compute_stages, [(j,) for j in groups], shipments)):
                     bar.update(1)
         if dedupe and pending:
             bar = progress_bar(total=len(pending), desc="decisions", unit="run", disable=not progress)
             decisions = []
             with bar:
                 chunks = [(c,) for c in _chunks(pending, 4 * workers)]
-                for _, answer in pool.map_unordered(*_tasks(decide, chunks, sources)):
+                for _, answer in pool.map_unordered(*_tasks(decide, chunks, shipments)):
                     decisions.extend(answer)
                     bar.update(len(answer))
             order = {j.key: i for i, j in enumerate(pending)}
@@ -655,7 +646,7 @@ def run_jobs(
         tracked = 0
         failures = []
         with bar:
-            for _, records in pool.map_unordered(*_tasks(_dispatch, tasks, sources)):
+            for _, records in pool.map_unordered(*_tasks(_dispatch, tasks, shipments)):
                 for record in records:
                     if isinstance(record, Failure):
                         if record.evidence is not None or record.log:  # the program ran
@@ -667,6 +658,8 @@ def run_jobs(
                         store.add(_same_run(record, other))
                     bar.update(1 + len(followers.get(record.key, [])))
         failed = False
+        if shipments is not None:
+            LOG.log(DETAIL, "%d sequences put into Ray's object store over the phases", shipments.put_count)
     finally:
         pool.close(failed)
     if failures:
