@@ -180,7 +180,7 @@ class RayPool:
         LOG.log(DETAIL, "Ray: %s jobs at a time on %s", self.workers, where)
         self.remote = ray.remote(num_cpus=1, max_retries=NODE_RETRIES)(_on_ray)
         self.jobs_per_node: dict[str, int] = {}
-        """Jobs finished per node (its Ray id's first 8 digits), logged when the pool closes."""
+        """Tasks finished per node (its Ray id's first 8 digits), logged when the pool closes."""
 
     def put(self, value: Any) -> Any:
         """``value`` in Ray's object store, for the nodes that need it."""
@@ -221,7 +221,7 @@ class RayPool:
     def close(self, failed: bool) -> None:
         if self.ships and self.jobs_per_node:
             counts = ", ".join(f"{node} {n}" for node, n in sorted(self.jobs_per_node.items()))
-            LOG.info(f"Ray: jobs per node: {counts}")
+            LOG.info(f"Ray: tasks per node: {counts}")
         if self.started:
             self.ray.shutdown()
 

@@ -221,7 +221,10 @@ def _sweep(
     args = [sys.executable, "-m", "depotbench.eval.cli.main", "sweep", str(spec), "-o", str(out)]
     args += ["-q"] if quiet else []
     args += ["--workers", "2"] + (["--backend", "ray", "--address", address] if address else [])
-    return subprocess.Popen(args, env=os.environ | env, cwd=REPO, stderr=subprocess.PIPE, text=True)
+    out = None if quiet else subprocess.PIPE  # the tasks-per-node lines come with the results
+    return subprocess.Popen(
+        args, env=os.environ | env, cwd=REPO, stdout=out, stderr=subprocess.PIPE, text=True
+    )
 
 
 @pytest.mark.slow
@@ -257,10 +260,10 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
     with local_cluster.LocalCluster(nodes, workers=2, hide=[driver, session_caches]) as cluster:
         started = time.perf_counter()
         whole = _sweep(spec, driver / "cluster", cluster.driver_env, cluster.address, quiet=False)
-        said = whole.communicate(timeout=600)[1]
+        said = "".join(whole.communicate(timeout=600))
         assert whole.returncode == 0, said
         whole_s = time.perf_counter() - started
-        per_node = [line for line in said.splitlines() if "jobs per node" in line]
+        per_node = [line for line in said.splitlines() if "tasks per node" in line]
         assert len(per_node) == 2  # the suite's generation, the sweep's jobs
         assert _rows(driver / "cluster" / "results.sqlite") == expected
         for name in ("walk-0000", "walk-0001"):
