@@ -47,7 +47,7 @@ def _map_run(sequence: Path, out: Path, strategy: str) -> dict:
     return json.loads((out / "metrics.json").read_text())["map"]
 
 
-@pytest.mark.slow  # 32 s; test_map_metrics.py shows walkers' ghosts and their rejection by default
+@pytest.mark.slow  # 32 s; test_map_metrics.py counts ghosts on a synthetic scene by default
 def test_the_map_is_written_with_the_run_and_the_walkers_ghosts_are_rejected(walking: Path, tmp_path: Path):
     bare = _map_run(walking, tmp_path / "none", "none")
     cloud = trimesh.load(tmp_path / "none" / "map.ply")

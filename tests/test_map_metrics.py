@@ -345,9 +345,9 @@ def test_a_noisy_depth_map_is_as_accurate_as_the_sensor_allows(tmp_path: Path, s
 @pytest.mark.parametrize(
     ("name", "seed"),
     [
-        pytest.param("walking_static", 0, marks=pytest.mark.slow),  # 15 s each: walking_xyz stays
-        pytest.param("walking_static", 2, marks=pytest.mark.slow),
-        ("walking_xyz", 0),
+        pytest.param("walking_static", 0, marks=pytest.mark.slow),  # 15-19 s each; the metric's
+        pytest.param("walking_static", 2, marks=pytest.mark.slow),  # ghosts are checked by hand
+        pytest.param("walking_xyz", 0, marks=pytest.mark.slow),  # on a synthetic scene by default
     ],
 )
 def test_people_left_in_a_map_are_ghosts_and_masking_them_leaves_none(tmp_path: Path, name: str, seed: int):

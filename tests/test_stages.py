@@ -133,6 +133,7 @@ def test_branching_runs_equal_each_configuration_tracked_alone(walking: Path, tm
         assert shared.metrics["rejection"] == alone.metrics["rejection"]
 
 
+@pytest.mark.slow  # 9 s; test_sweep.py runs a search (then damages its study) by default
 def test_an_optuna_search_runs_its_trials_as_sweep_rows_and_resumes(walking: Path, tmp_path: Path, capsys):
     pytest.importorskip("optuna")
     import json
