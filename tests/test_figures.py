@@ -116,7 +116,13 @@ def test_every_piece_keeps_a_fifth_of_its_marching_cubes_triangles(monkeypatch, 
 
 @pytest.mark.parametrize(
     ("kind", "seed", "step"),
-    [("cat", 1, 0.004), ("cat", 2, 0.004), ("cat", 3, 0.004), ("dog", 1, 0.013), ("dog", 4, 0.013)],
+    [  # 3 s each: one cat and one dog by default
+        ("cat", 1, 0.004),
+        pytest.param("cat", 2, 0.004, marks=pytest.mark.slow),
+        pytest.param("cat", 3, 0.004, marks=pytest.mark.slow),
+        ("dog", 1, 0.013),
+        pytest.param("dog", 4, 0.013, marks=pytest.mark.slow),
+    ],
 )
 def test_a_curved_tail_meshed_in_its_own_box_is_the_tail_of_the_bones_whole_box(
     monkeypatch, kind, seed, step

@@ -31,7 +31,13 @@ def _fingerprint(tracked) -> tuple:
     return poses.tobytes(), codes.tobytes(), inliers.tobytes(), tuple(run.states)
 
 
-@pytest.mark.parametrize("strategy", STRATEGIES)
+@pytest.mark.parametrize(  # 4 s each: the first and the last (boxes, flow and epipolar) by default
+    "strategy",
+    [
+        s if s in (STRATEGIES[0], STRATEGIES[-1]) else pytest.param(s, marks=pytest.mark.slow)
+        for s in STRATEGIES
+    ],
+)
 def test_a_run_on_cached_stages_is_bit_identical_to_a_live_one(walking: Path, tmp_path: Path, strategy: str):
     settings = (("k", 2.5),) if strategy == "prior_flow" else ()
     job = RunJob(walking, strategy, settings=settings)

@@ -15,8 +15,8 @@ once into a private folder of its own and every job there reads it from that fol
   it into the object store; a node that lacks it pulls it once and unpacks it into
   ``<cache root>/shipped/<files key>/<name>``. Copying beats rendering again: a frame of
   walking_static (640x480 with its truth files) renders in about 270 ms and packs to
-  0.86 MB, 7 ms at 1 Gbit/s, so a copy is about 26x cheaper and rendering wins only below
-  26 Mbit/s (measured: ``benchmarks/cluster.py``). A user's own sequences
+  0.86 MB, 7 ms at 1 Gbit/s, so a copy is 23-26x cheaper and rendering wins only below
+  about 27 Mbit/s (measured: ``benchmarks/cluster.py``). A user's own sequences
   (never rendered) can only be copied.
 - **Checked.** The node hashes what it made; a files key other than the driver's (another
   generator, a damaged copy) fails the job with one line naming the node and the
