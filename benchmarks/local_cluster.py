@@ -23,6 +23,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -157,6 +158,16 @@ class LocalCluster:
         self.nodes[i].wait()
 
     def __exit__(self, *exc: object) -> None:
+        self._stop()
+        # The head names itself in /tmp/ray/ray_current_cluster; left behind, a later
+        # ray.init() on this machine took it for a live cluster and refused num_cpus.
+        current = Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster"
+        port = self.address.rpartition(":")[2]
+        with contextlib.suppress(OSError):
+            if port and current.read_text().strip().endswith(f":{port}"):
+                current.unlink()
+
+    def _stop(self) -> None:
         for process in [*self.nodes, self.head]:
             if process is not None and process.poll() is None:
                 os.killpg(process.pid, signal.SIGTERM)
@@ -183,7 +194,6 @@ def main() -> None:
     )
     parser.add_argument("-o", type=Path, default=None, help="the nodes' folders (default: a temporary one)")
     args = parser.parse_args()
-    import tempfile
 
     base = args.o or Path(tempfile.mkdtemp(prefix="depotbench-nodes-"))
     with LocalCluster(base, workers=args.workers, hide=args.hide, cpus_per_node=args.cpus) as cluster:

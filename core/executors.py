@@ -58,6 +58,18 @@ def _init_local_worker(parent_pid: int, log_level: int = logging.WARNING) -> Non
     use_thread_lock()
 
 
+def _top_up(queue: Iterator[tuple], running: dict, limit: int, submit: Callable[[tuple], Any]) -> bool:
+    """Submit items from ``queue`` until ``limit`` run; False once it is empty. Items are taken
+    as they are submitted, so one may be made when needed (a cluster's job puts its sequence
+    into Ray's object store then, not all at the start)."""
+    while len(running) < limit:
+        item = next(queue, None)
+        if item is None:
+            return False
+        running[submit(item)] = item
+    return True
+
+
 class LocalPool:
     """Spawned workers that ignore Ctrl-C, die with the parent and are killed on an error.
     With one worker and ``in_process``, jobs run in this process instead.
@@ -97,16 +109,10 @@ class LocalPool:
             return
         pool = self._executor()
         running: dict[Future, tuple] = {}
-        queue = iter(items)  # taken as jobs are submitted: an item may be made when needed
-        exhausted = False
-        while not exhausted or running:
-            while not exhausted and len(running) < 2 * self.workers:
-                item = next(queue, None)
-                if item is None:
-                    exhausted = True
-                    break
-                with children_block_sigint():  # the first submit spawns the workers
-                    running[pool.submit(fn, *item)] = item
+        queue, more = iter(items), True
+        while more or running:
+            with children_block_sigint():  # the first submit spawns the workers
+                more = more and _top_up(queue, running, 2 * self.workers, lambda item: pool.submit(fn, *item))
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in finished:
                 yield running.pop(future), future.result()
@@ -188,15 +194,11 @@ class RayPool:
 
     def map_unordered(self, fn: Callable, items: Iterable[tuple]) -> Iterator[tuple[tuple, Any]]:
         running: dict[Any, tuple] = {}
-        queue = iter(items)  # taken as jobs are submitted: a sequence is put when first needed
-        exhausted = False
-        while not exhausted or running:
-            while not exhausted and len(running) < 2 * self.workers:
-                item = next(queue, None)
-                if item is None:
-                    exhausted = True
-                    break
-                running[self.remote.remote(fn, *item)] = item
+        queue, more = iter(items), True
+        while more or running:
+            more = more and _top_up(
+                queue, running, 2 * self.workers, lambda item: self.remote.remote(fn, *item)
+            )
             if not running:
                 break
             finished, _ = self.ray.wait(list(running), num_returns=1)

@@ -18,6 +18,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
 import types
 from pathlib import Path
@@ -305,6 +306,8 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
         # a benchmark: its sequences rendered on the nodes, its runs' folders sent back
         bench = _benchmark(driver / "bench-cluster", cluster.driver_env, cluster.address)
     assert bench == _benchmark(driver / "bench-local", {})
+    # the stopped head's /tmp/ray/ray_current_cluster would make a later local Ray refuse to start
+    assert not (Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster").exists()
 
 
 def _benchmark(out: Path, env: dict, address: str | None = None) -> list:
