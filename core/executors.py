@@ -134,7 +134,7 @@ class LocalPool:
 
 
 def _on_ray(fn: Callable, *args: Any) -> tuple[str, Any]:
-    """A job on a Ray worker, with the node it ran on (the driver counts jobs per node)."""
+    """A job on a Ray worker, with the node it ran on (the driver counts tasks per node)."""
     import ray
 
     single_threaded()
@@ -185,7 +185,7 @@ class RayPool:
         where = f"the cluster at {address}" if address else "a local Ray"
         LOG.log(DETAIL, "Ray: %s jobs at a time on %s", self.workers, where)
         self.remote = ray.remote(num_cpus=1, max_retries=NODE_RETRIES)(_on_ray)
-        self.jobs_per_node: dict[str, int] = {}
+        self.tasks_per_node: dict[str, int] = {}
         """Tasks finished per node (its Ray id's first 8 digits), logged when the pool closes."""
 
     def put(self, value: Any) -> Any:
@@ -205,7 +205,7 @@ class RayPool:
             for ref in finished:
                 item = running.pop(ref)
                 node, result = self._result(ref)
-                self.jobs_per_node[node] = self.jobs_per_node.get(node, 0) + 1
+                self.tasks_per_node[node] = self.tasks_per_node.get(node, 0) + 1
                 yield item, result
 
     def _result(self, ref: Any) -> Any:
@@ -221,8 +221,8 @@ class RayPool:
             raise
 
     def close(self, failed: bool) -> None:
-        if self.ships and self.jobs_per_node:
-            counts = ", ".join(f"{node} {n}" for node, n in sorted(self.jobs_per_node.items()))
+        if self.ships and self.tasks_per_node:
+            counts = ", ".join(f"{node} {n}" for node, n in sorted(self.tasks_per_node.items()))
             LOG.info(f"Ray: tasks per node: {counts}")
         if self.started:
             self.ray.shutdown()

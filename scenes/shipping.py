@@ -33,19 +33,21 @@ def pack(root: Path) -> bytes:
     names = [p.relative_to(sequence.root) for p in sequence.files()]
     if (sequence.root / MARKER_NAME).is_file():
         names.append(Path(MARKER_NAME))
-    buffer = io.BytesIO()
-    with tarfile.open(fileobj=buffer, mode="w") as tar:
-        for name in names:
-            tar.add(sequence.root / name, arcname=f"{root.name}/{name}", recursive=False)
-    return buffer.getvalue()
+    return _tar(sequence.root, root.name, names)
 
 
 def pack_folder(folder: Path) -> bytes:
     """Every regular file under ``folder`` (a run's output), as ``pack`` packs a sequence."""
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and not p.is_symlink())
+    return _tar(folder, folder.name, [p.relative_to(folder) for p in files])
+
+
+def _tar(root: Path, top: str, names: list[Path]) -> bytes:
+    """The files ``names`` (relative to ``root``) as an uncompressed tar, under ``top/``."""
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w") as tar:
-        for path in sorted(p for p in folder.rglob("*") if p.is_file() and not p.is_symlink()):
-            tar.add(path, arcname=f"{folder.name}/{path.relative_to(folder)}", recursive=False)
+        for name in names:
+            tar.add(root / name, arcname=f"{top}/{name}", recursive=False)
     return buffer.getvalue()
 
 

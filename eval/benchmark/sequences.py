@@ -74,15 +74,11 @@ def prepare(
     machine's sequence store), then hashed and checked against the lock. A sequence whose
     bytes are not the lock's is refused by name, so a result never mixes other bytes in."""
     from depotbench.eval.run.detections import sequence_fingerprint
-    from depotbench.scenes.generation import run_suite
     from depotbench.sim.sequence import Sequence
 
     check_specs(benchmark)
     for entry in benchmark.spec.scenarios:
-        suite = entry.suite()
-        run_suite(
-            suite, benchmark.path, root / entry.scenario, workers, progress, backend=backend, address=address
-        )
+        _generate(entry, benchmark.path, root, workers, progress, backend, address)
     prepared = []
     for sequence in benchmark.sequences:
         path = root / sequence.folder
@@ -101,6 +97,17 @@ def prepare(
             f"(no files key in the lock: their bytes are hashed into the results, not checked): {shown}"
         )
     return prepared
+
+
+def _generate(
+    entry: Entry, source: Path, root: Path, workers: int, progress: bool, backend: str, address: str | None
+) -> None:
+    """An entry's sequences under ``root/SCENARIO``, generated where missing (``run_suite``)."""
+    from depotbench.scenes.generation import run_suite
+
+    run_suite(
+        entry.suite(), source, root / entry.scenario, workers, progress, backend=backend, address=address
+    )
 
 
 FRESH_SEEDS_FROM = 1_000_000
@@ -137,16 +144,12 @@ def prepare_fresh(
     """The fresh seeds' sequences under ``root/SCENARIO``: the benchmark's scenarios at its
     lengths, generated here (no lock holds their keys; their bytes are hashed into the results)."""
     from depotbench.eval.run.detections import sequence_fingerprint
-    from depotbench.scenes.generation import run_suite
     from depotbench.sim.sequence import Sequence
 
     prepared = []
     for entry in benchmark.spec.scenarios:
         fresh = Entry(scenario=entry.scenario, seeds=seeds[entry.scenario], frames=entry.frames)
-        suite = fresh.suite()
-        run_suite(
-            suite, benchmark.path, root / entry.scenario, workers, progress, backend=backend, address=address
-        )
+        _generate(fresh, benchmark.path, root, workers, progress, backend, address)
         for sequence in _entry_sequences(fresh, benchmark.path):
             path = root / sequence.folder
             prepared.append(Prepared(sequence, path, sequence_fingerprint(Sequence.open(path))))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from depotbench.eval.cli.args import one_per_core, workers
+from depotbench.eval.cli.args import add_backend, backend_of, one_per_core, workers
 
 EXIT_FAILED = 1
 
@@ -50,11 +50,10 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         help="run the folder's failed rows again (a program's exit, time limit or unreadable output) "
         "instead of reusing them",
     )
-    p.add_argument("--backend", choices=("local", "ray"), default="local", help="where runs execute")
+    add_backend(p)
     p.add_argument(
         "--json", action="store_true", help="print the verdicts as JSON (each run's budgets, the failures)"
     )
-    p.add_argument("--address", help="--backend ray: the cluster's address")
     p.set_defaults(handler=_cmd_check)
 
 
@@ -66,8 +65,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from depotbench.eval.gates.budgets import format_report, junit_xml
     from depotbench.eval.gates.check import check_folder, open_gates
 
-    if args.address and args.backend != "ray":
-        raise InputError("--address applies to --backend ray only")
+    where = backend_of(args)
     if args.baseline_fingerprint and args.baseline is None:
         raise InputError("--baseline-fingerprint applies to --baseline DIR only")
     path = find(args.gates, Kind.GATES)  # a file, or a shipped gate file's name
@@ -75,7 +73,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.junit is not None:  # the verdict must not be lost to a place found unwritable after the run
         check_output_file(args.junit, overwrite=args.overwrite, inputs=gates.inputs, option="--junit")
     out = args.output or Path("runs") / f"check-{gates.gates.gates}"
-    report = check_folder(gates, out, args.workers, args.backend, args.address, args.retry_failed)
+    report = check_folder(gates, out, args.workers, where["backend"], where["address"], args.retry_failed)
     if args.junit is not None:
         write_text_atomic(args.junit, junit_xml(report))
     if args.json:

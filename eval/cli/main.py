@@ -52,7 +52,7 @@ if TYPE_CHECKING:
     from depotbench.eval.metrics.evaluate import Comparison
 
 from depotbench.eval.cli import choices
-from depotbench.eval.cli.args import finite_float, one_per_core, positive_float, workers
+from depotbench.eval.cli.args import backend_of, finite_float, one_per_core, positive_float, workers
 
 EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
@@ -282,8 +282,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     path = Path(args.spec)
     if not path.exists():  # a shipped suite by name (depotbench examples); a path wins over a name
         path = named(args.spec, Kind.SUITE) or path
-    if args.address and args.backend != "ray":
-        raise InputError("--address applies to --backend ray only")
+    where = backend_of(args)
     if path.is_file() and is_suite_file(path):
         if args.frames is not None or args.seed is not None or args.flow or args.sensor:
             raise InputError(
@@ -295,8 +294,7 @@ def _cmd_generate(args: argparse.Namespace) -> int:
             args.output,
             args.workers,
             overwrite=args.overwrite,
-            backend=args.backend,
-            address=args.address,
+            **where,
             png_compression=args.png_compression,
         )
         text = f"suite '{index['suite']}': {len(index['sequences'])} sequences in {args.output}"

@@ -107,12 +107,13 @@ def local_sequence(source: SequenceSource) -> Path:
     path = folder / source.name
     if not (path.is_dir() and _fingerprint(path) == source.fingerprint):
         shutil.rmtree(folder, ignore_errors=True)  # damaged, or half made by a killed worker
-        if not _from_store(source, path):
+        if not (_from_store(source, path) and _fingerprint(path) == source.fingerprint):
+            shutil.rmtree(folder, ignore_errors=True)  # the store's was written at another PNG level
             import ray
 
             path = unpack(ray.get(source.packed), folder)
             LOG.debug("sequence %s copied from the driver into %s", source.name, path)
-        _check(source, path)
+            _check(source, path)
     _LOCAL[source.fingerprint] = path
     return path
 
@@ -120,7 +121,7 @@ def local_sequence(source: SequenceSource) -> Path:
 def _from_store(source: SequenceSource, target: Path) -> bool:
     """Whether this node's sequence store held ``source`` (by content key, at the default PNG
     level) and copied it to ``target``: a copy, since the store may evict an entry while a
-    job reads it."""
+    job reads it. The caller checks its files key."""
     if source.content_key is None:
         return False
     from depotbench.scenes.store import SequenceStore
@@ -128,9 +129,6 @@ def _from_store(source: SequenceSource, target: Path) -> bool:
     store = SequenceStore.from_env()
     target.parent.mkdir(parents=True, exist_ok=True)
     if store is None or not store.fetch(source.content_key, target):
-        return False
-    if _fingerprint(target) != source.fingerprint:  # written at another PNG level
-        shutil.rmtree(target.parent, ignore_errors=True)
         return False
     LOG.debug("sequence %s taken from this node's store into %s", source.name, target)
     return True
