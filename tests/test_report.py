@@ -137,8 +137,9 @@ def test_rerun_recording_of_a_run(run_folder: Path, tmp_path: Path):
 def test_percentages_in_the_tables_are_shown_to_a_hundredth():
     """The demo's best run on the empty depot matched its reference within micrometres:
     rho was shown as '1.304e-06'; a percentage reads 0 there, and 82.39 elsewhere."""
-    from depotbench.eval.report.html import percent, table
+    from depotbench.eval.report.html import percent
+    from depotbench.eval.report.page import Table, table_html
 
-    page = table(["rho"], [[percent(1.304e-06)], [percent(82.39431659)], [percent(None)]])
+    page = table_html(Table(["rho"], [[percent(1.304e-06)], [percent(82.39431659)], [percent(None)]]))
     assert "e-06" not in page
     assert "<td>0</td>" in page and "<td>82.39</td>" in page and "<td>–</td>" in page

@@ -284,3 +284,21 @@ def test_pareto_labels_do_not_overlap(points, one_family):
     assert len(ax.texts) == len(points)
     assert _overlapping(ax.texts) == []
     pyplot().close(fig)
+
+
+def test_the_page_is_its_templates_output_with_every_text_escaped():
+    """Issue 54 item 5: the page comes from the Jinja2 templates with autoescaping, its CSS
+    from its own file; a title, a sequence path and a note that hold markup reach the page as
+    text, never as tags."""
+    from importlib import resources
+
+    hostile = '<script>alert("x")</script>'
+    view = _view(_walk())
+    view = RunView(**{**view.__dict__, "title": hostile, "metrics": {"sequence": f"seq/{hostile}"}})
+    notes = Notes()
+    notes.add(f"a note naming {hostile}")
+    page = run_page(view, notes)
+    assert "<script" not in page and page.count("&lt;script&gt;") == 5  # title, h1, subtitle, run, note
+    css = resources.files("depotbench.eval.report.templates").joinpath("report.css").read_text()
+    assert css.strip() in page and "align-items: flex-start" in css
+    assert page.index("Left out") < page.index("<h2>Run</h2>")  # what is left out comes first

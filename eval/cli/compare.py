@@ -92,11 +92,10 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _page(base: Path, results: dict) -> str:
-    import html
-
     from depotbench.eval.gates.compare import change_text, value_text
     from depotbench.eval.metrics.figures import RATIO
-    from depotbench.eval.report.html import Notes, page, table
+    from depotbench.eval.report.html import Notes
+    from depotbench.eval.report.page import Table, render
 
     header = ["family", "configuration", "figure", "first", "this", "change", "95 % interval", "pairs"]
     header += ["p(worse)", ""]
@@ -119,8 +118,7 @@ def _page(base: Path, results: dict) -> str:
                     "significant" if c.significant else "",
                 ]
             )
-        title = html.escape(f"{name} against {base}")
-        sections.append(f"<section><h2>{title}</h2>{table(header, rows)}</section>")
+        sections.append({"heading": f"{name} against {base}", "table": Table(header, rows)})
     notes = Notes()
     for name, found in results.items():
         if not found.comparisons:
@@ -131,4 +129,10 @@ def _page(base: Path, results: dict) -> str:
         if found.duplicates:
             twice = "; ".join(found.duplicates)
             notes.add(f"{name}: more than one run on one sequence, not compared: {twice}")
-    return page("depotbench compare", f"each set against {base}, paired by sequence", sections, notes)
+    return render(
+        "compare_page.html.j2",
+        title="depotbench compare",
+        subtitle=f"each set against {base}, paired by sequence",
+        notes=notes.items,
+        sections=sections,
+    )

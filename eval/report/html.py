@@ -22,8 +22,6 @@ warns about it in one line.
 
 from __future__ import annotations
 
-import base64
-import html
 import io
 import json
 import logging
@@ -46,6 +44,7 @@ from depotbench.eval.metrics.figures import Baseline, ScoredRun, is_baseline
 from depotbench.eval.metrics.record import RunRecord
 from depotbench.eval.metrics.statistics import SuccessRule
 from depotbench.eval.metrics.trajectory import Trajectory, associate, read_tum
+from depotbench.eval.report.page import Image, Mean, Table, render
 from depotbench.eval.sweep.family import family_name, family_order, sorted_families
 from depotbench.eval.sweep.summary import (
     LEGEND_FONT,
@@ -121,12 +120,6 @@ class Notes:
     def add(self, text: str) -> None:
         if text not in self.items:
             self.items.append(text)
-
-    def section(self) -> str:
-        if not self.items:
-            return ""
-        listed = "".join(f"<li>{html.escape(t)}</li>" for t in self.items)
-        return f"<section class='notes'><h2>Left out</h2><ul>{listed}</ul></section>"
 
     def warning(self) -> str | None:
         """One line (a path may hold a newline: it is shown escaped)."""
@@ -579,43 +572,6 @@ def frame_strip(view: RunView) -> bytes | None:
 
 # -- page ----------------------------------------------------------------------
 
-STYLE = """
-body{font:14px/1.45 system-ui,sans-serif;margin:0;color:#1f2937;background:#f8fafc}
-header{background:#0f172a;color:#f8fafc;padding:18px 28px}header h1{margin:0;font-size:22px}
-header p{margin:4px 0 0;color:#cbd5e1}main{padding:8px 28px 40px;max-width:1700px}
-section{background:#fff;border:1px solid #e2e8f0;border-radius:8px;padding:14px 18px;margin:16px 0}
-h2{font-size:17px;margin:0 0 10px}h3{font-size:15px;margin:14px 0 6px}
-table{border-collapse:collapse;font-size:13px}
-td,th{border-bottom:1px solid #e5e7eb;padding:3px 10px;text-align:right}
-th{background:#f1f5f9}td:first-child,th:first-child{text-align:left;white-space:nowrap}
-img{max-width:100%;height:auto;border:1px solid #e2e8f0}
-.plots{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
-.legend span{display:inline-block;margin-right:14px}.swatch{display:inline-block;width:11px;height:11px;
-border-radius:50%;margin-right:4px;vertical-align:-1px}.fail{color:#b91c1c;font-weight:600}.pass{color:#15803d}
-.notes{background:#fffbeb;border-color:#f59e0b}
-section section{border-color:#cbd5e1;margin:12px 0 0}td small{color:#64748b;white-space:nowrap}
-"""
-
-
-def _img(data: bytes, alt: str) -> str:
-    kind = "jpeg" if data[:2] == b"\xff\xd8" else "png"
-    encoded = base64.b64encode(data).decode("ascii")
-    return f'<img alt="{html.escape(alt)}" src="data:image/{kind};base64,{encoded}">'
-
-
-class Markup(str):
-    """Table cell text that is HTML already (its parts escaped where it was built)."""
-
-
-def _fmt(value: Any, digits: int = 4) -> str:
-    if isinstance(value, Markup):
-        return value
-    if value is None:
-        return "–"
-    if isinstance(value, float):
-        return "–" if not math.isfinite(value) else f"{value:.{digits}g}"
-    return html.escape(str(value))
-
 
 def percent(value: float | None) -> float | None:
     """A percentage shown to 0.01 %: rho of a run that matches its reference to the
@@ -623,44 +579,53 @@ def percent(value: float | None) -> float | None:
     return None if value is None else round(value, 2)
 
 
-def table(header: list[str], rows: list[list[Any]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{_fmt(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
-
-
-def _legend() -> str:
-    parts = [
-        f'<span><i class="swatch" style="background:rgb{colour}"></i>{name.replace("_", " ")}</span>'
-        for name, colour in DECISION_COLOURS.items()
-    ]
-    truth = (
-        f'<span><i class="swatch" style="background:rgb{MOVING_COLOUR}"></i>truly moving</span>'
-        f'<span><i class="swatch" style="background:rgb{STATIC_COLOUR}"></i>static</span>'
-    )
-    return (
-        f'<p class="legend">Top row, decision: {"".join(parts)}</p>'
-        f'<p class="legend">Bottom row, truth: {truth}</p>'
+def _render(name: str, notes: Notes, **context: Any) -> str:
+    """A page from its template, with the strip's colours every run section names."""
+    return render(
+        name,
+        notes=notes.items,
+        decision_colours=[(n.replace("_", " "), c) for n, c in DECISION_COLOURS.items()],
+        moving_colour=MOVING_COLOUR,
+        static_colour=STATIC_COLOUR,
+        **context,
     )
 
 
-def difficulty_table(view: RunView) -> str:
+@dataclass(frozen=True)
+class RunSection:
+    """What a run's section shows (``templates/run.html.j2``)."""
+
+    heading: str
+    title: str
+    where: str
+    summary: Table
+    plots: list[Image]
+    strip: Image | None
+    strip_problem: str | None
+    map_scores: Table | None
+    map_image: Image | None
+    difficulty: Table | None
+    difficulty_missing: str | None
+
+
+def difficulty_table(view: RunView) -> tuple[Table | None, str | None]:
+    """The scenario's difficulty, or why there is none."""
     sequence = view.sequence
     if sequence is None:
-        return f"<p>Left out: {html.escape(view.sequence_problem or 'no sequence')}.</p>"
+        return None, f"Left out: {view.sequence_problem or 'no sequence'}."
     difficulty = (sequence.meta or {}).get("difficulty")
     if not isinstance(difficulty, dict) or not difficulty:
-        return "<p>No difficulty recorded (not a generated sequence).</p>"
+        return None, "No difficulty recorded (not a generated sequence)."
     rows = [[k.replace("_", " "), v] for k, v in sorted(difficulty.items())]
     profile = (sequence.meta or {}).get("sensor_profile")
     if isinstance(profile, str):  # sequences from 0.7 and before name none
         rows.insert(0, ["sensor profile", profile])
-    return table(["measure", "value"], rows)
+    return Table(["measure", "value"], rows), None
 
 
-def _strip_html(view: RunView, notes: Notes) -> str:
-    """The frame strip and its legend, or why there is none (noted when something is wrong:
-    a run without diagnostics, an external tracker's, is not)."""
+def _strip(view: RunView, notes: Notes) -> tuple[Image | None, str | None]:
+    """The frame strip, or why there is none (noted when something is wrong: a run without
+    diagnostics, an external tracker's, is not)."""
     problem = strip_problem(view)
     strip = None
     if problem is None:
@@ -673,54 +638,61 @@ def _strip_html(view: RunView, notes: Notes) -> str:
         if strip is None and problem is None:
             problem = "the frames could not be encoded as JPEG"
     if strip is not None:
-        return _legend() + _img(strip, "frames with keypoints")
+        return Image(strip, "frames with keypoints"), None
     if view.diagnostics is not None and view.sequence is not None:
         notes.add(f"{view.title}: frame strip: {problem}")
-    return f"<p>No frames to show: {html.escape(str(problem))}.</p>"
+    return None, str(problem)
 
 
-def run_section(view: RunView, heading: str, notes: Notes) -> str:
+SUMMARY_HEADER = [
+    "ATE RMSE (m)",
+    "ATE max (m)",
+    "RPE RMSE (m)",
+    "tracked",
+    "lost",
+    "keyframes",
+    "precision",
+    "recall",
+    "ms/frame",
+]
+
+
+def run_section(view: RunView, heading: str, notes: Notes) -> RunSection:
     m = view.metrics
     ate, rpe = m.get("ate_m") or {}, m.get("rpe_translation_m") or {}
     rejection = m.get("rejection") or {}
     total = (m.get("stage_time") or {}).get("tracking_total") or {}
-    summary = table(
-        [
-            "ATE RMSE (m)",
-            "ATE max (m)",
-            "RPE RMSE (m)",
-            "tracked",
-            "lost",
-            "keyframes",
-            "precision",
-            "recall",
-            "ms/frame",
-        ],
-        [
-            [
-                ate.get("rmse"),
-                ate.get("max"),
-                rpe.get("rmse"),
-                f"{m.get('tracked_frames')}/{m.get('frames')}",
-                m.get("lost_frames"),
-                m.get("keyframes"),
-                rejection.get("precision"),
-                rejection.get("recall"),
-                total.get("mean_ms"),
-            ]
-        ],
-    )
-    plots = [
-        _img(figure_png(trajectory_figure(view)), "trajectory from above"),
-        _img(figure_png(error_figure(view)), "error over time"),
+    summary = [
+        ate.get("rmse"),
+        ate.get("max"),
+        rpe.get("rmse"),
+        f"{m.get('tracked_frames')}/{m.get('frames')}",
+        m.get("lost_frames"),
+        m.get("keyframes"),
+        rejection.get("precision"),
+        rejection.get("recall"),
+        total.get("mean_ms"),
     ]
-    strip_html = _strip_html(view, notes)
+    plots = [
+        Image(figure_png(trajectory_figure(view)), "trajectory from above"),
+        Image(figure_png(error_figure(view)), "error over time"),
+    ]
+    strip, problem = _strip(view, notes)
+    scores, picture = _map_parts(view)
+    difficulty, missing = difficulty_table(view)
     where = view.sequence.root if view.sequence is not None else view.metrics.get("sequence") or "?"
-    return (
-        f"<section><h2>{html.escape(heading)}</h2><p>{html.escape(view.title)} on "
-        f"<code>{html.escape(str(where))}</code></p>"
-        f"{summary}<div class='plots'>{''.join(plots)}</div><h3>Frames</h3>{strip_html}"
-        f"{_map_html(view)}<h3>Scenario difficulty</h3>{difficulty_table(view)}</section>"
+    return RunSection(
+        heading=heading,
+        title=view.title,
+        where=str(where),
+        summary=Table(SUMMARY_HEADER, [summary]),
+        plots=plots,
+        strip=strip,
+        strip_problem=problem,
+        map_scores=scores,
+        map_image=picture,
+        difficulty=difficulty,
+        difficulty_missing=missing,
     )
 
 
@@ -765,37 +737,42 @@ def _map_rows(figures: dict[str, Any]) -> list[list[Any]]:
     ]
 
 
-def _map_html(view: RunView) -> str:
+def _map_parts(view: RunView) -> tuple[Table | None, Image | None]:
     """A run folder's dense map from above, its ghosts in red, with its figures per threshold (a
     sweep's page sets its runs' maps side by side instead: ``_family_section``)."""
     if view.folder is None or view.placed is None:
-        return ""
+        return None, None
     from depotbench.eval.report.maps import top_views
 
-    scores = table(
+    scores = Table(
         ["within", "accuracy", "completeness", "F-score", "ghost fraction"], _map_rows(view.placed.figures)
     )
-    return f"<h3>Dense map</h3>{scores}{_img(figure_png(top_views([view.placed])), 'dense map from above')}"
-
-
-def page(title: str, subtitle: str, sections: list[str], notes: Notes) -> str:
-    """The page; what it leaves out is listed first, where nobody can miss it."""
-    return (
-        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>{html.escape(title)}</title><style>{STYLE}</style></head><body>"
-        f"<header><h1>{html.escape(title)}</h1><p>{html.escape(subtitle)}</p></header>"
-        f"<main>{notes.section()}{''.join(sections)}</main></body></html>\n"
-    )
+    return scores, Image(figure_png(top_views([view.placed])), "dense map from above")
 
 
 def run_page(view: RunView, notes: Notes) -> str:
     section = run_section(view, "Run", notes)
-    return page(f"depotbench run: {view.title}", str(view.metrics.get("sequence") or ""), [section], notes)
+    title = f"depotbench run: {view.title}"
+    return _render(
+        "run_page.html.j2", notes, title=title, subtitle=str(view.metrics.get("sequence") or ""), run=section
+    )
 
 
 # -- sweeps --------------------------------------------------------------------
 
 PARETO_HEADER = ["family", "configuration", "detector", "ATE (m)", "ms"]
+BEST_HEADER = [
+    "family",
+    "configuration",
+    "detector",
+    "runs held",
+    "ATE (m)",
+    "ρ (%)",
+    "precision",
+    "recall",
+    "tracked",
+    "ms",
+]
 CONFIG_HEADER = [
     "family",
     "configuration",
@@ -1237,8 +1214,8 @@ def mean_cell(c: dict[str, Any], metric: str, value: Any = None, kind: str = "")
     low, high = entry.get("ci_low"), entry.get("ci_high")
     if kind == "complement" and _finite(low) and _finite(high):
         low, high = 1.0 - high, 1.0 - low
-    interval = f"[{number(low)}, {number(high)}] " if _finite(low) and _finite(high) else ""
-    return Markup(f"{html.escape(number(shown))}<br><small>{interval}n={entry['n']}</small>")
+    interval = f"[{number(low)}, {number(high)}]" if _finite(low) and _finite(high) else None
+    return Mean(number(shown), interval, entry["n"])
 
 
 def held_cell(c: dict[str, Any]) -> str | None:
@@ -1252,32 +1229,10 @@ def _rule(summary: dict[str, Any]) -> SuccessRule:
     return SuccessRule(float(stored.get("min_tracked_fraction", SuccessRule().min_tracked_fraction)))
 
 
-def _held_text(summary: dict[str, Any]) -> str:
-    """What ``held`` means in this sweep (its spec's statistics)."""
-    stored = summary.get("success_rule")
-    if not isinstance(stored, dict):
-        return ""
-    return (
-        f"<p>A run holds when it did not fail, has an ATE and tracked at least "
-        f"{stored['min_tracked_fraction']:.0%} of its frames; the best configuration of a family is the "
-        f"lowest mean ATE among those that held on at least {stored['best_min_success_rate']:.0%} of their "
-        "runs. A mean is shown with its 95 % bootstrap interval and n, the runs it is over.</p>"
-    )
-
-
-def _unqualified_text(summary: dict[str, Any]) -> str:
-    """The families where no configuration held on enough runs, named."""
+def _unqualified(summary: dict[str, Any]) -> tuple[int, list[tuple[str, float]]]:
+    """How many families had no configuration that held on enough runs, and each one's best rate."""
     missing = summary.get("unqualified") or {}
-    if not missing:
-        return ""
-    items = "".join(
-        f"<li>{html.escape(family)}: the best held on {rate:.0%} of its runs</li>"
-        for family, rate in sorted(missing.items())
-        if _finite(rate)
-    )
-    families = f"{len(missing)} {'family' if len(missing) == 1 else 'families'}"
-    head = f"<p class='fail'>No configuration held on enough runs in {families}:</p>"
-    return f"{head}<ul>{items}</ul>"
+    return len(missing), [(family, rate) for family, rate in sorted(missing.items()) if _finite(rate)]
 
 
 def _featured_configuration(
@@ -1295,6 +1250,31 @@ def _featured_configuration(
     return chosen, f"most reliable (held on {held_cell(chosen) or '?'}; none held on enough runs)"
 
 
+@dataclass(frozen=True)
+class Featured:
+    """The configuration a family's section tracks again, and why that one."""
+
+    role_title: str
+    configuration: str
+    detector: str
+    held: str | None
+    why: str | None
+
+
+@dataclass(frozen=True)
+class FamilySection:
+    """A family: every run of every configuration, and its featured run and none run."""
+
+    key: str
+    name: str
+    configurations: int
+    runs: int
+    featured: Featured | None
+    strip: Image | None
+    maps: Image | None
+    runs_shown: list[RunSection]
+
+
 def _family_section(
     family: str,
     configs: list[dict[str, Any]],
@@ -1302,33 +1282,33 @@ def _family_section(
     strip: bytes | None,
     views: list[RunView],
     notes: Notes,
-) -> str:
-    """A family: every run of every configuration, and its featured run and none run."""
+) -> FamilySection:
     mine = [c for c in configs if c["family"] == family]
-    runs = sum(c.get("runs") or c.get("sequences") or 0 for c in mine)
-    if featured is None:
-        chosen = "<p class='fail'>Every run of every configuration failed: there is no run to show.</p>"
-    else:
+    chosen = None
+    if featured is not None:
         config, role = featured
-        held = held_cell(config)
-        chosen = (
-            f"<p>{html.escape(role.split(' (')[0].capitalize())}: "
-            f"<b>{html.escape(_configuration(config))}</b> ({html.escape(config['detector'])})"
-            + (f", held on {held} runs" if held else "")
-            + (f" — {html.escape(role)}" if role != "best" else "")
-            + "</p>"
+        chosen = Featured(
+            role_title=role.split(" (")[0].capitalize(),
+            configuration=_configuration(config),
+            detector=config["detector"],
+            held=held_cell(config),
+            why=role if role != "best" else None,
         )
-    picture = _img(strip, f"runs of {family}") if strip is not None else ""
     maps = [view.placed for view in views if view.placed is not None]
+    picture = None
     if maps:  # the featured run's map beside its none run's, ghosts in red (method 2's two pictures)
         from depotbench.eval.report.maps import top_views
 
-        picture += "<h3>Dense maps</h3>" + _img(figure_png(top_views(maps)), f"dense maps of {family}")
-    details = "".join(run_section(view, view.title, notes) for view in views)
-    return (
-        f"<section><h2>Family: {html.escape(family_name(family))}</h2>"
-        f"<p>{len(mine)} configurations, {runs} runs; gate files name it "
-        f"<code>{html.escape(family)}</code>.</p>{chosen}{picture}{details}</section>"
+        picture = Image(figure_png(top_views(maps)), f"dense maps of {family}")
+    return FamilySection(
+        key=family,
+        name=family_name(family),
+        configurations=len(mine),
+        runs=sum(c.get("runs") or c.get("sequences") or 0 for c in mine),
+        featured=chosen,
+        strip=Image(strip, f"runs of {family}") if strip is not None else None,
+        maps=picture,
+        runs_shown=[run_section(view, view.title, notes) for view in views],
     )
 
 
@@ -1345,7 +1325,6 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     configs = summary["configurations"]
     best = summary["best"]
     rule = _rule(summary)
-    sections = []
     best_rows = [
         [
             family_name(family),
@@ -1361,37 +1340,17 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         ]
         for family, c in sorted(best.items(), key=lambda item: family_order(item[0]))
     ]
-    header = [
-        "family",
-        "configuration",
-        "detector",
-        "runs held",
-        "ATE (m)",
-        "ρ (%)",
-        "precision",
-        "recall",
-        "tracked",
-        "ms",
-    ]
     chosen_baseline = Baseline.from_dict(summary.get("baseline"))
     against = (
         "each run's own run without rejection (none) on its sequence"
         if chosen_baseline is None
-        else f"the sweep's chosen baseline ({html.escape(chosen_baseline.label())}) on its sequence"
+        else f"the sweep's chosen baseline ({chosen_baseline.label()}) on its sequence"
     )
-    sections.append(
-        f"<section><h2>Best configuration per family</h2>{table(header, best_rows)}"
-        f"<p>ρ: the ATE improvement over {against}.</p>"
-        f"{_unqualified_text(summary)}{_held_text(summary)}</section>"
-    )
-    plots = [_img(figure_png(fig), name) for name, fig in threshold_figures(configs)]
-    if plots:
-        sections.append(
-            "<section><h2>Against each swept threshold</h2><p>Each line: a family's mean over its runs, "
-            "the band its 95 % interval; dashed: the family's run without rejection (none).</p>"
-            f"{''.join(plots)}</section>"
-        )
+    unqualified_count, unqualified = _unqualified(summary)
+    stored_rule = summary.get("success_rule")
+    threshold_plots = [Image(figure_png(fig), name) for name, fig in threshold_figures(configs)]
     front = pareto_figure(configs)
+    pareto = None
     if front is not None:
         pareto_rows = [
             [
@@ -1403,13 +1362,11 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
             ]
             for c in summary["pareto"]
         ]
-        sections.append(
-            f"<section><h2>Accuracy against time</h2>{_img(figure_png(front), 'Pareto plot')}"
-            f"<h3>Pareto set</h3>{table(PARETO_HEADER, pareto_rows)}</section>"
-        )
+        pareto = {
+            "image": Image(figure_png(front), "Pareto plot"),
+            "table": Table(PARETO_HEADER, pareto_rows),
+        }
     difficulty = _difficulty_rows(rows, sequences)
-    if difficulty:
-        sections.append(f"<section><h2>Scenario difficulty</h2>{difficulty}</section>")
     families = sorted_families(c["family"] for c in configs)
     shown, left = families[:featured], families[featured:]
     if left:
@@ -1424,10 +1381,10 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     strips = {
         family: figure_png(fig) for family, _, fig in strip_figures(configs, rows, rule, only=set(shown))
     }
-    for family in shown:
-        sections.append(
-            _family_section(family, configs, chosen[family], strips.get(family), views.get(family, []), notes)
-        )
+    family_sections = [
+        _family_section(family, configs, chosen[family], strips.get(family), views.get(family, []), notes)
+        for family in shown
+    ]
     all_rows = [
         [
             family_name(c["family"]),
@@ -1442,15 +1399,25 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         ]
         for c in sorted(configs, key=lambda c: family_order(c["family"]))  # stable: keeps the rest
     ]
-    sections.append(
-        "<section><h2>Every configuration (means over each family's runs)</h2>"
-        f"{table(CONFIG_HEADER, all_rows)}"
-        "</section>"
-    )
     subtitle = (
         f"{len(rows)} runs, {len(configs)} configurations over {len({r['sequence'] for r in rows})} sequences"
     )
-    return page(f"depotbench sweep: {folder.name}", subtitle, sections, notes)
+    return _render(
+        "sweep_page.html.j2",
+        notes,
+        title=f"depotbench sweep: {folder.name}",
+        subtitle=subtitle,
+        best=Table(BEST_HEADER, best_rows),
+        against=against,
+        unqualified_count=unqualified_count,
+        unqualified=unqualified,
+        rule=stored_rule if isinstance(stored_rule, dict) else None,
+        threshold_plots=threshold_plots,
+        pareto=pareto,
+        difficulty=difficulty,
+        families=family_sections,
+        configurations=Table(CONFIG_HEADER, all_rows),
+    )
 
 
 def _knobs(row: dict[str, Any]) -> str:
@@ -1465,7 +1432,7 @@ def _knobs(row: dict[str, Any]) -> str:
     return settings_text({k: v for k, v in sorted(knobs.items()) if k != "seed"})
 
 
-def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> str:
+def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> Table | None:
     """Per sequence, its seed and suite knobs (from the rows) and its scenario's difficulty
     (from its meta.json; ``–`` where the sequence is gone or none was recorded)."""
     found: list[tuple[str, Any, str, dict | None]] = []
@@ -1479,7 +1446,7 @@ def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> str:
     columns = sorted({name for *_, difficulty in found if difficulty for name in difficulty})
     suite = any(seed is not None or knobs for _, seed, knobs, _ in found)
     if not columns and not suite:
-        return ""  # gone or damaged (noted), or not generated sequences (none recorded)
+        return None  # gone or damaged (noted), or not generated sequences (none recorded)
     header = ["sequence", *(["seed", "knobs"] if suite else []), *[c.replace("_", " ") for c in columns]]
     table_rows = [
         [
@@ -1490,7 +1457,7 @@ def _difficulty_rows(rows: list[ScoredRun], sequences: SweepSequences) -> str:
         for recorded, seed, knobs, difficulty in found
         if difficulty or suite
     ]
-    return table(header, table_rows)
+    return Table(header, table_rows)
 
 
 def render_report(source: Path, workers: int = 1) -> Rendered:
