@@ -13,6 +13,8 @@ checks it. YAML files are told apart by the one top-level key each kind must hav
 
 from __future__ import annotations
 
+import copy
+import functools
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -270,9 +272,7 @@ def _model(
 
 def _sweep(path: Path, lint: Lint) -> str:
     from depotbench.eval.sweep.spec import SweepSpec
-    from depotbench.scenes.schema import read_yaml
-
-    spec = _model(SweepSpec, path, read_yaml(path), lint)
+    spec = _model(SweepSpec, path, _read_yaml(path), lint)
     if spec is None:
         return ""
     shape = _matrix(spec, path, lint)
@@ -285,9 +285,7 @@ _BUDGET_LINE = re.compile(r": checks\.\d+: budgets\.")
 
 def _gates(path: Path, lint: Lint) -> str:
     from depotbench.eval.gates.budgets import GateFile, budget_problem
-    from depotbench.scenes.schema import read_yaml
-
-    data = read_yaml(path)
+    data = _read_yaml(path)
     for i, check in enumerate(data.get("checks") or []):  # every budget, not the first of a check
         budgets = check.get("budgets") if isinstance(check, dict) else None
         for name, bound in (budgets or {}).items() if isinstance(budgets, dict) else ():
@@ -398,12 +396,35 @@ def _head(path: Path) -> bytes:
         return b""
 
 
+@functools.lru_cache(maxsize=4)
+def _parsed(path: str, mtime_ns: int, size: int) -> tuple[Any, InputError | None]:
+    from depotbench.scenes.schema import read_yaml
+
+    try:
+        return read_yaml(Path(path)), None
+    except InputError as exc:
+        return None, exc
+
+
+def _read_yaml(path: Path) -> Any:
+    """``read_yaml`` once per version of a file: finding a file's kind and checking it ask for
+    it six times, and a hostile file costs each time (5000 nested brackets: 1.9 s a parse)."""
+    from depotbench.scenes.schema import read_yaml
+
+    try:
+        stat = path.stat()
+    except OSError:
+        return read_yaml(path)  # names the problem
+    data, problem = _parsed(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    if problem is not None:
+        raise problem
+    return copy.deepcopy(data)  # a caller's changes stay its own
+
+
 def _yaml_kind(key: str) -> Callable[[Path], bool]:
     def matches(path: Path) -> bool:
-        from depotbench.scenes.schema import read_yaml
-
         try:
-            return key in read_yaml(path)
+            return key in _read_yaml(path)
         except InputError:
             return False
 
@@ -453,10 +474,8 @@ def _lint(source: str, path: Path) -> Lint:
     """A lint whose YAML lines come from ``path`` (none for a folder or a binary file)."""
     text = None
     if path.is_file() and not _head(path).startswith((b"SQLite", b"%YAML:1.0")):
-        from depotbench.scenes.schema import read_yaml
-
         try:
-            read_yaml(path)  # bounded and checked before it is composed again for its lines
+            _read_yaml(path)  # bounded and checked before it is composed again for its lines
             text = path.read_text()
         except (InputError, OSError, UnicodeError):
             text = None

@@ -174,3 +174,33 @@ def test_each_shipped_sweep_prints_the_run_count_the_engine_expands(capsys, tmp_
         write_sequence(tmp_path / f"s{i}", n=2, seed=i, with_flow=False)
         roots.append((tmp_path / f"s{i}", f"f{i}"))
     assert runs == len(expand(spec, path, roots))
+
+
+def test_a_file_is_parsed_once_however_many_kinds_ask(tmp_path: Path, capsys, monkeypatch):
+    """Finding a file's kind and checking it read its YAML six times: 5000 nested brackets
+    took 11.6 s to refuse, six parses of 1.9 s. Now each version of a file is parsed once
+    (a scenario twice: its own loader reads it again), and an edited file is parsed again."""
+    from depotbench.scenes import schema
+
+    calls: list[Path] = []
+    real = schema.read_yaml
+
+    def counted(path: Path):
+        calls.append(path)
+        return real(path)
+
+    monkeypatch.setattr(schema, "read_yaml", counted)
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("name: " + "[" * 40 + "]" * 40 + "\n")
+    code, _, err = lint(capsys, deep)
+    assert code != 0 and len(err) == 1 and "nested" in err[0]
+    assert calls == [deep.resolve(), deep]  # kinds and lines, then the scenario loader
+    sweep = tmp_path / "sweep.yaml"
+    sweep.write_text("sweep: s\nsequences: [nowhere]\nstrategies: [none]\n")
+    calls.clear()
+    lint(capsys, sweep)
+    assert calls == [sweep.resolve()]
+    sweep.write_text("sweep: s2\nsequences: [nowhere, elsewhere]\nstrategies: [none]\n")
+    calls.clear()
+    lint(capsys, sweep)
+    assert calls == [sweep.resolve()]  # changed: read again, not taken from before
