@@ -258,6 +258,7 @@ def test_a_sweep_over_a_folder_and_its_altered_copy_keeps_a_row_for_each(generat
     assert float(rows["b"]["tracked_fraction"]) == 0.0
 
 
+@pytest.mark.slow  # 9 s; altered copies keep their own rows in the default run (the test above)
 def test_a_resumed_sweep_scores_a_corrected_ground_truth_again(generated: Path, tmp_path: Path):
     """Probe D1 `tum-sweep-2-after-gt-change`: "1 already done", with the old ATE."""
     tum = tmp_path / "tum"
