@@ -109,6 +109,24 @@ def test_the_programs_keypoint_decisions_are_scored_against_the_exact_labels(seq
     assert moving > 0 and metrics["rejection"]["recall"] == pytest.approx(rejected_moving / moving)
     assert metrics["tracker"] == "cmd" and metrics["parameters"]["margin_px"] == "6"
     assert (out / "program.log").is_file() and metrics["peak_memory_mb"] > 1
+    # Issue 54 item 5: the report draws the program's keypoints from its decision file, as it
+    # draws the built-in tracker's, and its legend names only the decisions the run made.
+    import numpy as np
+
+    with np.load(out / "diagnostics.npz") as d:
+        assert [int(f["keypoints"]) for f in frames] == d["keypoint_counts"].tolist()
+        starts = np.r_[0, np.cumsum(d["keypoint_counts"])]
+        for i, frame in enumerate(frames):
+            span = slice(starts[i], starts[i + 1])
+            codes, on_mover = d["rejection"][span], d["moving"][span]
+            assert int((codes == 1).sum()) == int(frame["rejected_keypoints"])
+            assert int(((codes == 1) & on_mover).sum()) == int(frame["rejected_moving"])
+        assert d["rejection_names"].tolist() == ["kept", "rejected"]
+    assert main(["report", str(out), "-o", str(tmp_path / "page")]) == 0
+    page = (tmp_path / "page" / "index.html").read_text()
+    assert 'alt="frames with keypoints"' in page and "No frames to show" not in page
+    legend = page[page.index("Top row, decision:") : page.index("Bottom row, truth:")]
+    assert ">kept</span>" in legend and ">rejected</span>" in legend and "epipolar" not in legend
 
 
 @pytest.mark.parametrize(

@@ -76,6 +76,7 @@ DECISION_COLOURS: dict[str, tuple[int, int, int]] = {
     Rejection.EPIPOLAR.value: (255, 160, 0),
     Rejection.FLOW_OUTLIER.value: (200, 60, 220),
     Rejection.MOVING_FLOW.value: (0, 170, 255),
+    "rejected": (230, 40, 40),  # an external program's rejection (harness.PROGRAM_REJECTED)
 }
 """RGB per rejection decision (the legend of the frame strip)."""
 MOVING_COLOUR = (255, 40, 40)
@@ -392,7 +393,7 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
 
 def view_of(title: str, tracked, sequence: Sequence) -> RunView:
     """A run tracked in this process (``depotbench.eval.run.harness.Tracked``) on ``sequence``."""
-    from depotbench.eval.run.harness import diagnostics_arrays
+    from depotbench.eval.run.harness import frame_decisions, run_diagnostics
 
     run = tracked.run
     placed = None
@@ -410,7 +411,7 @@ def view_of(title: str, tracked, sequence: Sequence) -> RunView:
         states=tuple(s.value for s in run.states),
         estimate=run.trajectory(),
         sequence=sequence,
-        diagnostics=diagnostics_arrays(run.results, run.labels or []) if run.results is not None else None,
+        diagnostics=run_diagnostics(run, frame_decisions(sequence, run)),
         placed=placed,
     )
 
@@ -584,7 +585,6 @@ def _render(name: str, notes: Notes, **context: Any) -> str:
     return render(
         name,
         notes=notes.items,
-        decision_colours=[(n.replace("_", " "), c) for n, c in DECISION_COLOURS.items()],
         moving_colour=MOVING_COLOUR,
         static_colour=STATIC_COLOUR,
         **context,
@@ -602,6 +602,8 @@ class RunSection:
     plots: list[Image]
     strip: Image | None
     strip_problem: str | None
+    decisions: list[tuple[str, tuple[int, int, int]]]
+    """The strip's legend: each decision that occurs in the run, with its colour."""
     map_scores: Table | None
     map_image: Image | None
     difficulty: Table | None
@@ -644,6 +646,15 @@ def _strip(view: RunView, notes: Notes) -> tuple[Image | None, str | None]:
     return None, str(problem)
 
 
+def _decisions_shown(view: RunView) -> list[tuple[str, tuple[int, int, int]]]:
+    """The decisions the run made, in the colours the strip draws them (an external program's
+    run: kept and rejected; the built-in tracker's: the reasons it gave)."""
+    d = view.diagnostics
+    names = [str(n) for n in d["rejection_names"]]
+    used = sorted({int(c) for c in np.unique(d["rejection"])})
+    return [(names[c].replace("_", " "), DECISION_COLOURS.get(names[c], (255, 255, 255))) for c in used]
+
+
 SUMMARY_HEADER = [
     "ATE RMSE (m)",
     "ATE max (m)",
@@ -678,6 +689,7 @@ def run_section(view: RunView, heading: str, notes: Notes) -> RunSection:
         Image(figure_png(error_figure(view)), "error over time"),
     ]
     strip, problem = _strip(view, notes)
+    legend = _decisions_shown(view) if strip is not None else []
     scores, picture = _map_parts(view)
     difficulty, missing = difficulty_table(view)
     where = view.sequence.root if view.sequence is not None else view.metrics.get("sequence") or "?"
@@ -689,6 +701,7 @@ def run_section(view: RunView, heading: str, notes: Notes) -> RunSection:
         plots=plots,
         strip=strip,
         strip_problem=problem,
+        decisions=legend,
         map_scores=scores,
         map_image=picture,
         difficulty=difficulty,

@@ -534,11 +534,13 @@ def run_job(
         estimate = run.trajectory()
         if estimate is not None:
             write_tum(output.path / "trajectory.txt", estimate, header=tracked.header)
-        _write_frames(output.path / "frames.csv", run, frame_decisions(sequence, run))
+        decisions = frame_decisions(sequence, run)
+        _write_frames(output.path / "frames.csv", run, decisions)
         if run.log:
             (output.path / "program.log").write_text(run.log, encoding="utf-8")
-        if run.results is not None:
-            _write_diagnostics(output.path / "diagnostics.npz", run.results, run.labels or [])
+        arrays = run_diagnostics(run, decisions)
+        if arrays is not None:
+            np.savez_compressed(output.path / "diagnostics.npz", **arrays)
         if tracked.map is not None and len(tracked.map.points):  # no keyframe point: no file
             write_ply(output.path / "map.ply", tracked.map.points, tracked.map.colours)
         (output.path / "metrics.json").write_text(dumps_json(tracked.metrics) + "\n", encoding="utf-8")
@@ -693,8 +695,39 @@ def _write_frames(
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
 
 
-def _write_diagnostics(path: Path, results: list[FrameResult], labels: list[np.ndarray]) -> None:
-    np.savez_compressed(path, **diagnostics_arrays(results, labels))
+def run_diagnostics(
+    run: TrackerRun, decisions: tuple[list[np.ndarray], list[np.ndarray]] | None
+) -> dict[str, np.ndarray] | None:
+    """What ``diagnostics.npz`` holds of a run (the report draws its frames from it): the
+    built-in tracker's per-keypoint decisions, or an external program's keypoint file (where
+    it wrote one); None where there are neither."""
+    if run.results is not None:
+        return diagnostics_arrays(run.results, run.labels or [])
+    if run.decisions is not None:
+        return decision_arrays(run.decisions, decisions[1] if decisions is not None else [])
+    return None
+
+
+PROGRAM_REJECTED = "rejected"
+"""An external program's rejection: its reason words are its own, not the bench's reasons."""
+
+
+def decision_arrays(decisions, labels: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """An external program's keypoint decisions (``protocol.KeypointDecisions``) in the arrays
+    ``diagnostics_arrays`` writes for the built-in tracker: per frame its keypoints, each kept
+    (code 0) or rejected (code 1), and the true moving labels where the sequence has them."""
+    counts = np.array([len(points) for points in decisions.keypoints_px], dtype=np.int64)
+    points = [np.asarray(p, np.float64).reshape(-1, 2) for p in decisions.keypoints_px]
+    codes = [np.where(np.asarray(kept, bool), 0, 1).astype(np.int16) for kept in decisions.kept]
+    arrays = {
+        "keypoint_counts": counts,
+        "keypoints_px": np.concatenate(points) if points else np.zeros((0, 2)),
+        "rejection": np.concatenate(codes) if codes else np.zeros(0, np.int16),
+        "rejection_names": np.array([Rejection.KEPT.value, PROGRAM_REJECTED]),
+    }
+    if labels:
+        arrays["moving"] = np.concatenate(labels)
+    return arrays
 
 
 def diagnostics_arrays(results: list[FrameResult], labels: list[np.ndarray]) -> dict[str, np.ndarray]:
