@@ -382,6 +382,7 @@ def test_one_orbslam3_run_has_one_key_however_its_numbers_are_spelled(
 
 
 @pytest.mark.render
+@pytest.mark.slow  # 53 s; the real ORB-SLAM3 runs by default in test_camera_input.py
 def test_orbslam3_runs_end_to_end_with_and_without_mask(tmp_path: Path, capsys):
     from depotbench.eval.trackers.orbslam3 import available
 
