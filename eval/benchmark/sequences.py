@@ -86,7 +86,8 @@ def prepare(
         if sequence.files_key is not None and key != sequence.files_key:
             raise InputError(
                 f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
-                f"{sequence.files_key}): changed after generation, or made by another renderer"
+                f"{sequence.files_key}): changed after generation, or made by another renderer, OpenCV or "
+                "CPU than the one that froze it (docs/determinism.md)"
             )
         prepared.append(Prepared(sequence, path, key))
     unfrozen = [s.folder for s in benchmark.sequences if s.files_key is None]
