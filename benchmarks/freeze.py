@@ -27,6 +27,7 @@ from pathlib import Path
 
 def main() -> None:
     from depotbench.core.errors import InputError
+    from depotbench.core.machine import machine_summary
     from depotbench.core.version import generator_version
     from depotbench.eval.benchmark.sequences import expand
     from depotbench.eval.benchmark.spec import (
@@ -62,10 +63,12 @@ def main() -> None:
         )
     asked = expand(spec, path)
     kept: dict[str, str | None] = {}
+    kept_on: dict[str, str | None] = {}
     if lock_path(path).is_file():
         try:
             old = load_benchmark(path)
             kept = {s.folder: s.files_key for s in old.sequences}
+            kept_on = {s.folder: s.frozen_on for s in old.sequences}
             old_specs = {s.folder: s.spec_key for s in old.sequences}
             kept = {
                 k: v
@@ -79,21 +82,23 @@ def main() -> None:
     if args.output is not None:
         for entry in spec.scenarios:
             run_suite(entry.suite(), path, root / entry.scenario, args.workers)
+    here = machine_summary()
     frozen = []
     for sequence in asked:
         folder = root / sequence.folder
-        key = kept.get(sequence.folder)
+        key, on = kept.get(sequence.folder), kept_on.get(sequence.folder)
         if is_complete(folder, sequence.spec_key):
             hashed = sequence_fingerprint(Sequence.open(folder))
             if key is not None and key != hashed:
                 sys.exit(
                     f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the same "
-                    "spec: the generator is not deterministic across these machines; nothing written"
+                    f"spec, on {on or 'a machine the lock does not name'}; this is {here}: the generator is "
+                    "not deterministic across these machines (docs/determinism.md); nothing written"
                 )
-            key = hashed
+            key, on = hashed, on or here  # frozen now, or made again here byte for byte
         frozen.append(
             BenchSequence(
-                sequence.name, sequence.scenario, sequence.seed, sequence.frames, sequence.spec_key, key
+                sequence.name, sequence.scenario, sequence.seed, sequence.frames, sequence.spec_key, key, on
             )
         )
     write_lock(path, spec, frozen)

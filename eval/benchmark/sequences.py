@@ -84,10 +84,13 @@ def prepare(
         path = root / sequence.folder
         key = sequence_fingerprint(Sequence.open(path))
         if sequence.files_key is not None and key != sequence.files_key:
+            from depotbench.core.machine import machine_summary
+
+            frozen = sequence.frozen_on or "a machine the lock does not name"
             raise InputError(
                 f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
                 f"{sequence.files_key}): changed after generation, or made by another renderer, OpenCV or "
-                "CPU than the one that froze it (docs/determinism.md)"
+                f"CPU (frozen on {frozen}; this is {machine_summary()}; docs/determinism.md)"
             )
         prepared.append(Prepared(sequence, path, key))
     unfrozen = [s.folder for s in benchmark.sequences if s.files_key is None]

@@ -91,6 +91,9 @@ class BenchSequence:
     spec_key: str
     files_key: str | None
     """None until the sequence is frozen (generated once and hashed)."""
+    frozen_on: str | None = None
+    """The machine and libraries that froze it (``core.machine.machine_summary``); None in
+    locks written before 0.8.0's last lock change."""
 
     @property
     def folder(self) -> str:
@@ -144,6 +147,7 @@ def load_benchmark(text: str | Path) -> Benchmark:
                 int(s["frames"]),
                 str(s["spec_key"]),
                 None if s["files_key"] is None else str(s["files_key"]),
+                None if s.get("frozen_on") is None else str(s["frozen_on"]),
             )
             for s in data["sequences"]
         )
@@ -165,6 +169,7 @@ def lock_data(benchmark: BenchmarkFile, sequences: list[BenchSequence]) -> dict[
                 "frames": s.frames,
                 "spec_key": s.spec_key,
                 "files_key": s.files_key,
+                **({} if s.frozen_on is None else {"frozen_on": s.frozen_on}),
             }
             for s in sequences
         ],

@@ -1,0 +1,71 @@
+"""A lock names the machine and libraries that froze each sequence, so that a sequence made
+with other bytes elsewhere is refused naming both machines (docs/determinism.md: a machine
+of another CPU made other bytes with the same libraries, and each OpenCV draws its own)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+from depotbench.core.errors import InputError
+from depotbench.core.machine import machine_summary
+from depotbench.eval.benchmark import sequences as bench_sequences
+from depotbench.eval.benchmark.spec import load_benchmark, lock_path, write_lock
+
+
+def _copy_of_smoke(tmp_path: Path) -> Path:
+    source = load_benchmark("smoke-1").path
+    shutil.copy(source, tmp_path / source.name)
+    shutil.copy(lock_path(source), tmp_path / lock_path(source).name)
+    return tmp_path / source.name
+
+
+def test_the_summary_names_the_cpu_class_and_the_libraries_installed():
+    line = machine_summary()
+    flags = set()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        flags = {
+            f for row in cpuinfo.read_text().splitlines() if row.startswith("flags") for f in row.split()
+        }
+    assert ("(avx512)" in line) == ("avx512f" in flags)
+    for name, distribution in (
+        ("opencv", "opencv-python-headless"),
+        ("mujoco", "mujoco"),
+        ("numpy", "numpy"),
+    ):
+        assert f"{name} {metadata.version(distribution)}" in line
+
+
+def test_a_lock_keeps_each_sequences_machine_and_an_older_lock_names_none(tmp_path: Path):
+    path = _copy_of_smoke(tmp_path)
+    old = load_benchmark(path)
+    assert all(s.frozen_on is None for s in old.sequences)  # written before the field
+    marked = [s.__class__(**{**s.__dict__, "frozen_on": f"machine {i}"}) for i, s in enumerate(old.sequences)]
+    write_lock(path, old.spec, marked)
+    again = load_benchmark(path)
+    assert [s.frozen_on for s in again.sequences] == ["machine 0", "machine 1", "machine 2"]
+    assert [s.files_key for s in again.sequences] == [s.files_key for s in old.sequences]
+    data = json.loads(lock_path(path).read_text())
+    assert data["sequences"][0]["frozen_on"] == "machine 0"
+
+
+def test_a_sequence_with_other_bytes_is_refused_naming_both_machines(tmp_path: Path, monkeypatch):
+    """prepare() with generation and hashing stood in for: the hash is not the lock's."""
+    path = _copy_of_smoke(tmp_path)
+    old = load_benchmark(path)
+    marked = [
+        s.__class__(**{**s.__dict__, "frozen_on": "Xeon (avx512); opencv 5.1.0.95"}) for s in old.sequences
+    ]
+    write_lock(path, old.spec, marked)
+    monkeypatch.setattr(bench_sequences, "_generate", lambda *args, **kwargs: None)
+    monkeypatch.setattr("depotbench.sim.sequence.Sequence.open", staticmethod(lambda folder: folder))
+    monkeypatch.setattr("depotbench.eval.run.detections.sequence_fingerprint", lambda sequence: "0" * 32)
+    with pytest.raises(InputError) as refused:
+        bench_sequences.prepare(load_benchmark(path), tmp_path / "sequences", workers=1, progress=False)
+    text = str(refused.value)
+    assert "smoke/smoke-0000" in text and "frozen on Xeon (avx512); opencv 5.1.0.95" in text
+    assert f"this is {machine_summary()}" in text and len(text.splitlines()) == 1
