@@ -118,6 +118,8 @@ class Tracked:
     run: TrackerRun
     header: str
     map: RunMap | None = None
+    decisions: tuple[list[np.ndarray], list[np.ndarray]] | None = None
+    """``frame_decisions`` of the run, labelled once for its metrics, frames.csv and diagnostics."""
 
 
 def prepare(job: RunJob, sequence: Sequence | None = None) -> tuple[Sequence, SlamConfig]:
@@ -202,11 +204,14 @@ def _tracked(
 ) -> Tracked:
     """A finished run's metrics, with its dense map and the map's scores where the job asks."""
     truth = _against_truth(sequence, run)
-    metrics = _metrics(sequence, run, config, job.strategy, job.detector, detections, job.tracker, truth)
+    decisions = frame_decisions(sequence, run)
+    metrics = _metrics(
+        sequence, run, config, job.strategy, job.detector, detections, job.tracker, truth, decisions
+    )
     dense = run_map(frames, run, config, job.strategy) if job.dense_map else None
     if dense is not None:
         metrics["map"] = dense.figures()
-    return Tracked(metrics, run, _header(job), dense)
+    return Tracked(metrics, run, _header(job), dense, decisions)
 
 
 def uses_stages(job: RunJob) -> bool:
@@ -534,11 +539,10 @@ def run_job(
         estimate = run.trajectory()
         if estimate is not None:
             write_tum(output.path / "trajectory.txt", estimate, header=tracked.header)
-        decisions = frame_decisions(sequence, run)
-        _write_frames(output.path / "frames.csv", run, decisions)
+        _write_frames(output.path / "frames.csv", run, tracked.decisions)
         if run.log:
             (output.path / "program.log").write_text(run.log, encoding="utf-8")
-        arrays = run_diagnostics(run, decisions)
+        arrays = run_diagnostics(run, tracked.decisions)
         if arrays is not None:
             np.savez_compressed(output.path / "diagnostics.npz", **arrays)
         if tracked.map is not None and len(tracked.map.points):  # no keyframe point: no file
@@ -578,6 +582,7 @@ def _metrics(
     detections: SequenceDetections | None,
     tracker: TrackerConfig,
     truth: Comparison | None,
+    decisions: tuple[list[np.ndarray], list[np.ndarray]] | None,
 ) -> dict[str, Any]:
     states = run.states
     stage = {name: _time_stats(values) for name, values in run.stage_ms.items()}
@@ -615,7 +620,6 @@ def _metrics(
         comparison = truth.to_dict()
         for key in ("ate_m", "rpe_translation_m", "rpe_rotation_deg"):
             metrics[key] = comparison[key]
-    decisions = frame_decisions(sequence, run)
     if decisions is not None:
         metrics["rejection"] = _rejection(*decisions, run.results)
     return metrics
