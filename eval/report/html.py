@@ -393,7 +393,7 @@ def load_run(folder: Path, notes: Notes | None = None) -> RunView:
 
 def view_of(title: str, tracked, sequence: Sequence) -> RunView:
     """A run tracked in this process (``depotbench.eval.run.harness.Tracked``) on ``sequence``."""
-    from depotbench.eval.run.harness import frame_decisions, run_diagnostics
+    from depotbench.eval.run.harness import run_diagnostics
 
     run = tracked.run
     placed = None
@@ -411,7 +411,7 @@ def view_of(title: str, tracked, sequence: Sequence) -> RunView:
         states=tuple(s.value for s in run.states),
         estimate=run.trajectory(),
         sequence=sequence,
-        diagnostics=run_diagnostics(run, frame_decisions(sequence, run)),
+        diagnostics=run_diagnostics(run, tracked.decisions),
         placed=placed,
     )
 
@@ -774,18 +774,6 @@ def run_page(view: RunView, notes: Notes) -> str:
 # -- sweeps --------------------------------------------------------------------
 
 PARETO_HEADER = ["family", "configuration", "detector", "ATE (m)", "ms"]
-BEST_HEADER = [
-    "family",
-    "configuration",
-    "detector",
-    "runs held",
-    "ATE (m)",
-    "ρ (%)",
-    "precision",
-    "recall",
-    "tracked",
-    "ms",
-]
 CONFIG_HEADER = [
     "family",
     "configuration",
@@ -795,8 +783,9 @@ CONFIG_HEADER = [
     "ρ (%)",
     "precision",
     "recall",
-    "ms",
 ]
+"""A configuration's columns in the best and every-configuration tables, before its time (ms);
+the best one's table also shows the share of frames tracked."""
 
 
 MAX_SUMMARY_BYTES = 64 * MIB
@@ -1325,6 +1314,24 @@ def _family_section(
     )
 
 
+def _configuration_row(c: dict[str, Any], tracked: bool) -> list[Any]:
+    """A configuration's cells under ``CONFIG_HEADER``, then the share of frames tracked (where
+    ``tracked``) and the median tracking time."""
+    share = [mean_cell(c, "lost_fraction", c["tracked_fraction"], "complement")] if tracked else []
+    return [
+        family_name(c["family"]),
+        _configuration(c),
+        c["detector"],
+        held_cell(c),
+        mean_cell(c, "ate_rmse_m"),
+        mean_cell(c, "rho_percent", kind="percent"),
+        mean_cell(c, "rejection_precision"),
+        mean_cell(c, "rejection_recall"),
+        *share,
+        mean_cell(c, "track_ms_median"),
+    ]
+
+
 def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, workers: int = 1) -> str:
     """The sweep's page; ``featured``: how many families (in natural order, numbers by value) get a section;
     ``workers``: processes that track the featured runs again."""
@@ -1339,19 +1346,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     best = summary["best"]
     rule = _rule(summary)
     best_rows = [
-        [
-            family_name(family),
-            _configuration(c),
-            c["detector"],
-            held_cell(c),
-            mean_cell(c, "ate_rmse_m"),
-            mean_cell(c, "rho_percent", kind="percent"),
-            mean_cell(c, "rejection_precision"),
-            mean_cell(c, "rejection_recall"),
-            mean_cell(c, "lost_fraction", c["tracked_fraction"], "complement"),
-            mean_cell(c, "track_ms_median"),
-        ]
-        for family, c in sorted(best.items(), key=lambda item: family_order(item[0]))
+        _configuration_row(c, tracked=True)
+        for _, c in sorted(best.items(), key=lambda item: family_order(item[0]))
     ]
     chosen_baseline = Baseline.from_dict(summary.get("baseline"))
     against = (
@@ -1398,19 +1394,8 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         _family_section(family, configs, chosen[family], strips.get(family), views.get(family, []), notes)
         for family in shown
     ]
-    all_rows = [
-        [
-            family_name(c["family"]),
-            _configuration(c),
-            c["detector"],
-            held_cell(c),
-            mean_cell(c, "ate_rmse_m"),
-            mean_cell(c, "rho_percent", kind="percent"),
-            mean_cell(c, "rejection_precision"),
-            mean_cell(c, "rejection_recall"),
-            mean_cell(c, "track_ms_median"),
-        ]
-        for c in sorted(configs, key=lambda c: family_order(c["family"]))  # stable: keeps the rest
+    all_rows = [  # sorted is stable: keeps the rest of the order
+        _configuration_row(c, tracked=False) for c in sorted(configs, key=lambda c: family_order(c["family"]))
     ]
     subtitle = (
         f"{len(rows)} runs, {len(configs)} configurations over {len({r['sequence'] for r in rows})} sequences"
@@ -1420,7 +1405,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         notes,
         title=f"depotbench sweep: {folder.name}",
         subtitle=subtitle,
-        best=Table(BEST_HEADER, best_rows),
+        best=Table([*CONFIG_HEADER, "tracked", "ms"], best_rows),
         against=against,
         unqualified_count=unqualified_count,
         unqualified=unqualified,
@@ -1429,7 +1414,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         pareto=pareto,
         difficulty=difficulty,
         families=family_sections,
-        configurations=Table(CONFIG_HEADER, all_rows),
+        configurations=Table([*CONFIG_HEADER, "ms"], all_rows),
     )
 
 
