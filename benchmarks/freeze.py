@@ -62,19 +62,12 @@ def main() -> None:
             "version (its name's number and version: field) and freeze that"
         )
     asked = expand(spec, path)
-    kept: dict[str, str | None] = {}
-    kept_on: dict[str, str | None] = {}
+    kept: dict[str, BenchSequence] = {}  # the old lock's entries whose spec is still asked
     if lock_path(path).is_file():
         try:
             old = load_benchmark(path)
-            kept = {s.folder: s.files_key for s in old.sequences}
-            kept_on = {s.folder: s.frozen_on for s in old.sequences}
-            old_specs = {s.folder: s.spec_key for s in old.sequences}
-            kept = {
-                k: v
-                for k, v in kept.items()
-                if any(a.folder == k and a.spec_key == old_specs[k] for a in asked)
-            }
+            specs = {(a.folder, a.spec_key) for a in asked}
+            kept = {s.folder: s for s in old.sequences if (s.folder, s.spec_key) in specs}
         except InputError as exc:
             print(f"the old lock is not read ({exc}); freezing anew", flush=True)
     started = time.perf_counter()
@@ -86,7 +79,8 @@ def main() -> None:
     frozen = []
     for sequence in asked:
         folder = root / sequence.folder
-        key, on = kept.get(sequence.folder), kept_on.get(sequence.folder)
+        before = kept.get(sequence.folder)
+        key, on = (before.files_key, before.frozen_on) if before is not None else (None, None)
         if is_complete(folder, sequence.spec_key):
             hashed = sequence_fingerprint(Sequence.open(folder))
             if key is not None and key != hashed:
