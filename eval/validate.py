@@ -272,6 +272,7 @@ def _model(
 
 def _sweep(path: Path, lint: Lint) -> str:
     from depotbench.eval.sweep.spec import SweepSpec
+
     spec = _model(SweepSpec, path, _read_yaml(path), lint)
     if spec is None:
         return ""
@@ -285,6 +286,7 @@ _BUDGET_LINE = re.compile(r": checks\.\d+: budgets\.")
 
 def _gates(path: Path, lint: Lint) -> str:
     from depotbench.eval.gates.budgets import GateFile, budget_problem
+
     data = _read_yaml(path)
     for i, check in enumerate(data.get("checks") or []):  # every budget, not the first of a check
         budgets = check.get("budgets") if isinstance(check, dict) else None
