@@ -10,7 +10,11 @@ FOLDER (``FOLDER/SCENARIO/NAME``, as ``benchmark run`` and ``benchmarks/calibrat
 lay them out) whose marker holds the asked spec key and leaves the others unfrozen (no
 files key): a long benchmark is frozen as its sequences are made. A files key already in
 the lock is kept for a sequence whose spec key is unchanged and that FOLDER does not hold;
-one FOLDER holds with other bytes stops the freeze (the same spec must give the same bytes).
+one FOLDER holds with other bytes stops the freeze (the same spec must give the same bytes),
+unless ``--replace`` says the reference machine changed: then each key FOLDER holds other
+bytes for is replaced by this machine's, and each key frozen on another machine that FOLDER
+does not hold is dropped (that sequence waits to be frozen here), so that a lock never mixes
+two machines' bytes (docs/benchmarks.md, "Where the keys hold").
 
 A benchmark is frozen once per version: when its sequences would change (a new generator),
 its file is copied to NAME-(VERSION+1).yaml and frozen anew; the old one stays for those
@@ -27,7 +31,6 @@ from pathlib import Path
 
 def main() -> None:
     from depotbench.core.errors import InputError
-    from depotbench.core.machine import machine_summary
     from depotbench.core.version import generator_version
     from depotbench.eval.benchmark.sequences import expand
     from depotbench.eval.benchmark.spec import (
@@ -40,6 +43,7 @@ def main() -> None:
     from depotbench.eval.run.detections import sequence_fingerprint
     from depotbench.scenes.generation import is_complete, run_suite
     from depotbench.scenes.schema import load_model
+    from depotbench.sim.machine import machine_summary
     from depotbench.sim.sequence import Sequence
 
     parser = argparse.ArgumentParser(
@@ -50,6 +54,11 @@ def main() -> None:
     where.add_argument("-o", "--output", type=Path, help="generate every sequence here, then hash it")
     where.add_argument("--sequences", type=Path, help="hash the complete sequences this folder holds")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--replace",
+        action="store_true",
+        help="the reference machine changed: keys frozen on another machine give way to this one's",
+    )
     args = parser.parse_args()
 
     from depotbench.core.examples import Kind, find
@@ -76,13 +85,18 @@ def main() -> None:
         for entry in spec.scenarios:
             run_suite(entry.suite(), path, root / entry.scenario, args.workers)
     here = machine_summary()
-    frozen = []
+    frozen, replaced, dropped = [], 0, 0
     for sequence in asked:
         folder = root / sequence.folder
         before = kept.get(sequence.folder)
         key, on = (before.files_key, before.frozen_on) if before is not None else (None, None)
-        if is_complete(folder, sequence.spec_key):
+        complete = is_complete(folder, sequence.spec_key)
+        if args.replace and key is not None and on != here and not complete:
+            key, on, dropped = None, None, dropped + 1
+        if complete:
             hashed = sequence_fingerprint(Sequence.open(folder))
+            if args.replace and key is not None and key != hashed:
+                key, on, replaced = None, None, replaced + 1
             if key is not None and key != hashed:
                 sys.exit(
                     f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the same "
@@ -97,9 +111,10 @@ def main() -> None:
         )
     write_lock(path, spec, frozen)
     done = sum(s.files_key is not None for s in frozen)
+    changed = f", {replaced} keys replaced and {dropped} dropped (another machine's)" if args.replace else ""
     print(
-        f"wrote {lock_path(path)}: {len(frozen)} sequences, {done} frozen, {len(frozen) - done} waiting "
-        f"({time.perf_counter() - started:.0f} s)"
+        f"wrote {lock_path(path)}: {len(frozen)} sequences, {done} frozen, {len(frozen) - done} waiting"
+        f"{changed} ({time.perf_counter() - started:.0f} s)"
     )
 
 

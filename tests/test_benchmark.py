@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import shlex
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from depotbench.core.examples import Kind, examples
 from depotbench.eval.benchmark.results import load_results, verify
 from depotbench.eval.benchmark.runner import MIN_REPEATS, repeats_for
 from depotbench.eval.benchmark.sequences import check_specs, prepare
-from depotbench.eval.benchmark.spec import load_benchmark
+from depotbench.eval.benchmark.spec import load_benchmark, lock_path
 from depotbench.eval.benchmark.table import csv_text, fresh_comparison, fresh_markdown, latex, markdown, rows
 from depotbench.eval.cli.main import main
 
@@ -87,6 +88,43 @@ def test_a_tampered_sequence_is_refused_naming_it(smoke: Path, tmp_path: Path):
     depth.write_bytes(sorted((copy / "smoke" / "smoke-0001" / "depth").iterdir())[5].read_bytes())
     with pytest.raises(InputError, match=r"smoke-0001: its files are not smoke-1's smoke/smoke-0001"):
         prepare(load_benchmark("smoke-1"), copy, workers=1, progress=False)
+
+
+def _freeze(path: Path, sequences: Path, *words: str) -> subprocess.CompletedProcess:
+    freeze = REPO / "benchmarks" / "freeze.py"
+    command = [sys.executable, str(freeze), str(path), "--sequences", str(sequences), *words]
+    return subprocess.run(command, capture_output=True, text=True, timeout=300)
+
+
+def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(smoke: Path, tmp_path: Path):
+    """A lock frozen elsewhere (other keys, another machine named): a plain freeze stops
+    naming both and writes nothing; ``--replace`` takes this machine's keys for the sequences
+    the folder holds and drops the one it does not, so no lock holds two machines' bytes."""
+    from depotbench.sim.machine import machine_summary
+
+    source = load_benchmark("smoke-1").path
+    shutil.copy(source, tmp_path / source.name)
+    lock = json.loads(lock_path(source).read_text())
+    for entry in lock["sequences"]:
+        entry["files_key"], entry["frozen_on"] = "0" * 32, "Xeon (avx2, no avx512); llvmpipe"
+    written = json.dumps(lock, indent=1)
+    lock_path(tmp_path / source.name).write_text(written)
+    folder = tmp_path / "sequences"
+    shutil.copytree(smoke / "sequences", folder)
+    shutil.rmtree(folder / "smoke" / "smoke-0002")
+
+    stopped = _freeze(tmp_path / source.name, folder)
+    assert stopped.returncode != 0 and "frozen before (00000000" in stopped.stderr
+    assert "on Xeon (avx2, no avx512); llvmpipe; this is " in stopped.stderr
+    assert lock_path(tmp_path / source.name).read_text() == written
+
+    replaced = _freeze(tmp_path / source.name, folder, "--replace")
+    assert replaced.returncode == 0, replaced.stderr
+    assert "2 frozen, 1 waiting, 2 keys replaced and 1 dropped" in replaced.stdout
+    after = load_benchmark(tmp_path / source.name).sequences
+    shipped = load_benchmark("smoke-1").sequences
+    assert [s.files_key for s in after] == [shipped[0].files_key, shipped[1].files_key, None]
+    assert [s.frozen_on for s in after] == [machine_summary(), machine_summary(), None]
 
 
 def test_a_benchmark_frozen_by_another_generator_is_refused_in_one_line(tmp_path: Path):

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 from depotbench.core.errors import InputError
-from depotbench.core.machine import machine_summary
 from depotbench.eval.benchmark import sequences as bench_sequences
 from depotbench.eval.benchmark.spec import load_benchmark, lock_path, write_lock
+from depotbench.sim.machine import machine_summary
 
 
 def _copy_of_smoke(tmp_path: Path) -> Path:
@@ -42,8 +42,12 @@ def test_the_summary_names_the_cpu_class_and_the_libraries_installed():
 
 def test_a_lock_keeps_each_sequences_machine_and_an_older_lock_names_none(tmp_path: Path):
     path = _copy_of_smoke(tmp_path)
+    data = json.loads(lock_path(path).read_text())
+    for entry in data["sequences"]:
+        del entry["frozen_on"]  # as a lock written before the field
+    lock_path(path).write_text(json.dumps(data))
     old = load_benchmark(path)
-    assert all(s.frozen_on is None for s in old.sequences)  # written before the field
+    assert all(s.frozen_on is None for s in old.sequences)
     marked = [s.__class__(**{**s.__dict__, "frozen_on": f"machine {i}"}) for i, s in enumerate(old.sequences)]
     write_lock(path, old.spec, marked)
     again = load_benchmark(path)

@@ -84,7 +84,7 @@ def prepare(
         path = root / sequence.folder
         key = sequence_fingerprint(Sequence.open(path))
         if sequence.files_key is not None and key != sequence.files_key:
-            from depotbench.core.machine import machine_summary
+            from depotbench.sim.machine import machine_summary
 
             frozen = sequence.frozen_on or "a machine the lock does not name"
             raise InputError(

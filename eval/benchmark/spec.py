@@ -92,7 +92,7 @@ class BenchSequence:
     files_key: str | None
     """None until the sequence is frozen (generated once and hashed)."""
     frozen_on: str | None = None
-    """The machine and libraries that froze it (``core.machine.machine_summary``); None in
+    """The machine and libraries that froze it (``sim.machine.machine_summary``); None in
     locks written before 0.8.0's last lock change."""
 
     @property
