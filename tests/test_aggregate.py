@@ -104,7 +104,8 @@ def test_the_best_table_keeps_its_columns_for_long_family_names_and_labels():
     rows = [_row(seed, ate, family=family, settings='{"k": 2.5}') for seed, ate in enumerate(ATES)]
     best = best_per_family(configurations(rows))
     lines = format_best(best, {"another family with a long name": 0.5}).splitlines()
-    header, row, missing = lines
+    header, rule, row, missing = lines
+    assert set(rule.strip()) == {"-"}
     assert row.startswith(family + "  ") and missing.startswith("another family with a long name  ")
     assert row.index(best[family]["label"]) == header.index("best configuration")
     assert row.split()[-1] == "4/4" and len(row) == len(header)
@@ -131,7 +132,7 @@ def test_the_best_table_lists_families_in_natural_order():
         for seed, ate in enumerate(ATES)
     ]
     lines = format_best(best_per_family(configurations(rows)), {"demo actors.0.count=10": 0.5}).splitlines()
-    assert [line.split()[1] for line in lines[1:4]] == [
+    assert [line.split()[1] for line in lines[2:5]] == [
         "actors.0.count=0",
         "actors.0.count=6",
         "actors.0.count=12",

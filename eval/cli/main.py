@@ -123,27 +123,32 @@ def _cmd_eval(args: argparse.Namespace) -> int:
 
 
 def format_comparison(result: Comparison) -> str:
+    from depotbench.core.text_table import Column, render
     from depotbench.eval.metrics.alignment import Alignment
 
     o = result.options
-    header = f"{'':18}" + "".join(f"{c:>11}" for c in ("rmse", "mean", "median", "std", "min", "max"))
-    header += f"{'count':>8}"
+    figures = ("rmse", "mean", "median", "std", "min", "max")
 
-    def row(label: str, s: Statistics) -> str:
+    def row(label: str, s: Statistics) -> list[str]:
         values = (s.rmse, s.mean, s.median, s.std, s.min, s.max)
-        return f"{label:18}" + "".join(f"{v:11.6f}" for v in values) + f"{s.count:8d}"
+        return [label, *(f"{v:.6f}" for v in values), str(s.count)]
 
     delta = f"{o.rpe_delta:g} {o.rpe_unit.value}{', all pairs' if o.rpe_all_pairs else ''}"
+    table = render(
+        [Column("", "left"), *(Column(f) for f in figures), Column("count")],
+        [
+            row("ATE (m)", result.ate.statistics),
+            row("RPE trans (m)", result.rpe.translation),
+            row("RPE rot (deg)", result.rpe.rotation_deg),
+        ],
+    )
     return "\n".join(
         [
             f"reference {result.reference_name}  estimate {result.estimate_name}",
             f"{result.pairs} associated pairs (window {o.max_diff_s} s), "
             f"alignment {o.alignment.value}"
             + (f" (scale {result.ate.transform.scale:.6f})" if o.alignment is Alignment.SIM3 else ""),
-            header,
-            row("ATE (m)", result.ate.statistics),
-            row("RPE trans (m)", result.rpe.translation),
-            row("RPE rot (deg)", result.rpe.rotation_deg),
+            table,
             f"RPE delta: {delta}",
         ]
     )

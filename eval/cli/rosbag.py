@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from depotbench.core.errors import EnvironmentProblem
+from depotbench.core.text_table import Column, render
 from depotbench.eval.cli.camera import add_camera_options, camera_from_args
 from depotbench.eval.cli.conventions import add_json, print_result
 
@@ -84,8 +85,8 @@ def _cmd_export_rosbag(args: argparse.Namespace) -> int:
     size_mb = summary.size_bytes / 1e6
     head = f"{summary.storage.value}, {summary.frames} frames, {messages} messages, {size_mb:.1f} MB"
     lines = [f"wrote {summary.path} ({head})"]
-    width = max(len(t.topic) for t in summary.topics)
-    lines += [f"  {t.topic:<{width}}  {t.msgtype:<34} {t.count:>6}" for t in summary.topics]
+    columns = [Column("topic", "left"), Column("type", "left"), Column("messages")]
+    lines.append(render(columns, [[t.topic, t.msgtype, str(t.count)] for t in summary.topics], indent=2))
     lines += [f"note: {note}" for note in summary.notes]
     lines.append(f"play it with: ros2 bag play {summary.path}")
     result = {

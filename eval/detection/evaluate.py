@@ -249,21 +249,31 @@ GROUP_ORDER = (
 
 
 def format_evaluation(report: dict) -> str:
+    from depotbench.core.text_table import Column, render
+
     def show(value: float | None) -> str:
         return "-" if value is None else f"{value:.3f}"
 
-    head = f"{'class':22s}{'truths':>7s}{'dets':>7s}{'prec':>7s}{'recall':>7s}{'AP50':>7s}"
-    lines = [head + "  recall by group (found/total)"]
+    rows = []
     for name, c in report["classes"].items():
         groups = "  ".join(
             f"{g} {c['recall_by_group'][g][0]}/{c['recall_by_group'][g][1]}"
             for g in GROUP_ORDER
             if g in c["recall_by_group"]
         )
-        lines.append(
-            f"{name:22s}{c['truths']:7d}{c['detections']:7d}{show(c['precision']):>7s}"
-            f"{show(c['recall']):>7s}{show(c['ap50']):>7s}  {groups}"
+        rows.append(
+            [
+                name,
+                str(c["truths"]),
+                str(c["detections"]),
+                show(c["precision"]),
+                show(c["recall"]),
+                show(c["ap50"]),
+                groups,
+            ]
         )
+    columns = [Column("class", "left"), *(Column(h) for h in ("truths", "dets", "prec", "recall", "AP50"))]
+    lines = [render([*columns, Column("recall by group (found/total)", "left")], rows)]
     lat = report["latency_ms"]
     if lat:
         lines.append(

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from depotbench.core.errors import InputError
+from depotbench.core.text_table import Column, render
 from depotbench.eval.metrics.figures import (
     DERIVED_COLUMNS,
     FIGURES,
@@ -387,24 +388,30 @@ def format_comparisons(name: str, result: SetComparison) -> str:
     lines = [name]
     if not result.comparisons:
         lines.append("  no configuration of the first set ran on the same sequences here")
-    block = None
+    columns = [Column("figure", "left"), Column("first"), Column("this"), Column("change")]
+    columns += [Column("95% interval"), Column("pairs"), Column("p(worse)"), Column("", "left")]
+    blocks: dict[tuple[str, str, str], list[list[str]]] = {}
     for c in result.comparisons:
-        if (c.family, c.base, c.other) != block:
-            block = (c.family, c.base, c.other)
-            config = c.base if c.base == c.other else f"{c.base} -> {c.other}"
-            lines.append(f"{c.family} · {config}" + (f" (differs: {c.differs})" if c.differs else ""))
-            lines.append(
-                f"  {'figure':24s} {'first':>9s} {'this':>9s} {'change':>9s} {'95% interval':>21s} "
-                f"{'pairs':>5s} {'p(worse)':>9s}"
-            )
         ch = c.change
         ratio = c.figure in RATIO
-        interval = f"[{change_text(ch.ci_low, ratio)}, {change_text(ch.ci_high, ratio)}]"
-        lines.append(
-            f"  {c.figure:24s} {value_text(c.base_mean):>9s} {value_text(c.other_mean):>9s} "
-            f"{change_text(ch.change, ratio):>9s} {interval:>21s} {ch.pairs:5d} "
-            f"{'-' if ch.p_worse is None else f'{ch.p_worse:.3g}':>9s}{' *' if c.significant else ''}"
+        blocks.setdefault((c.family, c.base, c.other), []).append(
+            [
+                c.figure,
+                value_text(c.base_mean),
+                value_text(c.other_mean),
+                change_text(ch.change, ratio),
+                f"[{change_text(ch.ci_low, ratio)}, {change_text(ch.ci_high, ratio)}]",
+                str(ch.pairs),
+                "-" if ch.p_worse is None else f"{ch.p_worse:.3g}",
+                "*" if c.significant else "",
+            ]
         )
+    differs = {(c.family, c.base, c.other): c.differs for c in result.comparisons}
+    for (family, base, other), rows in blocks.items():
+        config = base if base == other else f"{base} -> {other}"
+        why = differs[family, base, other]
+        lines.append(f"{family} · {config}" + (f" (differs: {why})" if why else ""))
+        lines.append(render(columns, rows, indent=2))
     if result.comparisons:
         significant = sum(c.significant for c in result.comparisons)
         total = len(result.comparisons)

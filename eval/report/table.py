@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from depotbench.core.text_table import Column, render
 from depotbench.eval.metrics.accuracy import improvement_rate
 
 
@@ -31,20 +32,35 @@ def summarise(runs: dict[str, dict[str, dict[str, Any]]]) -> list[dict[str, Any]
     return rows
 
 
+COLUMNS = [
+    Column("sequence", "left"),
+    Column("strategy", "left"),
+    Column("ATE rmse m"),
+    Column("rho %"),
+    Column("tracked"),
+    Column("precision"),
+    Column("recall"),
+    Column("track ms"),
+]
+
+
 def format_table(rows: list[dict[str, Any]]) -> str:
     def show(value: Any, fmt: str) -> str:
-        width = int(fmt.split(".")[0])
-        return "-".rjust(width) if value is None else format(value, fmt)
+        return "-" if value is None else format(value, fmt)
 
-    header = (
-        f"{'sequence':14s} {'strategy':18s} {'ATE rmse m':>11s} {'rho %':>7s} {'tracked':>8s} "
-        f"{'precision':>9s} {'recall':>7s} {'track ms':>9s}"
+    return render(
+        COLUMNS,
+        [
+            [
+                r["sequence"],
+                r["strategy"],
+                show(r["ate_rmse_m"], ".4f"),
+                show(r["rho_percent"], ".1f"),
+                r["tracked"],
+                show(r["precision"], ".3f"),
+                show(r["recall"], ".3f"),
+                show(r["tracking_ms"], ".1f"),
+            ]
+            for r in rows
+        ],
     )
-    lines = [header, "-" * len(header)]
-    for r in rows:
-        lines.append(
-            f"{r['sequence']:14s} {r['strategy']:18s} {show(r['ate_rmse_m'], '11.4f')} "
-            f"{show(r['rho_percent'], '7.1f')} {r['tracked']:>8s} {show(r['precision'], '9.3f')} "
-            f"{show(r['recall'], '7.3f')} {show(r['tracking_ms'], '9.1f')}"
-        )
-    return "\n".join(lines)

@@ -763,29 +763,32 @@ def _shown(value: Any) -> str:
 
 
 def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | None = None) -> str:
-    """The best configuration per family; ``held``: its runs that succeeded, of all. Columns
-    are as wide as their longest entry: a suite's family names reach 40 characters."""
-    names = {
-        family: f"{c.get('label') or configuration_label('builtin', {}, c['strategy'], c['settings'])} "
-        f"({c['detector']})"
-        for family, c in best.items()
-    }
-    fw = max([len("family"), *(len(f) for f in [*best, *(missing or {})])]) + 2
-    nw = max([len("best configuration"), *(len(n) for n in names.values())]) + 2
-    lines = [
-        f"{'family':{fw}s}{'best configuration':{nw}s}{'ATE m':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
-        f"{'held':>7s}"
-    ]
+    """The best configuration per family; ``held``: its runs that succeeded, of all. A family
+    where no configuration held on enough seeds is a line of its own under the table."""
+    from depotbench.core.text_table import Column, render
+
+    def show(value: float | None, fmt: str) -> str:
+        return "-" if value is None else format(value, fmt)
+
+    rows = []
     for family in sorted_families(best):  # natural order: count=6 before count=12
         c = best[family]
-        rho = "-" if c["rho_percent"] is None else f"{c['rho_percent']:.1f}"
-        prec = "-" if c["rejection_precision"] is None else f"{c['rejection_precision']:.3f}"
-        rec = "-" if c["rejection_recall"] is None else f"{c['rejection_recall']:.3f}"
-        held = f"{c['successes']}/{c['runs']}" if "runs" in c else "-"
-        lines.append(
-            f"{family:{fw}s}{names[family]:{nw}s}{c['ate_rmse_m']:9.4f}{rho:>8s}{prec:>7s}{rec:>7s}{held:>7s}"
+        label = c.get("label") or configuration_label("builtin", {}, c["strategy"], c["settings"])
+        rows.append(
+            [
+                family,
+                f"{label} ({c['detector']})",
+                f"{c['ate_rmse_m']:.4f}",
+                show(c["rho_percent"], ".1f"),
+                show(c["rejection_precision"], ".3f"),
+                show(c["rejection_recall"], ".3f"),
+                f"{c['successes']}/{c['runs']}" if "runs" in c else "-",
+            ]
         )
+    columns = [Column("family", "left"), Column("best configuration", "left")]
+    columns += [Column(h) for h in ("ATE m", "rho %", "prec", "recall", "held")]
+    lines = [render(columns, rows)] if rows else []
     for family in sorted_families(missing or {}):
         rate = (missing or {})[family]
-        lines.append(f"{family:{fw}s}(no configuration held on enough seeds: the best held on {rate:.0%})")
+        lines.append(f"{family}  (no configuration held on enough seeds: the best held on {rate:.0%})")
     return "\n".join(lines)
