@@ -14,8 +14,9 @@ demo: $(VENV)/.installed
 	$(BIN)/depotbench demo
 
 # Test files run side by side, one worker per core (at most 4: each renders with Mesa
-# and holds MuJoCo, ONNX Runtime and sometimes Ray); a file's tests stay in one worker.
-SIDE_BY_SIDE := -n logical --maxprocesses 4 --dist loadfile
+# and holds MuJoCo, ONNX Runtime and sometimes Ray); a file's tests stay in one worker,
+# and the heaviest files go first (tests/conftest.py: FILE_SECONDS).
+SIDE_BY_SIDE := -n logical --maxprocesses 4 --dist loadfile --no-loadscope-reorder
 
 # The documentation site (MkDocs with Material, mkdocs.yml): any warning, such as a broken
 # link or anchor, fails the build, and make test builds it too.

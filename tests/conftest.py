@@ -37,6 +37,61 @@ def tum_trajectories() -> Path:
     return TUM_TRAJECTORIES
 
 
+FILE_SECONDS = {
+    "test_sim.py": 81,
+    "test_report_plots.py": 66,
+    "test_benchmark.py": 60,
+    "test_kill.py": 30,
+    "test_slam.py": 53,
+    "test_api.py": 52,
+    "test_stages.py": 50,
+    "test_external_sweeps.py": 46,
+    "test_package.py": 12,
+    "test_example_trackers.py": 40,
+    "test_kernels.py": 39,
+    "test_figures.py": 38,
+    "test_detectors.py": 34,
+    "test_output.py": 33,
+    "test_fuzz.py": 33,
+    "test_gates.py": 30,
+    "test_benchmarks.py": 30,
+    "test_reuse.py": 29,
+    "test_report.py": 26,
+    "test_pytest_plugin.py": 26,
+    "test_full_disk.py": 25,
+    "test_slam_split.py": 24,
+    "test_report_hostile.py": 23,
+    "test_compare.py": 23,
+    "test_map_metrics.py": 22,
+    "test_rows.py": 21,
+    "test_dense_runs.py": 20,
+    "test_tum_people.py": 18,
+    "test_sweep.py": 18,
+    "test_cli_conventions.py": 18,
+    "test_report_geometry.py": 17,
+    "test_tum_sensor.py": 15,
+    "test_report_cache.py": 15,
+    "test_trackers.py": 14,
+    "test_keys.py": 14,
+    "test_hostile_templates.py": 14,
+    "test_rosbag.py": 12,
+    "test_hostile_inputs.py": 12,
+    "test_fidelity_benchmark.py": 12,
+    "test_baseline.py": 11,
+    "test_local_mapping.py": 10,
+    "test_cli.py": 9,
+}
+"""Seconds each of the heaviest test files took (``make test``'s run of 2026-12-02, 2 workers,
+from its JUnit XML); the rest took under 8 s each. Files run heaviest first, so that no
+worker is left at the end with a long file while the other waits: pytest-xdist's own order
+(most tests first) put test_kill.py, one test of 55 s, last."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Each file's tests stay together and in their order; the files go heaviest first."""
+    items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0))
+
+
 CACHE_VARIABLES = (
     "DEPOTBENCH_CACHE_STAGES",
     "DEPOTBENCH_CACHE_VOCABULARY",
