@@ -550,24 +550,25 @@ def _compilation_note(rows: list[ScoredRun], metric: str) -> str:
 
 
 def format_report(report: GateReport) -> str:
-    """One line per (check, run): each budget as metric value (limit), failures marked."""
-    lines = [f"{'check':24s} {'result':6s} run / budgets"]
+    """A row per (check, run): the run, and under it each budget as metric value (limit),
+    failures marked ``!!``; a check no run matches is a row of its own."""
+    from depotbench.core.text_table import Column, render
+
+    rows = []
     for result in report.results:
         budgets = "  ".join(
             f"{'' if v.passed else '!!'}{v.metric} {'missing' if v.value is None else f'{v.value:.4g}'} "
             f"({','.join(v.bound.limits(space=''))}{', ' + v.note if v.note else ''})"
             for v in result.verdicts
         )
-        lines.append(f"{result.check:24s} {'pass' if result.passed else 'FAIL':6s} {result.row}")
-        lines.append(f"{'':31s} {budgets}")
-    for check in report.empty_checks:
-        lines.append(f"{check:24s} FAIL   (no run matches this check)")
+        rows.append([result.check, "pass" if result.passed else "FAIL", f"{result.row}\n{budgets}"])
+    rows += [[check, "FAIL", "(no run matches this check)"] for check in report.empty_checks]
+    columns = [Column("check", "left"), Column("result", "left"), Column("run / budgets", "left")]
     failed = len(report.failures)
-    lines.append(
-        f"{report.gates}: {within_budget(report)}"
-        + (f"; {failed} budget(s) failed" if failed else "; all budgets held")
+    summary = f"{report.gates}: {within_budget(report)}" + (
+        f"; {failed} budget(s) failed" if failed else "; all budgets held"
     )
-    return "\n".join(lines)
+    return "\n".join([render(columns, rows), summary]) if rows else summary
 
 
 def within_budget(report: GateReport) -> str:
