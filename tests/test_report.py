@@ -34,9 +34,10 @@ def run_folder(walking: Path, tmp_path_factory) -> Path:
     return out
 
 
-def _open_in_chromium(page_path: Path, screenshot: Path) -> dict:
-    """Load the page in headless Chromium; return console errors, page errors and image states
-    (natural and rendered sizes, in CSS pixels)."""
+def _open_in_chromium(page_path: Path, screenshot: Path, width: int = 1400) -> dict:
+    """Load the page in headless Chromium ``width`` CSS pixels wide; return console errors,
+    page errors, image states (natural and rendered sizes, in CSS pixels), and the sections
+    whose content runs past their own edge (``overflowing``: their headings)."""
     playwright = pytest.importorskip("playwright.sync_api")
     executable = next((shutil.which(b) for b in BROWSERS if shutil.which(b)), None)
     if executable is None:
@@ -44,7 +45,7 @@ def _open_in_chromium(page_path: Path, screenshot: Path) -> dict:
     errors: list[str] = []
     with playwright.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=executable, args=["--no-sandbox"])
-        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page = browser.new_page(viewport={"width": width, "height": 1000})
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
         page.on("pageerror", lambda e: errors.append(str(e)))
         page.on("requestfailed", lambda r: errors.append(f"request failed: {r.url}"))
@@ -57,10 +58,23 @@ def _open_in_chromium(page_path: Path, screenshot: Path) -> dict:
             " shownHeight: i.getBoundingClientRect().height, top: i.getBoundingClientRect().top}))"
         )
         headings = page.evaluate("() => Array.from(document.querySelectorAll('h2')).map(h => h.textContent)")
+        overflowing = page.evaluate(
+            "() => Array.from(document.querySelectorAll('section'))"
+            ".filter(s => s.scrollWidth > s.clientWidth)"
+            ".map(s => (s.querySelector('h2') || s).textContent.slice(0, 60))"
+        )
+        page_width = page.evaluate("() => document.documentElement.scrollWidth")
         page.screenshot(path=str(screenshot), full_page=True)
         browser.close()
     external = [u for u in requests if not u.startswith(("file:", "data:"))]
-    return {"errors": errors, "images": images, "headings": headings, "external": external}
+    return {
+        "errors": errors,
+        "images": images,
+        "headings": headings,
+        "external": external,
+        "overflowing": overflowing,
+        "page_width": page_width,
+    }
 
 
 def test_run_report_opens_in_chromium_with_its_plots(run_folder: Path, tmp_path: Path):

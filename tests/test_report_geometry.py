@@ -302,3 +302,20 @@ def test_the_page_is_its_templates_output_with_every_text_escaped():
     css = resources.files("depotbench.eval.report.templates").joinpath("report.css").read_text()
     assert css.strip() in page and "align-items: flex-start" in css
     assert page.index("Left out") < page.index("<h2>Run</h2>")  # what is left out comes first
+
+
+def test_a_table_wider_than_the_window_scrolls_inside_its_section(tmp_path: Path):
+    """The sweep page's best-configuration table has ten columns (about 1000 px): at the
+    README screenshot's 832 px it ran past its section, two columns cut off at the edge.
+    Every page writes its tables with one macro; here the compare page's template."""
+    from depotbench.eval.report.page import Table, render
+
+    wide = Table(
+        header=["family", "configuration", *(f"figure {i}" for i in range(10))],
+        rows=[["demo: actors[0].count = 12", "box_epipolar_flow epsilon_px=0.5", *(1234.5678,) * 10]],
+    )
+    page = tmp_path / "wide.html"
+    sections = [{"heading": "Wide", "table": wide}]
+    page.write_text(render("compare_page.html.j2", title="t", subtitle="", notes=[], sections=sections))
+    shown = _open_in_chromium(page, tmp_path / "wide.png", width=700)
+    assert shown["errors"] == [] and shown["overflowing"] == [] and shown["page_width"] <= 700
