@@ -39,7 +39,7 @@ def tum_trajectories() -> Path:
 
 FILE_SECONDS = {
     "test_sim.py": 81,
-    "test_report_plots.py": 66,
+    "test_report_plots.py": 52,
     "test_benchmark.py": 60,
     "test_kill.py": 30,
     "test_slam.py": 53,
