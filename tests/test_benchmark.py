@@ -148,6 +148,9 @@ def test_the_builtin_tracker_runs_once_and_repeating_it_changes_nothing(smoke: P
     first = _bench(smoke, tmp_path / "a", "--strategy", "box_epipolar_flow")
     again = _bench(smoke, tmp_path / "b", "--strategy", "box_epipolar_flow")
     assert first["repeats"] == 1 and first["tracker"]["deterministic"]
+    from depotbench.sim.machine import machine_summary
+
+    assert first["scored_on"] == machine_summary()  # the machine it was scored on, by name
     for one, two in zip(first["sequences"], again["sequences"], strict=True):
         assert [r["trajectory_sha256"] for r in one["runs"]] == [r["trajectory_sha256"] for r in two["runs"]]
         a = (tmp_path / "a" / one["runs"][0]["folder"] / "trajectory.txt").read_bytes()

@@ -25,6 +25,7 @@ from depotbench.eval.benchmark.results import FORMAT, FORMAT_VERSION, figures_of
 from depotbench.eval.benchmark.sequences import Prepared, draw_fresh_seeds, prepare, prepare_fresh
 from depotbench.eval.benchmark.spec import Benchmark
 from depotbench.eval.run.harness import RunJob
+from depotbench.sim.machine import machine_summary
 
 LOG = logging.getLogger(__name__)
 RESULTS_NAME = "results.json"
@@ -276,6 +277,9 @@ def run_benchmark(
         "benchmark": benchmark.name,
         "benchmark_generator": benchmark.spec.generator,
         "depotbench": generator_version(),
+        # where it was scored: a tracker's outcome on a hard sequence moves with its pixels
+        # and BLAS (crowd's last poses by 0.47 m between two CPUs, docs/determinism.md)
+        "scored_on": machine_summary(),
         "tracker": {
             "label": tracker.label,
             "kind": tracker.kind,
