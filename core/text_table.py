@@ -1,12 +1,12 @@
 """Fixed-width tables for the terminal and CI logs, drawn by ``rich``.
 
-Every command that prints a table (``eval``, a sweep's best configurations, ``compare``,
-``detect``'s per-class figures, ``export-rosbag``'s topics, ``benchmarks/strategies.py``)
-draws it here, so that columns line up however long a family's name or a label is (a
-suite's family names reach 40 characters) and every table reads alike: a header, a rule of
-ASCII dashes under it (a log read with another encoding still shows it), and the rows; no
-colour, no wrapping. Cells are text, never rich markup: a label
-with ``[k]`` in it is printed as written.
+Every command that prints a table (``eval``, a sweep's best configurations, the gates,
+``compare``, ``detect-eval``'s per-class figures, ``export-rosbag``'s topics,
+``benchmarks/strategies.py``) draws it here, so that columns line up however long a
+family's name or a label is (a suite's family names reach 40 characters) and every table
+reads alike: a header, a rule of ASCII dashes under it (a log read with another encoding
+still shows it), and the rows; no colour, no wrapping. Cells are text, never rich markup:
+a label with ``[k]`` in it is printed as written.
 """
 
 from __future__ import annotations
