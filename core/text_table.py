@@ -22,6 +22,11 @@ class Column:
     align: Literal["left", "right"] = "right"
 
 
+def cell(value: float | None, fmt: str) -> str:
+    """A figure as a table shows it: formatted, or a dash where there is none."""
+    return "-" if value is None else format(value, fmt)
+
+
 def render(columns: list[Column], rows: list[list[str]], indent: int = 0) -> str:
     """The table as lines of one width (no trailing newline), each ``indent`` spaces in."""
     from rich.box import Box

@@ -249,10 +249,7 @@ GROUP_ORDER = (
 
 
 def format_evaluation(report: dict) -> str:
-    from depotbench.core.text_table import Column, render
-
-    def show(value: float | None) -> str:
-        return "-" if value is None else f"{value:.3f}"
+    from depotbench.core.text_table import Column, cell, render
 
     rows = []
     for name, c in report["classes"].items():
@@ -266,9 +263,9 @@ def format_evaluation(report: dict) -> str:
                 name,
                 str(c["truths"]),
                 str(c["detections"]),
-                show(c["precision"]),
-                show(c["recall"]),
-                show(c["ap50"]),
+                cell(c["precision"], ".3f"),
+                cell(c["recall"], ".3f"),
+                cell(c["ap50"], ".3f"),
                 groups,
             ]
         )

@@ -390,11 +390,11 @@ def format_comparisons(name: str, result: SetComparison) -> str:
         lines.append("  no configuration of the first set ran on the same sequences here")
     columns = [Column("figure", "left"), Column("first"), Column("this"), Column("change")]
     columns += [Column("95% interval"), Column("pairs"), Column("p(worse)"), Column("", "left")]
-    blocks: dict[tuple[str, str, str], list[list[str]]] = {}
+    blocks: dict[tuple[str, str, str, str], list[list[str]]] = {}  # family, base, other, differs
     for c in result.comparisons:
         ch = c.change
         ratio = c.figure in RATIO
-        blocks.setdefault((c.family, c.base, c.other), []).append(
+        blocks.setdefault((c.family, c.base, c.other, c.differs), []).append(
             [
                 c.figure,
                 value_text(c.base_mean),
@@ -406,10 +406,8 @@ def format_comparisons(name: str, result: SetComparison) -> str:
                 "*" if c.significant else "",
             ]
         )
-    differs = {(c.family, c.base, c.other): c.differs for c in result.comparisons}
-    for (family, base, other), rows in blocks.items():
+    for (family, base, other, why), rows in blocks.items():
         config = base if base == other else f"{base} -> {other}"
-        why = differs[family, base, other]
         lines.append(f"{family} · {config}" + (f" (differs: {why})" if why else ""))
         lines.append(render(columns, rows, indent=2))
     if result.comparisons:

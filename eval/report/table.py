@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from depotbench.core.text_table import Column, render
+from depotbench.core.text_table import Column, cell, render
 from depotbench.eval.metrics.accuracy import improvement_rate
 
 
@@ -45,21 +45,18 @@ COLUMNS = [
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    def show(value: Any, fmt: str) -> str:
-        return "-" if value is None else format(value, fmt)
-
     return render(
         COLUMNS,
         [
             [
                 r["sequence"],
                 r["strategy"],
-                show(r["ate_rmse_m"], ".4f"),
-                show(r["rho_percent"], ".1f"),
+                cell(r["ate_rmse_m"], ".4f"),
+                cell(r["rho_percent"], ".1f"),
                 r["tracked"],
-                show(r["precision"], ".3f"),
-                show(r["recall"], ".3f"),
-                show(r["tracking_ms"], ".1f"),
+                cell(r["precision"], ".3f"),
+                cell(r["recall"], ".3f"),
+                cell(r["tracking_ms"], ".1f"),
             ]
             for r in rows
         ],

@@ -765,10 +765,7 @@ def _shown(value: Any) -> str:
 def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | None = None) -> str:
     """The best configuration per family; ``held``: its runs that succeeded, of all. A family
     where no configuration held on enough seeds is a line of its own under the table."""
-    from depotbench.core.text_table import Column, render
-
-    def show(value: float | None, fmt: str) -> str:
-        return "-" if value is None else format(value, fmt)
+    from depotbench.core.text_table import Column, cell, render
 
     rows = []
     for family in sorted_families(best):  # natural order: count=6 before count=12
@@ -779,9 +776,9 @@ def format_best(best: dict[str, dict[str, Any]], missing: dict[str, float] | Non
                 family,
                 f"{label} ({c['detector']})",
                 f"{c['ate_rmse_m']:.4f}",
-                show(c["rho_percent"], ".1f"),
-                show(c["rejection_precision"], ".3f"),
-                show(c["rejection_recall"], ".3f"),
+                cell(c["rho_percent"], ".1f"),
+                cell(c["rejection_precision"], ".3f"),
+                cell(c["rejection_recall"], ".3f"),
                 f"{c['successes']}/{c['runs']}" if "runs" in c else "-",
             ]
         )
