@@ -44,6 +44,7 @@ from types import TracebackType
 
 from depotbench.core.errors import InputError
 from depotbench.core.files import read_json
+from depotbench.core.processes import deliver_held
 
 MARKER_NAME = ".depotbench.json"
 MARKER_MAX_BYTES = 64 * 1024
@@ -348,6 +349,7 @@ def _os_error(path: Path, exc: OSError) -> OutputError:
 
 def _claim(shown: Path, inputs: tuple[Path, ...]) -> tuple[Path, OutputLock]:
     """Check a target, make its parent and take its lock: what every writer does first."""
+    deliver_held()  # a Ctrl-C from the imports ends the command before it writes
     target = check_target(shown, inputs)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -94,6 +94,10 @@ def _importing(frame: object) -> bool:
     return False
 
 
+_HOLDING: list[OutsideImports] = []
+"""Handlers holding a signal that came during an import, until it is delivered."""
+
+
 class OutsideImports:
     """A signal handler that raises ``exception`` at once, except inside an import.
 
@@ -101,28 +105,55 @@ class OutsideImports:
     initialization failed" (MuJoCo's, SciPy's pybind11 modules), or swallowed by a library's
     optional import, so a Ctrl-C then gave a traceback or was lost and the command ran on.
     Inside an import the signal is held and delivered again (``_thread.interrupt_main``) as
-    soon as the main thread is out of every import.
+    soon as the main thread is out of every import, or earlier, where the program is about
+    to write (``deliver_held``).
     """
 
     def __init__(self, exception: type[BaseException]) -> None:
         self.exception = exception
+        self._lock = threading.Lock()
         self._held = False
 
     def __call__(self, signum: int, frame: object) -> None:
         if frame is not None and _importing(frame):
-            if not self._held:
+            with self._lock:
+                if self._held:
+                    return
                 self._held = True
-                threading.Thread(target=self._redeliver, args=(signum,), daemon=True).start()
+                _HOLDING.append(self)
+            threading.Thread(target=self._redeliver, args=(signum,), daemon=True).start()
             return
-        self._held = False
+        self._release()
         raise self.exception
+
+    def _release(self) -> bool:
+        """Take the held signal for delivery; False where it was delivered already."""
+        with self._lock:
+            held, self._held = self._held, False
+            if held:
+                _HOLDING.remove(self)
+            return held
 
     def _redeliver(self, signum: int) -> None:
         import _thread
         import sys
 
         main = threading.main_thread().ident
-        while _importing(sys._current_frames().get(main)):
+        while self._held and _importing(sys._current_frames().get(main)):
             time.sleep(IMPORT_POLL_S)
-        self._held = False
-        _thread.interrupt_main(signum)
+        if self._release():
+            _thread.interrupt_main(signum)
+
+
+def deliver_held() -> None:
+    """Raise a signal held during an import now, in the main thread.
+
+    The thread that delivers it polls every ``IMPORT_POLL_S``; on a loaded machine the
+    command ran on past its imports in that gap and made its output folder before the
+    Ctrl-C arrived (CI, one run in several). Every writer calls this first, so a Ctrl-C
+    from the imports ends the command before anything is written.
+    """
+    if threading.current_thread() is threading.main_thread() and _HOLDING:
+        held = _HOLDING[0]
+        if held._release():
+            raise held.exception

@@ -96,3 +96,42 @@ def test_a_pool_interrupted_before_its_first_job_leaves_no_semaphores(tmp_path: 
     )
     assert result.returncode == 130
     assert result.stderr == ""
+
+
+HELD_PAST_ITS_IMPORT = """
+import signal, sys
+from pathlib import Path
+
+from depotbench.core import processes
+from depotbench.core.output import OutputContainer, OutputKind
+
+processes.IMPORT_POLL_S = 30.0  # the delivering thread as late as a loaded machine made it
+signal.signal(signal.SIGINT, processes.OutsideImports(KeyboardInterrupt))
+
+class CtrlC:
+    def find_spec(self, name, path=None, target=None):
+        if name == "colorsys":
+            signal.raise_signal(signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, CtrlC())
+import colorsys  # the Ctrl-C comes inside this import and is held
+try:
+    with OutputContainer(Path(sys.argv[1]), OutputKind.SWEEP):
+        print("wrote")
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+def test_a_ctrl_c_held_in_an_import_ends_the_command_before_its_first_output(tmp_path: Path):
+    """CI, one run in several: the thread that hands on a Ctrl-C held during an import polls
+    every 20 ms, and on a loaded machine ``check`` made its folder in that gap. Every
+    writer now delivers a held Ctrl-C before it writes, however late that thread is."""
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [sys.executable, "-c", HELD_PAST_ITS_IMPORT, str(out)],
+        cwd=REPO, capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert (result.returncode, result.stdout, result.stderr) == (130, "", "")
+    assert not out.exists()
