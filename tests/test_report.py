@@ -34,10 +34,11 @@ def run_folder(walking: Path, tmp_path_factory) -> Path:
     return out
 
 
-def _open_in_chromium(page_path: Path, screenshot: Path, width: int = 1400) -> dict:
+def _open_in_chromium(page_path: Path, screenshot: Path, width: int = 1400, probe: str | None = None) -> dict:
     """Load the page in headless Chromium ``width`` CSS pixels wide; return console errors,
-    page errors, image states (natural and rendered sizes, in CSS pixels), and the sections
-    whose content runs past their own edge (``overflowing``: their headings)."""
+    page errors, image states (natural and rendered sizes, in CSS pixels), the sections
+    whose content runs past their own edge (``overflowing``: their headings), and what the
+    JavaScript function ``probe`` gives on the page."""
     playwright = pytest.importorskip("playwright.sync_api")
     executable = next((shutil.which(b) for b in BROWSERS if shutil.which(b)), None)
     if executable is None:
@@ -64,6 +65,7 @@ def _open_in_chromium(page_path: Path, screenshot: Path, width: int = 1400) -> d
             ".map(s => (s.querySelector('h2') || s).textContent.slice(0, 60))"
         )
         page_width = page.evaluate("() => document.documentElement.scrollWidth")
+        probed = page.evaluate(probe) if probe is not None else None
         page.screenshot(path=str(screenshot), full_page=True)
         browser.close()
     external = [u for u in requests if not u.startswith(("file:", "data:"))]
@@ -74,6 +76,7 @@ def _open_in_chromium(page_path: Path, screenshot: Path, width: int = 1400) -> d
         "external": external,
         "overflowing": overflowing,
         "page_width": page_width,
+        "probe": probed,
     }
 
 

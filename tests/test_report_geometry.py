@@ -319,3 +319,38 @@ def test_a_table_wider_than_the_window_scrolls_inside_its_section(tmp_path: Path
     page.write_text(render("compare_page.html.j2", title="t", subtitle="", notes=[], sections=sections))
     shown = _open_in_chromium(page, tmp_path / "wide.png", width=700)
     assert shown["errors"] == [] and shown["overflowing"] == [] and shown["page_width"] <= 700
+
+
+def test_words_are_set_flush_left_and_figures_flush_right_under_their_headers(tmp_path: Path):
+    """Issue 54: every cell but the first column's was right-aligned, so a column of
+    detector names was ragged on its left under a header set right. A column whose every
+    filled cell is words is now flush left with its header; figures, and strings that read
+    as figures ("19/20", "-3.1 %"), stay flush right. Read from Chromium's computed style."""
+    from depotbench.eval.report.page import Table, render
+
+    table = Table(
+        header=["configuration", "detector", "ATE (m)", "tracked", "change", "note"],
+        rows=[
+            ["none", "groundtruth", 0.0123, "19/20", "-3.1 %", None],
+            ["box_rule k=2", "yolox-nano+faults", 0.5, "20/20", "+12 %", "lost at frame 4"],
+        ],
+    )
+    assert table.words == [False, True, False, False, False, True]  # the first column: the stylesheet's
+    page = tmp_path / "aligned.html"
+    page.write_text(
+        render(
+            "compare_page.html.j2",
+            title="t",
+            subtitle="",
+            notes=[],
+            sections=[{"heading": "T", "table": table}],
+        )
+    )
+    probe = (
+        "() => Array.from(document.querySelectorAll('table tr')).map(r => "
+        "Array.from(r.children).map(c => getComputedStyle(c).textAlign))"
+    )
+    shown = _open_in_chromium(page, tmp_path / "aligned.png", width=1000, probe=probe)
+    assert shown["errors"] == []
+    columns = ["left", "left", "right", "right", "right", "left"]
+    assert shown["probe"] == [columns] * 3, shown["probe"]

@@ -25,6 +25,18 @@ class Table:
     header: list[str]
     rows: list[list[Any]]
 
+    @property
+    def words(self) -> list[bool]:
+        """Per column, whether it holds words (in every cell that is not empty): such a column
+        and its header are set flush left, where figures stay flush right. The first column
+        is always flush left (the stylesheet's rule), so it is not marked."""
+
+        def of(k: int) -> bool:
+            cells = [row[k] for row in self.rows if k < len(row) and row[k] is not None]
+            return k > 0 and bool(cells) and all(is_words(c) for c in cells)
+
+        return [of(k) for k in range(len(self.header))]
+
 
 @dataclass(frozen=True)
 class Image:
@@ -51,6 +63,15 @@ class Mean:
 def number(value: float, digits: int = 4) -> str:
     """Four significant digits; a figure that is not finite is a dash, as a missing one is."""
     return f"{value:.{digits}g}" if math.isfinite(value) else "–"
+
+
+def is_words(value: object) -> bool:
+    """Whether a table cell holds words (a strategy, a detector, a scenario) rather than a
+    figure: a number, or a string that reads as one ("19/20", "-3.1 %", "12 ms")."""
+    if not isinstance(value, str) or not value.strip():
+        return False
+    head = value.strip().lstrip("+-−–~≈<>≤≥").lstrip()
+    return not (head[:1].isdigit() or head[:1] == ".")
 
 
 def _template_source(name: str) -> str:
