@@ -106,14 +106,21 @@ def moving_labels(sequence: Sequence, keypoints_px: tuple[np.ndarray, ...]) -> l
     ]
 
 
+SLOW = pytest.mark.slow
 CASES = [
-    # (scenario, strategy, detector faults, parameters as a sweep writes them to JSON)
-    ("smoke", "box_rule", None, {}),
+    # (scenario, strategy, detector faults, parameters as a sweep writes them to JSON); the
+    # default run keeps one case a scenario that together hold both strategies, both
+    # detectors and the whole-float setting
+    pytest.param("smoke", "box_rule", None, {}, marks=SLOW),
     ("smoke", "box_epipolar_flow", FAULTED, {"epsilon_px": 0.5}),
-    ("walking_static", "box_rule", FAULTED, {"box_dilation_px": 4.0, "min_confidence": 0.6}),
+    pytest.param(
+        "walking_static", "box_rule", FAULTED, {"box_dilation_px": 4.0, "min_confidence": 0.6}, marks=SLOW
+    ),
     ("walking_static", "box_epipolar_flow", None, {}),
     ("dog_and_cat_roaming", "box_rule", None, {"n_features": 600.0}),  # a whole float: an int setting
-    ("dog_and_cat_roaming", "box_epipolar_flow", FAULTED, {"l_thr1_px": 1.5, "n_features": 800}),
+    pytest.param(
+        "dog_and_cat_roaming", "box_epipolar_flow", FAULTED, {"l_thr1_px": 1.5, "n_features": 800}, marks=SLOW
+    ),
 ]
 
 
@@ -121,7 +128,10 @@ CASES = [
 @pytest.mark.parametrize(
     ("scenario", "strategy", "faults", "parameters"),
     CASES,
-    ids=[f"{c[0]}-{c[1]}-{'faulted' if c[2] else 'groundtruth'}" for c in CASES],
+    ids=[
+        f"{c[0]}-{c[1]}-{'faulted' if c[2] else 'groundtruth'}"
+        for c in (case.values if hasattr(case, "values") else case for case in CASES)
+    ],
 )
 def test_the_wrapped_builtin_tracker_gives_the_builtin_run_exactly(
     generated, tmp_path: Path, scenario: str, strategy: str, faults: dict | None, parameters: dict

@@ -842,14 +842,14 @@ def walking_seq(tmp_path_factory) -> Path:
     from depotbench.scenes.schema import to_scenario
     from depotbench.sim.generate import generate
 
-    scenario = library.get("walking_xyz").model_copy(update={"frames": 40, "duration_s": None, "seed": 3})
+    scenario = library.get("walking_xyz").model_copy(update={"frames": 25, "duration_s": None, "seed": 3})
     return generate(to_scenario(scenario), tmp_path_factory.mktemp("walking") / "seq", progress=False)
 
 
 @pytest.mark.render
 @pytest.mark.parametrize("strategy", ["none", "box_epipolar_flow"])
 def test_the_tracker_gives_the_same_trajectory_on_both_paths(walking_seq: Path, strategy: str, path):
-    """40 frames of walking_xyz tracked with DEPOTBENCH_KERNELS=numpy and =numba: the same
+    """25 frames of walking_xyz tracked with DEPOTBENCH_KERNELS=numpy and =numba: the same
     states, keyframes and rejections, poses within 1e-9 (measured 6e-15 over 150 frames)."""
     from depotbench.detectors.config import DetectorConfig
     from depotbench.eval.run.detections import detect_sequence
@@ -869,7 +869,7 @@ def test_the_tracker_gives_the_same_trajectory_on_both_paths(walking_seq: Path, 
     for result_ref, result_new in zip(reference.results, compiled.results, strict=True):
         np.testing.assert_array_equal(result_new.diagnostics.rejection, result_ref.diagnostics.rejection)
     tracked = [(a, b) for a, b in zip(reference.poses, compiled.poses, strict=True) if a is not None]
-    assert len(tracked) >= 35 and all(b is not None for _, b in tracked)
+    assert len(tracked) >= 22 and all(b is not None for _, b in tracked)
     assert max(float(np.abs(a - b).max()) for a, b in tracked) < 1e-9
 
 
