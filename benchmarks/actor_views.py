@@ -138,22 +138,36 @@ def _crop(rgb: np.ndarray, box: np.ndarray, side: int = 160) -> np.ndarray:
 
 
 def _report(views: list[View], kind: str) -> None:
-    print(f"{'heading':>8} {'recognised':>11} {'mean score':>11}  called instead (best-overlapping box)")
+    print(report(views, kind))
+
+
+def report(views: list[View], kind: str) -> str:
+    """Per heading, the views recognised as ``kind`` and what the others were called; then all."""
+    from depotbench.core.text_table import Column, render
+
+    def row(label: str, group: list[View], called: str) -> list[str]:
+        hits = sum(v.score >= RECOGNISED for v in group)
+        return [label, f"{hits}/{len(group)}", f"{np.mean([v.score for v in group]):.2f}", called]
+
+    rows = []
     for heading in sorted({v.heading_deg for v in views}):
         group = [v for v in views if v.heading_deg == heading]
-        hits = sum(v.score >= RECOGNISED for v in group)
         others = Counter(v.called for v in group if v.score < RECOGNISED and v.called != kind)
-        text = ", ".join(f"{name} {n}" for name, n in others.most_common(3)) or "-"
-        print(f"{heading:7.0f}° {hits:5d}/{len(group):<5d} {np.mean([v.score for v in group]):11.2f}  {text}")
-    hits = sum(v.score >= RECOGNISED for v in views)
+        rows.append(
+            row(f"{heading:.0f}°", group, ", ".join(f"{n} {k}" for n, k in others.most_common(3)) or "-")
+        )
     spread = [
         np.mean([v.score >= RECOGNISED for v in views if v.seed == s])
         for s in sorted({v.seed for v in views})
     ]
-    print(
-        f"{'all':>8} {hits:5d}/{len(views):<5d} {np.mean([v.score for v in views]):11.2f}"
-        f"  (recognised per seed {min(spread):.2f}-{max(spread):.2f})"
-    )
+    rows.append(row("all", views, f"(recognised per seed {min(spread):.2f}-{max(spread):.2f})"))
+    columns = [
+        Column("heading"),
+        Column("recognised"),
+        Column("mean score"),
+        Column("called instead (best-overlapping box)", "left"),
+    ]
+    return render(columns, rows)
 
 
 def _sheet(views: list[View], path: Path, columns: int, kind: str) -> None:

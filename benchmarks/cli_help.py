@@ -39,11 +39,20 @@ def main() -> None:
     for _ in range(args.repeat):  # interleaved, so that a busy moment hits every command alike
         for name, command in COMMANDS.items():
             times[name].append(wall_ms(command))
+    print(table(times))
+
+
+def table(times: dict[str, list[float]]) -> str:
+    """Each command's median and fastest wall time, and its median over the first's (the peer)."""
+    from depotbench.core.text_table import Column, render
+
     peer = statistics.median(next(iter(times.values())))
-    print(f"{'command':32s} {'median ms':>10s} {'fastest':>8s} {'x peer':>7s}")
-    for name, values in times.items():
-        median = statistics.median(values)
-        print(f"{name:32s} {median:10.0f} {min(values):8.0f} {median / peer:7.1f}")
+    columns = [Column("command", "left"), Column("median ms"), Column("fastest"), Column("x peer")]
+    rows = [
+        [name, f"{statistics.median(v):.0f}", f"{min(v):.0f}", f"{statistics.median(v) / peer:.1f}"]
+        for name, v in times.items()
+    ]
+    return render(columns, rows)
 
 
 if __name__ == "__main__":

@@ -122,15 +122,18 @@ def main() -> None:
         f"{' (TUM fr1, distorted)' if camera.distorted else ''}, voxel {config.voxel_m} m, one core"
     )
     print(f"ray table, once per camera: {rays_ms:.1f} ms, {rays.nbytes / MB:.1f} MB")
-    print(f"{'':34s}{'ms/kf mean':>11s}{'ms/kf last':>11s}{'MB/kf held':>11s}{'points':>11s}")
-    print(
-        f"{'plain back-projection (peer)':34s}{peer_ms.mean():11.1f}{peer_ms[-1]:11.1f}"
-        f"{peer_bytes / MB / n:11.2f}{peer_points:11d}"
-    )
-    print(
-        f"{'dense map (voxel merge)':34s}{dense_ms.mean():11.1f}{dense_ms[-1]:11.1f}"
-        f"{dense.nbytes / MB / n:11.2f}{len(dense):11d}"
-    )
+    from depotbench.core.text_table import Column, render
+
+    columns = [Column("", "left"), *(Column(h) for h in ("ms/kf mean", "ms/kf last", "MB/kf held", "points"))]
+    rows = [
+        ["plain back-projection (peer)", peer_ms, peer_bytes, peer_points],
+        ["dense map (voxel merge)", dense_ms, dense.nbytes, len(dense)],
+    ]
+    cells = [
+        [name, f"{ms.mean():.1f}", f"{ms[-1]:.1f}", f"{held / MB / n:.2f}", str(points)]
+        for name, ms, held, points in rows
+    ]
+    print(render(columns, cells))
     print(
         f"ratio dense / peer: time {dense_ms.mean() / peer_ms.mean():.2f}x, "
         f"memory held {dense.nbytes / peer_bytes:.3f}x; "

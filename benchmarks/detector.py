@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,6 +24,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
+from depotbench.core.text_table import Column, cell, render  # noqa: E402
 from depotbench.detectors.config import DetectorConfig, parse_detector  # noqa: E402
 from depotbench.eval.metrics.accuracy import improvement_rate  # noqa: E402
 from depotbench.eval.run.detections import build_detector, detect_sequence  # noqa: E402
@@ -75,27 +77,33 @@ def _rho_table(roots: list[Path], out: Path) -> None:
     from depotbench.eval.run.cache import StageCache
 
     cache = StageCache(out / "cache")
-    print(
-        f"\n{'sequence':28s}{'detector':30s}{'strategy':20s}"
-        f"{'ATE mm':>9s}{'rho %':>8s}{'prec':>7s}{'recall':>7s}"
-    )
+    rows = []
     for root in roots:
         none = run_sequence(
             root, out / root.name / "none", "none", progress=False, overwrite=True, cache=cache
         )
         base = none["ate_m"]["rmse"]
-        print(f"{root.name:28s}{'-':30s}{'none':20s}{base * 1e3:9.1f}{0.0:8.1f}")
+        rows.append([root.name, "-", "none", f"{base * 1e3:.1f}", "0.0", "-", "-"])
         for label, config in DETECTORS.items():
             for strategy in STRATEGIES[1:]:
                 target = out / root.name / f"{label}-{strategy}".replace(" ", "_").replace(",", "")
                 m = run_sequence(root, target, strategy, config, progress=False, overwrite=True, cache=cache)
-                ate = m["ate_m"]["rmse"]
-                rej = m["rejection"]
-                prec = "-" if rej["precision"] is None else f"{rej['precision']:.3f}"
-                print(
-                    f"{'':28s}{label:30s}{strategy:20s}{ate * 1e3:9.1f}"
-                    f"{improvement_rate(base, ate):8.1f}{prec:>7s}{rej['recall']:7.3f}"
+                ate, rej = m["ate_m"]["rmse"], m["rejection"]
+                rows.append(
+                    [
+                        "",
+                        label,
+                        strategy,
+                        f"{ate * 1e3:.1f}",
+                        f"{improvement_rate(base, ate):.1f}",
+                        cell(rej["precision"], ".3f"),
+                        cell(rej["recall"], ".3f"),
+                    ]
                 )
+                print(f"  ran {root.name} {label} {strategy}", file=sys.stderr, flush=True)
+    words = [Column(h, "left") for h in ("sequence", "detector", "strategy")]
+    print()
+    print(render([*words, *(Column(h) for h in ("ATE mm", "rho %", "prec", "recall"))], rows))
 
 
 def main() -> None:
@@ -112,10 +120,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         roots = args.sequences or [_generate(Path(tmp), args.frames)]
         print(f"one core ({min(every_core)}), onnxruntime 1 thread, cv2 1 thread")
-        print(
-            f"{'sequence':28s}{'onnx ms mean/median/p95':>26s}{'gt ms':>8s}"
-            f"{'fps onnx+slam':>15s}{'fps gt+slam':>13s}"
-        )
+        rows = []
         os.sched_setaffinity(0, {min(every_core)})
         try:
             for root in roots:
@@ -124,13 +129,12 @@ def main() -> None:
                 gt = _latency(sequence, DetectorConfig())
                 fps_onnx = _throughput(sequence, DETECTORS["yolox-nano"])
                 fps_gt = _throughput(sequence, DetectorConfig())
-                print(
-                    f"{root.name:28s}{onnx.mean():10.1f} /{np.median(onnx):6.1f}"
-                    f" /{np.percentile(onnx, 95):6.1f}"
-                    f"{gt.mean():8.2f}{fps_onnx:15.1f}{fps_gt:13.1f}"
-                )
+                onnx_ms = f"{onnx.mean():.1f} / {np.median(onnx):.1f} / {np.percentile(onnx, 95):.1f}"
+                rows.append([root.name, onnx_ms, f"{gt.mean():.2f}", f"{fps_onnx:.1f}", f"{fps_gt:.1f}"])
         finally:
             os.sched_setaffinity(0, every_core)
+        headers = ("onnx ms mean/median/p95", "gt ms", "fps onnx+slam", "fps gt+slam")
+        print(render([Column("sequence", "left"), *(Column(h) for h in headers)], rows))
         if args.rho:
             _rho_table(roots, args.output or Path(tmp) / "runs")
 

@@ -319,11 +319,18 @@ def _mm(value: float) -> str:
 
 
 def _print_seeds(scene: str, rows: list, strategies: tuple[str, ...], static: dict | None) -> None:
+    from depotbench.core.text_table import Column, render
+
     print(f"\n{scene}: ATE RMSE mm (tracked %), keyframes per {KEYFRAME_SPAN} frames; F: fails")
-    header = (
-        f"{'seed':>5s} {'built-in none':>20s} {'ORB-SLAM3 runs (median)':>30s} {'kf bi':>6s} {'kf orb':>7s}"
-    )
-    print(header + "".join(f" {s:>17s}" for s in strategies))
+    columns = [
+        Column("seed"),
+        Column("built-in none"),
+        Column("ORB-SLAM3 runs (median)"),
+        Column("kf bi"),
+        Column("kf orb"),
+        *(Column(s) for s in strategies),
+    ]
+    table, failures = [], []
     for r in rows:
         bi, orb = r["builtin"]["none"], r["orbslam3"]
         orb_median = _median([run.ate_m for run in orb])
@@ -337,39 +344,51 @@ def _print_seeds(scene: str, rows: list, strategies: tuple[str, ...], static: di
         bi_cell = f"{_mm(bi.ate_m)} ({bi.tracked * 100:.0f}%)"
         kf_bi = "-" if bi.keyframes_per_span is None else f"{bi.keyframes_per_span:.0f}"
         kf_orb = "-" if math.isnan(orb_kf) else f"{orb_kf:.0f}"
-        print(
-            f"{r['seed']:5d} {bi_cell + flag_bi:>20s} {orb_text + flag_orb:>30s} {kf_bi:>6s} {kf_orb:>7s}"
-            + "".join(f" {c:>17s}" for c in cells)
-        )
-        for run in orb:
-            if run.failure:
-                print(f"      ORB-SLAM3 failed: {run.failure}")
+        table.append([str(r["seed"]), bi_cell + flag_bi, orb_text + flag_orb, kf_bi, kf_orb, *cells])
+        failures += [f"seed {r['seed']}: ORB-SLAM3 failed: {run.failure}" for run in orb if run.failure]
+    print(render(columns, table))
+    for line in failures:
+        print(line)
 
 
 def _print_summary(summaries: dict, strategies: tuple[str, ...]) -> None:
+    from depotbench.core.text_table import Column, cell, render
+
     print("\nper scene: medians over seeds (ORB-SLAM3: median of each seed's runs first), ATE mm")
-    print(
-        f"{'scene':20s}{'bi none':>9s}{'ORB':>9s}{'ratio':>7s}{'95% CI':>12s}{'MWU p':>8s}{'Wilc p':>8s}"
-        f"{'Spear':>7s}{'agree':>7s}"
-        f"{'F bi':>5s}{'F orb':>6s}{'kf bi':>7s}{'kf orb':>7s}{'kf ratio':>9s}"
-    )
+    headers = ("bi none", "ORB", "ratio", "95% CI", "MWU p", "Wilc p", "Spear", "agree", "F bi", "F orb")
+    columns = [
+        Column("scene", "left"),
+        *(Column(h) for h in (*headers, "kf bi", "kf orb", "kf ratio")),
+    ]
+    rows = []
     for scene, s in summaries.items():
-        p = "-" if s["mannwhitney_p"] is None else f"{s['mannwhitney_p']:.3f}"
-        w = "-" if s["wilcoxon_p"] is None else f"{s['wilcoxon_p']:.3f}"
         ci = "-" if s["ate_ratio_ci95"] is None else "{:.2f}-{:.2f}".format(*s["ate_ratio_ci95"])
         r = "-" if s["spearman_r"] is None or math.isnan(s["spearman_r"]) else f"{s['spearman_r']:.2f}"
         agree = f"{s['verdicts_agree']}/{s['n_seeds']}" if "verdicts_agree" in s else "-"
-        fails = (str(s.get("builtin_fails", "-")), str(s.get("orbslam3_fails", "-")))
-        print(
-            f"{scene:20s}{_mm(s['builtin_none_ate_median_m']):>9s}{_mm(s['orbslam3_ate_median_m']):>9s}"
-            f"{s['ate_ratio']:7.2f}{ci:>12s}{p:>8s}{w:>8s}{r:>7s}{agree:>7s}{fails[0]:>5s}{fails[1]:>6s}"
-            f"{s['builtin_keyframes_per_200']:7.1f}{s['orbslam3_keyframes_per_200']:7.1f}{s['keyframe_ratio']:9.2f}"
+        rows.append(
+            [
+                scene,
+                _mm(s["builtin_none_ate_median_m"]),
+                _mm(s["orbslam3_ate_median_m"]),
+                f"{s['ate_ratio']:.2f}",
+                ci,
+                cell(s["mannwhitney_p"], ".3f"),
+                cell(s["wilcoxon_p"], ".3f"),
+                r,
+                agree,
+                str(s.get("builtin_fails", "-")),
+                str(s.get("orbslam3_fails", "-")),
+                f"{s['builtin_keyframes_per_200']:.1f}",
+                f"{s['orbslam3_keyframes_per_200']:.1f}",
+                f"{s['keyframe_ratio']:.2f}",
+            ]
         )
+    print(render(columns, rows))
     print(
         "\nrho per strategy (true boxes): of the medians [per seed: median, min..max]; its ATE median mm; "
         "the fewest frames one of its runs tracked"
     )
-    print(f"{'scene':20s}" + "".join(f"{s:>40s}" for s in strategies))
+    rows = []
     for scene, s in summaries.items():
         cells = []
         for strategy in strategies:
@@ -384,21 +403,25 @@ def _print_summary(summaries: dict, strategies: tuple[str, ...]) -> None:
                 f"{f['rho_of_medians_percent']:.1f} %{per_seed} {_mm(f['ate_median_m'])} "
                 f"{f['tracked_min'] * 100:.0f}%"
             )
-        print(f"{scene:20s}" + "".join(f"{c:>40s}" for c in cells))
+        rows.append([scene, *cells])
+    print(render([Column("scene", "left"), *(Column(s) for s in strategies)], rows))
 
 
 def _print_criteria(summaries: dict) -> dict:
+    from depotbench.core.text_table import Column, render
+
     names = list(dict.fromkeys(k for s in summaries.values() for k in s["criteria"]))
     print("\nissue 40's done-when (PASS/FAIL; '-': does not apply to the scene)")
-    print(f"{'scene':20s}" + "".join(f"{n:>22s}" for n in names))
     every = True
+    rows = []
     for scene, s in summaries.items():
         cells = []
         for name in names:
             verdict = s["criteria"].get(name)
             every &= verdict is not False
             cells.append("-" if verdict is None else ("PASS" if verdict else "FAIL"))
-        print(f"{scene:20s}" + "".join(f"{c:>22s}" for c in cells))
+        rows.append([scene, *cells])
+    print(render([Column("scene", "left"), *(Column(n) for n in names)], rows))
     print(f"all: {'PASS' if every else 'FAIL'}")
     return {"all_pass": every}
 

@@ -251,12 +251,19 @@ def main() -> None:
 
 def _print_per_seed(per_seed: dict[int, dict[str, list[int]]], groups: list[str]) -> None:
     """found/total of each group, one row per seed: which seeds fail, not only how many."""
-    shown = [g for g in groups if any(tally[g][1] for tally in per_seed.values())]
     print("per seed, found/total:")
-    print("  seed " + "".join(f"{g:>16s}" for g in shown))
-    for seed, tally in per_seed.items():
-        cells = [f"{tally[g][0]}/{tally[g][1]}" if tally[g][1] else "-" for g in shown]
-        print(f"  {seed:4d} " + "".join(f"{cell:>16s}" for cell in cells))
+    print(per_seed_table(per_seed, groups))
+
+
+def per_seed_table(per_seed: dict[int, dict[str, list[int]]], groups: list[str]) -> str:
+    from depotbench.core.text_table import Column, render
+
+    shown = [g for g in groups if any(tally[g][1] for tally in per_seed.values())]
+    rows = [
+        [str(seed), *(f"{tally[g][0]}/{tally[g][1]}" if tally[g][1] else "-" for g in shown)]
+        for seed, tally in per_seed.items()
+    ]
+    return render([Column("seed"), *(Column(g) for g in shown)], rows, indent=2)
 
 
 if __name__ == "__main__":

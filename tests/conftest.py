@@ -21,7 +21,10 @@ TUM_TRAJECTORIES = SHARED / "data" / "tum-trajectories"
 @functools.cache
 def benchmark_module(name: str) -> ModuleType:
     """benchmarks/NAME.py as a module, loaded once (benchmarks/ is not a package); registered
-    in sys.modules, where its dataclasses look their module up while it loads."""
+    in sys.modules, where its dataclasses look their module up while it loads. Its folder is
+    on the import path, as when it runs as a script (``sheets`` is imported so)."""
+    if str(REPO / "benchmarks") not in sys.path:
+        sys.path.append(str(REPO / "benchmarks"))
     spec = importlib.util.spec_from_file_location(f"{name}_benchmark", REPO / "benchmarks" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)

@@ -10,6 +10,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from tests.conftest import REPO, benchmark_module
@@ -226,3 +227,40 @@ def test_sweep_benchmark_refuses_a_baseline_that_is_not_a_commit_in_one_line():
     assert result.returncode == 2
     assert result.stderr.strip() == "sweep.py: --baseline no-such-revision: not a commit of this repository"
     assert result.stdout == ""  # refused before any sequence is generated
+
+
+def _columns(lines: list[str]) -> list[int]:
+    """The right edges of the header's words (where right-aligned figures below must end)."""
+    return [m.end() for m in re.finditer(r"\S+(?: \S+)*", lines[0])]
+
+
+def test_the_cli_help_table_lines_up_each_figure_under_its_header():
+    text = benchmark_module("cli_help").table(
+        {"depotbench --help": [100.0, 120.0, 110.0], "x": [200.0, 330.0]}
+    )
+    lines = text.splitlines()
+    assert lines[0].split() == ["command", "median", "ms", "fastest", "x", "peer"]
+    assert set(lines[1]) <= {"-", " "}
+    assert lines[2].split()[-3:] == ["110", "100", "1.0"] and lines[3].split() == ["x", "265", "200", "2.4"]
+    edges = _columns(lines)[1:]
+    for line in lines[2:]:
+        assert [m.end() for m in re.finditer(r"\S+", line)][-3:] == edges
+
+
+def test_the_actor_views_table_counts_each_heading_and_all():
+    module = benchmark_module("actor_views")
+    crop = np.zeros((1, 1, 3), np.uint8)
+    views = [
+        module.View(1, 0.0, 1.0, 0.9, "cat", crop),
+        module.View(2, 0.0, 1.0, 0.1, "dog", crop),
+        module.View(1, 90.0, 1.0, 0.2, "dog", crop),
+        module.View(2, 90.0, 1.0, 0.7, "cat", crop),
+    ]
+    lines = module.report(views, "cat").splitlines()
+    assert lines[0].startswith("heading") and "called instead" in lines[0]
+    assert [line.split()[:3] for line in lines[2:]] == [
+        ["0°", "1/2", "0.50"],
+        ["90°", "1/2", "0.45"],
+        ["all", "2/4", "0.47"],
+    ]
+    assert lines[2].rstrip().endswith("dog 1") and "(recognised per seed 0.50-0.50)" in lines[4]

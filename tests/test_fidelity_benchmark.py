@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 import statistics
 import subprocess
 import sys
@@ -108,6 +109,33 @@ def test_a_failed_run_ranks_worst_and_static_depot_is_judged_on_its_own_checks()
     assert s["ate_ratio_ci95"] is None  # no finite ratio to resample on the failed seed
     assert s["criteria"]["ate_ratio"] is None and s["criteria"]["rho_box_rule"] is None
     assert json.loads(json.dumps(f._jsonable(rows)))[1]["orbslam3"][0]["ate_m"] == "inf"
+
+
+def test_the_printed_tables_line_up_each_seeds_and_each_scenes_figures(capsys):
+    """The tables print what the summary holds, each figure right-aligned under its header
+    (they were padded by hand before, and a long ORB-SLAM3 cell pushed its row out of line)."""
+    f = _fidelity()
+    rows = _rows(
+        [300.0, 150.0],
+        [(200.0, 260.0, 2000.0), (40.0, 60.0, 55.0)],
+        [30, 20],
+        [(90, 110, 100)] * 2,
+        [3.0, 2.0],
+    )
+    f._print_seeds("walking_xyz", rows, ("box_rule",), {"builtin": 0.002, "orbslam3": 0.004})
+    s = f._scene_summary("walking_xyz", rows, ("box_rule",), None)
+    f._print_summary({"walking_xyz": s}, ("box_rule",))
+    assert f._print_criteria({"walking_xyz": s}) == {"all_pass": False}
+    out = capsys.readouterr().out
+    seeds = out.split("\n\n")[0].splitlines()[2:6]
+    assert seeds[0].split()[:4] == ["seed", "built-in", "none", "ORB-SLAM3"] and set(seeds[1]) <= {"-", " "}
+    assert "200.0, 260.0, 2000.0 (260.0) F" in seeds[2] and "40.0, 60.0, 55.0 (55.0) F" in seeds[3]
+    assert seeds[3].split()[:4] == ["1", "150.0", "(100%)", "F"]
+    assert len({len(line) for line in seeds}) == 1  # one width: every row lines up
+    ends = {m.end() for line in seeds[2:] for m in [list(re.finditer(r"\S+", line))[-1]]}
+    assert len(ends) == 1  # the last column's figures share their right edge
+    assert re.search(r"^walking_xyz +225\.0 +157\.5 +1\.43 ", out, re.M)
+    assert "FAIL" in out and out.rstrip().endswith("all: FAIL")
 
 
 @pytest.mark.parametrize(
