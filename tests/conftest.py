@@ -127,11 +127,15 @@ def _private_caches(tmp_path_factory: pytest.TempPathFactory):
     aside: the session has a cache root of its own, whatever the shell sets. The sequence
     store is off there, since determinism tests render what they compare; tests of the store
     set their own."""
-    names = ("DEPOTBENCH_CACHE", "DEPOTBENCH_CACHE_SEQUENCES", *CACHE_VARIABLES)
+    names = ("DEPOTBENCH_CACHE", "DEPOTBENCH_CACHE_SEQUENCES", "DEPOTBENCH_WORKERS", *CACHE_VARIABLES)
     vocabulary = _users_vocabulary_folder()
     previous = {name: os.environ.pop(name, None) for name in names}
     os.environ["DEPOTBENCH_CACHE"] = str(tmp_path_factory.mktemp("caches"))
     os.environ["DEPOTBENCH_CACHE_SEQUENCES"] = "off"
+    # A command's default --workers is one, run in the test's own process: the test workers
+    # already fill the cores, and the 87 commands that take the default each spawned two
+    # workers (1-2 s of imports apiece). Tests of the pool ask for theirs with --workers.
+    os.environ["DEPOTBENCH_WORKERS"] = "1"
     if vocabulary is not None:
         os.environ["DEPOTBENCH_CACHE_VOCABULARY"] = str(vocabulary)
     yield

@@ -50,6 +50,29 @@ def test_a_shipped_benchmark_is_what_this_generator_makes(name: str):
         assert all(len(e.seeds) >= 10 for e in benchmark.spec.scenarios)
 
 
+def test_tum_dyn_short_1_is_tum_dyn_1s_analogs_as_clips_but_the_halfspheres_that_cannot_be(tmp_path: Path):
+    """The short benchmark's scenarios and seeds are tum-dyn-1's, at 150 frames; the two
+    halfsphere analogs are out because their TUM-calibrated camera cannot be made in a
+    5-s clip (the generator refuses the spec, naming the amplitude cap), as its file says."""
+    from depotbench.core.errors import InputError
+    from depotbench.eval.benchmark.sequences import expand
+    from depotbench.eval.benchmark.spec import BenchmarkFile
+    from depotbench.scenes.schema import load_model
+
+    full, short = load_benchmark("tum-dyn-1"), load_benchmark("tum-dyn-short-1")
+    seeds = {e.scenario: e.seeds for e in full.spec.scenarios}
+    assert all(e.frames == 150 and e.seeds == seeds[e.scenario] for e in short.spec.scenarios)
+    left_out = set(seeds) - {e.scenario for e in short.spec.scenarios}
+    assert left_out == {"walking_halfsphere", "sitting_halfsphere"}
+    clip = tmp_path / "clips-1.yaml"
+    clip.write_text(
+        "benchmark: clips\nversion: 1\ndescription: d\ngenerator: 0.8.0\n"
+        "scenarios: [{scenario: walking_halfsphere, frames: 150, seeds: [301, 302]}]\n"
+    )
+    with pytest.raises(InputError, match="amplitude cap"):
+        expand(load_model(BenchmarkFile, clip), clip)
+
+
 def test_tum_dyn_1_is_every_tum_analog_at_tums_length():
     from depotbench.scenes import library
 

@@ -190,3 +190,38 @@ def test_the_command_line_names_the_png_level_it_defaults_to():
     from depotbench.eval.cli.main import DEFAULT_PNG_COMPRESSION_LEVEL
 
     assert DEFAULT_PNG_COMPRESSION_LEVEL == DEFAULT_PNG_COMPRESSION
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "two", "257", "1.5"])
+def test_a_bad_default_worker_count_is_one_line_naming_the_variable(monkeypatch, capsys, value: str):
+    monkeypatch.setenv("DEPOTBENCH_WORKERS", value)
+    assert main(["sweep", "nowhere.yaml"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"depotbench: error: DEPOTBENCH_WORKERS={value!r}: give the default worker count, 1 to 256"
+    ]
+
+
+def test_the_default_worker_count_is_the_variable_or_the_cores_this_process_may_use(monkeypatch):
+    """os.cpu_count() counts the host's cores: under taskset or a container's cpuset limited to
+    one core of several, it started a worker per host core."""
+    import os
+
+    from depotbench.eval.cli.args import one_per_core
+    from depotbench.eval.cli.main import build_parser
+
+    monkeypatch.setenv("DEPOTBENCH_WORKERS", "3")
+    assert build_parser().parse_args(["sweep", "s.yaml", "-o", "o"]).workers == 3
+    assert build_parser().parse_args(["sweep", "s.yaml", "-o", "o", "--workers", "2"]).workers == 2
+    monkeypatch.delenv("DEPOTBENCH_WORKERS")
+    assert one_per_core() == len(os.sched_getaffinity(0))
+    script = "from depotbench.eval.cli.args import one_per_core; print(one_per_core())"
+    env = {k: v for k, v in os.environ.items() if k != "DEPOTBENCH_WORKERS"}
+    pinned = subprocess.run(
+        ["taskset", "-c", "0", sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    )
+    assert pinned.stdout.strip() == "1"

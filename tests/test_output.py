@@ -432,7 +432,17 @@ def test_interrupting_a_suite_stops_its_workers_at_once_with_one_line(
     token = f"depotbench-test-{os.getpid()}-{time.time_ns()}"
     out = tmp_path / "o"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "depotbench.eval.cli", "generate", str(suite), "-o", str(out)],
+        [
+            sys.executable,
+            "-m",
+            "depotbench.eval.cli",
+            "generate",
+            str(suite),
+            "-o",
+            str(out),
+            "--workers",
+            "2",
+        ],
         cwd=REPO,
         env={**os.environ, "DEPOTBENCH_TEST_TOKEN": token},
         stderr=subprocess.PIPE,

@@ -25,9 +25,24 @@ def positive_float(text: str) -> float:
     return value
 
 
+WORKERS_VARIABLE = "DEPOTBENCH_WORKERS"
+MAX_WORKERS = 256
+WORKERS_HELP = f"worker processes (default: {WORKERS_VARIABLE} where set, else one per core)"
+
+
 def one_per_core() -> int:
-    """The default number of workers: one per core the OS reports, at least one."""
-    return max(1, os.cpu_count() or 1)
+    """The default ``--workers``: ``DEPOTBENCH_WORKERS`` where set, else one per core this
+    process may run on (its affinity: a container or a ``taskset`` limited to 2 of a host's
+    64 cores started 64 workers, as ``os.cpu_count`` counts the host's)."""
+    from depotbench.core.errors import InputError
+
+    raw = os.environ.get(WORKERS_VARIABLE, "").strip()
+    if not raw:
+        cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
+        return max(1, len(cores))
+    if not raw.isdigit() or not 1 <= int(raw) <= MAX_WORKERS:
+        raise InputError(f"{WORKERS_VARIABLE}={raw!r}: give the default worker count, 1 to {MAX_WORKERS}")
+    return int(raw)
 
 
 def workers(text: str) -> int:
@@ -37,8 +52,8 @@ def workers(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be a whole number of workers, got {text!r}") from None
-    if not 1 <= value <= 256:
-        raise argparse.ArgumentTypeError(f"must be between 1 and 256, got {text}")
+    if not 1 <= value <= MAX_WORKERS:
+        raise argparse.ArgumentTypeError(f"must be between 1 and {MAX_WORKERS}, got {text}")
     return value
 
 

@@ -52,7 +52,14 @@ if TYPE_CHECKING:
     from depotbench.eval.metrics.evaluate import Comparison
 
 from depotbench.eval.cli import choices
-from depotbench.eval.cli.args import backend_of, finite_float, one_per_core, positive_float, workers
+from depotbench.eval.cli.args import (
+    WORKERS_HELP,
+    backend_of,
+    finite_float,
+    one_per_core,
+    positive_float,
+    workers,
+)
 
 EXIT_INPUT_ERROR = 2
 DEFAULT_PNG_COMPRESSION_LEVEL = 1
@@ -160,7 +167,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         help="the main job in small: generate a suite, sweep every strategy, gate, write the HTML report",
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--workers", type=workers, default=one_per_core())
+    p.add_argument("--workers", type=workers, default=one_per_core(), help=WORKERS_HELP)
     add_json(p, "the files written, the runs, the verdict and the failed budgets")
     p.set_defaults(handler=_cmd_demo)
 
@@ -244,7 +251,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
         "--workers",
         type=workers,
         default=one_per_core(),
-        help="parallel worker processes for a suite (default: one per core)",
+        help=f"{WORKERS_HELP}; for a suite",
     )
     p.add_argument(
         "--backend",
@@ -671,6 +678,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("depotbench: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
+        except InputError as exc:  # an environment variable the defaults read (DEPOTBENCH_WORKERS)
+            print(f"depotbench: error: {exc}", file=sys.stderr)
+            return EXIT_INPUT_ERROR
         as_json = getattr(args, "json", False)
         level = show_messages(args.verb, verbosity(args), json=as_json)
         try:
