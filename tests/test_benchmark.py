@@ -199,13 +199,17 @@ def test_a_tracker_that_is_not_deterministic_is_repeated_and_never_run_once(
         "--not-deterministic",
         "--strategy",
         "mask",
+        "--name",
+        "my oracle",
     )
     assert results["repeats"] == MIN_REPEATS and not results["tracker"]["deterministic"]
+    assert results["tracker"]["label"] == "my oracle"  # the table's and leaderboard's name for it
     for sequence in results["sequences"]:
         rmse = [r["figures"]["errors"]["ate_m"]["rmse"] for r in sequence["runs"]]
         assert len(rmse) == 3 and len(set(rmse)) == 3  # each run drew its own noise
     table = capsys.readouterr().out
     assert "3 x 3" in table and "±" in table  # the spread over repeats is shown
+    assert "| my oracle mask " in table
     assert verify(tmp_path / "oracle") == []
 
 

@@ -45,6 +45,10 @@ def add_tracker_options(p: argparse.ArgumentParser) -> None:
         help="override a threshold, e.g. --set k=2.5 --set epsilon_px=0.8 (repeatable)",
     )
     p.add_argument(
+        "--name",
+        help="--slam cmd: what results, tables and the leaderboard call the program (default: cmd)",
+    )
+    p.add_argument(
         "--command",
         metavar="TEMPLATE",
         help=f"--slam cmd: the program and its arguments, with {COMMAND_PLACEHOLDERS} and {{NAME}} of each "
@@ -109,6 +113,10 @@ def tracker_from_args(args: argparse.Namespace) -> tuple[TrackerConfig, dict[str
         raise InputError(
             f"--param applies to --slam {takers('parameters')} (the built-in tracker takes --set)"
         )
+    if args.name is not None and not kind.command:
+        raise InputError(f"--name applies to --slam {takers('command')} only")
+    if args.name is not None and not (args.name.strip() and args.name.isprintable() and len(args.name) <= 60):
+        raise InputError(f"--name {args.name!r}: give a name of 1 to 60 printable characters")
     if args.settings_template is not None and not kind.command:
         raise InputError(f"--settings-template applies to --slam {takers('command')} only")
     tracker = TrackerConfig(
@@ -116,6 +124,7 @@ def tracker_from_args(args: argparse.Namespace) -> tuple[TrackerConfig, dict[str
         args.command,
         args.vocabulary,
         args.timeout,
+        name=args.name or "",
         parameters=tracker_parameters(kind.name, pairs(args.param, "--param")),
         settings_template=args.settings_template,
     )
