@@ -96,6 +96,7 @@ def _importing(frame: object) -> bool:
 
 _HOLDING: list[OutsideImports] = []
 """Handlers holding a signal that came during an import, until it is delivered."""
+_HOLDING_LOCK = threading.Lock()
 
 
 class OutsideImports:
@@ -111,15 +112,12 @@ class OutsideImports:
 
     def __init__(self, exception: type[BaseException]) -> None:
         self.exception = exception
-        self._lock = threading.Lock()
-        self._held = False
 
     def __call__(self, signum: int, frame: object) -> None:
         if frame is not None and _importing(frame):
-            with self._lock:
-                if self._held:
+            with _HOLDING_LOCK:
+                if self in _HOLDING:
                     return
-                self._held = True
                 _HOLDING.append(self)
             threading.Thread(target=self._redeliver, args=(signum,), daemon=True).start()
             return
@@ -128,18 +126,18 @@ class OutsideImports:
 
     def _release(self) -> bool:
         """Take the held signal for delivery; False where it was delivered already."""
-        with self._lock:
-            held, self._held = self._held, False
-            if held:
-                _HOLDING.remove(self)
-            return held
+        with _HOLDING_LOCK:
+            if self not in _HOLDING:
+                return False
+            _HOLDING.remove(self)
+            return True
 
     def _redeliver(self, signum: int) -> None:
         import _thread
         import sys
 
         main = threading.main_thread().ident
-        while self._held and _importing(sys._current_frames().get(main)):
+        while self in _HOLDING and _importing(sys._current_frames().get(main)):
             time.sleep(IMPORT_POLL_S)
         if self._release():
             _thread.interrupt_main(signum)

@@ -193,13 +193,24 @@ def test_the_command_line_names_the_png_level_it_defaults_to():
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "two", "257", "1.5"])
-def test_a_bad_default_worker_count_is_one_line_naming_the_variable(monkeypatch, capsys, value: str):
+def test_a_bad_default_worker_count_is_one_line_naming_the_variable(
+    monkeypatch, capsys, tmp_path: Path, value: str
+):
+    """Read where a command takes its default --workers: one line naming the variable there,
+    and nothing for a command given --workers or asked for its --help."""
     monkeypatch.setenv("DEPOTBENCH_WORKERS", value)
-    assert main(["sweep", "nowhere.yaml"]) == 2
+    sweep = ["sweep", "nowhere.yaml", "-o", str(tmp_path / "sw")]
+    assert main(sweep) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
-        f"depotbench: error: DEPOTBENCH_WORKERS={value!r}: give the default worker count, 1 to 256"
+        f"depotbench sweep: error: DEPOTBENCH_WORKERS={value!r}: give the default worker count, 1 to 256"
     ]
+    assert main([*sweep, "--workers", "1"]) == 2  # the spec is missing; the variable is not read
+    assert "DEPOTBENCH_WORKERS" not in capsys.readouterr().err
+    with pytest.raises(SystemExit) as done:
+        main(["sweep", "--help"])
+    assert done.value.code == 0
+    assert not (tmp_path / "sw").exists()
 
 
 def test_the_default_worker_count_is_the_variable_or_the_cores_this_process_may_use(monkeypatch):
@@ -211,7 +222,8 @@ def test_the_default_worker_count_is_the_variable_or_the_cores_this_process_may_
     from depotbench.eval.cli.main import build_parser
 
     monkeypatch.setenv("DEPOTBENCH_WORKERS", "3")
-    assert build_parser().parse_args(["sweep", "s.yaml", "-o", "o"]).workers == 3
+    assert one_per_core() == 3
+    assert build_parser().parse_args(["sweep", "s.yaml", "-o", "o"]).workers is None  # read at run time
     assert build_parser().parse_args(["sweep", "s.yaml", "-o", "o", "--workers", "2"]).workers == 2
     monkeypatch.delenv("DEPOTBENCH_WORKERS")
     assert one_per_core() == len(os.sched_getaffinity(0))

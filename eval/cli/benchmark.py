@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from depotbench.core.errors import InputError
-from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, one_per_core, workers
+from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, workers
 from depotbench.eval.cli.conventions import add_json, add_verbosity, add_version, print_result
 from depotbench.eval.cli.detectors import add_detector_options, detector_config
 from depotbench.eval.cli.trackers import add_tracker_options, tracker_from_args
@@ -57,7 +57,7 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
         metavar="E",
         help="--fresh-seeds: draw them from this number, to draw them again (results.json records it)",
     )
-    run.add_argument("--workers", type=workers, default=one_per_core(), help=WORKERS_HELP)
+    run.add_argument("--workers", type=workers, default=None, help=WORKERS_HELP)
     add_backend(run)
     run.set_defaults(handler=_cmd_run)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, one_per_core, workers
+from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, workers
 
 EXIT_FAILED = 1
 
@@ -43,7 +43,7 @@ def add_check(sub: argparse._SubParsersAction) -> None:
         type=Path,
         help="the run matrix's folder, resumed if it exists (default: runs/check-NAME)",
     )
-    p.add_argument("--workers", type=workers, default=one_per_core(), help=WORKERS_HELP)
+    p.add_argument("--workers", type=workers, default=None, help=WORKERS_HELP)
     p.add_argument(
         "--retry-failed",
         action="store_true",

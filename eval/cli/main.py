@@ -167,7 +167,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         help="the main job in small: generate a suite, sweep every strategy, gate, write the HTML report",
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/demo"), help="where to write")
-    p.add_argument("--workers", type=workers, default=one_per_core(), help=WORKERS_HELP)
+    p.add_argument("--workers", type=workers, default=None, help=WORKERS_HELP)
     add_json(p, "the files written, the runs, the verdict and the failed budgets")
     p.set_defaults(handler=_cmd_demo)
 
@@ -250,7 +250,7 @@ def _add_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers",
         type=workers,
-        default=one_per_core(),
+        default=None,
         help=f"{WORKERS_HELP}; for a suite",
     )
     p.add_argument(
@@ -515,7 +515,7 @@ def _add_vocab(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=default["frames"], help="frames rendered per scene")
     p.add_argument("--seed", type=int, default=default["seed"], help="seed of the training scenes")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
-    p.add_argument("--workers", type=workers, default=one_per_core(), help="scenes rendered at a time")
+    p.add_argument("--workers", type=workers, default=None, help="scenes rendered at a time")
     add_json(p, "the vocabulary's path, its words and the spec it was built from")
     p.set_defaults(handler=_cmd_vocab)
 
@@ -678,9 +678,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("depotbench: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
-        except InputError as exc:  # an environment variable the defaults read (DEPOTBENCH_WORKERS)
-            print(f"depotbench: error: {exc}", file=sys.stderr)
-            return EXIT_INPUT_ERROR
         as_json = getattr(args, "json", False)
         level = show_messages(args.verb, verbosity(args), json=as_json)
         try:
@@ -700,6 +697,8 @@ def _run(args: argparse.Namespace) -> int:
     from depotbench.core.errors import EnvironmentProblem
 
     try:
+        if getattr(args, "workers", 0) is None:  # read here, so a bad DEPOTBENCH_WORKERS fails only
+            args.workers = one_per_core()  # the commands that take --workers, in one line naming it
         return int(args.handler(args))
     except (InputError, EnvironmentProblem) as exc:
         print(f"depotbench {args.verb}: error: {exc}", file=sys.stderr)

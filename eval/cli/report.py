@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from depotbench.eval.cli.args import one_per_core, workers
+from depotbench.eval.cli.args import workers
 from depotbench.eval.cli.conventions import add_json, print_result
 
 
@@ -26,7 +26,7 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers",
         type=workers,
-        default=one_per_core(),
+        default=None,
         help="processes that track a sweep's featured runs again (used from 300 frames in all)",
     )
     add_json(p, "the page's path and size, the recording's path and what the page leaves out")

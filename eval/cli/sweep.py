@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, one_per_core, workers
+from depotbench.eval.cli.args import WORKERS_HELP, add_backend, backend_of, workers
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +19,7 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         "a path that exists wins over a name)",
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="the sweep folder (resumed if it exists)")
-    p.add_argument("--workers", type=workers, default=one_per_core(), help=WORKERS_HELP)
+    p.add_argument("--workers", type=workers, default=None, help=WORKERS_HELP)
     add_backend(p)
     p.add_argument(
         "--no-dedupe",
