@@ -1,11 +1,12 @@
 """Tracking time per frame and per stage, the built-in pipeline beside ORB-SLAM3.
 
 Usage: python benchmarks/tracking.py [--scenario walking_xyz] [--frames 150] [--seed 11 ...]
-       [--strategy none ...] [--kernels numpy|numba|both] [--set NAME=VALUE ...]
+       [--sequences PATH ...] [--strategy none ...] [--kernels numpy|numba|both] [--set NAME=VALUE ...]
        [--vocabulary FILE] [--orbslam3-pace P ...] [--no-orbslam3]
 
-Generates the scenario once per seed (into a temporary folder), then, on that sequence in
-this run: the built-in pipeline with each strategy pinned to one core (tracking as ORB-SLAM
+Generates the scenario once per seed (into a temporary folder), or opens each sequence of
+``--sequences`` (a sequence folder, or a folder of them: a benchmark's or a suite's), then, on
+that sequence in this run: the built-in pipeline with each strategy pinned to one core (tracking as ORB-SLAM
 reports it: extraction + rejection + tracking; local mapping runs synchronously and is
 reported apart), and ORB-SLAM3 (if the orbslam3 extra is installed) with its local-mapping
 thread on the other core, as it is built to run: its time is that of ``track_rgbd``, and its
@@ -24,8 +25,9 @@ per-frame column ``track+map`` adds mapping to tracking. ORB-SLAM3's are its wor
 (``os.wait4``: tracking, the local-mapping thread and the rest) less its start-up, measured
 alone in a fresh worker (interpreter, imports, vocabulary, ``Shutdown``): what a sequence
 adds. Per seed, built-in / ORB-SLAM3 of tracking and track+map medians (ORB-SLAM3's
-``track_rgbd``: its mapping is in another thread), CPU and wall; over the seeds, each
-ratio's median and range.
+``track_rgbd``: its mapping is in another thread), CPU and wall, and the keyframes each
+system's map holds at the end (ORB-SLAM3: its saved keyframe trajectory, after its culling);
+over the seeds, each ratio's median and range.
 
 ``--kernels both`` tracks each strategy on the NumPy reference path and on the compiled
 kernels (``DEPOTBENCH_KERNELS``, ``depotbench.slam.kernels``) in the order numpy, numba,
@@ -83,9 +85,9 @@ _WARM_UP = (
 )
 
 
-RATIOS = ("tracking", "track+map", "cpu", "wall")
-"""Built-in / ORB-SLAM3: median ms per frame (ORB-SLAM3's ``track_rgbd`` for both), then the
-whole sequence's CPU and wall seconds."""
+RATIOS = ("tracking", "track+map", "cpu", "wall", "keyframes")
+"""Built-in / ORB-SLAM3: median ms per frame (ORB-SLAM3's ``track_rgbd`` for both), the
+whole sequence's CPU and wall seconds, and the keyframes of the final map."""
 COLUMNS = (*STAGES, "track+map")
 
 _STARTUP = (
@@ -106,14 +108,16 @@ class Cost:
     track_map_ms: np.ndarray
     cpu_s: float
     wall_s: float
+    keyframes: int | None
 
 
 def _cell(values: np.ndarray) -> str:
     return f"{values.mean():11.2f} /{np.median(values):10.2f}"
 
 
-def _seconds(cpu_s: float, wall_s: float) -> str:
-    return f"   cpu {cpu_s:8.3f} s  wall {wall_s:8.3f} s"
+def _seconds(cpu_s: float, wall_s: float, keyframes: int | None = None) -> str:
+    kf = "" if keyframes is None else f"  keyframes {keyframes:4d}"
+    return f"   cpu {cpu_s:8.3f} s  wall {wall_s:8.3f} s{kf}"
 
 
 def _spread(values: list[float]) -> str:
@@ -141,13 +145,45 @@ def _compile_cost() -> str:
 
 def _run(
     frames: FrameSource, config: SlamConfig, path: Kernels | None
-) -> tuple[dict[str, np.ndarray], float, float]:
-    """Per-frame stage times, then the run's CPU and wall seconds, mapping included."""
+) -> tuple[dict[str, np.ndarray], float, float, int | None]:
+    """Per-frame stage times, then the run's CPU and wall seconds, mapping included, and the
+    keyframes of its final map."""
     with kernels.using(path) if path is not None else contextlib.nullcontext():
         cpu, wall = time.process_time(), time.perf_counter()
-        stage_ms = BuiltinTracker(config).run(frames, False).stage_ms
+        run = BuiltinTracker(config).run(frames, False)
         cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
-    return {**stage_ms, "track+map": stage_ms["tracking_total"] + stage_ms["mapping"]}, cpu, wall
+    stage_ms = run.stage_ms
+    track_map = stage_ms["tracking_total"] + stage_ms["mapping"]
+    return {**stage_ms, "track+map": track_map}, cpu, wall, run.keyframes
+
+
+@contextlib.contextmanager
+def _sequence(args: argparse.Namespace, seed: int | None, stored: Path | None):
+    """The sequence to time: a stored one opened where it is, or the scenario generated for
+    ``seed`` into a temporary folder."""
+    if stored is not None:
+        yield Sequence.open(stored)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        update = {"frames": args.frames, "duration_s": None}
+        if seed is not None:
+            update["seed"] = seed
+        scenario = library.get(args.scenario).model_copy(update=update)
+        yield Sequence.open(generate(to_scenario(scenario), Path(tmp) / "seq", progress=False))
+
+
+def _stored(paths: list[Path]) -> list[Path]:
+    """Sequence folders (with meta.json) given or held one level down, in name order."""
+    found = []
+    for path in paths:
+        if (path / "meta.json").is_file():
+            found.append(path)
+            continue
+        inside = sorted(p.parent for p in path.glob("*/meta.json"))
+        if not inside:
+            raise SystemExit(f"tracking.py: --sequences {path}: no meta.json there or one level down")
+        found += inside
+    return found
 
 
 def main() -> None:
@@ -155,6 +191,12 @@ def main() -> None:
     parser.add_argument("--scenario", default="walking_xyz")
     parser.add_argument("--frames", type=int, default=150)
     parser.add_argument("--seed", type=int, nargs="+", help="scenario seeds (default: the library's)")
+    parser.add_argument(
+        "--sequences",
+        type=Path,
+        nargs="+",
+        help="stored sequences instead of --scenario/--seed/--frames: sequence folders or folders of them",
+    )
     parser.add_argument(
         "--strategy", action="append", choices=STRATEGIES, help="a built-in strategy (default: every one)"
     )
@@ -176,6 +218,11 @@ def main() -> None:
     )
     parser.add_argument("--no-orbslam3", action="store_true", help="the built-in pipeline only")
     args = parser.parse_args()
+    if args.sequences and args.seed:
+        parser.error("--sequences and --seed: give one")
+    stored: list[Path | None] = [None] * len(args.seed or [None])
+    if args.sequences:
+        stored = list(_stored(args.sequences))
     try:
         settings = parse_settings(args.set)
     except ConfigError as exc:
@@ -200,16 +247,14 @@ def main() -> None:
     ratios: dict[str, list[float]] = {s: [] for s in strategies}
     to_orbslam3: dict[tuple[str, float], dict[str, list[float]]] = {}
     startup: dict[str, tuple[float, float]] = {}
-    for seed in args.seed or [None]:
-        with tempfile.TemporaryDirectory() as tmp:
-            update = {"frames": args.frames, "duration_s": None}
-            if seed is not None:
-                update["seed"] = seed
-            scenario = library.get(args.scenario).model_copy(update=update)
-            seq = Sequence.open(generate(to_scenario(scenario), Path(tmp) / "seq", progress=False))
+    seeds: list[int | None] = list(args.seed or [None] * len(stored))
+    for seed, path in zip(seeds, stored, strict=True):
+        with _sequence(args, seed, path) as seq:
             frames = FrameSource(seq, detect_sequence(seq, DetectorConfig()).per_frame)
+            meta = seq.meta or {}
+            name = meta.get("scenario", {}).get("name", args.scenario if path is None else path.name)
             print(
-                f"{args.scenario} (seed {scenario.seed}), {len(seq)} frames, 640x480, 1000 ORB features; "
+                f"{name} (seed {meta.get('seed', '-')}), {len(seq)} frames, 640x480, 1000 ORB features; "
                 f"built-in on core {min(every_core)}, cv2 threads {cv2.getNumThreads()}"
             )
             print(
@@ -221,7 +266,7 @@ def main() -> None:
             builtin: dict[str, Cost] = {}
             for strategy in strategies:
                 config = SlamConfig(strategy=strategy).with_settings(settings)
-                runs: dict[Kernels | None, list[tuple[dict[str, np.ndarray], float, float]]] = {}
+                runs: dict[Kernels | None, list[tuple[dict[str, np.ndarray], float, float, int | None]]] = {}
                 for path in paths:
                     runs.setdefault(path, []).append(_run(frames, config, path))
                 medians = {}
@@ -234,10 +279,12 @@ def main() -> None:
                     print(
                         f"{label:32s} "
                         + " ".join(f"{_cell(stages[s]):>24s}" for s in COLUMNS)
-                        + _seconds(cpu_s, wall_s)
+                        + _seconds(cpu_s, wall_s, path_runs[0][3])
                     )
                     if path == paths[0]:
-                        builtin[strategy] = Cost(stages["tracking_total"], stages["track+map"], cpu_s, wall_s)
+                        builtin[strategy] = Cost(
+                            stages["tracking_total"], stages["track+map"], cpu_s, wall_s, path_runs[0][3]
+                        )
                 if len(runs) == 2:
                     ratio = {s: medians[Kernels.NUMPY][s] / medians[Kernels.NUMBA][s] for s in COLUMNS}
                     ratios[strategy].append(ratio["tracking_total"])
@@ -285,6 +332,7 @@ def _ratios(builtin: Cost, orbslam3: Cost) -> dict[str, float]:
         np.median(builtin.track_map_ms) / np.median(orbslam3.track_map_ms),
         builtin.cpu_s / orbslam3.cpu_s if orbslam3.cpu_s > 0 else float("nan"),
         builtin.wall_s / orbslam3.wall_s if orbslam3.wall_s > 0 else float("nan"),
+        builtin.keyframes / orbslam3.keyframes if builtin.keyframes and orbslam3.keyframes else float("nan"),
     )
     return dict(zip(RATIOS, (float(v) for v in values), strict=True))
 
@@ -348,11 +396,12 @@ def _orbslam3(
         run.track_ms,
         max(run.cpu_s - startup_cpu_s, 0.0),
         max(run.total_s - startup_wall_s, 0.0),
+        run.keyframes,
     )
     blank = " ".join(f"{'':>24s}" for _ in ("extract", "reject", "track"))
     print(
         f"{f'orbslam3 none pace {pace:g}':32s} {blank} {_cell(run.track_ms):>24s} {'':>24s} "
-        f"{_cell(run.track_ms):>24s}{_seconds(cost.cpu_s, cost.wall_s)}"
+        f"{_cell(run.track_ms):>24s}{_seconds(cost.cpu_s, cost.wall_s, cost.keyframes)}"
         f"   tracked {tracked}/{len(run.states)} frames; whole process cpu {run.cpu_s:.3f} s, "
         f"wall {run.total_s:.3f} s"
     )

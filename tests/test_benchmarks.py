@@ -153,6 +153,7 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     assert means[5] == pytest.approx(means[3] + means[4], abs=0.02)  # track+map adds mapping
     cpu_s, wall_s = (float(x) for x in re.search(_SECONDS, row[1]).groups())
     assert 0 < cpu_s <= wall_s + 0.01  # one core: 10 ms for the clocks' granularity
+    assert int(re.search(r"keyframes\s+(\d+)$", row[1])[1]) >= 1  # the first frame makes one
     # 4 frames asked; the analog's tum sensor may lose one, as TUM's driver did.
     frames = int(re.search(r"tracked 0/(\d+) frames", out)[1])
     assert 3 <= frames <= 4
@@ -162,7 +163,7 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     assert startup and float(startup[1]) > 0 and float(startup[2]) > 0, out
     for pace in ("0", "1"):
         orbslam3 = re.search(
-            rf"^orbslam3 none pace {pace}\s.*{_SECONDS}   tracked 0/{frames} frames; "
+            rf"^orbslam3 none pace {pace}\s.*{_SECONDS}(?:  keyframes\s+\d+)?   tracked 0/{frames} frames; "
             rf"whole process cpu (\d+\.\d+) s, wall (\d+\.\d+) s$",
             out,
             re.M,
@@ -173,20 +174,43 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
         assert whole_cpu > 0 and whole_wall > 0
         ratios = re.search(
             rf"^  built-in / orbslam3 pace {pace}\s+none: tracking ([\d.]+)x, track\+map ([\d.]+)x, "
-            rf"cpu ([\d.]+|nan)x, wall ([\d.]+|nan)x$",
+            rf"cpu ([\d.]+|nan)x, wall ([\d.]+|nan)x, keyframes ([\d.]+|nan)x$",
             out,
             re.M,
         )
         assert ratios, out
         if sequence_cpu > 0.01:  # the ratio of the printed figures, to their rounding
             assert float(ratios[3]) == pytest.approx(cpu_s / sequence_cpu, rel=0.1, abs=0.01)
-        for name in ("tracking", "track+map", "cpu", "wall"):
+        for name in ("tracking", "track+map", "cpu", "wall", "keyframes"):
             x = r"(?:[\d.]+|nan)x"
             summary = rf"^  none\s+pace {pace}\s+{re.escape(name)}\s+{x}; {x} \[[\d.na]+-[\d.na]+\]$"
             assert re.search(summary, out, re.M), (name, out)
     bad = _run(str(BENCHMARKS / "tracking.py"), "--orbslam3-pace", "11")
     assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].endswith(
         "--orbslam3-pace: orbslam3: pace = 11 is out of range [0, 10]"
+    )
+
+
+def test_the_tracking_benchmark_finds_stored_sequences_and_names_a_folder_without_one(tmp_path):
+    """``--sequences`` takes sequence folders (meta.json inside) or folders holding them one
+    level down, in name order; a folder with neither is one line naming it, and ``--seed``
+    beside ``--sequences`` is refused (the seeds would be ignored)."""
+    tracking = benchmark_module("tracking")
+    for name in ("b", "a"):
+        (tmp_path / "suite" / name).mkdir(parents=True)
+        (tmp_path / "suite" / name / "meta.json").write_text("{}", encoding="utf-8")
+    (tmp_path / "empty").mkdir()
+    single = tmp_path / "suite" / "b"
+    assert tracking._stored([tmp_path / "suite", single]) == [
+        tmp_path / "suite" / "a",
+        tmp_path / "suite" / "b",
+        single,
+    ]
+    with pytest.raises(SystemExit, match=r"--sequences .*empty: no meta.json there or one level down"):
+        tracking._stored([tmp_path / "empty"])
+    both = _run(str(BENCHMARKS / "tracking.py"), "--sequences", str(single), "--seed", "1")
+    assert both.returncode == 2 and both.stderr.strip().splitlines()[-1].endswith(
+        "--sequences and --seed: give one"
     )
 
 
