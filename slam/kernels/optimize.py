@@ -380,28 +380,26 @@ def linearise(
             for j in range(3):
                 jac[i, 3 + j] = -d[i, j]
                 jac[i, 6 + j] = -(d[i, 0] * pose[0, j] + d[i, 1] * pose[1, j] + d[i, 2] * pose[2, j])
-        # J^T robust J, its upper triangle mirrored (the reference's two halves differ by rounding)
+        # J^T robust J, its upper triangle read for both halves (the reference's two halves
+        # differ by rounding). Each entry is summed over the three rows in one expression, in
+        # the reference's order from 0.0: 1.65x sooner than accumulating entry by entry (1.75
+        # against 2.9 ms a call on walking_xyz's local BAs), the same bytes.
+        r0, r1, r2 = r[0], r[1], r[2]
         for a in range(9):
-            gradient[a] = 0.0
+            ja0, ja1, ja2 = jac[0, a] * robust, jac[1, a] * robust, jac[2, a] * robust
+            gradient[a] = ((0.0 + ja0 * r0) + ja1 * r1) + ja2 * r2
             for b in range(a, 9):
-                hessian[a, b] = 0.0
-            for i in range(3):
-                ja = jac[i, a] * robust
-                gradient[a] += ja * r[i]
-                for b in range(a, 9):
-                    hessian[a, b] += ja * jac[i, b]
-            for b in range(a):
-                hessian[a, b] = hessian[b, a]
+                hessian[a, b] = ((0.0 + ja0 * jac[0, b]) + ja1 * jac[1, b]) + ja2 * jac[2, b]
         point = obs_point[k]
         for a in range(3):
             g_point[point, a] += gradient[6 + a]
             for b in range(3):
-                v_blocks[point, a, b] += hessian[6 + a, 6 + b]
+                v_blocks[point, a, b] += hessian[6 + min(a, b), 6 + max(a, b)]
         if slot >= 0:
             for a in range(6):
                 g_pose[slot, a] += gradient[a]
                 for b in range(6):
-                    u_blocks[slot, a, b] += hessian[a, b]
+                    u_blocks[slot, a, b] += hessian[min(a, b), max(a, b)]
                 for b in range(3):
                     w_blocks[on_free, a, b] = hessian[a, 6 + b]
     return u_blocks, g_pose, v_blocks, g_point, w_blocks
