@@ -288,8 +288,11 @@ class Map:
     def keypoint_values(self, name: str, kfs: np.ndarray, kps: np.ndarray) -> np.ndarray:
         """A feature array (``octaves``, ``descriptors``, ...) at keypoints ``kps`` of keyframes ``kfs``."""
         out = None
-        for kf_id in np.unique(kfs):
-            rows = np.flatnonzero(kfs == kf_id)
+        # Grouped by one stable sort, not one scan of kfs per keyframe: a local BA's table
+        # names ~60 keyframes in ~25,000 observations.
+        order = np.argsort(kfs, kind="stable")
+        ids, starts = np.unique(kfs[order], return_index=True)
+        for kf_id, rows in zip(ids.tolist(), np.split(order, starts[1:]), strict=True):
             values = getattr(self.all_keyframes[kf_id].features, name)[kps[rows]]
             if out is None:
                 out = np.empty((len(kfs), *values.shape[1:]), values.dtype)
