@@ -287,6 +287,8 @@ class Map:
 
     def keypoint_values(self, name: str, kfs: np.ndarray, kps: np.ndarray) -> np.ndarray:
         """A feature array (``octaves``, ``descriptors``, ...) at keypoints ``kps`` of keyframes ``kfs``."""
+        if not len(kfs):
+            return np.zeros(0)
         out = None
         # Grouped by one stable sort, not one scan of kfs per keyframe: a local BA's table
         # names ~60 keyframes in ~25,000 observations.

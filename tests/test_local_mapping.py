@@ -792,3 +792,21 @@ def test_a_point_left_with_one_depth_observation_after_local_ba_is_culled():
     alive = np.flatnonzero(map_.alive[:80])  # points 80-119 are seen by no keyframe
     assert (map_.observation_weight[alive] > 2).all()
     assert map_.alive[6:80].all()
+
+
+def test_keypoint_values_gathers_each_keyframes_values_in_the_order_asked_and_none_for_none():
+    """``Map.keypoint_values`` reads each keyframe's feature array at its keypoints, in the
+    order the observations come (interleaved keyframes included), and an empty table gives
+    an empty array: keyframe culling asks for none when a candidate's points have no other
+    observer (the grouped version raised there, found by a 146-frame walking_static clip)."""
+    from types import SimpleNamespace
+
+    from depotbench.slam.map import Map
+
+    octaves = [np.array([5, 6, 7]), np.array([0, 1, 2, 3]), np.array([9, 8])]
+    map_ = Map()
+    map_.all_keyframes = [SimpleNamespace(features=SimpleNamespace(octaves=o)) for o in octaves]
+    kfs, kps = np.array([2, 0, 1, 2, 0, 1]), np.array([1, 2, 3, 0, 0, 1])
+    expected = [octaves[kf][kp] for kf, kp in zip(kfs, kps, strict=True)]
+    assert map_.keypoint_values("octaves", kfs, kps).tolist() == expected
+    assert len(map_.keypoint_values("octaves", np.zeros(0, int), np.zeros(0, int))) == 0
