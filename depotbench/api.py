@@ -356,6 +356,7 @@ def benchmark(
     deterministic: bool | None = None,
     fresh_seeds: int = 0,
     entropy: int | None = None,
+    sequences: str | Path | None = None,
     workers: int = 1,
     progress: bool = False,
 ) -> BenchmarkResult:
@@ -364,7 +365,9 @@ def benchmark(
     generated or reused under ``out/sequences`` and checked against its lock, each run
     ``repeats`` times where the tracker is not deterministic (ORB-SLAM3 always; a ``cmd``
     program when ``deterministic=False``), results.json written. ``fresh_seeds``: as many new
-    seeds a scenario scored beside them (``entropy`` draws the same ones again)."""
+    seeds a scenario scored beside them (``entropy`` draws the same ones again).
+    ``sequences``: a folder that keeps the sequences instead of ``out/sequences``, shared by
+    the scores of several trackers (``--sequences``)."""
     from depotbench.core.errors import InputError
     from depotbench.eval.benchmark.runner import Plan, repeats_for, run_benchmark
     from depotbench.eval.benchmark.spec import load_benchmark
@@ -381,7 +384,14 @@ def benchmark(
     job = RunJob(Path("."), strategy, _detector(detector), _settings(settings or {}), config)
     plan = Plan(job, repeats_for(deterministic, repeats), deterministic)
     run_benchmark(
-        load_benchmark(name), plan, Path(out), workers, progress, fresh_seeds=fresh_seeds, entropy=entropy
+        load_benchmark(name),
+        plan,
+        Path(out),
+        workers,
+        progress,
+        fresh_seeds=fresh_seeds,
+        entropy=entropy,
+        sequences_root=None if sequences is None else Path(sequences),
     )
     return BenchmarkResult.read(Path(out))
 

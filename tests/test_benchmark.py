@@ -283,6 +283,42 @@ def test_a_baseline_of_other_sequences_is_refused():
         rows(mine, other)
 
 
+def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
+    smoke: Path, tmp_path: Path, capsys
+):
+    """``--sequences DIR``: the sequences are kept there, not under each output (tum-dyn-short-1
+    copied 5.9 GB into every tracker's); a second tracker's run finds them made and checks
+    them against the lock (a file changed in between is refused by name), results.json
+    names them by their path from the output, and ``benchmark verify`` finds them there."""
+    shared = tmp_path / "shared"
+    shutil.copytree(smoke / "sequences", shared)
+    first = shared / "smoke" / "smoke-0000" / "groundtruth.txt"
+    made = first.stat().st_mtime_ns
+    outs = {}
+    for strategy in ("none", "box_rule"):
+        out = tmp_path / strategy
+        words = ["--strategy", strategy, "--sequences", str(shared), "--workers", "1"]
+        assert main(["benchmark", "run", "smoke-1", "-o", str(out), *words]) == 0
+        assert not (out / "sequences").exists()
+        results = load_results(out)
+        assert [s["folder"] for s in results["sequences"]] == [
+            f"../shared/smoke/smoke-000{i}" for i in range(3)
+        ]
+        assert verify(out) == []
+        outs[strategy] = results
+    assert first.stat().st_mtime_ns == made  # made once, read by both
+    keys = [[s["files_key"] for s in r["sequences"]] for r in outs.values()]
+    assert keys[0] == keys[1] == [s.files_key for s in load_benchmark("smoke-1").sequences]
+    rgb = sorted((shared / "smoke" / "smoke-0001" / "rgb").iterdir())[0]
+    rgb.write_bytes(rgb.read_bytes()[:-1] + b"\0")
+    capsys.readouterr()
+    third = ["benchmark", "run", "smoke-1", "-o", str(tmp_path / "third"), "--sequences", str(shared)]
+    assert main(third) != 0
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "shared/smoke/smoke-0001: its files are not smoke-1's smoke/smoke-0001" in line
+    assert not (tmp_path / "third" / "results.json").exists()
+
+
 def test_verify_finds_a_changed_trajectory_and_a_changed_figure(smoke: Path, tmp_path: Path, capsys):
     out = tmp_path / "run"
     results = _bench(smoke, out)

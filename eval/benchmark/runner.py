@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -216,7 +217,7 @@ def _score(
         sequences.append(
             {
                 "name": p.sequence.folder,
-                "folder": p.path.relative_to(out).as_posix(),
+                "folder": Path(os.path.relpath(p.path, out)).as_posix(),
                 "scenario": p.sequence.scenario,
                 "seed": p.sequence.seed,
                 "frames": p.sequence.frames,
@@ -238,9 +239,14 @@ def run_benchmark(
     entropy: int | None = None,
     backend: str = "local",
     address: str | None = None,
+    sequences_root: Path | None = None,
 ) -> dict[str, Any]:
     """Generate and check the benchmark's sequences under ``out/sequences``, run the plan on
     each (``plan.repeats`` times), write ``out/results.json`` and return its content.
+
+    ``sequences_root``: where the sequences are kept instead (one folder for the runs of
+    several trackers: made once, checked against the lock by every run); results.json
+    names them by their path from ``out``.
 
     ``fresh_seeds``: as many new seeds per scenario, drawn now (from ``entropy``, or the
     operating system's, recorded either way) and scored alike under ``out/fresh``: a tracker
@@ -256,7 +262,7 @@ def run_benchmark(
     started = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     where = {"backend": backend, "address": address}
-    prepared = prepare(benchmark, out / "sequences", workers, progress, **where)
+    prepared = prepare(benchmark, sequences_root or out / "sequences", workers, progress, **where)
     sequences, resumed = _score(prepared, plan, out, "runs", workers, progress, benchmark.name, **where)
     fresh = None
     if fresh_seeds:

@@ -57,6 +57,13 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
         metavar="E",
         help="--fresh-seeds: draw them from this number, to draw them again (results.json records it)",
     )
+    run.add_argument(
+        "--sequences",
+        type=Path,
+        metavar="DIR",
+        help="keep the benchmark's sequences here, not in OUTPUT/sequences: one folder serves the runs of "
+        "several trackers (made once, checked against the lock by each run)",
+    )
     run.add_argument("--workers", type=workers, default=None, help=WORKERS_HELP)
     add_backend(run)
     run.set_defaults(handler=_cmd_run)
@@ -180,6 +187,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         args.workers,
         fresh_seeds=args.fresh_seeds,
         entropy=args.fresh_entropy,
+        sequences_root=args.sequences,
         **backend_of(args),
     )
     results["_path"] = str(args.output / "results.json")
