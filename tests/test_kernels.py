@@ -31,6 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from depotbench.core import jit as jit_module
 from depotbench.core.camera import Intrinsics
 from depotbench.core.errors import InputError
 from depotbench.slam import bundle, kernels, optimize, rejection
@@ -93,7 +94,7 @@ def test_a_bad_value_is_refused_in_one_line_naming_the_variable(path):
 
 
 def test_numba_asked_for_but_missing_is_refused(path, monkeypatch):
-    monkeypatch.setattr(kernels.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(jit_module.importlib.util, "find_spec", lambda name: None)
     path("numba")
     with pytest.raises(InputError, match=r"DEPOTBENCH_KERNELS=numba, but numba is not installed"):
         kernels.kernels()
@@ -124,7 +125,7 @@ def test_without_a_writable_cache_folder_kernels_compile_in_memory(tmp_path: Pat
     then compiles in each process instead. Shown in a child whose only cache locator is
     Numba's IPython one, which declines ordinary files."""
     script = (
-        "from depotbench.slam.kernels.jit import jit\n"
+        "from depotbench.core.jit import jit\n"
         "@jit\n"
         "def twice(x):\n"
         "    return 2 * x\n"

@@ -11,7 +11,7 @@ the same integers, so the same vocabulary.
 from __future__ import annotations
 
 import numpy as np
-from depotbench.slam.kernels.jit import jit
+from depotbench.core.jit import jit
 
 
 @jit

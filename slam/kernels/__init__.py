@@ -10,86 +10,26 @@ points.
 The NumPy functions stay the reference: each compiled kernel (``kernels.optimize`` for pose
 refinement and local BA, ``kernels.matching``, ``kernels.rejection``) takes and returns what its
 reference does, and ``tests/test_kernels.py`` holds each to it within a stated tolerance.
-One environment variable, read here and nowhere else, picks the path:
-
-- ``DEPOTBENCH_KERNELS=numba``: the compiled kernels (the default where numba imports);
-- ``DEPOTBENCH_KERNELS=numpy``: the NumPy reference throughout.
+``DEPOTBENCH_KERNELS`` (``core.jit``, shared with the generator's kernels) picks the path:
+numba (the default where numba imports) or the NumPy reference throughout.
 
 Kernels compile with ``cache=True`` (Numba's cache beside the module, else under
 ``~/.cache/numba`` or ``NUMBA_CACHE_DIR``), so only the first process compiles (14 s for all
 of them on a busy 2-core machine); every later one pays 0.3 s to import numba and 0.5 s to
 load them, once, which 150 frames repay. Where no cache folder is writable they compile in
-memory in each process (``kernels.jit``). No kernel uses threads or ``fastmath``: the sweep
+memory in each process (``core.jit``). No kernel uses threads or ``fastmath``: the sweep
 runs one process per core, and the results must match NumPy's arithmetic, not reassociate it.
 """
 
 from __future__ import annotations
 
-import contextlib
-import enum
 import functools
-import importlib.util
-import logging
-import os
-import threading
 import time
-from collections.abc import Iterator
 
-from depotbench.core.errors import InputError
+from depotbench.core.jit import LOG, VARIABLE, Kernels, compiled, kernels, using, warmed
 from depotbench.core.logs import DETAIL
 
-VARIABLE = "DEPOTBENCH_KERNELS"
-ANNOUNCE_AFTER_S = 3.0
-"""A warm-up still running after this long is compiling, not loading (0.5 s from the cache,
-1.5 s on a busy machine, 14 s compiling): only then does it say so, so a user knows what
-the wait is."""
-LOG = logging.getLogger("depotbench.kernels")
-
-
-class Kernels(enum.Enum):
-    NUMPY = "numpy"
-    NUMBA = "numba"
-
-
-@functools.cache
-def kernels() -> Kernels:
-    """The path this process runs, from ``DEPOTBENCH_KERNELS`` (read once; tests that set it
-    call ``kernels.cache_clear()``). A value other than numpy or numba is refused, and so is
-    numba where it is not installed: a comparison that asked for it must not get NumPy."""
-    value = os.environ.get(VARIABLE, "").strip().lower()
-    installed = importlib.util.find_spec("numba") is not None
-    if not value:
-        return Kernels.NUMBA if installed else Kernels.NUMPY
-    try:
-        chosen = Kernels(value)
-    except ValueError:
-        choices = " or ".join(k.value for k in Kernels)
-        raise InputError(f"{VARIABLE}={os.environ[VARIABLE]!r}: choose {choices}") from None
-    if chosen is Kernels.NUMBA and not installed:
-        raise InputError(f"{VARIABLE}=numba, but numba is not installed (pip install numba)")
-    return chosen
-
-
-def compiled() -> bool:
-    """Whether the hot paths run compiled (the callers' one question)."""
-    return kernels() is Kernels.NUMBA
-
-
-@contextlib.contextmanager
-def using(path: Kernels) -> Iterator[None]:
-    """Run a block on one path, as ``DEPOTBENCH_KERNELS`` set for it would (benchmarks and tests
-    compare both in one process); the variable is restored after."""
-    before = os.environ.get(VARIABLE)
-    os.environ[VARIABLE] = path.value
-    kernels.cache_clear()
-    try:
-        yield
-    finally:
-        if before is None:
-            os.environ.pop(VARIABLE, None)
-        else:
-            os.environ[VARIABLE] = before
-        kernels.cache_clear()
+__all__ = ["VARIABLE", "Kernels", "compiled", "kernels", "ready", "using", "warm_up"]
 
 
 def warm_up() -> float:
@@ -148,17 +88,4 @@ def _ready(path: Kernels) -> float:
     if path is not Kernels.NUMBA:
         LOG.log(DETAIL, "kernels: the NumPy path (%s=numpy, or no numba), nothing to compile", VARIABLE)
         return 0.0
-    announce = threading.Timer(
-        ANNOUNCE_AFTER_S,
-        LOG.info,
-        ("compiling kernels (the first run after an install: about 15 s; later runs load them)",),
-    )
-    announce.daemon = True
-    announce.start()
-    try:
-        seconds = warm_up()
-    finally:
-        announce.cancel()
-    said = logging.INFO if seconds > ANNOUNCE_AFTER_S else DETAIL  # -v shows a load too
-    LOG.log(said, f"kernels ready in {seconds:.1f} s (kept in Numba's cache for later runs)")
-    return seconds
+    return warmed("kernels", warm_up, compile_s=15)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from depotbench.slam.kernels.jit import jit
+from depotbench.core.jit import jit
 
 CIRCLE_DX = np.array([0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3, -3, -3, -2, -1], np.int64)
 CIRCLE_DY = np.array([-3, -3, -2, -1, 0, 1, 2, 3, 3, 3, 2, 1, 0, -1, -2, -3], np.int64)

@@ -23,8 +23,8 @@ import math
 from typing import Any
 
 import numpy as np
+from depotbench.core.jit import jit
 from depotbench.slam.geometry import POPCOUNT, project, transform
-from depotbench.slam.kernels.jit import jit
 
 NEIGHBOURS = 8
 """As ``matcher.NEIGHBOURS``: keypoints within the radius considered per point, nearest first."""

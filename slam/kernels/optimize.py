@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from depotbench.slam.kernels.jit import jit
+from depotbench.core.jit import jit
 
 EPSILON = 2.220446049250313e-16
 """DBL_EPSILON: below it OpenCV's Rodrigues returns the identity."""

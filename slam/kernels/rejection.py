@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from depotbench.slam.kernels.jit import jit
+from depotbench.core.jit import jit
 
 
 @jit
