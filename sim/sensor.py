@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from depotbench.core.jit import compiled
 from depotbench.sim.ipp import without_ipp
 from depotbench.sim.spec import SensorSpec
 from scipy.spatial.transform import Rotation
@@ -27,6 +28,8 @@ from scipy.spatial.transform import Rotation
 KINECT_FOCAL_PX = 580.0
 KINECT_BASELINE_M = 0.075
 DISPARITY_STEP_PX = 1.0 / 8.0
+BLUR_SAMPLES = 7
+"""Instants averaged along each pixel's motion during the exposure."""
 EDGE_JUMP_M = 0.05
 """Neighbouring depths further apart than this make an edge pixel."""
 
@@ -75,6 +78,8 @@ class SensorModel:
         s = self.spec
         if delay_frames and flow_px is not None:
             depth_m = _shift(depth_m, np.nan_to_num(flow_px) * delay_frames, cv2.INTER_NEAREST)
+        if compiled() and depth_m.dtype == np.float32:
+            return self._depth_compiled(depth_m)
         z = depth_m.astype(np.float64)
         valid = z > 0
         if s.depth_noise:
@@ -88,6 +93,25 @@ class SensorModel:
             valid &= ~self._edges(depth_m, s.edge_dropout)
         return np.where(valid, z, 0.0).astype(np.float32)
 
+    def _depth_compiled(self, depth_m: np.ndarray) -> np.ndarray:
+        """``depth``'s arithmetic in one pass (sim/kernels.py), the random draws as it makes them."""
+        from depotbench.sim import kernels
+
+        s = self.spec
+        noise = self.rng.standard_normal(depth_m.shape) if s.depth_noise else np.empty((0, 0))
+        dropped = self._edges(depth_m, s.edge_dropout) if s.edge_dropout > 0 else np.empty((0, 0), bool)
+        near, far = (np.float32(bound) for bound in s.depth_range_m)
+        return kernels.kinect_depth(
+            depth_m,
+            noise,
+            s.disparity_quantisation,
+            KINECT_FOCAL_PX * KINECT_BASELINE_M,
+            DISPARITY_STEP_PX,
+            near,
+            far,
+            dropped,
+        )
+
     def _edges(self, depth_m: np.ndarray, probability: float) -> np.ndarray:
         grad = np.maximum(
             np.abs(np.diff(depth_m, axis=0, append=depth_m[-1:])),
@@ -98,8 +122,15 @@ class SensorModel:
 
     def rgb(self, rgb: np.ndarray, flow_px: np.ndarray | None, fps: float) -> np.ndarray:
         s = self.spec
+        moved = flow_px is not None and (s.motion_blur_exposure_s > 0 or s.rolling_shutter_readout_s > 0)
+        if (
+            compiled()
+            and rgb.ndim == 3
+            and (not moved or (s.motion_blur_exposure_s > 0 and flow_px.dtype == np.float32))
+        ):
+            return self._rgb_compiled(rgb, flow_px if moved else None, fps)
         image = rgb.astype(np.float32)
-        if flow_px is not None and (s.motion_blur_exposure_s > 0 or s.rolling_shutter_readout_s > 0):
+        if moved:
             flow = np.nan_to_num(flow_px)
             delays = row_delays_frames(image.shape[0], s.rolling_shutter_readout_s, fps)
             shift = flow * delays[:, None, None]
@@ -116,6 +147,37 @@ class SensorModel:
             image += self.rng.standard_normal(image.shape, dtype=np.float32) * np.float32(s.rgb_noise_sigma)
         return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
+    def _rgb_compiled(self, rgb: np.ndarray, flow_px: np.ndarray | None, fps: float) -> np.ndarray:
+        """``rgb`` with its per-pixel arithmetic compiled (sim/kernels.py): the blur's sample
+        positions and the exposure, balance, noise and rounding each in one pass; the remaps
+        and the random draws as ``rgb`` makes them, in its order."""
+        from depotbench.sim import kernels
+
+        s = self.spec
+        image, divisor = rgb.astype(np.float32), np.float32(1.0)
+        if flow_px is not None:
+            delays = row_delays_frames(image.shape[0], s.rolling_shutter_readout_s, fps)
+            exposure = np.float32(s.motion_blur_exposure_s * fps)
+            u, v, du, dv = kernels.blur_shifts(flow_px, delays, exposure)
+            total = np.zeros_like(image)
+            map_u, map_v = np.empty_like(u), np.empty_like(v)
+            with without_ipp():
+                for a in np.linspace(-0.5, 0.5, BLUR_SAMPLES, dtype=np.float32):
+                    kernels.blur_sample(u, v, du, dv, a, map_u, map_v)
+                    total += cv2.remap(image, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            image, divisor = total, np.float32(BLUR_SAMPLES)
+        gain = np.float32(1.0)
+        if s.exposure_variation > 0:
+            self._gain_state = 0.9 * self._gain_state + 0.1 * self.rng.standard_normal()
+            gain = np.float32(float(np.exp(s.exposure_variation * self._gain_state * 3.0)))
+        balance = np.empty(0, np.float32)
+        if s.white_balance_drift > 0:
+            balance = self._white_balance(fps).astype(np.float32)
+        noise = np.empty((0, 0, 0), np.float32)
+        if s.rgb_noise_sigma > 0:
+            noise = self.rng.standard_normal(image.shape, dtype=np.float32)
+        return kernels.finish_rgb(image, divisor, gain, balance, noise, np.float32(s.rgb_noise_sigma))
+
     def _white_balance(self, fps: float) -> np.ndarray:
         """Per-channel gains: each log gain an AR(1) process whose stationary standard
         deviation is ``white_balance_drift``, with a correlation time of WHITE_BALANCE_TIME_S;
@@ -128,7 +190,10 @@ class SensorModel:
 
     @staticmethod
     def _blur(
-        image: np.ndarray, motion_px: np.ndarray, shift_px: np.ndarray | None = None, samples: int = 7
+        image: np.ndarray,
+        motion_px: np.ndarray,
+        shift_px: np.ndarray | None = None,
+        samples: int = BLUR_SAMPLES,
     ) -> np.ndarray:
         """Average the image along each pixel's motion during the exposure, centred on the
         exposure's middle, itself moved by ``shift_px`` (the rolling shutter's row delay)."""
