@@ -1,7 +1,8 @@
 """Generation speed: simulate + render + ground truth + write, frames per second.
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
-                                       [--repeat R] [--peer] [--scene NAME] [--stages [--seed S]]
+                                       [--repeat R] [--peer] [--profiles P ...] [--scene NAME]
+                                       [--stages [--seed S]]
 
 For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
 the rate of one process (Mesa's default threads) and of two processes with one thread
@@ -24,7 +25,9 @@ instance or unoccluded passes, ground truth or writes), in two one-thread proces
 suites run theirs. Issue 14 set 30 frames/s against MuJoCo alone at about 35 a process
 (rendering-notes.md); this machine's speed drifts by a third between hours, and the
 ratio to a peer measured in the same minutes should not. The peer draws every figure
-piece at full detail (no far versions) and no collision stand-ins.
+piece at full detail (no far versions) and no collision stand-ins. ``--profiles perfect tum``
+measures the two-process line once per sensor profile, each beside the same peer (the peer
+renders the worlds, which no sensor changes): the clean and the TUM profile in one run.
 
 ``--stages`` instead breaks one one-thread process's frame down by stage (as suites'
 workers run it): the colour pass, the instance pass, the unoccluded areas,
@@ -185,6 +188,7 @@ STAGES = (
     ("poses and physics", "depotbench.sim.simulation", "Simulation.advance_to"),
     ("snapshots", "depotbench.sim.simulation", "Simulation.snapshot"),
     ("moving pixels' flow", "depotbench.sim.generate", "flow_at"),
+    ("exact flow (sensor, gt/flow)", "depotbench.sim.generate", "exact_flow"),
     ("boxes", "depotbench.sim.generate", "visible_boxes"),
     ("object states", "depotbench.sim.generate", "object_states"),
     ("sensor model", "depotbench.sim.sensor", "SensorModel.rgb"),
@@ -267,6 +271,12 @@ def main() -> None:
     parser.add_argument(
         "--peer", action="store_true", help="also measure MuJoCo alone rendering the same worlds, for ratios"
     )
+    parser.add_argument(
+        "--profiles",
+        nargs="+",
+        choices=["perfect", "kinect", "tum"],
+        help="the two-process line once per sensor profile, each beside one peer (default: the scene's own)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="--stages: the seed")
     parser.add_argument(
         "--sensors",
@@ -297,38 +307,48 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for level in args.png_compression:
 
-            def jobs(first: int, n: int, one_thread: bool, run: int, level: int = level) -> list:
+            def jobs(first: int, n: int, one_thread: bool, run: int, level: int = level, sensor=None) -> list:
                 return [
                     (
                         args.frames,
                         args.width,
                         args.height,
                         s,
-                        f"{tmp}/s{s}-{level}-{run}",
+                        f"{tmp}/s{s}-{level}-{run}-{sensor}",
                         one_thread,
                         level,
                         args.scene,
+                        sensor,
                     )
                     for s in range(first, first + n)
                 ]
 
-            singles, doubles, peers = [], [], []
+            profiles = args.profiles or [None]
+            singles, peers = [], []
+            doubles: dict[str | None, list] = {profile: [] for profile in profiles}
             for run in range(args.repeat):
-                singles.append(_measure(ctx, jobs(0, 1, False, run)))
-                doubles.append(_measure(ctx, jobs(1, 2, True, run)))
+                singles.append(_measure(ctx, jobs(0, 1, False, run, sensor=profiles[0])))
+                for profile in profiles:
+                    doubles[profile].append(_measure(ctx, jobs(1, 2, True, run, sensor=profile)))
                 if args.peer:
                     peer_jobs = [(args.frames, args.width, args.height, s, args.scene) for s in (1, 2)]
                     peers.append(_measure_peer(ctx, peer_jobs))
-            single, double = _summary(singles), _summary(doubles)
             print(f"PNG level {level}")
-            print(f"  1 process               : {single}")
-            ratio = np.median([d[0] for d in doubles]) / np.median([s[0] for s in singles])
-            print(f"  2 processes, 1 thread each: {double}  (x{ratio:.2f} of one process, once built)")
+            label = "" if profiles == [None] else f" ({profiles[0]})"
+            print(f"  1 process{label:16s}: {_summary(singles)}")
+            for profile in profiles:
+                label = "" if profile is None else f", {profile}"
+                ratio = np.median([d[0] for d in doubles[profile]]) / np.median([s[0] for s in singles])
+                rate = _summary(doubles[profile])
+                print(f"  2 processes{label}: {rate}  (x{ratio:.2f} of one process, once built)")
             if peers:
                 peer = _summary([(p,) for p in peers])
                 print(f"  MuJoCo alone, 2 processes : {peer}  (RGB and depth, segmentation)")
-                shares = _summary([(d[0] / p,) for d, p in zip(doubles, peers, strict=True)], digits=2)
-                print(f"  2 processes / MuJoCo alone: {shares}  (each run's own)")
+                for profile in profiles:
+                    label = "" if profile is None else f" ({profile})"
+                    pairs = zip(doubles[profile], peers, strict=True)
+                    shares = _summary([(d[0] / p,) for d, p in pairs], digits=2)
+                    print(f"  2 processes{label} / MuJoCo alone: {shares}  (each run's own)")
 
 
 def _compare_sensors(ctx, args: argparse.Namespace) -> None:
