@@ -1,9 +1,10 @@
 """The import graph points one way, at every level.
 
 Between root folders: ``eval -> slam, detectors, scenes, sim -> core`` (slam takes only the
-plain detection type and the camera). Inside ``eval``: its subpackages in the order of the
-pipeline, each importing only those before it; inside ``slam``: ORB-SLAM's parts in floors,
-tracking above local mapping and relocalisation above the matcher and the optimiser.
+plain detection type, the camera, errors, logs and the kernels' switch ``core.jit``). Inside
+``eval``: its subpackages in the order of the pipeline, each importing only those before
+it; inside ``slam``: ORB-SLAM's parts in floors, tracking above local mapping and
+relocalisation above the matcher and the optimiser.
 Everywhere: no import cycle between modules (imports inside functions count: a deferred
 import is still a dependency), and nothing outside the command line imports it. The package's
 face (``depotbench/``: ``import depotbench`` and its API) may import anything, and no part
@@ -29,7 +30,7 @@ ALLOWED: dict[str, set[str]] = {
     "sim": {"core"},
     "scenes": {"core", "sim"},
     "detectors": {"core", "sim"},
-    "slam": {"detectors.detection", "core.camera", "core.errors", "core.logs"},
+    "slam": {"detectors.detection", "core.camera", "core.errors", "core.logs", "core.jit"},
     "eval": {"core", "sim", "scenes", "detectors", "slam"},
 }
 """For each root folder, the other project modules it may import (a package allows its submodules)."""
