@@ -138,14 +138,31 @@ class SensorModel:
                 image = self._blur(image, flow * (s.motion_blur_exposure_s * fps), shift)
             else:
                 image = _shift(image, shift, cv2.INTER_LINEAR)
+        gain, balance, noise = self._exposure(image.shape, fps)
+        if gain is not None:
+            image *= gain
+        if balance is not None:
+            image *= balance
+        if noise is not None:
+            image += noise * np.float32(s.rgb_noise_sigma)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+    def _exposure(
+        self, shape: tuple[int, ...], fps: float
+    ) -> tuple[np.float32 | None, np.ndarray | None, np.ndarray | None]:
+        """This frame's exposure gain, white-balance gains and RGB noise (None where the effect
+        is off), drawn in this order from their streams: both RGB paths take them from here,
+        since every later frame's bytes hang on the order of the draws."""
+        s = self.spec
+        gain = balance = noise = None
         if s.exposure_variation > 0:
             self._gain_state = 0.9 * self._gain_state + 0.1 * self.rng.standard_normal()
-            image *= float(np.exp(s.exposure_variation * self._gain_state * 3.0))
+            gain = np.float32(np.exp(s.exposure_variation * self._gain_state * 3.0))
         if s.white_balance_drift > 0:
-            image *= self._white_balance(fps).astype(np.float32)
+            balance = self._white_balance(fps).astype(np.float32)
         if s.rgb_noise_sigma > 0:
-            image += self.rng.standard_normal(image.shape, dtype=np.float32) * np.float32(s.rgb_noise_sigma)
-        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+            noise = self.rng.standard_normal(shape, dtype=np.float32)
+        return gain, balance, noise
 
     def _rgb_compiled(self, rgb: np.ndarray, flow_px: np.ndarray | None, fps: float) -> np.ndarray:
         """``rgb`` with its per-pixel arithmetic compiled (sim/kernels.py): the blur's sample
@@ -166,17 +183,15 @@ class SensorModel:
                     kernels.blur_sample(u, v, du, dv, a, map_u, map_v)
                     total += cv2.remap(image, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             image, divisor = total, np.float32(BLUR_SAMPLES)
-        gain = np.float32(1.0)
-        if s.exposure_variation > 0:
-            self._gain_state = 0.9 * self._gain_state + 0.1 * self.rng.standard_normal()
-            gain = np.float32(float(np.exp(s.exposure_variation * self._gain_state * 3.0)))
-        balance = np.empty(0, np.float32)
-        if s.white_balance_drift > 0:
-            balance = self._white_balance(fps).astype(np.float32)
-        noise = np.empty((0, 0, 0), np.float32)
-        if s.rgb_noise_sigma > 0:
-            noise = self.rng.standard_normal(image.shape, dtype=np.float32)
-        return kernels.finish_rgb(image, divisor, gain, balance, noise, np.float32(s.rgb_noise_sigma))
+        gain, balance, noise = self._exposure(image.shape, fps)
+        return kernels.finish_rgb(
+            image,
+            divisor,
+            np.float32(1.0) if gain is None else gain,
+            np.empty(0, np.float32) if balance is None else balance,
+            np.empty((0, 0, 0), np.float32) if noise is None else noise,
+            np.float32(s.rgb_noise_sigma),
+        )
 
     def _white_balance(self, fps: float) -> np.ndarray:
         """Per-channel gains: each log gain an AR(1) process whose stationary standard
