@@ -307,7 +307,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for level in args.png_compression:
 
-            def jobs(first: int, n: int, one_thread: bool, run: int, level: int = level, sensor=None) -> list:
+            def jobs(
+                first: int, n: int, one_thread: bool, run: int, level: int = level, sensor: str | None = None
+            ) -> list:
                 return [
                     (
                         args.frames,
