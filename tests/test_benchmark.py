@@ -275,6 +275,41 @@ def test_the_table_is_numpys_on_a_hand_made_case():
     assert float(first["rho_percent"]) == pytest.approx((0.110 - 0.020) / 0.110 * 100)
 
 
+def test_a_table_names_trackers_by_what_tells_them_apart_and_notes_every_parameter():
+    """ORB-SLAM3's settings are six NAME=VALUE pairs in every results file: in the tracker
+    column they made it ~150 characters wide. A table names each file by tracker and strategy,
+    adds only the parameters that differ from another file of the same tracker, and lists
+    every file's parameters under the table (Markdown) and after it (LaTeX comments)."""
+    from depotbench.eval.benchmark.table import parameter_notes, tracker_label, tracker_labels
+
+    settings = {"ORBextractor.nFeatures": 1000, "ORBextractor.scaleFactor": 1.2, "ThDepth": 40}
+    orb = _results("orbslam3", {"a": [0.2], "b": [0.3]}, "orb.json")
+    orb["tracker"]["parameters"] = dict(settings)
+    strict, loose = (_results("mine", {"a": [0.01], "b": [0.02]}, f"{n}.json") for n in ("strict", "loose"))
+    strict["tracker"]["parameters"] = {"reject": 1, "window": 5}
+    loose["tracker"]["parameters"] = {"reject": 0, "window": 5}
+    loaded = [orb, strict, loose]
+    assert tracker_labels(loaded) == ["orbslam3", "mine reject=1", "mine reject=0"]
+    assert tracker_labels([orb]) == ["orbslam3"]
+    assert (
+        tracker_label(orb) == "orbslam3 ORBextractor.nFeatures=1000 ORBextractor.scaleFactor=1.2 ThDepth=40"
+    )
+    notes = parameter_notes(loaded)
+    assert notes == [
+        "orbslam3: ORBextractor.nFeatures=1000 ORBextractor.scaleFactor=1.2 ThDepth=40",
+        "mine reject=1: reject=1 window=5",
+        "mine reject=0: reject=0 window=5",
+    ]
+    all_rows = [
+        row for r, label in zip(loaded, tracker_labels(loaded), strict=True) for row in rows(r, None, label)
+    ]
+    text = markdown(all_rows, "hand-1", True, notes)
+    assert "| walk | orbslam3 | 2 x 1 |" in text and "| walk | mine reject=0 | 2 x 1 |" in text
+    assert text.endswith("Parameters:\n- " + "\n- ".join(notes) + "\n")
+    assert "% orbslam3: ORBextractor.nFeatures=1000" in latex(all_rows, "hand-1", True, notes)
+    assert csv_text([orb], None).splitlines()[1].split(",")[1] == tracker_label(orb)  # a CSV line stays whole
+
+
 def test_a_baseline_of_other_sequences_is_refused():
     mine = _results("mine", {"a": [0.01], "b": [0.02]}, "mine.json")
     other = _results("base", {"a": [0.1], "b": [0.2]}, "base.json")

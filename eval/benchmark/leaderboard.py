@@ -10,7 +10,15 @@ from typing import Any
 
 import numpy as np
 from depotbench.core.errors import InputError
-from depotbench.eval.benchmark.table import ate_medians, check_comparable, per_sequence, rows, tracker_label
+from depotbench.eval.benchmark.table import (
+    ate_medians,
+    check_comparable,
+    parameter_text,
+    per_sequence,
+    rows,
+    tracker_label,
+    tracker_labels,
+)
 
 
 def _cell(median: float | None, low: float | None = None, high: float | None = None) -> dict[str, Any]:
@@ -38,7 +46,7 @@ def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tu
     if baseline is not None:
         base_all = _overall(baseline)
     found = []
-    for results in loaded:
+    for results, label in zip(loaded, tracker_labels(loaded), strict=True):
         if baseline is not None:
             check_comparable(results, baseline)
         by_scenario = {row.scenario: row for row in rows(results)}
@@ -56,7 +64,8 @@ def entries(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None) -> tu
         )
         found.append(
             {
-                "label": tracker_label(results),
+                "label": label,
+                "parameters": parameter_text(results),
                 "fingerprint": results["tracker"]["fingerprint"],
                 "path": results["_path"],
                 "version": results["depotbench"],

@@ -73,12 +73,50 @@ class Row:
 
 
 def tracker_label(results: dict[str, Any]) -> str:
+    """The tracker's name, its strategy and every parameter: one results file on its own
+    (a CSV line, a baseline named in a title)."""
+    return _label(results, _parameters(results))
+
+
+def tracker_labels(loaded: list[dict[str, Any]]) -> list[str]:
+    """Each results file's name in a table of several: its tracker and strategy, and of its
+    parameters only those that tell it from another file of the same tracker and strategy
+    (ORB-SLAM3's settings alone are six pairs, the same in every file; ``parameter_notes``
+    prints them all under the table)."""
+    bases = [_label(r, {}) for r in loaded]
+    labels = []
+    for results, base in zip(loaded, bases, strict=True):
+        peers = [_parameters(r) for r, b in zip(loaded, bases, strict=True) if b == base]
+        mine = _parameters(results)
+        varying = {k: v for k, v in mine.items() if any(p.get(k) != v for p in peers)}
+        labels.append(_label(results, varying))
+    return labels
+
+
+def parameter_notes(loaded: list[dict[str, Any]]) -> list[str]:
+    """One line per results file with parameters: its table name and all of them."""
+    return [
+        f"{label}: {parameter_text(r)}"
+        for r, label in zip(loaded, tracker_labels(loaded), strict=True)
+        if _parameters(r)
+    ]
+
+
+def parameter_text(results: dict[str, Any]) -> str:
+    """Every parameter of the tracker, NAME=VALUE by name."""
+    return " ".join(f"{k}={v}" for k, v in sorted(_parameters(results).items()))
+
+
+def _parameters(results: dict[str, Any]) -> dict[str, Any]:
+    return dict(results["tracker"].get("parameters", {}))
+
+
+def _label(results: dict[str, Any], parameters: dict[str, Any]) -> str:
     t = results["tracker"]
-    params = " ".join(f"{k}={v}" for k, v in sorted(t.get("parameters", {}).items()))
     label = t["label"] if t["kind"] != "builtin" else f"builtin {t['strategy']}"
     if t["kind"] != "builtin" and t["strategy"] != "none":
         label += f" {t['strategy']}"
-    return f"{label} {params}".strip()
+    return f"{label} {' '.join(f'{k}={v}' for k, v in sorted(parameters.items()))}".strip()
 
 
 def ate_medians(sequences: list[dict[str, Any]]) -> list[tuple[str, float | None]]:
@@ -134,8 +172,11 @@ def _figure(per_seq: list[list[float]]) -> Figure | None:
     )
 
 
-def rows(results: dict[str, Any], baseline: dict[str, Any] | None = None) -> list[Row]:
-    """The table's rows of ``results``, one per scenario in the benchmark's order."""
+def rows(
+    results: dict[str, Any], baseline: dict[str, Any] | None = None, label: str | None = None
+) -> list[Row]:
+    """The table's rows of ``results``, one per scenario in the benchmark's order, the tracker
+    called ``label`` (default: its name with every parameter)."""
     sequences = per_sequence(results)
     base = None
     if baseline is not None:
@@ -155,7 +196,7 @@ def rows(results: dict[str, Any], baseline: dict[str, Any] | None = None) -> lis
         found.append(
             Row(
                 scenario,
-                tracker_label(results),
+                tracker_label(results) if label is None else label,
                 len(mine),
                 sum(q["runs"] for q in mine),
                 sum(q["failed"] for q in mine),
@@ -221,7 +262,8 @@ def _cells(row: Row, with_rho: bool, repeats: bool) -> list[str]:
     return cells
 
 
-def markdown(all_rows: list[Row], title: str, repeats: bool) -> str:
+def markdown(all_rows: list[Row], title: str, repeats: bool, notes: list[str] | None = None) -> str:
+    """The table, its reading, and ``notes`` (each tracker's parameters) under it."""
     with_rho = any(r.rho is not None for r in all_rows)
     heads = _headers(with_rho)
     lines = [f"# {title}", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
@@ -231,6 +273,8 @@ def markdown(all_rows: list[Row], title: str, repeats: bool) -> str:
         "Each cell: the median over seeds of each sequence's median over repeats, (the smallest-largest "
         "sequence)" + (", ±half the median spread between repeats" if repeats else "") + ".",
     ]
+    if notes:
+        lines += ["", "Parameters:", *(f"- {note}" for note in notes)]
     return "\n".join(lines) + "\n"
 
 
@@ -244,8 +288,9 @@ def _tex(text: str) -> str:
     )
 
 
-def latex(all_rows: list[Row], title: str, repeats: bool) -> str:
-    """A booktabs table: ATE and RPE column groups, as the source papers print them."""
+def latex(all_rows: list[Row], title: str, repeats: bool, notes: list[str] | None = None) -> str:
+    """A booktabs table: ATE and RPE column groups, as the source papers print them; ``notes``
+    (each tracker's parameters) as comments after it."""
     with_rho = any(r.rho is not None for r in all_rows)
     heads = _headers(with_rho)
     spec = "ll" + "r" * (len(heads) - 2)
@@ -268,6 +313,7 @@ def latex(all_rows: list[Row], title: str, repeats: bool) -> str:
     ]
     lines += [" & ".join(_tex(c) for c in _cells(r, with_rho, repeats)) + " \\\\" for r in all_rows]
     lines += ["\\bottomrule", "\\end{tabular}"]
+    lines += [f"% {note}" for note in notes or []]
     return "\n".join(lines) + "\n"
 
 

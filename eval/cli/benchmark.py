@@ -164,7 +164,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from depotbench.detectors.config import DetectorConfig
     from depotbench.eval.benchmark.runner import Plan, repeats_for, run_benchmark
     from depotbench.eval.benchmark.spec import load_benchmark
-    from depotbench.eval.benchmark.table import fresh_comparison, fresh_markdown, markdown, rows
+    from depotbench.eval.benchmark.table import (
+        fresh_comparison,
+        fresh_markdown,
+        markdown,
+        parameter_notes,
+        rows,
+        tracker_labels,
+    )
     from depotbench.eval.run.harness import RunJob
 
     tracker, settings = tracker_from_args(args)
@@ -192,7 +199,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     results["_path"] = str(args.output / "results.json")
     failed = sum(r["status"] != "ok" for s in results["sequences"] for r in s["runs"])
-    text = markdown(rows(results), f"{benchmark.name}: {results['tracker']['label']}", repeats > 1)
+    (label,) = tracker_labels([results])
+    title = f"{benchmark.name}: {results['tracker']['label']}"
+    text = markdown(rows(results, label=label), title, repeats > 1, parameter_notes([results]))
     comparison = fresh_comparison(results)
     if comparison is not None:
         text += "\n" + fresh_markdown(comparison, args.fresh_seeds)
@@ -210,7 +219,9 @@ def _cmd_table(args: argparse.Namespace) -> int:
         fresh_markdown,
         latex,
         markdown,
+        parameter_notes,
         rows,
+        tracker_labels,
     )
 
     loaded = [load_results(p) for p in args.results]
@@ -220,14 +231,18 @@ def _cmd_table(args: argparse.Namespace) -> int:
             f"the results score different benchmarks ({', '.join(sorted(names))}): one table each"
         )
     baseline = load_results(args.baseline) if args.baseline is not None else None
-    all_rows = [row for results in loaded for row in rows(results, baseline)]
+    labels = tracker_labels(loaded)
+    all_rows = [
+        row for results, label in zip(loaded, labels, strict=True) for row in rows(results, baseline, label)
+    ]
+    notes = parameter_notes(loaded)
     order = list(dict.fromkeys(r.scenario for r in all_rows))
     all_rows.sort(key=lambda r: order.index(r.scenario))
     repeats = any(r["repeats"] > 1 for r in loaded)
     title = f"{loaded[0]['benchmark']}" + (
         f", rho against {baseline['tracker']['label']} {baseline['tracker']['strategy']}" if baseline else ""
     )
-    text = markdown(all_rows, title, repeats)
+    text = markdown(all_rows, title, repeats, notes)
     fresh = {}
     for results in loaded:
         comparison = fresh_comparison(results)
@@ -240,7 +255,7 @@ def _cmd_table(args: argparse.Namespace) -> int:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         for suffix, content in (
             (".md", text),
-            (".tex", latex(all_rows, title, repeats)),
+            (".tex", latex(all_rows, title, repeats, notes)),
             (".csv", csv_text(loaded, baseline)),
         ):
             written.append(args.output.with_name(args.output.name + suffix))
