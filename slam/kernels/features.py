@@ -185,7 +185,9 @@ def fast_corners(image, threshold, border):
     """FAST-9 corners of a uint8 image at least ``border`` (3 or more) pixels inside its edges,
     each kept where its score beats its 8 neighbours' (a pixel that is no corner scores 0):
     columns, rows and scores, row by row. The score is the largest threshold at which the
-    pixel would still be a corner, less 1 (OpenCV's, which ORB ranks by)."""
+    pixel would still be a corner, less 1 (OpenCV's, which ORB ranks by). The threshold is
+    clamped to 0-255, so that one above 255 finds nothing (OpenCV's detector takes it modulo
+    256; the tracker's settings keep it within 1-100, where the two agree)."""
     rows, cols = image.shape
     score = np.zeros((rows, cols), np.int16)
     x0, x1 = max(3, border - 1), min(cols - 3, cols - border + 1)  # scored: one more on each side
@@ -195,7 +197,7 @@ def fast_corners(image, threshold, border):
         _row_scores(
             image[y - 3, left:right], image[y - 2, left:right], image[y - 1, left:right],
             image[y, left:right], image[y + 1, left:right], image[y + 2, left:right],
-            image[y + 3, left:right], np.uint8(threshold), score[y, x0:x1],
+            image[y + 3, left:right], np.uint8(min(max(threshold, 0), 255)), score[y, x0:x1],
         )  # fmt: skip
     most = ((rows + 1) // 2) * ((cols + 1) // 2)  # a strict 3 x 3 maximum has no maximum beside it
     xs = np.empty(most, np.int64)
