@@ -718,6 +718,17 @@ def test_fast_corners_equal_opencvs_detector():
     assert found > 20000  # the textures do have corners
 
 
+def test_a_fast_threshold_above_a_byte_finds_no_corner():
+    """The byte-wise FAST holds the threshold in a byte: one above 255 is clamped (no pixel
+    differs by more), not wrapped (300 would be 44 and find corners)."""
+    from depotbench.slam.kernels import features as compiled
+
+    image = _textures(np.random.default_rng(6))[1]
+    assert len(compiled.fast_corners(image, 44, 3)[0]) > 0
+    for threshold in (255, 256, 300):
+        assert len(compiled.fast_corners(image, threshold, 3)[0]) == 0
+
+
 def test_keypoint_moments_equal_numpy():
     """ORB's intensity centroid on both paths: the same integer moments."""
     from depotbench.slam.features import disc_half_widths, moments_numpy
