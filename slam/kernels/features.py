@@ -193,11 +193,12 @@ def fast_corners(image, threshold, border):
     x0, x1 = max(3, border - 1), min(cols - 3, cols - border + 1)  # scored: one more on each side
     y0, y1 = max(3, border - 1), min(rows - 3, rows - border + 1)
     left, right = x0 - 3, x1 + 3
+    byte = np.uint8(min(max(threshold, 0), 255))
     for y in range(y0, y1):
         _row_scores(
             image[y - 3, left:right], image[y - 2, left:right], image[y - 1, left:right],
             image[y, left:right], image[y + 1, left:right], image[y + 2, left:right],
-            image[y + 3, left:right], np.uint8(min(max(threshold, 0), 255)), score[y, x0:x1],
+            image[y + 3, left:right], byte, score[y, x0:x1],
         )  # fmt: skip
     most = ((rows + 1) // 2) * ((cols + 1) // 2)  # a strict 3 x 3 maximum has no maximum beside it
     xs = np.empty(most, np.int64)
