@@ -2,7 +2,8 @@
 
 Usage: python benchmarks/tracking.py [--scenario walking_xyz] [--frames 150] [--seed 11 ...]
        [--sequences PATH ...] [--strategy none ...] [--kernels numpy|numba|both] [--set NAME=VALUE ...]
-       [--vocabulary FILE] [--orbslam3-pace P ...] [--orbslam3-runs N] [--no-orbslam3]
+       [--variant NAME=VALUE[,NAME=VALUE] ...] [--vocabulary FILE] [--orbslam3-pace P ...]
+       [--orbslam3-runs N] [--no-orbslam3]
 
 Generates the scenario once per seed (into a temporary folder), or opens each sequence of
 ``--sequences`` (a sequence folder, or a folder of them: a benchmark's or a suite's), then, on
@@ -30,7 +31,11 @@ alone in a fresh worker (interpreter, imports, vocabulary, ``Shutdown``): what a
 adds. Per seed, built-in / ORB-SLAM3 of tracking and track+map medians (ORB-SLAM3's
 ``track_rgbd``: its mapping is in another thread), CPU and wall, and the keyframes each
 system's map holds at the end (ORB-SLAM3: its saved keyframe trajectory, after its culling);
-over the seeds, each ratio's median and range.
+over the seeds, each ratio's median and range. Each run's ATE RMSE against the sequence's
+ground truth is printed beside its cost, and per seed at the end: a cheaper run that tracks
+worse is no saving. ``--variant mapper_time_scale=1`` also runs each strategy with those
+settings, in the same run (here: local mapping on ORB-SLAM3's thread's virtual clock,
+``depotbench.slam.mapping_clock``).
 
 ``--kernels both`` tracks each strategy on the NumPy reference path and on the compiled
 kernels (``DEPOTBENCH_KERNELS``, ``depotbench.slam.kernels``) in the order numpy, numba,
@@ -60,7 +65,10 @@ import numpy as np  # noqa: E402
 from depotbench.core.errors import InputError  # noqa: E402
 from depotbench.core.parameters import parameter_text  # noqa: E402
 from depotbench.detectors.config import DetectorConfig  # noqa: E402
+from depotbench.eval.metrics.evaluate import ComparisonOptions, compare  # noqa: E402
+from depotbench.eval.metrics.trajectory import read_tum  # noqa: E402
 from depotbench.eval.run.detections import detect_sequence  # noqa: E402
+from depotbench.eval.trackers.base import TrackerRun  # noqa: E402
 from depotbench.eval.trackers.builtin import STAGES, BuiltinTracker  # noqa: E402
 from depotbench.eval.trackers.frames import FrameSource  # noqa: E402
 from depotbench.eval.trackers.orbslam3 import PACE, orbslam_settings, pace_of  # noqa: E402
@@ -112,15 +120,28 @@ class Cost:
     cpu_s: float
     wall_s: float
     keyframes: int | None
+    ate_mm: float | None = None
+    """ATE RMSE against the sequence's ground truth (SE(3)-aligned, as ``depotbench eval``)."""
 
 
 def _cell(values: np.ndarray) -> str:
     return f"{values.mean():11.2f} /{np.median(values):10.2f}"
 
 
-def _seconds(cpu_s: float, wall_s: float, keyframes: int | None = None) -> str:
+def _seconds(cpu_s: float, wall_s: float, keyframes: int | None = None, ate_mm: float | None = None) -> str:
     kf = "" if keyframes is None else f"  keyframes {keyframes:4d}"
-    return f"   cpu {cpu_s:8.3f} s  wall {wall_s:8.3f} s{kf}"
+    ate = "" if ate_mm is None else f"  ATE {ate_mm:7.1f} mm"
+    return f"   cpu {cpu_s:8.3f} s  wall {wall_s:8.3f} s{kf}{ate}"
+
+
+def _ate_mm(seq: Sequence, run: TrackerRun) -> float | None:
+    """The run's ATE RMSE in mm against the sequence's ground truth (None: no ground truth, or
+    no frame tracked)."""
+    estimate = run.trajectory()
+    truth = seq.root / "groundtruth.txt"
+    if estimate is None or not truth.is_file():
+        return None
+    return 1e3 * compare(read_tum(truth), estimate, ComparisonOptions()).ate.statistics.rmse
 
 
 def _spread(values: list[float]) -> str:
@@ -147,17 +168,17 @@ def _compile_cost() -> str:
 
 
 def _run(
-    frames: FrameSource, config: SlamConfig, path: Kernels | None
-) -> tuple[dict[str, np.ndarray], float, float, int | None]:
-    """Per-frame stage times, then the run's CPU and wall seconds, mapping included, and the
-    keyframes of its final map."""
+    seq: Sequence, frames: FrameSource, config: SlamConfig, path: Kernels | None
+) -> tuple[dict[str, np.ndarray], float, float, int | None, float | None]:
+    """Per-frame stage times, then the run's CPU and wall seconds, mapping included, the
+    keyframes of its final map and its ATE RMSE (mm)."""
     with kernels.using(path) if path is not None else contextlib.nullcontext():
         cpu, wall = time.process_time(), time.perf_counter()
         run = BuiltinTracker(config).run(frames, False)
         cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     stage_ms = run.stage_ms
     track_map = stage_ms["tracking_total"] + stage_ms["mapping"]
-    return {**stage_ms, "track+map": track_map}, cpu, wall, run.keyframes
+    return {**stage_ms, "track+map": track_map}, cpu, wall, run.keyframes, _ate_mm(seq, run)
 
 
 @contextlib.contextmanager
@@ -209,6 +230,14 @@ def main() -> None:
         help="the built-in's hot paths: NumPy, compiled, or both side by side (default: DEPOTBENCH_KERNELS)",
     )
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a SLAM setting")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE[,NAME=VALUE]",
+        help="also run each strategy with these settings on top of --set, in the same run "
+        "(e.g. mapper_time_scale=1); repeat for more",
+    )
     parser.add_argument("--vocabulary", type=Path, help="ORB-SLAM3's vocabulary (default: the bench's)")
     parser.add_argument(
         "--orbslam3-pace",
@@ -233,8 +262,11 @@ def main() -> None:
         stored = list(_stored(args.sequences))
     try:
         settings = parse_settings(args.set)
+        variants = [("", settings)] + [
+            (text, settings | parse_settings(text.split(","))) for text in args.variant
+        ]
     except ConfigError as exc:
-        parser.error(f"--set: {exc}")
+        parser.error(f"--set/--variant: {exc}")
     for pace in args.orbslam3_pace:
         try:  # checked as the tracker checks its pace parameter
             pace_of(((PACE, parameter_text(pace)),))
@@ -252,8 +284,11 @@ def main() -> None:
             print(_compile_cost())
         kernels.warm_up()
     every_core = os.sched_getaffinity(0)
-    ratios: dict[str, list[float]] = {s: [] for s in strategies}
+    runs_of = [(f"{s} {text}".strip(), s, chosen) for s in strategies for text, chosen in variants]
+    ratios: dict[str, list[float]] = {label: [] for label, _, _ in runs_of}
     to_orbslam3: dict[tuple[str, float], dict[str, list[float]]] = {}
+    accuracy: dict[str, list[float | None]] = {}
+    """ATE RMSE (mm) by system, one per sequence."""
     startup: dict[str, tuple[float, float]] = {}
     seeds: list[int | None] = list(args.seed or [None] * len(stored))
     for seed, path in zip(seeds, stored, strict=True):
@@ -272,11 +307,11 @@ def main() -> None:
             )
             os.sched_setaffinity(0, {min(every_core)})
             builtin: dict[str, Cost] = {}
-            for strategy in strategies:
-                config = SlamConfig(strategy=strategy).with_settings(settings)
-                runs: dict[Kernels | None, list[tuple[dict[str, np.ndarray], float, float, int | None]]] = {}
+            for strategy, base, chosen in runs_of:  # strategy: the row's label
+                config = SlamConfig(strategy=base).with_settings(chosen)
+                runs: dict[Kernels | None, list] = {}
                 for path in paths:
-                    runs.setdefault(path, []).append(_run(frames, config, path))
+                    runs.setdefault(path, []).append(_run(seq, frames, config, path))
                 medians = {}
                 for path, path_runs in runs.items():
                     stages = {s: np.concatenate([r[0][s] for r in path_runs]) for s in COLUMNS}
@@ -287,11 +322,17 @@ def main() -> None:
                     print(
                         f"{label:32s} "
                         + " ".join(f"{_cell(stages[s]):>24s}" for s in COLUMNS)
-                        + _seconds(cpu_s, wall_s, path_runs[0][3])
+                        + _seconds(cpu_s, wall_s, path_runs[0][3], path_runs[0][4])
                     )
                     if path == paths[0]:
+                        accuracy.setdefault(f"builtin {strategy}", []).append(path_runs[0][4])
                         builtin[strategy] = Cost(
-                            stages["tracking_total"], stages["track+map"], cpu_s, wall_s, path_runs[0][3]
+                            stages["tracking_total"],
+                            stages["track+map"],
+                            cpu_s,
+                            wall_s,
+                            path_runs[0][3],
+                            path_runs[0][4],
                         )
                 if len(runs) == 2:
                     ratio = {s: medians[Kernels.NUMPY][s] / medians[Kernels.NUMBA][s] for s in COLUMNS}
@@ -306,12 +347,13 @@ def main() -> None:
                 if runs[0] is None:
                     break
                 orbslam3 = _median_cost([run for run in runs if run is not None])
+                accuracy.setdefault(f"orbslam3 pace {pace:g}", []).append(orbslam3.ate_mm)
                 if len(runs) > 1:
                     print(
                         f"{f'orbslam3 none pace {pace:g}, median':32s} "
                         + " ".join(f"{'':>24s}" for _ in ("extract", "reject", "track"))
                         + f" {_cell(orbslam3.tracking_ms):>24s} {'':>24s} {_cell(orbslam3.tracking_ms):>24s}"
-                        + _seconds(orbslam3.cpu_s, orbslam3.wall_s, orbslam3.keyframes)
+                        + _seconds(orbslam3.cpu_s, orbslam3.wall_s, orbslam3.keyframes, orbslam3.ate_mm)
                     )
                 for strategy, cost in builtin.items():
                     ratio = _ratios(cost, orbslam3)
@@ -331,6 +373,13 @@ def main() -> None:
             for name, values in by_name.items():
                 line = " ".join(f"{v:.2f}x" for v in values)
                 print(f"  {strategy:20s} pace {pace:<4g} {name:10s} {line}; {_spread(values)}")
+    if any(value is not None for values in accuracy.values() for value in values):
+        print("ATE RMSE mm by seed (ORB-SLAM3: its median run); median [range] over seeds:")
+        for system, values in accuracy.items():
+            line = " ".join("-" if v is None else f"{v:.1f}" for v in values)
+            known = [v for v in values if v is not None]
+            spread = f"{np.median(known):.1f} [{min(known):.1f}-{max(known):.1f}]" if known else "-"
+            print(f"  {system:40s} {line}; {spread}")
     print(
         "built-in: tracking_total = extract + reject + track; track+map adds the synchronous mapping; "
         "cpu and wall: the whole run, mapping included"
@@ -349,12 +398,14 @@ def _median_cost(runs: list[Cost]) -> Cost:
         return sorted(values)[(len(values) - 1) // 2]
 
     keyframes = [run.keyframes for run in runs if run.keyframes is not None]
+    ates = [run.ate_mm for run in runs if run.ate_mm is not None]
     return Cost(
         np.concatenate([run.tracking_ms for run in runs]),
         np.concatenate([run.track_map_ms for run in runs]),
         middle([run.cpu_s for run in runs]),
         middle([run.wall_s for run in runs]),
         int(middle(keyframes)) if keyframes else None,
+        middle(ates) if ates else None,
     )
 
 
@@ -430,11 +481,12 @@ def _orbslam3(
         max(run.cpu_s - startup_cpu_s, 0.0),
         max(run.total_s - startup_wall_s, 0.0),
         run.keyframes,
+        _ate_mm(seq, run),
     )
     blank = " ".join(f"{'':>24s}" for _ in ("extract", "reject", "track"))
     print(
         f"{f'orbslam3 none pace {pace:g}':32s} {blank} {_cell(run.track_ms):>24s} {'':>24s} "
-        f"{_cell(run.track_ms):>24s}{_seconds(cost.cpu_s, cost.wall_s, cost.keyframes)}"
+        f"{_cell(run.track_ms):>24s}{_seconds(cost.cpu_s, cost.wall_s, cost.keyframes, cost.ate_mm)}"
         f"   tracked {tracked}/{len(run.states)} frames; whole process cpu {run.cpu_s:.3f} s, "
         f"wall {run.total_s:.3f} s"
     )

@@ -265,39 +265,70 @@ class _CompiledProblem:
         return pose_step, point_step
 
 
+class LevenbergMarquardt:
+    """One window's Levenberg-Marquardt, an outer iteration at a time: a mapper that can be
+    interrupted (``depotbench.slam.mapping_clock``) stops it between iterations, as g2o checks
+    ORB-SLAM3's abort flag before each."""
+
+    def __init__(self, window: BundleWindow) -> None:
+        self.window = window
+        self.problem = _CompiledProblem(window) if kernels.compiled() else _Problem(window)
+        self.poses, self.points = window.poses.copy(), window.points.astype(np.float64).copy()
+        self.free_index = np.flatnonzero(window.free)
+        self.cost = self.problem.cost(self.poses, self.points)
+        self.damping = LAMBDA_INITIAL
+        self.iterations = 0
+        self.stopped = False
+        """No step lowered the cost, or the last one lowered it by less than the tolerances."""
+
+    def iterate(self) -> bool:
+        """One linearisation and its damped steps until one lowers the cost; False once the
+        adjustment has stopped (this iteration or an earlier one)."""
+        if self.stopped:
+            return False
+        self.iterations += 1
+        problem, poses, points = self.problem, self.poses, self.points
+        linear = problem.linearise(poses, points)
+        while self.damping <= LAMBDA_MAX:
+            step = problem.step(linear, self.damping)
+            if step is not None:
+                trial_poses = poses.copy()
+                for slot, index in enumerate(self.free_index):
+                    trial_poses[index] = exp_se3(step[0][slot]) @ poses[index]
+                trial_points = points + step[1]
+                trial_cost = problem.cost(trial_poses, trial_points)
+                if trial_cost <= self.cost:
+                    break
+            self.damping *= LAMBDA_FACTOR
+        else:
+            self.stopped = True
+            return False
+        decrease = self.cost - trial_cost
+        self.poses, self.points, self.cost = trial_poses, trial_points, trial_cost
+        self.damping /= LAMBDA_FACTOR
+        if decrease < ABSOLUTE_TOLERANCE or decrease < RELATIVE_TOLERANCE * (trial_cost + decrease):
+            self.stopped = True
+            return False
+        return True
+
+    def result(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Poses, points, the observations' inlier mask (ORB-SLAM's chi-square test at the
+        result) and the cost."""
+        window = self.window
+        pc = self.problem._camera_points(self.poses, self.points)
+        inlier = is_inlier(pc, window.uv, window.ur, window.weight, window.camera, window.bf)
+        return self.poses, self.points, inlier, self.cost
+
+
 def bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Optimise the window's free poses and every point.
+    """Optimise the window's free poses and every point for at most ``iterations`` (at least
+    one) iterations.
 
     Returns new poses, new points, the inlier mask of the observations (ORB-SLAM's
     chi-square test at the result) and the final cost.
     """
-    problem = _CompiledProblem(window) if kernels.compiled() else _Problem(window)
-    poses, points = window.poses.copy(), window.points.astype(np.float64).copy()
-    free_index = np.flatnonzero(window.free)
-    cost = problem.cost(poses, points)
-    damping = LAMBDA_INITIAL
+    solver = LevenbergMarquardt(window)
     for _ in range(max(1, iterations)):
-        linear = problem.linearise(poses, points)
-        accepted = False
-        while damping <= LAMBDA_MAX:
-            step = problem.step(linear, damping)
-            if step is not None:
-                trial_poses = poses.copy()
-                for slot, index in enumerate(free_index):
-                    trial_poses[index] = exp_se3(step[0][slot]) @ poses[index]
-                trial_points = points + step[1]
-                trial_cost = problem.cost(trial_poses, trial_points)
-                if trial_cost <= cost:
-                    accepted = True
-                    break
-            damping *= LAMBDA_FACTOR
-        if not accepted:
+        if not solver.iterate():
             break
-        decrease = cost - trial_cost
-        poses, points, cost = trial_poses, trial_points, trial_cost
-        damping /= LAMBDA_FACTOR
-        if decrease < ABSOLUTE_TOLERANCE or decrease < RELATIVE_TOLERANCE * (cost + decrease):
-            break
-    pc = problem._camera_points(poses, points)
-    inlier = is_inlier(pc, window.uv, window.ur, window.weight, window.camera, window.bf)
-    return poses, points, inlier, cost
+    return solver.result()

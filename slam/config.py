@@ -70,6 +70,11 @@ class TrackingConfig:
     local_keyframes: int = 80
     """ORB-SLAM's UpdateLocalKeyFrames stops adding neighbours once the local map holds 80 keyframes."""
     ba_iterations: int = 10
+    mapper_time_scale: float = 0.0
+    """How long local mapping takes, as a multiple of ``slam.mapping_clock.MappingCosts`` (one
+    core of the 2-core development machine): 0 maps each keyframe to its end before the next
+    frame (the mapper always idle); 1 runs ORB-SLAM3's mapping thread on a virtual clock at
+    that core's pace, which skips and interrupts work as keyframes queue (deterministic)."""
     relocalize_keyframes: int = 20
     seed: int = 0
 
@@ -97,6 +102,7 @@ class TrackingConfig:
                 "recent_point_keyframes": (1, 100000),
                 "local_keyframes": (1, 1000),
                 "ba_iterations": (0, 200),
+                "mapper_time_scale": (0.0, 1000.0),
                 "relocalize_keyframes": (1, 1000),
                 "seed": (0, 2**31 - 1),
             },

@@ -7,17 +7,21 @@ new map points from depth, and its local mapper's steps in their order: ProcessN
 keyframes), SearchInNeighbors (fusion with their points), the local bundle adjustment over
 the covisibility window (the new keyframe and those sharing at least 15 points with it; the
 keyframes that see their points held fixed) and KeyFrameCulling (90 % redundant close points).
-Mapping runs synchronously inside ``Slam.process``, so runs are deterministic and the mapper
-is always idle (ORB-SLAM3's thread skips fusion, bundle adjustment and culling while
-keyframes queue); the methods take the map as an argument and keep no state of their own,
-so a forked system shares them.
+Mapping runs inside ``Slam.process``, so runs are deterministic: by default each keyframe is
+mapped to its end before the next frame (``map_keyframe``: the mapper is always idle), or
+ORB-SLAM3's thread is modelled on a virtual clock (``depotbench.slam.mapping_clock``:
+fusion, bundle adjustment and culling skipped while keyframes queue, the adjustment
+interrupted). The methods take the map as an argument and keep no state of their own, so a
+forked system shares them.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from depotbench.core.camera import Intrinsics
-from depotbench.slam.bundle import BundleWindow, bundle_adjust
+from depotbench.slam.bundle import BundleWindow, LevenbergMarquardt
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import backproject, invert, transform
@@ -40,6 +44,19 @@ MAX_FRAMES = 30
 every 30 frames, none within 30 frames of a relocalisation once the map holds more than 30."""
 
 
+@dataclass(frozen=True, eq=False)
+class LocalWindow:
+    """A local bundle adjustment's problem and the map entries its rows stand for: window
+    point k is map point ``points[k]``, pose slot j keyframe ``involved[j]``; observation i
+    is of ``points[obs_point[i]]`` by keyframe ``obs_kf[i]``."""
+
+    problem: BundleWindow
+    points: np.ndarray
+    involved: np.ndarray
+    obs_point: np.ndarray
+    obs_kf: np.ndarray
+
+
 class LocalMapping:
     def __init__(self, tc: TrackingConfig, camera: Intrinsics) -> None:
         self.tc = tc
@@ -55,19 +72,24 @@ class LocalMapping:
         tracked: Tracked,
         reference_keyframe: int,
         since_relocalisation: int | None = None,
+        mapper_idle: bool = True,
+        since_keyframe: int = 0,
     ) -> bool:
-        """ORB-SLAM3's NeedNewKeyFrame for RGB-D, its local mapper always idle (mapping here is
-        synchronous); ``since_relocalisation`` counts frames (None: never relocalised).
+        """ORB-SLAM3's NeedNewKeyFrame for RGB-D up to its mapper's answer: whether the frame
+        is wanted as a keyframe (a busy mapper then takes it only while fewer than three
+        wait, ``depotbench.slam.mapping_clock``). ``since_relocalisation`` and
+        ``since_keyframe`` count frames (None: never relocalised).
 
         - No keyframe within ``MAX_FRAMES`` (30) frames of a relocalisation once the map holds
           more than 30 keyframes.
-        - c1: 30 frames since the last keyframe (c1a), or an idle mapper (c1b), or weak
-          tracking (c1c). The mapper is always idle here, so c1 always holds.
+        - c1: ``MAX_FRAMES`` frames since the last keyframe (c1a), or an idle mapper (c1b), or
+          weak tracking (c1c: fewer than a quarter of the reference keyframe's points tracked,
+          or the close-point rule below). A mapper that takes no time is always idle.
         - c2: the frame tracks more than 15 points and fewer than thRefRatio (0.75; 0.4 while
           the map has one keyframe) of the reference keyframe's points seen by at least two
           keyframes with depth (observation weight >= 3; >= 2 while the map has two), or it
           tracks under 100 close points (depth < ThDepth) and sees over 70 close ones untracked.
-        A keyframe is due when c1 and c2 hold, so here when c2 does.
+        A keyframe is wanted when c1 and c2 hold.
         """
         keyframes = map_.keyframes
         if not keyframes:
@@ -81,7 +103,9 @@ class LocalMapping:
         tracked_mask[tracked.keypoints] = True
         need_close = (close & tracked_mask).sum() < 100 and (close & ~tracked_mask).sum() > 70
         ratio = self.tc.keyframe_inlier_ratio if n_keyframes >= 2 else 0.4
-        return (tracked.inliers < ratio * ref_points or need_close) and tracked.inliers > MIN_MATCHES
+        weak = tracked.inliers < 0.25 * ref_points or need_close
+        c1 = since_keyframe >= MAX_FRAMES or mapper_idle or weak
+        return c1 and (tracked.inliers < ratio * ref_points or need_close) and tracked.inliers > MIN_MATCHES
 
     @staticmethod
     def reference_points(map_: Map, reference_keyframe: int, n_keyframes: int) -> int:
@@ -121,12 +145,12 @@ class LocalMapping:
         tracked: Tracked,
         frame_index: int,
         outliers: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Add the frame as a keyframe with its new map points from depth, then run ORB-SLAM's
-        local mapper on it in its order: MapPointCulling, CreateNewMapPoints,
-        SearchInNeighbors, the local bundle adjustment (from three keyframes) and
-        KeyFrameCulling; ``tracked`` moves to the adjusted pose. Returns the points made from
-        depth (keypoints, ids, after fusion), which the next frame searches too.
+    ) -> np.ndarray:
+        """Add the frame as a keyframe with its new map points from depth (ORB-SLAM's
+        CreateNewKeyFrame and ProcessNewKeyFrame: the points' observations, normals, distances
+        and descriptors, the keyframe's parent); the local mapper's steps come after it
+        (``map_keyframe``, or ``depotbench.slam.mapping_clock`` in virtual time). Returns
+        the keypoints whose points it made from depth.
 
         ``outliers`` (keypoints, point ids): matches the frame's pose optimisation set aside.
         ORB-SLAM keeps them in the keyframe ("so that bundle adjustment will finally decide
@@ -150,15 +174,18 @@ class LocalMapping:
         if kf_id > 0:
             best = map_.covisible(kf_id, 1)
             keyframe.parent = int(best[0]) if len(best) else kf_id - 1
-            map_.cull(kf_id, self.tc.recent_point_keyframes)
-            self.create_new_map_points(map_, kf_id)
-            self.search_in_neighbors(map_, kf_id)
-            if len(map_.keyframes) > 2:
-                self.local_bundle_adjustment(map_, kf_id)
-            self.keyframe_culling(map_, kf_id)
-            tracked.world_from_camera = keyframe.world_from_camera.copy()
-        made = np.flatnonzero(new & (keyframe.point_ids >= 0))
-        return made, keyframe.point_ids[made]
+        return new
+
+    def map_keyframe(self, map_: Map, keyframe_id: int) -> None:
+        """The local mapper's steps on a keyframe, each run to its end (an idle mapper that
+        takes no time): MapPointCulling, CreateNewMapPoints, SearchInNeighbors, the local
+        bundle adjustment (from three keyframes) and KeyFrameCulling."""
+        map_.cull(keyframe_id, self.tc.recent_point_keyframes)
+        self.create_new_map_points(map_, keyframe_id)
+        self.search_in_neighbors(map_, keyframe_id)
+        if len(map_.keyframes) > 2:
+            self.local_bundle_adjustment(map_, keyframe_id)
+        self.keyframe_culling(map_, keyframe_id)
 
     def _update_points(self, map_: Map, point_ids: np.ndarray, descriptors: bool = True) -> None:
         map_.update_points(point_ids, self.tc.scale_factor, self.tc.n_levels, descriptors)
@@ -285,13 +312,10 @@ class LocalMapping:
         ok &= (ratio_dist * factor >= ratio_octave) & (ratio_dist <= ratio_octave * factor)
         return points, ok
 
-    def search_in_neighbors(self, map_: Map, keyframe_id: int) -> int:
-        """ORB-SLAM's SearchInNeighbors: the targets are the keyframe's 10 best covisible
-        keyframes and their 20 best each; its points are fused into every target, then the
-        targets' points into it (``fuse_candidates``; a keypoint that already has a point
-        keeps whichever of the two more keyframes see, the other is merged into it), and the
-        keyframe's points get their normals, distances and descriptors again. Returns the
-        number of fusions."""
+    @staticmethod
+    def fusion_targets(map_: Map, keyframe_id: int) -> list[int]:
+        """SearchInNeighbors' targets: the keyframe's 10 best covisible keyframes, then the
+        20 best of each, each once, the keyframe itself left out."""
         targets: list[int] = []
         for first in map_.covisible(keyframe_id, 10):
             if int(first) not in targets:
@@ -300,6 +324,16 @@ class LocalMapping:
             for second in map_.covisible(first, 20):
                 if int(second) != keyframe_id and int(second) not in targets:
                     targets.append(int(second))
+        return targets
+
+    def search_in_neighbors(self, map_: Map, keyframe_id: int) -> int:
+        """ORB-SLAM's SearchInNeighbors: the targets are the keyframe's 10 best covisible
+        keyframes and their 20 best each; its points are fused into every target, then the
+        targets' points into it (``fuse_candidates``; a keypoint that already has a point
+        keeps whichever of the two more keyframes see, the other is merged into it), and the
+        keyframe's points get their normals, distances and descriptors again. Returns the
+        number of fusions."""
+        targets = self.fusion_targets(map_, keyframe_id)
         keyframe = map_.keyframe(keyframe_id)
         fused = 0
         for target in targets:
@@ -382,17 +416,29 @@ class LocalMapping:
         adjustment finds to be outliers (chi-square over 7.815, 5.991 without depth) are
         dropped from the map, and with them a point left seen by at most one keyframe with
         depth (MapPoint::EraseObservation)."""
+        window = self.local_window(map_, keyframe_id)
+        if window is None:
+            return
+        solver = LevenbergMarquardt(window.problem)
+        for _ in range(max(1, self.tc.ba_iterations)):
+            if not solver.iterate():
+                break
+        self.apply_adjustment(map_, window, solver)
+
+    def local_window(self, map_: Map, keyframe_id: int) -> LocalWindow | None:
+        """The local bundle adjustment's problem around a keyframe (None where ORB-SLAM3 skips
+        it: under 10 points, or no keyframe to hold fixed)."""
         local = np.r_[keyframe_id, map_.covisible(keyframe_id)]
         points = np.unique(np.concatenate([map_.keyframe(k).point_ids for k in local]))
         points = points[points >= 0]
         points = points[map_.alive[points]]
         if len(points) < 10:
-            return
+            return None
         obs_point, obs_kf, obs_kp = map_.observation_table(points)
         involved, obs_pose = np.unique(obs_kf, return_inverse=True)
         free = np.isin(involved, local) & (involved != 0)
         if free.all() or not free.any():
-            return
+            return None
         poses = np.array([invert(map_.keyframe(k).world_from_camera) for k in involved])
         uv = np.empty((len(obs_kf), 2))
         ur = np.empty(len(obs_kf))
@@ -414,9 +460,15 @@ class LocalMapping:
             self.camera,
             self.tc.baseline_fx,
         )
-        new_poses, new_points, inlier, _ = bundle_adjust(problem, self.tc.ba_iterations)
-        for slot in np.flatnonzero(free):
-            map_.keyframe(int(involved[slot])).world_from_camera = invert(new_poses[slot])
+        return LocalWindow(problem, points, involved, obs_point, obs_kf)
+
+    def apply_adjustment(self, map_: Map, window: LocalWindow, solver: LevenbergMarquardt) -> None:
+        """Write an adjustment's poses and points into the map and drop the observations it
+        finds to be outliers (ORB-SLAM does so after an interrupted adjustment too)."""
+        new_poses, new_points, inlier, _ = solver.result()
+        points, obs_point, obs_kf = window.points, window.obs_point, window.obs_kf
+        for slot in np.flatnonzero(window.problem.free):
+            map_.keyframe(int(window.involved[slot])).world_from_camera = invert(new_poses[slot])
         map_.positions[points] = new_points
         for k in np.flatnonzero(~inlier):
             map_.erase_observation(int(points[obs_point[k]]), int(obs_kf[k]))

@@ -89,6 +89,9 @@ class Slam:
             features = self.extract(frame)
         times["extract"] = (time.perf_counter() - start) * 1e3
         start = time.perf_counter()
+        tracking.catch_up(frame.timestamp_s)  # the mapping steps that end before this frame
+        caught_up_ms = (time.perf_counter() - start) * 1e3
+        start = time.perf_counter()
         codes = classify(
             self.config.strategy, features, tracking.previous, frame.detections, self.config.rejection, flow
         )
@@ -99,8 +102,8 @@ class Slam:
         times["track"] = (time.perf_counter() - start) * 1e3
         times["tracking_total"] = times["extract"] + times["reject"] + times["track"]
         start = time.perf_counter()
-        keyframe, carried = tracking.keyframe(features, usable, tracked)
-        times["mapping"] = (time.perf_counter() - start) * 1e3
+        keyframe, carried = tracking.keyframe(features, usable, tracked, frame.timestamp_s)
+        times["mapping"] = caught_up_ms + (time.perf_counter() - start) * 1e3
         tracking.advance(features, tracked, state, carried)
         inlier = np.zeros(len(features), bool)
         pose = None

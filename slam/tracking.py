@@ -24,6 +24,7 @@ from depotbench.slam.features import FrameFeatures
 from depotbench.slam.geometry import constant_velocity, invert, orthonormalize
 from depotbench.slam.local_mapping import MAX_FRAMES, LocalMapping
 from depotbench.slam.map import Map
+from depotbench.slam.mapping_clock import MAX_QUEUED, MappingClock
 from depotbench.slam.matcher import Matcher, octave_window
 from depotbench.slam.optimize import refine_pose
 from depotbench.slam.pose import MIN_MATCHES, Tracked, observations, solve_pose
@@ -56,6 +57,8 @@ class Tracking:
         self.camera = camera
         self.matcher = Matcher(tc, camera)
         self.mapping = LocalMapping(tc, camera)
+        self.clock = MappingClock(self.mapping, tc.mapper_time_scale) if tc.mapper_time_scale > 0 else None
+        """ORB-SLAM3's mapping thread on a virtual clock; None maps each keyframe at once."""
         self.map = Map()
         self.state = TrackingState.NOT_INITIALIZED
         self.frame_index = 0
@@ -77,6 +80,7 @@ class Tracking:
         hold no state, or nothing changes them."""
         twin = copy.copy(self)
         twin.map = self.map.copy()
+        twin.clock = None if self.clock is None else self.clock.copy()
         for name in (
             "_last_pose",
             "_velocity",
@@ -109,19 +113,32 @@ class Tracking:
                 state = TrackingState.RELOCALIZED
         return tracked, state
 
+    def catch_up(self, time_s: float) -> None:
+        """Before a frame arriving at ``time_s`` is tracked: the mapping steps that end by then."""
+        if self.clock is not None:
+            self.clock.run_until(self.map, time_s, inclusive=False)
+
     def keyframe(
-        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked | None
+        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked | None, time_s: float = 0.0
     ) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
-        """Whether the tracked frame is a keyframe (inserting it when due) and the map points
-        it added (keypoints, ids), which the next frame searches too."""
+        """Whether the tracked frame (arrived at ``time_s``) is a keyframe, inserting it when
+        due, and the map points it added (keypoints, ids), which the next frame searches too."""
         if tracked is None:
             return False, None
         if self.state == TrackingState.NOT_INITIALIZED:
             return True, None  # the initial keyframe, inserted by _initialize
         since = None if self._relocalised_at is None else self.frame_index - self._relocalised_at
         self._tracked_pose = tracked.world_from_camera.copy()
-        if self.mapping.need_keyframe(self.map, features, usable, tracked, self._reference_keyframe, since):
-            return True, self._insert_keyframe(features, usable, tracked)
+        clock = self.clock
+        idle = clock is None or clock.idle
+        since_keyframe = self.frame_index - self.map.all_keyframes[-1].frame_index
+        wanted = self.mapping.need_keyframe(
+            self.map, features, usable, tracked, self._reference_keyframe, since, idle, since_keyframe
+        )
+        if wanted and not idle:
+            clock.interrupt(time_s)
+        if wanted and (idle or clock.waiting < MAX_QUEUED):
+            return True, self._insert_keyframe(features, usable, tracked, time_s)
         return False, None
 
     def advance(
@@ -157,13 +174,26 @@ class Tracking:
     # -- inside ------------------------------------------------------------------------
 
     def _insert_keyframe(
-        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked
+        self, features: FrameFeatures, usable: np.ndarray, tracked: Tracked, time_s: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
-        made = self.mapping.insert_keyframe(
+        """Insert the keyframe and map it: at once, or through the clock (which maps it now
+        only if its steps take no time). A frame whose keyframe is mapped moves to its
+        adjusted pose; the points it made from depth are those left after fusion."""
+        new = self.mapping.insert_keyframe(
             self.map, features, usable, tracked, self.frame_index, self._outliers
         )
+        keyframe = self.map.all_keyframes[-1]
+        if keyframe.id > 0:
+            if self.clock is None:
+                self.mapping.map_keyframe(self.map, keyframe.id)
+            else:
+                self.clock.insert(keyframe.id, time_s)
+                self.clock.run_until(self.map, time_s, inclusive=True)
+            if self.clock is None or self.clock.idle:
+                tracked.world_from_camera = keyframe.world_from_camera.copy()
         self._reference_keyframe = len(self.map.keyframes) - 1
-        return made
+        made = np.flatnonzero(new & (keyframe.point_ids >= 0))
+        return made, keyframe.point_ids[made]
 
     def _initialize(self, features: FrameFeatures, usable: np.ndarray) -> Tracked | None:
         candidates = usable & (features.depth_m > 0)

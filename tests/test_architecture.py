@@ -58,14 +58,15 @@ CLI = "depotbench.eval.cli"
 SLAM_FLOORS = (
     ("types", "config", "geometry"),
     ("features", "map", "matcher", "optimize", "bundle", "pose", "rejection", "kernels"),
-    ("local_mapping", "relocalisation", "dense_map"),
+    ("local_mapping", "mapping_clock", "relocalisation", "dense_map"),
     ("tracking",),
     ("system",),
 )
 """slam's modules, bottom to top, as ORB-SLAM layers them: each may import its own floor and
 those below (plain types and geometry; features, matching, the map and the optimisers, each
-beside the kernels that compile its loops; local mapping, relocalisation and the dense map
-(it reads the rejection's decisions); the tracking state machine; the system's face)."""
+beside the kernels that compile its loops; local mapping with the clock that paces it,
+relocalisation and the dense map (it reads the rejection's decisions); the tracking state
+machine; the system's face)."""
 
 
 def imported_modules(path: Path) -> list[tuple[int, str, tuple[str, ...]]]:

@@ -134,7 +134,8 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     stub = REPO / "tests" / "programs" / "stub_orbslam3"
     path = os.pathsep.join([str(stub), *filter(None, [os.environ.get("PYTHONPATH")])])
     env = {**os.environ, "PYTHONPATH": path, "STUB_ORBSLAM3_CALLS": str(tmp_path / "calls.json")}
-    args = ("--frames", "4", "--strategy", "none", "--orbslam3-pace", "0", "1", "--orbslam3-runs", "2")
+    args = ("--frames", "4", "--strategy", "none", "--orbslam3-pace", "0", "1", "--orbslam3-runs", "2",
+            "--variant", "mapper_time_scale=1")  # fmt: skip
     result = subprocess.run([sys.executable, str(BENCHMARKS / "tracking.py"), *args], cwd=REPO, env=env,
                             capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
     assert result.returncode == 0, result.stderr[-2000:]
@@ -153,7 +154,11 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     assert means[5] == pytest.approx(means[3] + means[4], abs=0.02)  # track+map adds mapping
     cpu_s, wall_s = (float(x) for x in re.search(_SECONDS, row[1]).groups())
     assert 0 < cpu_s <= wall_s + 0.01  # one core: 10 ms for the clocks' granularity
-    assert int(re.search(r"keyframes\s+(\d+)$", row[1])[1]) >= 1  # the first frame makes one
+    assert int(re.search(r"keyframes\s+(\d+)  ATE\s+[\d.]+ mm$", row[1])[1]) >= 1  # the first frame makes one
+    # the variant: a row of its own, its ATE among the seeds' figures
+    assert re.search(r"^builtin none mapper_time_scale=1\s+.*ATE\s+[\d.]+ mm$", out, re.M), out
+    summary = r"^  builtin none mapper_time_scale=1\s+[\d.]+; [\d.]+ \[[\d.]+-[\d.]+\]$"
+    assert re.search(summary, out, re.M), out
     # 4 frames asked; the analog's tum sensor may lose one, as TUM's driver did.
     frames = int(re.search(r"tracked 0/(\d+) frames", out)[1])
     assert 3 <= frames <= 4
@@ -297,3 +302,17 @@ def test_the_actor_views_table_counts_each_heading_and_all():
         ["all", "2/4", "0.47"],
     ]
     assert lines[2].rstrip().endswith("dog 1") and "(recognised per seed 0.50-0.50)" in lines[4]
+
+
+def test_the_mapping_cost_fit_recovers_known_coefficients():
+    """benchmarks/mapping_costs.py fits each step's milliseconds to its terms: on rows made
+    from known coefficients (no noise) it returns them, R^2 1 and no error; the total is the
+    rows' sum."""
+    fit = benchmark_module("mapping_costs")._fit
+    rng = np.random.default_rng(5)
+    terms = np.c_[np.ones(40), rng.uniform(0, 500, 40), rng.uniform(0, 1e4, 40)]
+    truth = np.array([2.5, 0.02, 3e-4])
+    coefficients, r2, error, total = fit([(row, float(row @ truth)) for row in terms])
+    np.testing.assert_allclose(coefficients, truth, rtol=1e-9)
+    assert r2 == pytest.approx(1.0) and error == pytest.approx(0.0, abs=1e-9)
+    assert total == pytest.approx(float((terms @ truth).sum()))
