@@ -7,10 +7,11 @@ one pinned core, its mapper synchronous, and times every local-mapping step of e
 keyframe together with the terms ``depotbench.slam.mapping_clock`` measures it by
 (``new_points_terms``, ``fusion_terms``, ``iteration_terms`` times the adjustment's
 iterations, ``culling_terms``), taken on the map as the step finds it. Then fits each
-step's milliseconds to its terms by least squares and prints the coefficients as
-``MappingCosts`` holds them, each fit's R^2 and median relative error, and every step's
-total time. Those defaults were fitted this way (the docstring of ``MappingCosts`` says on
-what); a machine several times faster or slower is modelled by ``mapper_time_scale``.
+step's milliseconds to its terms by non-negative least squares (scipy's ``nnls``) and
+prints the coefficients as ``MappingCosts`` holds them, each fit's R^2 and median relative
+error, and every step's total time. Those defaults were fitted this way (the docstring of
+``MappingCosts`` says on what); a machine several times faster or slower is modelled by
+``mapper_time_scale``.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from depotbench.slam.mapping_clock import (  # noqa: E402
     new_points_terms,
 )
 from depotbench.slam.rejection import STRATEGIES  # noqa: E402
+from scipy.optimize import nnls  # noqa: E402
 from tracking import _stored  # noqa: E402  (this folder's tracking benchmark)
 
 
@@ -84,10 +86,11 @@ def _timed_map_keyframe(samples: dict[str, list[tuple[np.ndarray, float]]]):
 
 
 def _fit(rows: list[tuple[np.ndarray, float]]) -> tuple[np.ndarray, float, float, float]:
-    """Least-squares coefficients, R^2, median relative error and the total milliseconds."""
+    """Non-negative least-squares coefficients (a step takes no less time for being larger),
+    R^2, median relative error and the total milliseconds."""
     x = np.array([terms for terms, _ in rows])
     y = np.array([ms for _, ms in rows])
-    coefficients, *_ = np.linalg.lstsq(x, y, rcond=None)
+    coefficients, _ = nnls(x, y)
     predicted = x @ coefficients
     r2 = 1 - float(np.sum((y - predicted) ** 2) / np.sum((y - y.mean()) ** 2))
     return coefficients, r2, float(np.median(np.abs(predicted - y) / y)), float(y.sum())

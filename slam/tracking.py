@@ -191,7 +191,7 @@ class Tracking:
                 self.clock.run_until(self.map, time_s, inclusive=True)
             if self.clock is None or self.clock.idle:
                 tracked.world_from_camera = keyframe.world_from_camera.copy()
-        self._reference_keyframe = len(self.map.keyframes) - 1
+        self._reference_keyframe = keyframe.id  # ORB-SLAM: mpReferenceKF = pKF
         made = np.flatnonzero(new & (keyframe.point_ids >= 0))
         return made, keyframe.point_ids[made]
 

@@ -825,3 +825,23 @@ def test_keypoint_values_gathers_each_keyframes_values_in_the_order_asked_and_no
     expected = [octaves[kf][kp] for kf, kp in zip(kfs, kps, strict=True)]
     assert map_.keypoint_values("octaves", kfs, kps).tolist() == expected
     assert len(map_.keypoint_values("octaves", np.zeros(0, int), np.zeros(0, int))) == 0
+
+
+def test_a_new_keyframe_becomes_the_reference_when_earlier_ones_were_culled():
+    """ORB-SLAM's CreateNewKeyFrame makes the new keyframe the reference (mpReferenceKF =
+    pKF). With keyframe 1 of 0-2 culled, the frame inserted next is keyframe 3; the
+    reference was set to the count of live keyframes less one (2, an older keyframe, which
+    TrackReferenceKeyFrame then matched against) before."""
+    from depotbench.slam.tracking import Tracking
+
+    visible = [np.arange(0, 100), np.arange(10, 110), np.arange(20, 120)]
+    map_, _, poses = synthetic_map([0.0, 0.2, 0.4], visible)
+    map_.set_bad(1)
+    tracking = Tracking(TC, CAMERA)
+    tracking.map = map_
+    frame = map_.keyframe(2).features
+    seen = np.arange(len(frame))
+    tracked = Tracked(poses[2].copy(), seen, visible[2].copy(), len(seen))
+    tracking._insert_keyframe(frame, np.ones(len(frame), bool), tracked)
+    assert map_.all_keyframes[-1].id == 3 and not map_.keyframe(3).bad
+    assert tracking._reference_keyframe == 3
