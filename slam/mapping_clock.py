@@ -19,6 +19,13 @@ that could start and end at that instant, which only a scale of 0 gives). A keyf
 inserted, or an interrupt, at a frame's time comes before any step that starts at that time.
 At scale 0 every step is instant, the mapper always idle and every keyframe mapped before
 the next frame: the synchronous mapper (``LocalMapping.map_keyframe``), bit for bit (tested).
+
+Where this differs from the thread: tracking takes no time (a keyframe is inserted at its
+frame's timestamp); ProcessNewKeyFrame's bookkeeping (observations, covisibility, normals)
+is done at insertion, so a queued keyframe is already in the covisibility graph; a step is
+computed on the map as it stands at the frame where it ends (the adjustment's window when
+the adjustment starts), not interleaved with tracking; the thread's 3 ms sleep between
+keyframes is left out; and keyframes still queued when the run ends are not mapped.
 """
 
 from __future__ import annotations
