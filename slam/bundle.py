@@ -265,6 +265,11 @@ class _CompiledProblem:
         return pose_step, point_step
 
 
+def iteration_limit(iterations: int) -> int:
+    """The iterations an adjustment asked for ``iterations`` may run: at least one."""
+    return max(1, iterations)
+
+
 class LevenbergMarquardt:
     """One window's Levenberg-Marquardt, an outer iteration at a time: a mapper that can be
     interrupted (``depotbench.slam.mapping_clock``) stops it between iterations, as g2o checks
@@ -311,6 +316,12 @@ class LevenbergMarquardt:
             return False
         return True
 
+    def run(self, iterations: int) -> LevenbergMarquardt:
+        """Iterate until the adjustment stops or has run ``iteration_limit(iterations)``."""
+        while self.iterations < iteration_limit(iterations) and self.iterate():
+            pass
+        return self
+
     def result(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Poses, points, the observations' inlier mask (ORB-SLAM's chi-square test at the
         result) and the cost."""
@@ -327,8 +338,4 @@ def bundle_adjust(window: BundleWindow, iterations: int) -> tuple[np.ndarray, np
     Returns new poses, new points, the inlier mask of the observations (ORB-SLAM's
     chi-square test at the result) and the final cost.
     """
-    solver = LevenbergMarquardt(window)
-    for _ in range(max(1, iterations)):
-        if not solver.iterate():
-            break
-    return solver.result()
+    return LevenbergMarquardt(window).run(iterations).result()

@@ -419,11 +419,7 @@ class LocalMapping:
         window = self.local_window(map_, keyframe_id)
         if window is None:
             return
-        solver = LevenbergMarquardt(window.problem)
-        for _ in range(max(1, self.tc.ba_iterations)):
-            if not solver.iterate():
-                break
-        self.apply_adjustment(map_, window, solver)
+        self.apply_adjustment(map_, window, LevenbergMarquardt(window.problem).run(self.tc.ba_iterations))
 
     def local_window(self, map_: Map, keyframe_id: int) -> LocalWindow | None:
         """The local bundle adjustment's problem around a keyframe (None where ORB-SLAM3 skips

@@ -34,7 +34,7 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
-from depotbench.slam.bundle import LevenbergMarquardt
+from depotbench.slam.bundle import LevenbergMarquardt, iteration_limit
 from depotbench.slam.local_mapping import (
     MAX_CULLING_CHECKS,
     NEIGHBOURS_TRIANGULATION,
@@ -224,18 +224,16 @@ class MappingClock:
 
     def _step(self, map_: Map, time_s: float, may_start) -> bool:
         """Advance the job by one step if that step can end by ``time_s``; False if it must wait."""
-        job, mapping, scale = self.job, self.mapping, self.scale
+        job, mapping = self.job, self.mapping
         if not may_start(job.start):
             return False
         if job.step == NEW_POINTS:
-            if job.length is None:
-                job.length = scale * self.costs.new_points(map_, job.keyframe) / 1e3
-            if job.start + job.length > time_s:
-                return False
-            map_.cull(job.keyframe, mapping.tc.recent_point_keyframes)
-            mapping.create_new_map_points(map_, job.keyframe)
-            self._finish(job.start + job.length, FUSION)
-            return True
+
+            def new_points() -> None:
+                map_.cull(job.keyframe, mapping.tc.recent_point_keyframes)
+                mapping.create_new_map_points(map_, job.keyframe)
+
+            return self._timed(time_s, lambda: self.costs.new_points(map_, job.keyframe), new_points, FUSION)
         if job.step == FUSION:
             job.abort_reset = job.start
             if self._queued_by(job.start):  # the next keyframe waits: no fusion, no adjustment
@@ -243,21 +241,31 @@ class MappingClock:
                 self.skipped["adjustment"] += 1
                 self._finish(job.start, None)
                 return True
-            if job.length is None:
-                job.length = scale * self.costs.fusion(map_, mapping.fusion_targets(map_, job.keyframe)) / 1e3
-            if job.start + job.length > time_s:
-                return False
-            mapping.search_in_neighbors(map_, job.keyframe)
-            self._finish(job.start + job.length, ADJUSTMENT)
-            return True
+            return self._timed(
+                time_s,
+                lambda: self.costs.fusion(map_, mapping.fusion_targets(map_, job.keyframe)),
+                lambda: mapping.search_in_neighbors(map_, job.keyframe),
+                ADJUSTMENT,
+            )
         if job.step == ADJUSTMENT:
             return self._adjust(map_, time_s, may_start)
+        return self._timed(
+            time_s,
+            lambda: self.costs.culling(map_, job.keyframe),
+            lambda: mapping.keyframe_culling(map_, job.keyframe),
+            None,
+        )
+
+    def _timed(self, time_s: float, cost_ms, work, next_step: int | None) -> bool:
+        """A step that runs whole: its length is fixed (from ``cost_ms()``) when first
+        looked at; ``work()`` runs once the step can end by ``time_s``."""
+        job = self.job
         if job.length is None:
-            job.length = scale * self.costs.culling(map_, job.keyframe) / 1e3
+            job.length = self.scale * cost_ms() / 1e3
         if job.start + job.length > time_s:
             return False
-        mapping.keyframe_culling(map_, job.keyframe)
-        self._finish(job.start + job.length, None)
+        work()
+        self._finish(job.start + job.length, next_step)
         return True
 
     def _adjust(self, map_: Map, time_s: float, may_start) -> bool:
@@ -266,7 +274,7 @@ class MappingClock:
         it (after the abort flag was cleared); the result reaches the map when the last
         iteration run ends."""
         job, mapping = self.job, self.mapping
-        if job.window is None and job.solver is None and not job.finished:
+        if job.solver is None:  # the adjustment starts
             if self._queued_by(job.start):
                 self.skipped["adjustment"] += 1
                 self._finish(job.start, None)
@@ -279,7 +287,7 @@ class MappingClock:
             job.setup_s = self.scale * self.costs.adjustment_ms / 1e3
             job.iteration_s = self.scale * self.costs.iteration(window) / 1e3
         solver = job.solver
-        limit = max(1, mapping.tc.ba_iterations)
+        limit = iteration_limit(mapping.tc.ba_iterations)
         abort = min((t for t in self.interrupts if t > job.abort_reset), default=np.inf)
         while not job.finished:
             begins = job.start + job.setup_s + solver.iterations * job.iteration_s
