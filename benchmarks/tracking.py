@@ -196,8 +196,9 @@ def _sequence(args: argparse.Namespace, seed: int | None, stored: Path | None):
         yield Sequence.open(generate(to_scenario(scenario), Path(tmp) / "seq", progress=False))
 
 
-def _stored(paths: list[Path]) -> list[Path]:
-    """Sequence folders (with meta.json) given or held one level down, in name order."""
+def _stored(paths: list[Path], program: str = "tracking.py") -> list[Path]:
+    """Sequence folders (with meta.json) given or held one level down, in name order; a
+    folder with none is refused in one line naming ``program``."""
     found = []
     for path in paths:
         if (path / "meta.json").is_file():
@@ -205,7 +206,7 @@ def _stored(paths: list[Path]) -> list[Path]:
             continue
         inside = sorted(p.parent for p in path.glob("*/meta.json"))
         if not inside:
-            raise SystemExit(f"tracking.py: --sequences {path}: no meta.json there or one level down")
+            raise SystemExit(f"{program}: --sequences {path}: no meta.json there or one level down")
         found += inside
     return found
 
