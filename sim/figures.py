@@ -27,6 +27,7 @@ from depotbench.sim import actor_registry
 from depotbench.sim.conventions import frame_along
 from depotbench.sim.draws import pick
 from depotbench.sim.kinds import QuadrupedBody
+from depotbench.sim.memo import kept
 from depotbench.sim.products import product
 from depotbench.sim.shapes import (
     Field,
@@ -433,6 +434,7 @@ def _within(bone: Bone, lower: np.ndarray, upper: np.ndarray, reach: float) -> b
     )
 
 
+@kept("person meshes", 64)
 def person_surfaces(s: float, look: Look) -> dict[str, tuple[Surface, ...]]:
     """Every part's drawn surfaces, in the part's frame, for a person of scale ``s``."""
     frames, joints = person_bind(s)
@@ -529,6 +531,7 @@ def wrapped(
     return dataclasses.replace(surface, texcoord=corners.reshape(-1, 2), far=far)
 
 
+@kept("animal meshes", 32)
 def quadruped_surfaces(
     animal: QuadrupedBody,
     frames: dict[str, tuple[np.ndarray, np.ndarray]],

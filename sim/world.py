@@ -29,6 +29,7 @@ from depotbench.sim.layout import (
     Rect,
     plan_layout,
 )
+from depotbench.sim.memo import content_key, frozen, memo
 from depotbench.sim.mujoco_env import mujoco
 from depotbench.sim.paths import Path, plan_errands, plan_loop
 from depotbench.sim.render import FAR_SUFFIX, HIDDEN_GROUP
@@ -93,7 +94,25 @@ TROUSERS: tuple[textures.Colour, ...] = (
 )
 
 
+TEXTURES = memo("textures", 4)
+"""Worlds' textures by their stream's state, clothes and looks (9.5 MB a world)."""
+
+
 def _material_images(
+    rng: np.random.Generator, clothing: list[tuple[str, ActorKind]], looks: list[Look | AnimalLook | None]
+) -> dict[str, tuple[str, np.ndarray]]:
+    """Every material's texture, kept (sim/memo.py) with where the stream ends after them."""
+    key = content_key(rng.bit_generator.state, clothing, looks)
+    kept = TEXTURES.get(key)
+    if kept is None:
+        kept = frozen(_draw_material_images(rng, clothing, looks)), rng.bit_generator.state
+        TEXTURES.put(key, kept)
+    images, after = kept
+    rng.bit_generator.state = after
+    return dict(images)
+
+
+def _draw_material_images(
     rng: np.random.Generator, clothing: list[tuple[str, ActorKind]], looks: list[Look | AnimalLook | None]
 ) -> dict[str, tuple[str, np.ndarray]]:
     """Every material's texture: ('2d' | 'cube' | 'uv', image). Each is drawn from ``rng``

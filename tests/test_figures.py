@@ -10,11 +10,19 @@ import numpy as np
 import pytest
 from depotbench.sim.figures import AnimalLook, Look, person_bind, person_surfaces
 from depotbench.sim.ground_truth import boxes_and_counts
+from depotbench.sim.memo import MEMOS
 from depotbench.sim.render import HIDDEN_GROUP, FrameRenderer
 from depotbench.sim.simulation import Simulation
 from depotbench.sim.spec import ActorSpec, CameraSpec, ChairSpec, LayoutSpec, ScenarioSpec
 from depotbench.sim.world import build_world
 from scipy.spatial.transform import Rotation
+
+
+@pytest.fixture(autouse=True)
+def _carved_here():
+    """Each test sees the bodies carved, not taken from an earlier test's (sim/memo.py)."""
+    for memo in MEMOS.values():
+        memo.clear()
 
 
 def _edges_shared_twice(faces: np.ndarray) -> bool:
