@@ -92,6 +92,8 @@ def smoke(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
+@pytest.mark.slow  # 10 s; the smoke fixture checks each file against the lock, and
+# test_sim.py's two-process test holds same spec and seed, same bytes, in the default run
 def test_smoke_1_is_generated_twice_byte_for_byte_as_its_lock_says(smoke: Path, tmp_path: Path, monkeypatch):
     monkeypatch.setenv("DEPOTBENCH_CACHE", "off")
     benchmark = load_benchmark("smoke-1")

@@ -121,7 +121,7 @@ def sweeps(tmp_path_factory: pytest.TempPathFactory) -> Path:
             f"  - name: oracle\n    command: {json.dumps(COMMAND)}\n"
             f"    parameters: {{noise_m: {noise}, margin_px: 4, mode: ok}}\n"
         )
-        assert main(["sweep", str(spec), "-o", str(root / name), "--workers", "2"]) == 0
+        assert main(["sweep", str(spec), "-o", str(root / name)]) == 0
     return root
 
 

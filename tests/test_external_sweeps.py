@@ -68,7 +68,7 @@ def test_a_sweep_runs_an_external_program_over_its_parameters_and_detectors(
         "parameters:\n  oracle:\n    noise_m: {grid: [0.0, 0.02, 0.1]}\n"
         "detectors: [groundtruth, {detector: groundtruth, faults: {miss: 0.5, latency: 1}}]\n",
     )
-    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
     rows = [r for r in _rows(tmp_path / "sw") if r["tracker"] == "oracle"]
     assert len(rows) == 2 * 3 * 2 * 2  # sequences x noise x detectors x (none, mask)
     assert all(not r["failure"] for r in rows)
@@ -83,7 +83,7 @@ def test_a_sweep_runs_an_external_program_over_its_parameters_and_detectors(
     mean = lambda rs: sum(float(r["rejection_recall"] or 0) for r in rs) / len(rs)  # noqa: E731
     assert mean(faulted) < mean(clean)  # half the boxes missing reach its rejection
     capsys.readouterr()
-    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw"), "--workers", "2"]) == 0
+    assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
     assert "(24 already done)" in capsys.readouterr().out
 
 

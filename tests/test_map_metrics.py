@@ -288,6 +288,7 @@ def _line(label: str, result) -> str:
     )
 
 
+@pytest.mark.slow  # 13 s; the noisy-map test scores the same pixels' noise-free depth 1.000
 @pytest.mark.render
 def test_a_perfect_depth_map_of_a_static_scene_scores_one(tmp_path: Path):
     """static_depot, 5 frames, the library's perfect sensor (depth quantised to 0.2 mm): the

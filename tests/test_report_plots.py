@@ -229,7 +229,7 @@ def sweep(tmp_path_factory) -> Path:
         "sweep: families\nsuite: suite.yaml\nstrategies: [none, prior_flow]\n"
         "thresholds: {prior_flow: {k: {grid: [1.5, 3.0]}}}\n"
     )
-    assert main(["sweep", str(root / "spec.yaml"), "-o", str(root / "sw"), "--workers", "2"]) == 0
+    assert main(["sweep", str(root / "spec.yaml"), "-o", str(root / "sw")]) == 0
     return root / "sw"
 
 

@@ -31,7 +31,7 @@ def swept(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "detectors:\n  - {detector: groundtruth, faults: {miss: 0.5}}\n"
         "  - {detector: groundtruth, faults: {latency: 3}}\n"
     )
-    assert main(["sweep", str(root / "spec.yaml"), "-o", str(root / "sw"), "--workers", "2"]) == 0
+    assert main(["sweep", str(root / "spec.yaml"), "-o", str(root / "sw")]) == 0
     return root
 
 
@@ -73,7 +73,7 @@ def test_a_copied_sweep_folder_keeps_every_figure(swept: Path, tmp_path: Path, c
     shutil.copytree(swept / "sw", copy)
     shutil.rmtree(swept / "sw" / "sequences")  # the original's sequences are gone
     capsys.readouterr()
-    assert main(["sweep", str(swept / "spec.yaml"), "-o", str(copy), "--workers", "2"]) == 0
+    assert main(["sweep", str(swept / "spec.yaml"), "-o", str(copy)]) == 0
     assert "(32 already done)" in capsys.readouterr().out
     rows = _csv(copy / "results.csv")
     assert all(not Path(r["sequence"]).is_absolute() for r in rows)
