@@ -30,7 +30,7 @@ OPTIONS = {"fastmath": False, "parallel": False, "error_model": "numpy", "nogil"
 (inf or NaN, no exception), one thread."""
 ANNOUNCE_AFTER_S = 3.0
 """A warm-up still running after this long is compiling, not loading (0.5 s from the cache,
-1.5 s on a busy machine, 14 s compiling): only then does it say so, so a user knows what
+1.5 s on a busy machine, 40-50 s compiling): only then does it say so, so a user knows what
 the wait is."""
 LOG = logging.getLogger("depotbench.kernels")
 F = TypeVar("F", bound=Callable)
@@ -112,7 +112,7 @@ def jit(function: F) -> F:
     Numba looks for one when the kernel is defined (``NUMBA_CACHE_DIR``, the package's
     ``__pycache__``, the user's cache) and raises if there is none, as in a read-only install
     run by a user without a home; the kernels then compile in memory in every process
-    (14 s for all of them on a busy 2-core machine, against 0.5 s to load them from the cache;
+    (40-50 s for all of them on a 2-core machine, against 0.5 s to load them from the cache;
     ``benchmarks/tracking.py --kernels both`` prints both)."""
     import numba
 

@@ -84,6 +84,7 @@ FILE_SECONDS = {
     "test_mapping_clock.py": 20,  # alone, 2026-12-03
     "test_local_mapping.py": 18,  # alone, 2026-12-03
     "test_cli.py": 9,
+    "test_memo.py": 10,  # alone, 2026-12-03
 }
 """Seconds each of the heaviest test files took (``make test``'s run of 2026-12-02, 2 workers,
 from its JUnit XML); the rest took under 8 s each. Files run heaviest first, so that no
