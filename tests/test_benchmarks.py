@@ -84,6 +84,7 @@ def test_generation_refuses_peer_with_stages_in_one_line():
     ), result.stderr
 
 
+@pytest.mark.slow  # 9 s; the script's arguments are parsed in the default run, as every script's
 @pytest.mark.render
 def test_recognition_counts_what_a_tiny_run_sees():
     """Two frames of walking_xyz, seed 3 (its walkers in view at once): the people in view
