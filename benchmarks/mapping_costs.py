@@ -105,7 +105,7 @@ def main() -> None:
         "--strategy", action="append", choices=STRATEGIES, help="a built-in strategy (default: none)"
     )
     args = parser.parse_args()
-    sequences = _stored(args.sequences, "mapping_costs.py")
+    sequences = _stored(args.sequences, parser)
     cv2.setNumThreads(1)
     kernels.warm_up()
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})

@@ -196,9 +196,10 @@ def _sequence(args: argparse.Namespace, seed: int | None, stored: Path | None):
         yield Sequence.open(generate(to_scenario(scenario), Path(tmp) / "seq", progress=False))
 
 
-def _stored(paths: list[Path], program: str = "tracking.py") -> list[Path]:
+def _stored(paths: list[Path], parser: argparse.ArgumentParser) -> list[Path]:
     """Sequence folders (with meta.json) given or held one level down, in name order; a
-    folder with none is refused in one line naming ``program``."""
+    folder with none is refused as any bad argument is (``parser.error``: its line names
+    the script and the folder, exit 2)."""
     found = []
     for path in paths:
         if (path / "meta.json").is_file():
@@ -206,7 +207,7 @@ def _stored(paths: list[Path], program: str = "tracking.py") -> list[Path]:
             continue
         inside = sorted(p.parent for p in path.glob("*/meta.json"))
         if not inside:
-            raise SystemExit(f"{program}: --sequences {path}: no meta.json there or one level down")
+            parser.error(f"--sequences {path}: no meta.json there or one level down")
         found += inside
     return found
 
@@ -260,7 +261,7 @@ def main() -> None:
         parser.error("--sequences and --seed: give one")
     stored: list[Path | None] = [None] * len(args.seed or [None])
     if args.sequences:
-        stored = list(_stored(args.sequences))
+        stored = list(_stored(args.sequences, parser))
     try:
         settings = parse_settings(args.set)
         variants = [("", settings)] + [

@@ -206,23 +206,34 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
     )
 
 
-def test_the_tracking_benchmark_finds_stored_sequences_and_names_a_folder_without_one(tmp_path):
+def test_the_tracking_benchmark_finds_stored_sequences_and_names_a_folder_without_one(tmp_path, capsys):
     """``--sequences`` takes sequence folders (meta.json inside) or folders holding them one
-    level down, in name order; a folder with neither is one line naming it, and ``--seed``
-    beside ``--sequences`` is refused (the seeds would be ignored)."""
+    level down, in name order; a folder with neither is refused as a bad argument is (exit 2,
+    a line naming the script and the folder: it exited 1), and ``--seed`` beside
+    ``--sequences`` is refused (the seeds would be ignored)."""
+    import argparse
+
     tracking = benchmark_module("tracking")
     for name in ("b", "a"):
         (tmp_path / "suite" / name).mkdir(parents=True)
         (tmp_path / "suite" / name / "meta.json").write_text("{}", encoding="utf-8")
     (tmp_path / "empty").mkdir()
     single = tmp_path / "suite" / "b"
-    assert tracking._stored([tmp_path / "suite", single]) == [
+    parser = argparse.ArgumentParser(prog="mapping_costs.py")  # the other script that reads them
+    assert tracking._stored([tmp_path / "suite", single], parser) == [
         tmp_path / "suite" / "a",
         tmp_path / "suite" / "b",
         single,
     ]
-    with pytest.raises(SystemExit, match=r"--sequences .*empty: no meta.json there or one level down"):
-        tracking._stored([tmp_path / "empty"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as refused:
+        tracking._stored([tmp_path / "empty"], parser)
+    assert refused.value.code == 2
+    assert re.search(
+        r"^mapping_costs.py: error: --sequences .*empty: no meta.json there or one level down$",
+        capsys.readouterr().err,
+        flags=re.M,
+    )
     both = _run(str(BENCHMARKS / "tracking.py"), "--sequences", str(single), "--seed", "1")
     assert both.returncode == 2 and both.stderr.strip().splitlines()[-1].endswith(
         "--sequences and --seed: give one"
