@@ -40,11 +40,10 @@ KERNEL_HALVES = (("optimize", "rejection"), ("matching", "features"))
 the generator's 5 s, against 13 + 17 s)."""
 
 
-def compile_kernels(parts: tuple[str, ...], generator: bool) -> float:
-    seconds = kernels.warm_up(parts)
+def compile_kernels(parts: tuple[str, ...], generator: bool) -> None:
+    kernels.warm_up(parts)
     if generator:
         generator_kernels.warm_up()
-    return seconds
 
 
 def main() -> None:
@@ -59,9 +58,8 @@ def main() -> None:
         began = time.perf_counter()
         spawn = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(len(KERNEL_HALVES), mp_context=spawn) as pool:
-            halves = [pool.submit(compile_kernels, half, k == 0) for k, half in enumerate(KERNEL_HALVES)]
-            for half in halves:
-                half.result()
+            # list() takes every result, so a half that failed raises here
+            list(pool.map(compile_kernels, KERNEL_HALVES, (True, False)))
         seconds = time.perf_counter() - began
     print(
         f"tests/prepare.py: vocabulary {vocabulary}; kernels ready in {seconds:.1f} s; "
