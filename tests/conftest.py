@@ -62,7 +62,7 @@ FILE_SECONDS = {
     "test_report.py": 26,
     "test_pytest_plugin.py": 26,
     "test_full_disk.py": 25,
-    "test_slam_split.py": 24,
+    "test_slam_split.py": 10,  # the crowd pins in the slow set, 2026-12-03
     "test_report_hostile.py": 23,
     "test_compare.py": 23,
     "test_map_metrics.py": 22,
