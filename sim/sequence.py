@@ -12,7 +12,7 @@ import math
 import posixpath
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
@@ -43,7 +43,7 @@ from depotbench.sim.camera import (
     tum_camera_for,
 )
 from depotbench.sim.ground_truth import ObjectState
-from depotbench.sim.png import assemble_png, sub_filtered
+from depotbench.sim.png import assemble_png, decode_written_rgb, sub_filtered
 from depotbench.sim.tum_files import (
     FrameList,
     PoseTable,
@@ -227,15 +227,13 @@ class Sequence:
     def rgb(self, index: int) -> np.ndarray:
         """Frame ``index`` as 8-bit RGB, shape (H, W, 3)."""
         frame = self.frames[index]
-        image = _read_png(frame.rgb_path, frame, self._size)
+        image = _read_png(frame.rgb_path, frame, self._size, decode_written_rgb)
         if image.dtype != np.uint8:
             raise SequenceFormatError(frame.rgb_path, None, f"RGB must be 8-bit, got {image.dtype}")
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
         elif image.shape[2] == 4:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
-        else:
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+            image = cv2.cvtColor(image, cv2.COLOR_RGBA2RGB)
         return image
 
     def depth_raw(self, index: int) -> np.ndarray:
@@ -601,8 +599,14 @@ def associate_lists(rgb: FrameList, depth: FrameList, max_diff_s: float) -> list
     return pairs
 
 
-def _read_png(path: Path, frame: FrameRef, size: tuple[int, int]) -> np.ndarray:
-    """Decode a frame's PNG after its header says it has the camera's ``(width, height)``."""
+def _read_png(
+    path: Path,
+    frame: FrameRef,
+    size: tuple[int, int],
+    own: Callable[[bytes], np.ndarray | None] | None = None,
+) -> np.ndarray:
+    """Decode a frame's PNG after its header says it has the camera's ``(width, height)``;
+    ``own`` decodes the files it knows (``decode_png``)."""
     try:
         width, height, _, _ = png_header(path)
     except FileNotFoundError:
@@ -612,7 +616,7 @@ def _read_png(path: Path, frame: FrameRef, size: tuple[int, int]) -> np.ndarray:
     if (width, height) != size:
         raise SequenceFormatError(path, None, f"image is {width}x{height}, the camera is {size[0]}x{size[1]}")
     try:
-        return decode_png(path)
+        return decode_png(path, own)
     except FileError as exc:
         raise SequenceFormatError(path, None, exc.problem) from None
 

@@ -1,5 +1,6 @@
 """The PNG writer (sim/png.py) against two independent decoders: libpng (through OpenCV),
-which checks every chunk's CRC and the zlib stream's checksum, and Pillow's own parser."""
+which checks every chunk's CRC and the zlib stream's checksum, and Pillow's own parser; and
+its reader against libpng, on the writer's files, on other writers' and on damaged ones."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import io
 import cv2
 import numpy as np
 import pytest
-from depotbench.sim.png import encode_png
+from depotbench.sim.png import decode_written_rgb, encode_png
 from PIL import Image
 
 SHAPES = [(1, 1), (3, 7), (48, 64), (480, 640)]
@@ -84,3 +85,85 @@ def test_an_image_gives_the_same_bytes_from_any_writer_thread_whatever_it_wrote_
 def test_images_and_levels_png_cannot_hold_are_refused(image, level, message):
     with pytest.raises(ValueError, match=message):
         encode_png(image, level)
+
+
+def _libpng(data: bytes) -> np.ndarray | None:
+    """libpng's reading of ``data`` (through OpenCV), colour in RGB order; None where it refuses."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    return image if image is None or image.ndim == 2 else image[:, :, ::-1]
+
+
+@pytest.mark.parametrize("level", [0, 1, 9])
+@pytest.mark.parametrize("shape", SHAPES, ids=str)
+def test_the_reader_gives_libpngs_pixels_for_every_rgb_frame_the_writer_makes(shape, level):
+    """RGB frames are read here, to libpng's pixels; grey ones (depth, instances) are left to
+    libpng, whose C unfiltering is the faster there."""
+    for image in _images(shape):
+        data = encode_png(image, level)
+        decoded = decode_written_rgb(data)
+        if image.ndim == 2:
+            assert decoded is None
+            continue
+        assert decoded is not None
+        assert decoded.dtype == image.dtype and decoded.shape == image.shape
+        assert decoded.flags.writeable and decoded.flags.c_contiguous
+        assert np.array_equal(decoded, _libpng(data))
+
+
+def test_other_writers_pngs_are_read_as_libpng_reads_them(tmp_path):
+    """Files of other writers: one laid out as this writer's (OpenCV's libpng writes a
+    smooth image with Sub rows, one IDAT) is read here to libpng's pixels; formats this writer
+    never makes (RGBA, 16-bit RGB, a palette, interlacing) and rows under other filters
+    (Pillow's adaptive choice on a noisy image) are left to libpng. Either way ``decode_png``
+    gives libpng's image, colour in RGB order."""
+    from depotbench.core.files import decode_png
+
+    smooth, noisy = _images((48, 64))[1], _images((48, 64))[0]
+    alpha = np.dstack([smooth, smooth[:, :, :1]])
+    same_layout = cv2.imencode(".png", smooth[:, :, ::-1])[1].tobytes()
+    others = [
+        cv2.imencode(".png", alpha[:, :, [2, 1, 0, 3]])[1].tobytes(),
+        cv2.imencode(".png", (smooth.astype(np.uint16) * 257)[:, :, ::-1])[1].tobytes(),
+    ]
+    for image, options in (
+        (noisy, {}),
+        (smooth, {"interlace": 1}),
+        (Image.fromarray(smooth).convert("P"), {}),
+    ):
+        buffer = io.BytesIO()
+        (image if isinstance(image, Image.Image) else Image.fromarray(image)).save(
+            buffer, format="PNG", **options
+        )
+        others.append(buffer.getvalue())
+    assert np.array_equal(decode_written_rgb(same_layout), smooth)
+    assert [decode_written_rgb(data) for data in others] == [None] * len(others)
+    for number, (data, expected) in enumerate(
+        [
+            (same_layout, smooth),
+            (others[0], alpha),
+            (others[1], smooth.astype(np.uint16) * 257),
+            (others[2], noisy),
+            (encode_png(_images((48, 64))[2]), _images((48, 64))[2]),  # the writer's depth: libpng's
+        ]
+    ):
+        (tmp_path / f"{number}.png").write_bytes(data)
+        assert np.array_equal(decode_png(tmp_path / f"{number}.png"), expected), number
+
+
+def test_a_damaged_file_is_never_read_here_to_other_pixels_than_libpngs():
+    """Every single-byte change and every truncation of two written RGB frames:
+    the reader returns None (libpng then reads or refuses it, with its own words) or exactly
+    libpng's image of the changed file. The CRCs and the zlib checksum make it None."""
+    rng = np.random.default_rng(5)
+    for image in (_images((12, 16))[1], _images((7, 5))[0]):
+        data = encode_png(image, 1)
+        for position in range(len(data)):
+            for value in {data[position] ^ 0x01, data[position] ^ 0x80, int(rng.integers(256))} - {
+                data[position]
+            }:
+                changed = data[:position] + bytes([value]) + data[position + 1 :]
+                decoded = decode_written_rgb(changed)
+                assert decoded is None or np.array_equal(decoded, _libpng(changed)), position
+        for length in range(len(data)):
+            assert decode_written_rgb(data[:length]) is None, length
+        assert decode_written_rgb(data + b"\x00") is None
