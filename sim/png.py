@@ -13,7 +13,7 @@ its spec and seed's, and libdeflate's output is fixed for a given version (a fas
 deflate that kept state between calls wrote one frame two ways: docs/performance.md).
 
 Reading goes the other way for the RGB frames it writes (``decode_written_rgb``): libdeflate
-inflates and NumPy undoes the Sub filter, 0.71 of libpng's time through OpenCV on a
+inflates and NumPy undoes the Sub filter, 0.6-0.7 of libpng's time through OpenCV on a
 640x480 frame (8.0 against 11.2 ms, the colour order already RGB: docs/performance.md). Depth
 and instance frames stay with libpng, whose unfiltering in C beats NumPy's running sum
 where inflating is cheap (a 2-byte instance frame: 3.7 ms here against 2.6). Every other PNG,
