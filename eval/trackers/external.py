@@ -10,6 +10,7 @@ import os
 import shlex
 import signal
 import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -79,19 +80,31 @@ def run_child(
     """
     started = time.perf_counter()
     LOG.log(DETAIL, "%s: running %s in %s (timeout %g s)", what, shlex.join(argv), cwd, timeout_s)
+    shown = program or repr(argv[0])
+    report, reports = os.pipe() if MEASURED else (-1, -1)
     try:
         child = subprocess.Popen(
-            argv,
+            [sys.executable, "-I", "-S", "-c", LAUNCHER, str(reports), *argv] if MEASURED else argv,
             cwd=cwd,
             env=env,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
+            pass_fds=(reports,) if MEASURED else (),
             **({"start_new_session": True} if group is None else {"process_group": group}),
         )
     except OSError as exc:
-        shown = program or repr(argv[0])
         raise TrackerError(f"{what}: cannot start {shown}: {exc.strerror or exc}") from None
+    finally:
+        if MEASURED:
+            os.close(reports)
+    launcher = _Launcher(report) if MEASURED else None
+    if launcher is not None and launcher.exec_error is not None:
+        _kill(child, child.pid if group is None else group)
+        for stream in (launcher, child.stdout, child.stderr):
+            if stream is not None:
+                stream.close()
+        raise TrackerError(f"{what}: cannot start {shown}: {os.strerror(launcher.exec_error)}")
     group = child.pid if group is None else group
     assert child.stderr is not None and child.stdout is not None
     tail, out = StderrTail(), ByteTail()
@@ -115,8 +128,12 @@ def run_child(
     except BaseException:
         _kill(child, group)
         raise
+    finally:
+        peak = None if launcher is None else launcher.peak_mb_and_close()
     # It has exited: this ends what it left running, which may hold a pipe open.
     peak_mb, cpu_s = _kill(child, group)
+    if launcher is not None:
+        peak_mb = peak
     streams = (child.stderr, child.stdout)
     escaped = _outlived(readers, streams, what)
     for reader, stream in zip(readers, streams, strict=True):
@@ -228,9 +245,60 @@ def _exited(child: subprocess.Popen, seconds: float) -> bool:
         time.sleep(0.02)
 
 
+MEASURED = hasattr(os, "posix_spawnp") and hasattr(os, "wait4") and sys.platform == "linux"
+"""Programs start through ``LAUNCHER``, so that their peak memory is their own (Linux)."""
+
+LAUNCHER = """
+import os, signal, sys
+report = int(sys.argv[1])
+os.set_inheritable(report, False)
+try:  # SIGPIPE and SIGXFSZ back to their defaults, as subprocess does (Python ignores them)
+    pid = os.posix_spawnp(sys.argv[2], sys.argv[2:], os.environ, setsigdef=(signal.SIGPIPE, signal.SIGXFSZ))
+except OSError as exc:
+    os.write(report, b"E %d\\n" % exc.errno)
+    os._exit(127)
+os.write(report, b"S\\n")
+_, status, usage = os.wait4(pid, 0)
+os.write(report, b"R %d\\n" % usage.ru_maxrss)
+code = os.waitstatus_to_exitcode(status)
+if code < 0:  # end by the same signal (Python ignores SIGPIPE and catches SIGINT)
+    signal.signal(-code, signal.SIG_DFL)
+    os.kill(os.getpid(), -code)
+os._exit(code)
+"""
+"""A program's peak resident memory as wait4 reports it starts at its parent's peak when the
+parent forks and execs it (Linux folds the old address space's high-water mark into the new
+one's): started straight from a sweep worker of 600 MB, ``/bin/true`` peaked at 600 MB. This
+small fresh interpreter (about 10 MB) starts the program instead and reports on a pipe that
+the program started ("S") or could not ("E errno"), then its peak with whatever it waited
+for, in KiB ("R maxrss"); it ends as the program did, by its code or its signal. A program
+killed with its group (a time limit) leaves no peak."""
+
+
+class _Launcher:
+    """The bench's end of ``LAUNCHER``'s report pipe."""
+
+    def __init__(self, fd: int) -> None:
+        self._file = os.fdopen(fd, "rb")
+        first = self._file.readline().split()
+        self.exec_error = int(first[1]) if first[:1] == [b"E"] and len(first) == 2 else None
+
+    def peak_mb_and_close(self) -> float | None:
+        """The program's peak resident memory (MB), once it has exited (``LAUNCHER`` writes it
+        before it ends, so this never waits on a running program); None if it was killed
+        with its group first."""
+        with self._file:
+            line = self._file.readline().split()
+        return int(line[1]) / 1024.0 if line[:1] == [b"R"] and len(line) == 2 else None
+
+    def close(self) -> None:
+        self._file.close()
+
+
 def _kill(child: subprocess.Popen, group: int) -> tuple[float | None, float | None]:
     """End the group and reap the program; its peak resident memory in MB and its user plus
-    system CPU seconds (each with what it waited for), from ``wait4``, where the system has it."""
+    system CPU seconds (each with what it waited for), from ``wait4``, where the system has it
+    (with ``LAUNCHER``, the peak is its report's: this one starts at the bench's size)."""
     kill_group(group)
     if not hasattr(os, "wait4"):
         child.wait()
