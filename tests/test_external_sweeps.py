@@ -247,6 +247,11 @@ def test_a_changed_program_is_run_again_not_resumed(sequences: Path, tmp_path: P
 
 
 def test_processes_of_a_hung_program_do_not_outlive_the_sweep(sequences: Path, tmp_path: Path, monkeypatch):
+    from multiprocessing import resource_tracker
+
+    # The worker pool's resource tracker lives as long as this process: started here, under the
+    # token, it was counted as left over whenever no earlier test in the process had started it.
+    resource_tracker.ensure_running()
     token = f"oracle-{os.getpid()}-sweep"
     monkeypatch.setenv("DEPOTBENCH_TEST_TOKEN", token)
     spec = _spec(sequences, _oracle("{mode: fork}", "    timeout_s: 3\n"), strategies="[none]")
