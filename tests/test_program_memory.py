@@ -8,6 +8,7 @@ test process made large on purpose."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -66,12 +67,17 @@ def test_a_program_ends_through_the_launcher_as_it_ended(tmp_path, code, message
 
 
 def test_a_program_that_cannot_start_is_named_with_the_systems_reason(tmp_path):
-    for argv, reason in (
-        (["./no-such-tracker"], "No such file or directory"),
-        ([str(tmp_path)], "Permission denied"),
+    """Refused by the launcher (no such program, not executable) or before it (no such
+    folder), each in the same line, and no file descriptor left open."""
+    open_before = len(os.listdir("/proc/self/fd"))
+    for argv, cwd, reason in (
+        (["./no-such-tracker"], tmp_path, "No such file or directory"),
+        ([str(tmp_path)], tmp_path, "Permission denied"),
+        (["/bin/true"], tmp_path / "gone", "No such file or directory"),
     ):
         with pytest.raises(TrackerError, match=f"probe: cannot start '{argv[0]}': {reason}"):
-            run_child(argv, what="probe", cwd=tmp_path, timeout_s=60, frames=1, progress=False)
+            run_child(argv, what="probe", cwd=cwd, timeout_s=60, frames=1, progress=False)
+    assert len(os.listdir("/proc/self/fd")) == open_before
 
 
 def test_a_program_past_its_time_limit_is_stopped_and_leaves_no_peak(tmp_path):

@@ -94,6 +94,8 @@ def run_child(
             **({"start_new_session": True} if group is None else {"process_group": group}),
         )
     except OSError as exc:
+        if MEASURED:
+            os.close(report)
         raise TrackerError(f"{what}: cannot start {shown}: {exc.strerror or exc}") from None
     finally:
         if MEASURED:
