@@ -173,8 +173,8 @@ class RayPool:
             }
             if address:
                 options["address"] = address
-            else:
-                options |= {"num_cpus": workers, "object_store_memory": 200 * 1024 * 1024}
+            else:  # "local": a Ray of its own, never one that `ray start` left running here
+                options |= {"address": "local", "num_cpus": workers, "object_store_memory": 200 * 1024 * 1024}
             env = {k: v for k, v in os.environ.items() if k.startswith("DEPOTBENCH_")}
             if address:
                 env = {k: v for k, v in env.items() if not _names_a_folder_here(k)}

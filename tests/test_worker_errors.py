@@ -66,3 +66,23 @@ def test_a_bad_file_in_a_ray_job_reaches_the_caller_as_its_one_line_error(tmp_pa
     assert type(remote.value) is type(local.value)
     assert str(remote.value) == str(local.value) and "\n" not in str(remote.value)
     assert remote.value.line == local.value.line
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is the [ray] extra")
+def test_a_local_ray_pool_starts_a_ray_of_its_own_whatever_ray_finds_on_the_machine(tmp_path, monkeypatch):
+    """Without --address, ``--backend ray`` runs on a Ray of its own with --workers CPUs. Ray's
+    default attaches to RAY_ADDRESS or to the last cluster ``ray start`` left on the machine
+    and then refused ``num_cpus`` ("When connecting to an existing cluster, num_cpus and
+    num_gpus must not be provided"), as a local sweep did beside the cluster test's nodes."""
+    from depotbench.core.executors import RayPool
+    from depotbench.sim.sequence import Sequence
+
+    write_sequence(tmp_path / "seq", n=2)
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:9")  # a cluster that is not there
+    pool = RayPool(1, None)
+    try:
+        opened = list(pool.map_unordered(Sequence.open, [(tmp_path / "seq",)]))
+    finally:
+        pool.close(False)
+    assert len(opened) == 1 and len(opened[0]) == 2
