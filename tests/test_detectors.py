@@ -536,6 +536,11 @@ def animal_sightings(tmp_path_factory) -> dict[str, list[tuple[bool, bool]]]:
     return sightings
 
 
+# The animal-recognition guards: 27 s of CPU in the default run (three 40-frame animal
+# scenes and 120 detections); the shipped model's reading of a rendered scene stays there
+# (test_the_shipped_model_finds_the_rendered_person), and the animal scenes render there in
+# tests/test_example_trackers.py.
+@pytest.mark.slow
 @pytest.mark.render
 def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(animal_sightings):
     """The cats' coat and build are what made them cats to a COCO detector (0.11 of
@@ -550,6 +555,7 @@ def test_the_shipped_model_takes_the_animal_scenes_cats_for_cats(animal_sighting
     assert hits / len(cats) >= 0.7, (hits, len(cats))
 
 
+@pytest.mark.slow  # beside the cats-for-cats guard, on the same sightings
 @pytest.mark.render
 def test_the_shipped_model_takes_the_animal_scenes_dogs_for_dogs(animal_sightings):
     """A regression guard for the dog's look (coat, tail, legs; docs/recognition.md):
@@ -561,7 +567,7 @@ def test_the_shipped_model_takes_the_animal_scenes_dogs_for_dogs(animal_sighting
     assert hits / len(dogs) >= 0.8, (hits, len(dogs))
 
 
-@pytest.mark.slow  # 12 s; the cats-for-cats test keeps the animal scenes in the default run
+@pytest.mark.slow  # 12 s; beside the animal-recognition guards
 @pytest.mark.render
 def test_the_animal_scenes_dog_and_cat_are_seen_whole_in_most_sightings(tmp_path: Path):
     """Issue 14 asks for dogs and cats "at such sizes in the animal scenes" that a
