@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import shlex
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from depotbench.eval.benchmark.table import csv_text, fresh_comparison, fresh_ma
 from depotbench.eval.cli.main import main
 
 from tests.conftest import REPO
+from tests.smoke_lock import freeze, smoke_1
 
 ORACLE = REPO / "tests" / "programs" / "oracle_slam.py"
 ORACLE_COMMAND = (
@@ -83,20 +83,31 @@ def test_tum_dyn_1_is_every_tum_analog_at_tums_length():
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """smoke-1's sequences, generated from empty caches (no sequence store to copy from)."""
+def made(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """smoke-1's sequences, generated from empty caches (no sequence store to copy from) and
+    checked against the shipped lock (on another machine kind: tests/smoke_lock.py)."""
     root = tmp_path_factory.mktemp("smoke-1")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("DEPOTBENCH_CACHE", "off")
-        prepare(load_benchmark("smoke-1"), root / "sequences", workers=1, progress=False)
-    return root
+    return root, smoke_1(root)
+
+
+@pytest.fixture(scope="module")
+def smoke(made: tuple[Path, str]) -> Path:
+    return made[0]
+
+
+@pytest.fixture(scope="module")
+def bench(made: tuple[Path, str]) -> str:
+    """smoke-1 as this machine names it: the shipped name, or a copy frozen here."""
+    return made[1]
 
 
 @pytest.mark.slow  # 10 s; the smoke fixture checks each file against the lock, and
 # test_sim.py's two-process test holds same spec and seed, same bytes, in the default run
-def test_smoke_1_is_generated_twice_byte_for_byte_as_its_lock_says(smoke: Path, tmp_path: Path, monkeypatch):
+def test_smoke_1_is_generated_twice_byte_for_byte_as_its_lock_says(
+    smoke: Path, bench: str, tmp_path: Path, monkeypatch
+):
     monkeypatch.setenv("DEPOTBENCH_CACHE", "off")
-    benchmark = load_benchmark("smoke-1")
+    benchmark = load_benchmark(bench)
     again = prepare(benchmark, tmp_path / "sequences", workers=1, progress=False)
     assert [p.files_key for p in again] == [s.files_key for s in benchmark.sequences]
     for p in again:
@@ -106,22 +117,18 @@ def test_smoke_1_is_generated_twice_byte_for_byte_as_its_lock_says(smoke: Path, 
         assert all((p.path / f).read_bytes() == (first / f).read_bytes() for f in files)
 
 
-def test_a_tampered_sequence_is_refused_naming_it(smoke: Path, tmp_path: Path):
+def test_a_tampered_sequence_is_refused_naming_it(smoke: Path, bench: str, tmp_path: Path):
     copy = tmp_path / "sequences"
     shutil.copytree(smoke / "sequences", copy)
     depth = sorted((copy / "smoke" / "smoke-0001" / "depth").iterdir())[4]
     depth.write_bytes(sorted((copy / "smoke" / "smoke-0001" / "depth").iterdir())[5].read_bytes())
     with pytest.raises(InputError, match=r"smoke-0001: its files are not smoke-1's smoke/smoke-0001"):
-        prepare(load_benchmark("smoke-1"), copy, workers=1, progress=False)
+        prepare(load_benchmark(bench), copy, workers=1, progress=False)
 
 
-def _freeze(path: Path, sequences: Path, *words: str) -> subprocess.CompletedProcess:
-    freeze = REPO / "benchmarks" / "freeze.py"
-    command = [sys.executable, str(freeze), str(path), "--sequences", str(sequences), *words]
-    return subprocess.run(command, capture_output=True, text=True, timeout=300)
-
-
-def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(smoke: Path, tmp_path: Path):
+def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
+    smoke: Path, bench: str, tmp_path: Path
+):
     """A lock frozen elsewhere (other keys, another machine named): a plain freeze stops
     naming both and writes nothing; ``--replace`` takes this machine's keys for the sequences
     the folder holds and drops the one it does not, so no lock holds two machines' bytes."""
@@ -138,16 +145,16 @@ def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(smoke
     shutil.copytree(smoke / "sequences", folder)
     shutil.rmtree(folder / "smoke" / "smoke-0002")
 
-    stopped = _freeze(tmp_path / source.name, folder)
+    stopped = freeze(tmp_path / source.name, folder)
     assert stopped.returncode != 0 and "frozen before (00000000" in stopped.stderr
     assert "on Xeon (avx2, no avx512); llvmpipe; this is " in stopped.stderr
     assert lock_path(tmp_path / source.name).read_text() == written
 
-    replaced = _freeze(tmp_path / source.name, folder, "--replace")
+    replaced = freeze(tmp_path / source.name, folder, "--replace")
     assert replaced.returncode == 0, replaced.stderr
     assert "2 frozen, 1 waiting, 2 keys replaced and 1 dropped" in replaced.stdout
     after = load_benchmark(tmp_path / source.name).sequences
-    shipped = load_benchmark("smoke-1").sequences
+    shipped = load_benchmark(bench).sequences  # this machine's keys
     assert [s.files_key for s in after] == [shipped[0].files_key, shipped[1].files_key, None]
     assert [s.frozen_on for s in after] == [machine_summary(), machine_summary(), None]
 
@@ -163,15 +170,17 @@ def test_a_benchmark_frozen_by_another_generator_is_refused_in_one_line(tmp_path
         check_specs(load_benchmark(tmp_path / "smoke-1.yaml"))
 
 
-def _bench(smoke: Path, out: Path, *words: str) -> dict:
+def _bench(smoke: Path, bench: str, out: Path, *words: str) -> dict:
     shutil.copytree(smoke / "sequences", out / "sequences")  # resumed: nothing is generated
-    assert main(["benchmark", "run", "smoke-1", "-o", str(out), "--workers", "1", *words]) == 0
+    assert main(["benchmark", "run", bench, "-o", str(out), "--workers", "1", *words]) == 0
     return load_results(out)
 
 
-def test_the_builtin_tracker_runs_once_and_repeating_it_changes_nothing(smoke: Path, tmp_path: Path):
-    first = _bench(smoke, tmp_path / "a", "--strategy", "box_epipolar_flow")
-    again = _bench(smoke, tmp_path / "b", "--strategy", "box_epipolar_flow")
+def test_the_builtin_tracker_runs_once_and_repeating_it_changes_nothing(
+    smoke: Path, bench: str, tmp_path: Path
+):
+    first = _bench(smoke, bench, tmp_path / "a", "--strategy", "box_epipolar_flow")
+    again = _bench(smoke, bench, tmp_path / "b", "--strategy", "box_epipolar_flow")
     assert first["repeats"] == 1 and first["tracker"]["deterministic"]
     from depotbench.sim.machine import machine_summary
 
@@ -185,12 +194,13 @@ def test_the_builtin_tracker_runs_once_and_repeating_it_changes_nothing(smoke: P
 
 
 def test_a_tracker_that_is_not_deterministic_is_repeated_and_never_run_once(
-    smoke: Path, tmp_path: Path, capsys
+    smoke: Path, bench: str, tmp_path: Path, capsys
 ):
     with pytest.raises(InputError, match="at least 3 times"):
         repeats_for(False, 1)
     results = _bench(
         smoke,
+        bench,
         tmp_path / "oracle",
         "--slam",
         "cmd",
@@ -321,7 +331,7 @@ def test_a_baseline_of_other_sequences_is_refused():
 
 
 def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
-    smoke: Path, tmp_path: Path, capsys
+    smoke: Path, bench: str, tmp_path: Path, capsys
 ):
     """``--sequences DIR``: the sequences are kept there, not under each output (tum-dyn-short-1
     copied 5.9 GB into every tracker's); a second tracker's run finds them made and checks
@@ -335,7 +345,7 @@ def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
     for strategy in ("none", "box_rule"):
         out = tmp_path / strategy
         words = ["--strategy", strategy, "--sequences", str(shared), "--workers", "1"]
-        assert main(["benchmark", "run", "smoke-1", "-o", str(out), *words]) == 0
+        assert main(["benchmark", "run", bench, "-o", str(out), *words]) == 0
         assert not (out / "sequences").exists()
         results = load_results(out)
         assert [s["folder"] for s in results["sequences"]] == [
@@ -345,20 +355,22 @@ def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
         outs[strategy] = results
     assert first.stat().st_mtime_ns == made  # made once, read by both
     keys = [[s["files_key"] for s in r["sequences"]] for r in outs.values()]
-    assert keys[0] == keys[1] == [s.files_key for s in load_benchmark("smoke-1").sequences]
+    assert keys[0] == keys[1] == [s.files_key for s in load_benchmark(bench).sequences]
     rgb = sorted((shared / "smoke" / "smoke-0001" / "rgb").iterdir())[0]
     rgb.write_bytes(rgb.read_bytes()[:-1] + b"\0")
     capsys.readouterr()
-    third = ["benchmark", "run", "smoke-1", "-o", str(tmp_path / "third"), "--sequences", str(shared)]
+    third = ["benchmark", "run", bench, "-o", str(tmp_path / "third"), "--sequences", str(shared)]
     assert main(third) != 0
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "shared/smoke/smoke-0001: its files are not smoke-1's smoke/smoke-0001" in line
     assert not (tmp_path / "third" / "results.json").exists()
 
 
-def test_verify_finds_a_changed_trajectory_and_a_changed_figure(smoke: Path, tmp_path: Path, capsys):
+def test_verify_finds_a_changed_trajectory_and_a_changed_figure(
+    smoke: Path, bench: str, tmp_path: Path, capsys
+):
     out = tmp_path / "run"
-    results = _bench(smoke, out)
+    results = _bench(smoke, bench, out)
     assert verify(out) == []
     assert main(["benchmark", "verify", str(out)]) == 0
     figures = json.loads((out / "results.json").read_text())
@@ -380,24 +392,26 @@ def test_verify_finds_a_changed_trajectory_and_a_changed_figure(smoke: Path, tmp
     assert "problems in 3 runs" in capsys.readouterr().out
 
 
-def _fresh(smoke: Path, out: Path, *params: str, fresh: Path | None = None) -> dict:
+def _fresh(smoke: Path, bench: str, out: Path, *params: str, fresh: Path | None = None) -> dict:
     shutil.copytree(smoke / "sequences", out / "sequences")
     if fresh is not None:  # the same fresh seeds, generated by an earlier command: resumed
         shutil.copytree(fresh, out / "fresh")
     words = ["--slam", "cmd", "--command", ORACLE_COMMAND, "--fresh-seeds", "3", "--fresh-entropy", "7"]
     for param in params:
         words += ["--param", param]
-    assert main(["benchmark", "run", "smoke-1", "-o", str(out), "--workers", "1", *words]) == 0
+    assert main(["benchmark", "run", bench, "-o", str(out), "--workers", "1", *words]) == 0
     return load_results(out)
 
 
 def test_fresh_seeds_tell_a_tracker_tuned_to_the_frozen_seeds_from_one_that_is_not(
-    smoke: Path, tmp_path: Path
+    smoke: Path, bench: str, tmp_path: Path
 ):
     """The oracle program tuned to smoke-1's seeds (1, 2, 3: 2 mm of noise there, 50 mm
     elsewhere) against the same program with 50 mm everywhere, on three fresh seeds each."""
-    tuned = _fresh(smoke, tmp_path / "tuned", "noise_m=0.05", "tuned_seeds=1;2;3", "tuned_noise_m=0.002")
-    honest = _fresh(smoke, tmp_path / "honest", "noise_m=0.05", fresh=tmp_path / "tuned" / "fresh")
+    tuned = _fresh(
+        smoke, bench, tmp_path / "tuned", "noise_m=0.05", "tuned_seeds=1;2;3", "tuned_noise_m=0.002"
+    )
+    honest = _fresh(smoke, bench, tmp_path / "honest", "noise_m=0.05", fresh=tmp_path / "tuned" / "fresh")
     assert tuned["fresh"]["seeds"] == honest["fresh"]["seeds"]  # the same entropy draws the same seeds
     fresh_seeds = tuned["fresh"]["seeds"]["smoke"]
     assert len(set(fresh_seeds)) == 3 and not set(fresh_seeds) & {1, 2, 3}
@@ -445,13 +459,13 @@ def test_the_leaderboard_is_a_row_per_results_file_best_first_and_escapes_labels
     assert float(body[0][6]) == pytest.approx((base_overall - overall) / base_overall * 100, rel=1e-5)
 
 
-def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, tmp_path: Path):
+def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, bench: str, tmp_path: Path):
     import depotbench
 
     pytest.importorskip("pandas")
     out = tmp_path / "api"
     shutil.copytree(smoke / "sequences", out / "sequences")
-    result = depotbench.benchmark("smoke-1", out, strategy="box_epipolar_flow")
+    result = depotbench.benchmark(bench, out, strategy="box_epipolar_flow")
     again = depotbench.BenchmarkResult.read(out / "results.json")
     assert again.data == result.data and result.verify() == []
     frame = result.to_pandas()
@@ -463,10 +477,10 @@ def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, 
         "BenchmarkResult(smoke-1, builtin box_epipolar_flow: 3 sequences x 1 (3 runs"
     )
     with pytest.raises(InputError, match="ORB-SLAM3's runs differ"):
-        depotbench.benchmark("smoke-1", tmp_path / "orb", tracker="orbslam3", deterministic=True)
+        depotbench.benchmark(bench, tmp_path / "orb", tracker="orbslam3", deterministic=True)
 
 
-def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, tmp_path: Path, caplog):
+def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, bench: str, tmp_path: Path, caplog):
     source = load_benchmark("smoke-1").path
     (tmp_path / "smoke-1.yaml").write_text(source.read_text())
     lock = json.loads(source.with_name("smoke-1.lock.json").read_text())
@@ -480,4 +494,4 @@ def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, tmp_path: Pa
         )
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(warned) == 1 and warned[0].startswith("smoke-1: 3 of 3 sequences are not frozen yet")
-    assert [p.files_key for p in prepared] == [s.files_key for s in load_benchmark("smoke-1").sequences]
+    assert [p.files_key for p in prepared] == [s.files_key for s in load_benchmark(bench).sequences]

@@ -35,6 +35,7 @@ from depotbench.sim.sequence import Sequence
 
 from tests.conftest import REPO, benchmark_module
 from tests.sequences import write_sequence
+from tests.smoke_lock import smoke_1
 
 
 def _files_key(root: Path) -> str:
@@ -245,6 +246,7 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
     if unavailable:
         pytest.skip(unavailable)
     local_cluster = benchmark_module("local_cluster")
+    smoke = smoke_1(tmp_path / "smoke")  # as this machine names it: tests/smoke_lock.py
     driver = tmp_path / "driver"
     for name, seed in (("a", 0), ("b", 1)):
         write_sequence(driver / name, n=10, seed=seed, with_flow=False)
@@ -304,17 +306,17 @@ def test_a_sweep_on_nodes_that_share_no_folder_gives_one_machines_rows_and_survi
         assert 5 <= kept < 40 and _rows(driver / "resumed" / "results.sqlite") == expected
 
         # a benchmark: its sequences rendered on the nodes, its runs' folders sent back
-        bench = _benchmark(driver / "bench-cluster", cluster.driver_env, cluster.address)
-    assert bench == _benchmark(driver / "bench-local", {})
+        bench = _benchmark(smoke, driver / "bench-cluster", cluster.driver_env, cluster.address)
+    assert bench == _benchmark(smoke, driver / "bench-local", {})
     # the stopped head's /tmp/ray/ray_current_cluster would make a later local Ray refuse to start
     assert not (Path(tempfile.gettempdir()) / "ray" / "ray_current_cluster").exists()
 
 
-def _benchmark(out: Path, env: dict, address: str | None = None) -> list:
+def _benchmark(smoke: str, out: Path, env: dict, address: str | None = None) -> list:
     """smoke-1 scored by the built-in tracker: each run's figures and trajectory's hash."""
     import json
 
-    args = [sys.executable, "-m", "depotbench.eval.cli.main", "benchmark", "run", "smoke-1", "-o", str(out)]
+    args = [sys.executable, "-m", "depotbench.eval.cli.main", "benchmark", "run", smoke, "-o", str(out)]
     args += ["-q", "--workers", "2"] + (["--backend", "ray", "--address", address] if address else [])
     done = subprocess.run(args, env=os.environ | env, cwd=REPO, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr

@@ -1,0 +1,78 @@
+"""smoke-1's sequences for the tests, checked against the shipped lock wherever the lock can
+hold: on a machine of the kind that froze it.
+
+A lock's keys are one machine kind's bytes (docs/benchmarks.md, "Where the keys hold"): a
+machine with another CPU or renderer draws other pixels from the same spec (an AVX-512 EPYC
+gave smoke-1's first sequence the key fe4db6a5... where the AVX2 EPYC that froze it gave
+9c44a437..., docs/determinism.md). There the shipped lock must refuse the sequences naming
+both machines, which is checked, and the tests that need a frozen smoke-1 use a copy frozen
+on this machine by ``benchmarks/freeze.py --replace``, with a warning that says so. On the
+lock's own kind the bytes must be the lock's: a difference there is the generator's, and
+fails."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+from depotbench.core.errors import InputError
+from depotbench.eval.benchmark.sequences import prepare
+from depotbench.eval.benchmark.spec import load_benchmark, lock_path
+from depotbench.sim.machine import machine_summary
+
+from tests.conftest import REPO
+
+SHIPPED = "smoke-1"
+
+
+def machine_kind(summary: str) -> str:
+    """The CPU and renderer of a ``machine_summary`` line, without the libraries: OpenCV is
+    pinned to one minor version, and mujoco 4.0.0 and 4.0.1 drew the same bytes."""
+    return "; ".join(summary.split("; ")[:2])
+
+
+def freeze(benchmark: Path, sequences: Path, *words: str) -> subprocess.CompletedProcess:
+    command = [
+        sys.executable,
+        str(REPO / "benchmarks" / "freeze.py"),
+        str(benchmark),
+        "--sequences",
+        str(sequences),
+    ]
+    return subprocess.run([*command, *words], capture_output=True, text=True, timeout=300)
+
+
+def smoke_1(root: Path) -> str:
+    """smoke-1 generated from empty caches into ``root/sequences``; returns what to name the
+    benchmark by: ``smoke-1`` where the shipped lock holds these bytes, else the path of a
+    copy frozen here (under ``root/frozen-here``)."""
+    shipped = load_benchmark(SHIPPED)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("DEPOTBENCH_CACHE", "off")
+        try:
+            prepare(shipped, root / "sequences", workers=1, progress=False)
+        except InputError as refused:
+            here = machine_summary()
+            frozen = sorted({s.frozen_on for s in shipped.sequences if s.frozen_on is not None})
+            if not frozen or machine_kind(here) in {machine_kind(f) for f in frozen}:
+                raise  # the lock's own machine kind made other bytes: the generator changed
+            assert f"frozen on {frozen[0]}; this is {here}" in str(refused)
+        else:
+            return SHIPPED
+    copy = root / "frozen-here" / shipped.path.name
+    copy.parent.mkdir(parents=True)
+    shutil.copy(shipped.path, copy)
+    shutil.copy(lock_path(shipped.path), lock_path(copy))
+    done = freeze(copy, root / "sequences", "--replace")
+    assert done.returncode == 0, done.stderr
+    prepare(load_benchmark(copy), root / "sequences", workers=1, progress=False)  # holds them now
+    warnings.warn(
+        f"{SHIPPED}'s lock was frozen on {frozen[0]}; this machine is {here}: its bytes differ, as the "
+        f"lock refused them; the tests use a copy frozen here ({copy})",
+        stacklevel=2,
+    )
+    return str(copy)
