@@ -78,21 +78,26 @@ def test_a_sequence_with_other_bytes_is_refused_naming_both_machines(tmp_path: P
 def test_the_tests_take_other_bytes_than_the_locks_only_from_a_machine_of_another_kind(
     tmp_path: Path, monkeypatch
 ):
-    """tests/smoke_lock.py: where the lock refuses smoke-1's bytes on a machine with the CPU and
-    renderer that froze it (the libraries aside), the generator changed and the refusal stands;
-    a refusal that does not name this machine as the lock's other one stands too."""
+    """tests/smoke_lock.py: where the lock refuses smoke-1's bytes and a sequence with other
+    bytes was frozen on a machine with this CPU and renderer (the libraries aside), the
+    generator changed and the refusal stands; so does a refusal that names another machine
+    as this one."""
     from tests import smoke_lock
 
     frozen = load_benchmark("smoke-1").sequences[0].frozen_on
     same_kind = smoke_lock.machine_kind(frozen) + "; opencv 5.1.0.95, mujoco 9.9.9, numpy 2.4.6"
-    refusal = f"smoke-0000: its files are not smoke-1's (frozen on {frozen}; this is {same_kind})"
+    refusal = f"smoke-0000: its files are not smoke-1's (frozen on {frozen}; this is {same_kind}; docs)"
 
     def refuse(*args, **kwargs):
         raise InputError(refusal)
 
     monkeypatch.setattr(smoke_lock, "prepare", refuse)
+    monkeypatch.setattr(smoke_lock, "other_bytes", lambda *args: {"smoke/smoke-0000": frozen})
     monkeypatch.setattr(smoke_lock, "machine_summary", lambda: same_kind)
     with pytest.raises(InputError, match="its files are not smoke-1's"):
+        smoke_lock.smoke_1(tmp_path)
+    monkeypatch.setattr(smoke_lock, "other_bytes", lambda *args: {"smoke/smoke-0000": None})
+    with pytest.raises(InputError, match="its files are not smoke-1's"):  # frozen on a machine unnamed
         smoke_lock.smoke_1(tmp_path)
     monkeypatch.setattr(smoke_lock, "machine_summary", lambda: "Xeon (avx512); softpipe; opencv 5.1.0.95")
     with pytest.raises(AssertionError):  # the refusal names another machine than this one
