@@ -433,6 +433,7 @@ def test_the_leaderboard_is_a_row_per_results_file_best_first_and_escapes_labels
     for r in (mine, base):
         r["depotbench"] = "0.8.0"
     text = page([base, mine], base)
+    assert text.endswith("</html>\n")
 
     class Cells(HTMLParser):
         def __init__(self) -> None:

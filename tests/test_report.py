@@ -85,6 +85,7 @@ def test_run_report_opens_in_chromium_with_its_plots(run_folder: Path, tmp_path:
     page = tmp_path / "report" / "index.html"
     text = page.read_text()
     assert "http://" not in text and "https://" not in text  # self-contained
+    assert text.endswith("</html>\n")  # a text file's last line ends
     shown = _open_in_chromium(page, tmp_path / "run.png")
     assert shown["errors"] == [] and shown["external"] == []
     alts = [i["alt"] for i in shown["images"]]

@@ -90,7 +90,9 @@ def page(loaded: list[dict[str, Any]], baseline: dict[str, Any] | None = None) -
 
     scenarios, found = entries(loaded, baseline)
     folder = resources.files("depotbench.eval.benchmark.templates")
-    environment = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
+    environment = jinja2.Environment(
+        autoescape=True, undefined=jinja2.StrictUndefined, keep_trailing_newline=True
+    )
     template = environment.from_string(folder.joinpath("leaderboard.html.j2").read_text(encoding="utf-8"))
     label = None if baseline is None else tracker_label(baseline)
     return template.render(

@@ -88,6 +88,7 @@ def environment():
         undefined=jinja2.StrictUndefined,  # a value the page names and Python did not give is an error
         trim_blocks=True,
         lstrip_blocks=True,
+        keep_trailing_newline=True,  # a page is a text file: it ends with a newline, as its template
     )
     env.filters["number"] = number
     env.filters["percent0"] = lambda value: f"{value:.0%}"
