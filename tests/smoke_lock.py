@@ -37,6 +37,14 @@ def machine_kind(summary: str) -> str:
     return "; ".join(summary.split("; ")[:2])
 
 
+def copy_of_smoke(folder: Path) -> Path:
+    """The shipped smoke-1 file and its lock copied into ``folder``; returns the file's path."""
+    source = load_benchmark(SHIPPED).path
+    shutil.copy(source, folder / source.name)
+    shutil.copy(lock_path(source), lock_path(folder / source.name))
+    return folder / source.name
+
+
 def freeze(benchmark: Path, sequences: Path, *words: str) -> subprocess.CompletedProcess:
     command = [
         sys.executable,
@@ -67,10 +75,8 @@ def smoke_1(root: Path) -> str:
                 raise  # made on the lock's own machine kind: the generator changed
         else:
             return SHIPPED
-    copy = root / "frozen-here" / shipped.path.name
-    copy.parent.mkdir(parents=True)
-    shutil.copy(shipped.path, copy)
-    shutil.copy(lock_path(shipped.path), lock_path(copy))
+    (root / "frozen-here").mkdir(parents=True)
+    copy = copy_of_smoke(root / "frozen-here")
     done = freeze(copy, root / "sequences", "--replace")
     assert done.returncode == 0, done.stderr
     prepare(load_benchmark(copy), root / "sequences", workers=1, progress=False)  # holds them now

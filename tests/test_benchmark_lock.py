@@ -5,7 +5,6 @@ of another CPU made other bytes with the same libraries, and each OpenCV draws i
 from __future__ import annotations
 
 import json
-import shutil
 from importlib import metadata
 from pathlib import Path
 
@@ -15,12 +14,7 @@ from depotbench.eval.benchmark import sequences as bench_sequences
 from depotbench.eval.benchmark.spec import load_benchmark, lock_path, write_lock
 from depotbench.sim.machine import machine_summary
 
-
-def _copy_of_smoke(tmp_path: Path) -> Path:
-    source = load_benchmark("smoke-1").path
-    shutil.copy(source, tmp_path / source.name)
-    shutil.copy(lock_path(source), tmp_path / lock_path(source).name)
-    return tmp_path / source.name
+from tests.smoke_lock import copy_of_smoke
 
 
 def test_the_summary_names_the_cpu_class_and_the_libraries_installed():
@@ -41,7 +35,7 @@ def test_the_summary_names_the_cpu_class_and_the_libraries_installed():
 
 
 def test_a_lock_keeps_each_sequences_machine_and_an_older_lock_names_none(tmp_path: Path):
-    path = _copy_of_smoke(tmp_path)
+    path = copy_of_smoke(tmp_path)
     data = json.loads(lock_path(path).read_text())
     for entry in data["sequences"]:
         del entry["frozen_on"]  # as a lock written before the field
@@ -59,7 +53,7 @@ def test_a_lock_keeps_each_sequences_machine_and_an_older_lock_names_none(tmp_pa
 
 def test_a_sequence_with_other_bytes_is_refused_naming_both_machines(tmp_path: Path, monkeypatch):
     """prepare() with generation and hashing stood in for: the hash is not the lock's."""
-    path = _copy_of_smoke(tmp_path)
+    path = copy_of_smoke(tmp_path)
     old = load_benchmark(path)
     marked = [
         s.__class__(**{**s.__dict__, "frozen_on": "Xeon (avx512); opencv 5.1.0.95"}) for s in old.sequences
