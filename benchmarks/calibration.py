@@ -551,12 +551,12 @@ def main() -> None:
                 }
             )
         summaries.append(summarise(scene, rows, strategies, detectors))
-    from depotbench.core.version import generator_version
+    from depotbench.core.version import generator_version, package_version
 
     frames = "TUM's length" if args.frames is None else f"{args.frames} frames"
     header = (
         f"# Calibration: {len(seeds)} seeds ({seed_set}: {', '.join(map(str, seeds))}), {frames}, "
-        f"ORB-SLAM3 x{args.orbslam3_runs} (pace {args.orbslam3_pace:g}); depotbench {generator_version()}\n\n"
+        f"ORB-SLAM3 x{args.orbslam3_runs} (pace {args.orbslam3_pace:g}); depotbench {package_version()}\n\n"
         f"Published: {PUBLISHED_SOURCE}."
     )
     table = markdown(summaries, strategies, detectors, header)
@@ -570,6 +570,7 @@ def main() -> None:
         "orbslam3_runs": args.orbslam3_runs,
         "orbslam3_pace": args.orbslam3_pace,
         "generator": generator_version(),
+        "depotbench": package_version(),
         "seconds": {"total": time.perf_counter() - started, "generate": generated_s, **busy},
         "summaries": summaries,
     }

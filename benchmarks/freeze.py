@@ -14,7 +14,9 @@ one FOLDER holds with other bytes stops the freeze (the same spec must give the 
 unless ``--replace`` says the reference machine changed: then each key FOLDER holds other
 bytes for is replaced by this machine's, and each key frozen on another machine that FOLDER
 does not hold is dropped (that sequence waits to be frozen here), so that a lock never mixes
-two machines' bytes (docs/benchmarks.md, "Where the keys hold").
+two machines' bytes (docs/benchmarks.md, "Where the keys hold"). A key frozen on a machine
+of this one's kind (CPU and renderer) is never replaced: there other bytes mean the
+generator changed, which needs a new ``GENERATOR_VERSION`` and a new benchmark version.
 
 A benchmark is frozen once per version: when its sequences would change (a new generator),
 its file is copied to NAME-(VERSION+1).yaml and frozen anew; the old one stays for those
@@ -43,7 +45,7 @@ def main() -> None:
     from depotbench.eval.run.detections import sequence_fingerprint
     from depotbench.scenes.generation import is_complete, run_suite
     from depotbench.scenes.schema import load_model
-    from depotbench.sim.machine import machine_summary
+    from depotbench.sim.machine import machine_kind, machine_summary
     from depotbench.sim.sequence import Sequence
 
     parser = argparse.ArgumentParser(
@@ -96,6 +98,14 @@ def main() -> None:
         if complete:
             hashed = sequence_fingerprint(Sequence.open(folder))
             if args.replace and key is not None and key != hashed:
+                if on is not None and machine_kind(on) == machine_kind(here):
+                    sys.exit(
+                        f"{folder}: its bytes (key {hashed}) are not the ones frozen for the same spec on a "
+                        f"machine of this kind ({key}, on {on}): the generator's output changed under "
+                        f"generator version {generator_version()}; set GENERATOR_VERSION "
+                        "(core/version.py) to the coming release and freeze a new version of "
+                        "the benchmark; nothing written"
+                    )
                 key, on, replaced = None, None, replaced + 1
             if key is not None and key != hashed:
                 sys.exit(

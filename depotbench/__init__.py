@@ -69,9 +69,9 @@ def __getattr__(name: str) -> object:
     command line's to report only once that module has run (importing ``depotbench.api`` and
     the package metadata here cost 40 ms, the window of probe C15's tracebacks)."""
     if name == "__version__":
-        from depotbench.core.version import generator_version
+        from depotbench.core.version import package_version
 
-        return generator_version()
+        return package_version()
     if name in __all__:
         return getattr(importlib.import_module("depotbench.api"), name)
     raise AttributeError(f"module 'depotbench' has no attribute {name!r}")

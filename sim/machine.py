@@ -64,3 +64,10 @@ def machine_summary() -> str:
         simd = "no avx2" if flags else "flags unknown"
     libraries = ", ".join(f"{name} {_version(dist)}" for name, dist in LIBRARIES)
     return f"{model} ({simd}); {renderer()}; {libraries}"
+
+
+def machine_kind(summary: str) -> str:
+    """The CPU and renderer of a ``machine_summary`` line, without the libraries: what decides
+    whether two machines draw the same bytes (OpenCV is pinned to one minor version, and
+    mujoco 4.0.0 and 4.0.1 drew the same bytes)."""
+    return "; ".join(summary.split("; ")[:2])

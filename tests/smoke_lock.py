@@ -23,7 +23,7 @@ from depotbench.core.errors import InputError
 from depotbench.eval.benchmark.sequences import prepare
 from depotbench.eval.benchmark.spec import Benchmark, load_benchmark, lock_path
 from depotbench.eval.run.detections import sequence_fingerprint
-from depotbench.sim.machine import machine_summary
+from depotbench.sim.machine import machine_kind, machine_summary
 from depotbench.sim.sequence import Sequence
 
 from tests.conftest import REPO
@@ -31,15 +31,10 @@ from tests.conftest import REPO
 SHIPPED = "smoke-1"
 
 
-def machine_kind(summary: str) -> str:
-    """The CPU and renderer of a ``machine_summary`` line, without the libraries: OpenCV is
-    pinned to one minor version, and mujoco 4.0.0 and 4.0.1 drew the same bytes."""
-    return "; ".join(summary.split("; ")[:2])
-
-
-def copy_of_smoke(folder: Path) -> Path:
-    """The shipped smoke-1 file and its lock copied into ``folder``; returns the file's path."""
-    source = load_benchmark(SHIPPED).path
+def copy_of_smoke(folder: Path, name: str = SHIPPED) -> Path:
+    """smoke-1's file and its lock (the shipped ones, or those of ``name``: a copy frozen
+    here) copied into ``folder``; returns the file's path."""
+    source = load_benchmark(name).path
     shutil.copy(source, folder / source.name)
     shutil.copy(lock_path(source), lock_path(folder / source.name))
     return folder / source.name

@@ -159,6 +159,34 @@ def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
     assert [s.frozen_on for s in after] == [machine_summary(), machine_summary(), None]
 
 
+def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_them(
+    smoke: Path, bench: str, tmp_path: Path
+):
+    """``--replace`` is for a reference machine that changed; on a machine of the lock's own
+    kind (CPU and renderer; the libraries aside) other bytes for the same spec mean the
+    generator changed, which needs a new generator version, so the freeze stops and writes
+    nothing (it replaced the key before)."""
+    from depotbench.core.version import GENERATOR_VERSION
+    from depotbench.sim.machine import machine_summary
+
+    source = load_benchmark(bench).path
+    shutil.copy(source, tmp_path / source.name)
+    lock = json.loads(lock_path(source).read_text())
+    same_kind = "; ".join(machine_summary().split("; ")[:2]) + "; opencv 5.1.0.95, mujoco 0.0.1, numpy 2.4.6"
+    lock["sequences"][0]["files_key"], lock["sequences"][0]["frozen_on"] = "0" * 32, same_kind
+    written = json.dumps(lock, indent=1)
+    lock_path(tmp_path / source.name).write_text(written)
+    folder = tmp_path / "sequences"
+    shutil.copytree(smoke / "sequences" / "smoke" / "smoke-0000", folder / "smoke" / "smoke-0000")
+
+    stopped = freeze(tmp_path / source.name, folder, "--replace")
+    assert stopped.returncode != 0, stopped.stdout
+    assert "smoke-0000: its bytes" in stopped.stderr and "(00000000" in stopped.stderr
+    assert f"the generator's output changed under generator version {GENERATOR_VERSION}" in stopped.stderr
+    assert len(stopped.stderr.strip().splitlines()) == 1
+    assert lock_path(tmp_path / source.name).read_text() == written
+
+
 def test_a_benchmark_frozen_by_another_generator_is_refused_in_one_line(tmp_path: Path):
     source = load_benchmark("smoke-1").path
     text = source.read_text().replace("generator: 0.8.0", "generator: 0.7.0")

@@ -12,7 +12,7 @@ import pytest
 from depotbench.core.errors import InputError
 from depotbench.eval.benchmark import sequences as bench_sequences
 from depotbench.eval.benchmark.spec import load_benchmark, lock_path, write_lock
-from depotbench.sim.machine import machine_summary
+from depotbench.sim.machine import machine_kind, machine_summary
 
 from tests.smoke_lock import copy_of_smoke
 
@@ -79,7 +79,7 @@ def test_the_tests_take_other_bytes_than_the_locks_only_from_a_machine_of_anothe
     from tests import smoke_lock
 
     frozen = load_benchmark("smoke-1").sequences[0].frozen_on
-    same_kind = smoke_lock.machine_kind(frozen) + "; opencv 5.1.0.95, mujoco 9.9.9, numpy 2.4.6"
+    same_kind = machine_kind(frozen) + "; opencv 5.1.0.95, mujoco 9.9.9, numpy 2.4.6"
     refusal = f"smoke-0000: its files are not smoke-1's (frozen on {frozen}; this is {same_kind}; docs)"
 
     def refuse(*args, **kwargs):

@@ -162,12 +162,12 @@ def test_another_version_computes_a_real_folders_stages_again(generated: Path, t
     track(job, cache)
     assert [set(folder.iterdir()) for folder in folders] == entries  # the same version: reused
     monkeypatch.setattr(version.metadata, "version", lambda _: "0.0.0-another")  # an upgrade
-    version.generator_version.cache_clear()  # as a new process after it reads it
+    version.package_version.cache_clear()  # as a new process after it reads it
     try:
         track(job, cache)
     finally:
         monkeypatch.undo()
-        version.generator_version.cache_clear()
+        version.package_version.cache_clear()
     assert [len(set(folder.iterdir()) - before) for folder, before in zip(folders, entries, strict=True)] == [
         1,
         1,
@@ -348,3 +348,42 @@ def test_a_moved_sequence_resumes_its_rows_which_then_name_its_new_folder(
     assert main(["sweep", str(spec), "-o", str(tmp_path / "sw")]) == 0
     assert "(1 already done" in capsys.readouterr().out
     assert [Path(row["sequence"]).name for row in _rows(tmp_path / "sw")] == ["new"]
+
+
+def test_a_release_that_leaves_the_generator_alone_keeps_every_sequence_and_lock(
+    generated: Path, tmp_path: Path, monkeypatch
+):
+    """The package's version keys runs and stages; the generator's (``GENERATOR_VERSION``) keys
+    sequences and the benchmarks' locks. Before they were told apart, a release that changed
+    only the tracker gave every sequence another spec key and meta.json, and every frozen
+    benchmark (tum-dyn-1's 70 sequences) refused to run until frozen again."""
+    from depotbench.core import version
+    from depotbench.eval.benchmark.sequences import check_specs
+    from depotbench.eval.benchmark.spec import load_benchmark
+    from depotbench.eval.run import harness
+    from depotbench.sim.spec import content_key, spec_from_dict
+
+    spec = spec_from_dict(Sequence.open(generated).meta["scenario"])
+    before = (content_key(spec), sequence_fingerprint(Sequence.open(generated)))
+    detector = RunJob(generated, "none").detector
+
+    def run_key() -> str:
+        return harness.job_key(before[1], (("kind", "builtin"),), detector, "none", [])
+
+    first_run = run_key()
+    monkeypatch.setattr(version.metadata, "version", lambda _: "99.0.0")  # a later release
+    version.package_version.cache_clear()
+    try:
+        assert version.package_version() == "99.0.0"
+        assert version.generator_version() == version.GENERATOR_VERSION
+        spec_file = tmp_path / "keyed.yaml"
+        spec_file.write_text(SPEC)
+        assert main(["generate", str(spec_file), "-o", str(tmp_path / "again"), "--flow"]) == 0
+        again = Sequence.open(tmp_path / "again")
+        assert (content_key(spec), sequence_fingerprint(again)) == before  # meta.json too
+        assert again.meta["generator"] == f"depotbench {version.GENERATOR_VERSION}"
+        check_specs(load_benchmark("smoke-1"))  # the shipped lock still holds for this release
+        assert run_key() != first_run  # a run is the package's: another release, another row
+    finally:
+        monkeypatch.undo()
+        version.package_version.cache_clear()

@@ -34,7 +34,7 @@ def _entry_sequences(entry: Entry, source: Path) -> list[BenchSequence]:
 def check_specs(benchmark: Benchmark) -> None:
     """Refuse, before anything is generated, a benchmark this package would generate other
     sequences for: another generator version, or a file edited since its lock was written."""
-    from depotbench.core.version import generator_version
+    from depotbench.core.version import generator_version, package_version
 
     asked = expand(benchmark.spec, benchmark.path)
     locked = benchmark.by_name()
@@ -47,8 +47,9 @@ def check_specs(benchmark: Benchmark) -> None:
         if sequence.spec_key != locked[sequence.folder].spec_key:
             running = generator_version()
             why = (
-                f"this depotbench ({running}) generates other sequences than {benchmark.spec.generator}, "
-                f"which froze it: install depotbench=={benchmark.spec.generator} to score it"
+                f"this depotbench ({package_version()}, generator {running}) generates other sequences "
+                f"than generator {benchmark.spec.generator}, which froze it: install "
+                f"depotbench=={benchmark.spec.generator} to score it"
                 if running != benchmark.spec.generator
                 else "its scenario changed since the benchmark was frozen"
             )

@@ -242,9 +242,9 @@ def add_version(parser: argparse.ArgumentParser) -> None:
 
 class _Version(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> NoReturn:
-        from depotbench.core.version import generator_version
+        from depotbench.core.version import package_version
 
-        print(f"depotbench {generator_version()}")  # on stdout, as argparse's own version action
+        print(f"depotbench {package_version()}")  # on stdout, as argparse's own version action
         parser.exit(0)
 
 

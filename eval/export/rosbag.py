@@ -34,7 +34,7 @@ from depotbench.core.camera import FALLBACKS, CameraOverride, CameraSource
 from depotbench.core.errors import InputError
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import generator_version
+from depotbench.core.version import package_version
 from depotbench.sim.ground_truth import ObjectState
 from depotbench.sim.sequence import Sequence, pose_matrix
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -482,7 +482,7 @@ def typestore(detections: bool = False) -> Typestore:
 def _custom_data(sequence: Sequence, form: DepthForm, names: TopicNames) -> dict[str, str]:
     """What a user of the bag needs to read it right, in metadata.yaml's custom_data."""
     return {
-        "depotbench.version": generator_version(),
+        "depotbench.version": package_version(),
         "depotbench.sequence": sequence.root.resolve().name,
         "depotbench.depth": form.meaning,
         "depotbench.depth_scale": f"{sequence.intrinsics.depth_scale:g}",

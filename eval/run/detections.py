@@ -22,7 +22,7 @@ from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest
 from depotbench.core.path_text import path_text
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import generator_version
+from depotbench.core.version import package_version
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import DetectorConfig, DetectorKind, check_model_file
 from depotbench.detectors.detection import Detection, Prior
@@ -115,7 +115,7 @@ def detect_sequence(
     detector = build_detector(base, sequence) if config.kind is DetectorKind.GROUNDTRUTH else None
     # this version's detections: a real folder's files, unlike a generated one's meta.json, name none
     key = content_hash(
-        CACHE_FORMAT, generator_version(), sequence_fingerprint(sequence), base.key(), base.priors.overrides
+        CACHE_FORMAT, package_version(), sequence_fingerprint(sequence), base.key(), base.priors.overrides
     )
     raw = _load(cache.get(CACHE_STAGE, key)) if cache is not None else None
     from_cache = raw is not None

@@ -31,7 +31,7 @@ from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.logs import timed
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.path_text import path_text
-from depotbench.core.version import generator_version
+from depotbench.core.version import package_version
 from depotbench.detectors.config import DetectorConfig, DetectorKind
 from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions, compare
 from depotbench.eval.metrics.record import RECORD_VERSION, RunIdentity, RunRecord
@@ -390,7 +390,7 @@ def job_key(
     another calibration is another run; without one the key is what it was)."""
     return content_hash(
         RECORD_VERSION,
-        generator_version(),
+        package_version(),
         fingerprint,
         tracker,
         detector.key(),
@@ -446,7 +446,7 @@ def identity_of(
 
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
-    return RunRecord.of_run(run_identity(job, sequence), metrics, generator_version())
+    return RunRecord.of_run(run_identity(job, sequence), metrics, package_version())
 
 
 def run_identity(job: RunJob, sequence: Sequence) -> RunIdentity:
@@ -561,7 +561,7 @@ def _keep_failure(
     (``evidence.write_evidence``), swapped into place as a finished run's is."""
     write_evidence(output.path, str(exc), exc.log, exc.evidence)
     identity = run_identity(job, sequence)
-    record = RunRecord.failed(identity, str(exc), len(sequence), wall_s, generator_version())
+    record = RunRecord.failed(identity, str(exc), len(sequence), wall_s, package_version())
     (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
     output.commit()
 

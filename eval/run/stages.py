@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import generator_version
+from depotbench.core.version import package_version
 from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
@@ -62,7 +62,7 @@ def features_key(sequence: Sequence, tracking: TrackingConfig) -> str:
     folder's files, unlike a generated one's meta.json, name no version."""
     camera = camera_of(sequence)
     return content_hash(
-        STAGE_FORMAT, generator_version(), sequence_fingerprint(sequence), asdict(tracking), repr(camera)
+        STAGE_FORMAT, package_version(), sequence_fingerprint(sequence), asdict(tracking), repr(camera)
     )
 
 

@@ -158,10 +158,10 @@ def _plots(configs: list[dict], folder: Path, records: list, rule: SuccessRule, 
     is the summary, every row and the package version; a plot file changed or missing since
     is drawn again."""
     from depotbench.core.files import file_digest
-    from depotbench.core.version import generator_version
+    from depotbench.core.version import package_version
     from depotbench.eval.run.cache import content_hash
 
-    key = content_hash(generator_version(), dumps_json(summary), [r.to_row() for r in records])
+    key = content_hash(package_version(), dumps_json(summary), [r.to_row() for r in records])
     index = folder / PLOTS_INDEX
     try:
         kept = json.loads(index.read_text(encoding="utf-8")) if index.is_file() else None

@@ -42,7 +42,7 @@ from depotbench.core.cache_home import Contents, cache_folder, switched_off_by
 from depotbench.core.errors import InputError
 from depotbench.core.output import OutputLock, write_text_atomic
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import generator_version
+from depotbench.core.version import package_version
 
 BUILDER_VERSION = 1
 LOG = logging.getLogger(__name__)
@@ -83,7 +83,7 @@ class VocabularySpec:
             raise InputError("--scenes: name at least one library scene")
 
     def key(self) -> str:
-        data = {**asdict(self), "builder": BUILDER_VERSION, "generator": generator_version()}
+        data = {**asdict(self), "builder": BUILDER_VERSION, "generator": package_version()}
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
 
 
