@@ -30,7 +30,7 @@ OPTIONS = {"fastmath": False, "parallel": False, "error_model": "numpy", "nogil"
 (inf or NaN, no exception), one thread."""
 ANNOUNCE_AFTER_S = 3.0
 """A warm-up still running after this long is compiling, not loading (0.5 s from the cache,
-1.5 s on a busy machine, 40-50 s compiling): only then does it say so, so a user knows what
+1.5 s on a busy machine, 24-50 s compiling): only then does it say so, so a user knows what
 the wait is."""
 LOG = logging.getLogger("depotbench.kernels")
 F = TypeVar("F", bound=Callable)
@@ -84,14 +84,18 @@ def using(path: Kernels) -> Iterator[None]:
         kernels.cache_clear()
 
 
-def warmed(what: str, warm_up: Callable[[], object], compile_s: float) -> float:
+def warmed(what: str, warm_up: Callable[[], object], compile_s: tuple[float, float]) -> float:
     """Run ``warm_up`` (which compiles or loads ``what``'s kernels) and return its seconds. One
     that runs past ``ANNOUNCE_AFTER_S`` is compiling: it is announced with ``compile_s``, the
-    time a compile takes, so the wait reads as a step of its own; a load shows under -v."""
+    range a compile has taken on 2 cores, so the wait reads as a step of its own; a load shows
+    under -v."""
     announce = threading.Timer(
         ANNOUNCE_AFTER_S,
         LOG.info,
-        (f"compiling {what} (the first run after an install: about {compile_s:.0f} s; later runs load it)",),
+        (
+            f"compiling {what} (the first run after an install: {compile_s[0]:.0f}-{compile_s[1]:.0f} s "
+            "on 2 cores; later runs load it)",
+        ),
     )
     announce.daemon = True
     announce.start()

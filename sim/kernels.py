@@ -193,4 +193,4 @@ def warm_up() -> None:
 def ready() -> float:
     """``warm_up`` once per process, before the first frame (2-3 s to compile on a 2-core
     machine, announced past ``core.jit.ANNOUNCE_AFTER_S``; 0.1 s to load); its seconds."""
-    return warmed("the generator's kernels", warm_up, compile_s=3)
+    return warmed("the generator's kernels", warm_up, compile_s=(2, 4))
