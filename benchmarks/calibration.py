@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/calibration.py -o OUT [--scenes ...] [--seeds report|tune|N N ...]
        [--frames N] [--orbslam3-runs 3] [--strategies ...] [--detectors groundtruth onnx]
-       [--workers 2] [--resume]
+       [--set NAME=VALUE ...] [--workers 2] [--resume]
 
 For each TUM analog (scenes/library, ``tags: [tum-like]``, generated with the ``tum``
 sensor profile at TUM's length unless ``--frames`` cuts it) and each seed: the camera's
@@ -20,6 +20,10 @@ three source papers' tables, ../shared/calibration-targets.md) and the issue's t
 
 Seeds: REPORT seeds give the figures; TUNE seeds are the only ones anyone may look at while
 choosing a default (and the defaults follow sources, not these figures: docs/calibration.md).
+
+``--set NAME=VALUE`` (repeatable, as ``depotbench run --set``) gives the built-in's runs a
+setting, e.g. ``--set mapper_time_scale=1`` for the mapper on its virtual clock; the table's
+header and calibration.json name the settings.
 
 Writes OUT/calibration.json, OUT/calibration.md (the table) and OUT/calibration.png.
 Smoke run (a few minutes): --scenes walking_xyz --seeds 1 --frames 60 --orbslam3-runs 1
@@ -116,6 +120,8 @@ class Job:
     stages: Path | None
     resume: bool
     pace: float = 1.0
+    settings: tuple[tuple[str, object], ...] = ()
+    """The built-in's settings (``--set``); ORB-SLAM3's runs take none."""
 
     def target(self, strategy: str, detector: str) -> Path:
         return self.out / self.sequence.name / f"{self.tracker}-{strategy}-{detector}-{self.repeat}"
@@ -152,6 +158,7 @@ def _run(job: Job) -> tuple[Job, dict[str, dict], float]:
                 target,
                 strategy,
                 detector=detectors[detector],
+                settings=dict(job.settings),
                 progress=False,
                 overwrite=True,
                 tracker=config,
@@ -459,9 +466,25 @@ def main() -> None:
         choices=["groundtruth", "onnx"],
         help="true boxes and/or the shipped YOLOX-nano (default: both)",
     )
+    parser.add_argument(
+        "--set",
+        dest="settings",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a setting of the built-in's runs, e.g. mapper_time_scale=1 (repeatable)",
+    )
     parser.add_argument("--workers", type=int, default=2, help="processes for generation and built-in runs")
-    parser.add_argument("--resume", action="store_true", help="keep runs already in OUT/runs (same code!)")
+    parser.add_argument(
+        "--resume", action="store_true", help="keep runs already in OUT/runs (same code and settings!)"
+    )
     args = parser.parse_args()
+    from depotbench.slam.config import ConfigError, parse_settings
+
+    try:
+        settings = tuple(sorted(parse_settings(args.settings).items()))
+    except ConfigError as exc:
+        parser.error(f"--set: {exc}")
     seed_set, seeds = _seeds(args.seeds, parser)
     if args.frames is not None and args.frames < 40:
         parser.error(f"--frames: at least 40 (motion statistics need more than a second), got {args.frames}")
@@ -496,7 +519,18 @@ def main() -> None:
     busy = {"builtin": 0.0, "orbslam3": 0.0}
     with tempfile.TemporaryDirectory(dir=out, prefix=".stages-") as stages:
         jobs = [
-            Job(scene, seed, path, "builtin", builtin_runs, 0, out / "runs", Path(stages), args.resume)
+            Job(
+                scene,
+                seed,
+                path,
+                "builtin",
+                builtin_runs,
+                0,
+                out / "runs",
+                Path(stages),
+                args.resume,
+                settings=settings,
+            )
             for scene, seed, path in sequences
         ]
         jobs += [
@@ -556,7 +590,8 @@ def main() -> None:
     frames = "TUM's length" if args.frames is None else f"{args.frames} frames"
     header = (
         f"# Calibration: {len(seeds)} seeds ({seed_set}: {', '.join(map(str, seeds))}), {frames}, "
-        f"ORB-SLAM3 x{args.orbslam3_runs} (pace {args.orbslam3_pace:g}); depotbench {package_version()}\n\n"
+        f"ORB-SLAM3 x{args.orbslam3_runs} (pace {args.orbslam3_pace:g}); depotbench {package_version()}"
+        f"{'; built-in with ' + ', '.join(f'{k}={v}' for k, v in settings) if settings else ''}\n\n"
         f"Published: {PUBLISHED_SOURCE}."
     )
     table = markdown(summaries, strategies, detectors, header)
@@ -571,6 +606,7 @@ def main() -> None:
         "orbslam3_pace": args.orbslam3_pace,
         "generator": generator_version(),
         "depotbench": package_version(),
+        "builtin_settings": dict(settings),
         "seconds": {"total": time.perf_counter() - started, "generate": generated_s, **busy},
         "summaries": summaries,
     }

@@ -123,6 +123,8 @@ def test_sitting_analogs_are_judged_on_a_low_rho_and_the_static_floor():
         (["--frames", "20"], "--frames: at least 40"),
         (["--scenes", "static_depot"], "invalid choice"),
         (["--seeds", "report", "tune"], "--seeds"),
+        (["--set", "mapper_time_scale=fast"], "--set: setting mapper_time_scale='fast' is not a number"),
+        (["--set", "no_such_setting=1"], "--set: "),
     ],
 )
 def test_bad_arguments_are_refused_in_one_line_before_any_work(tmp_path, args, message):
