@@ -14,9 +14,12 @@ one FOLDER holds with other bytes stops the freeze (the same spec must give the 
 unless ``--replace`` says the reference machine changed: then each key FOLDER holds other
 bytes for is replaced by this machine's, and each key frozen on another machine that FOLDER
 does not hold is dropped (that sequence waits to be frozen here), so that a lock never mixes
-two machines' bytes (docs/benchmarks.md, "Where the keys hold"). A key frozen on a machine
-of this one's kind (CPU and renderer) is never replaced: there other bytes mean the
-generator changed, which needs a new ``GENERATOR_VERSION`` and a new benchmark version.
+two machines' bytes (docs/benchmarks.md, "Where the keys hold"). ``--add-machine`` instead
+keeps every key and adds this machine's beside those of machines of other kinds (each
+sequence's ``also``), so that users of this kind of machine can score the benchmark too.
+A key frozen on a machine of this one's kind (CPU and renderer) is never replaced nor
+joined by another: there other bytes mean the generator changed, which needs a new
+``GENERATOR_VERSION`` and a new benchmark version.
 
 A benchmark is frozen once per version: when its sequences would change (a new generator),
 its file is copied to NAME-(VERSION+1).yaml and frozen anew; the old one stays for those
@@ -56,10 +59,16 @@ def main() -> None:
     where.add_argument("-o", "--output", type=Path, help="generate every sequence here, then hash it")
     where.add_argument("--sequences", type=Path, help="hash the complete sequences this folder holds")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument(
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument(
         "--replace",
         action="store_true",
         help="the reference machine changed: keys frozen on another machine give way to this one's",
+    )
+    mode.add_argument(
+        "--add-machine",
+        action="store_true",
+        help="keep the keys frozen on machines of other kinds and add this machine's beside them",
     )
     args = parser.parse_args()
 
@@ -87,41 +96,60 @@ def main() -> None:
         for entry in spec.scenarios:
             run_suite(entry.suite(), path, root / entry.scenario, args.workers)
     here = machine_summary()
-    frozen, replaced, dropped = [], 0, 0
+    frozen, replaced, dropped, added = [], 0, 0, 0
     for sequence in asked:
         folder = root / sequence.folder
         before = kept.get(sequence.folder)
-        key, on = (before.files_key, before.frozen_on) if before is not None else (None, None)
+        key, on, also = (before.files_key, before.frozen_on, before.also) if before else (None, None, ())
         complete = is_complete(folder, sequence.spec_key)
         if args.replace and key is not None and on != here and not complete:
-            key, on, dropped = None, None, dropped + 1
+            key, on, also, dropped = None, None, (), dropped + 1
         if complete:
             hashed = sequence_fingerprint(Sequence.open(folder))
-            if args.replace and key is not None and key != hashed:
-                if on is not None and machine_kind(on) == machine_kind(here):
+            accepted = {} if key is None else {key: on, **dict(also)}
+            if accepted and hashed not in accepted:
+                mine = [
+                    (k, m)
+                    for k, m in accepted.items()
+                    if m is not None and machine_kind(m) == machine_kind(here)
+                ]
+                if mine:
                     sys.exit(
-                        f"{folder}: its bytes (key {hashed}) are not the ones frozen for the same spec on a "
-                        f"machine of this kind ({key}, on {on}): the generator's output changed under "
-                        f"generator version {generator_version()}; set GENERATOR_VERSION "
-                        "(core/version.py) to the coming release and freeze a new version of "
-                        "the benchmark; nothing written"
+                        f"{folder}: its bytes (key {hashed}) are not the ones frozen for the same spec on "
+                        f"a machine of this kind ({mine[0][0]}, on {mine[0][1]}): the generator's output "
+                        f"changed under generator version {generator_version()}; set GENERATOR_VERSION "
+                        "(core/version.py) to the coming release and freeze a new version of the benchmark; "
+                        "nothing written"
                     )
-                key, on, replaced = None, None, replaced + 1
-            if key is not None and key != hashed:
-                sys.exit(
-                    f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the same "
-                    f"spec, on {on or 'a machine the lock does not name'}; this is {here}: the generator is "
-                    "not deterministic across these machines (docs/determinism.md); nothing written"
-                )
-            key, on = hashed, on or here  # frozen now, or made again here byte for byte
+                if args.replace:
+                    key, on, also, replaced = None, None, (), replaced + 1
+                elif args.add_machine:
+                    also, added = (*also, (hashed, here)), added + 1
+                else:
+                    sys.exit(
+                        f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the "
+                        f"same spec, on {on or 'a machine the lock does not name'}; this is {here}: the "
+                        "generator is not deterministic across these machines (docs/determinism.md); "
+                        "--add-machine adds this machine's keys beside them; nothing written"
+                    )
+            if key is None or key == hashed:
+                key, on = hashed, on or here  # frozen now, or made again here byte for byte
         frozen.append(
             BenchSequence(
-                sequence.name, sequence.scenario, sequence.seed, sequence.frames, sequence.spec_key, key, on
+                sequence.name,
+                sequence.scenario,
+                sequence.seed,
+                sequence.frames,
+                sequence.spec_key,
+                key,
+                on,
+                also,
             )
         )
     write_lock(path, spec, frozen)
     done = sum(s.files_key is not None for s in frozen)
     changed = f", {replaced} keys replaced and {dropped} dropped (another machine's)" if args.replace else ""
+    changed += f", {added} keys of this machine added beside another's" if args.add_machine else ""
     print(
         f"wrote {lock_path(path)}: {len(frozen)} sequences, {done} frozen, {len(frozen) - done} waiting"
         f"{changed} ({time.perf_counter() - started:.0f} s)"

@@ -159,6 +159,51 @@ def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
     assert [s.frozen_on for s in after] == [machine_summary(), machine_summary(), None]
 
 
+def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
+    smoke: Path, bench: str, tmp_path: Path
+):
+    """A lock frozen on another kind of machine (other keys, another CPU named): ``--add-machine``
+    keeps every key and adds this machine's for the sequences the folder holds, once; the
+    lock then accepts either machine's bytes (a user of this kind can score it)."""
+    from depotbench.sim.machine import machine_summary
+
+    source = load_benchmark(bench).path
+    shutil.copy(source, tmp_path / source.name)
+    lock = json.loads(lock_path(source).read_text())
+    for entry in lock["sequences"]:
+        entry["files_key"], entry["frozen_on"] = "0" * 32, "Xeon (avx2, no avx512); llvmpipe"
+    lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
+    folder = tmp_path / "sequences"
+    shutil.copytree(smoke / "sequences", folder)
+    shutil.rmtree(folder / "smoke" / "smoke-0002")
+
+    both = freeze(tmp_path / source.name, folder, "--replace", "--add-machine")
+    assert both.returncode == 2 and "not allowed with argument" in both.stderr
+    added = freeze(tmp_path / source.name, folder, "--add-machine")
+    assert added.returncode == 0, added.stderr
+    assert "2 keys of this machine added beside another's" in added.stdout
+    after = load_benchmark(tmp_path / source.name).sequences
+    mine = load_benchmark(bench).sequences
+    assert [s.files_key for s in after] == ["0" * 32] * 3
+    assert [s.also for s in after] == [
+        ((mine[0].files_key, machine_summary()),),
+        ((mine[1].files_key, machine_summary()),),
+        (),
+    ]
+    assert list(after[0].frozen_keys().values()) == ["Xeon (avx2, no avx512); llvmpipe", machine_summary()]
+    again = freeze(tmp_path / source.name, folder, "--add-machine")
+    assert again.returncode == 0 and "0 keys of this machine added" in again.stdout
+    assert load_benchmark(tmp_path / source.name).sequences == after
+    shutil.rmtree(folder / "smoke" / "smoke-0001")  # the sequence the lock does not accept here
+    lock = json.loads(lock_path(tmp_path / source.name).read_text())
+    lock["sequences"] = lock["sequences"][:1]
+    spec = (tmp_path / source.name).read_text().replace("seeds: [1, 2, 3]", "seeds: [1]")
+    (tmp_path / source.name).write_text(spec)
+    lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
+    held = prepare(load_benchmark(tmp_path / source.name), folder, workers=1, progress=False)
+    assert [p.files_key for p in held] == [mine[0].files_key]
+
+
 def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_them(
     smoke: Path, bench: str, tmp_path: Path
 ):

@@ -97,3 +97,42 @@ def test_the_tests_take_other_bytes_than_the_locks_only_from_a_machine_of_anothe
     with pytest.raises(AssertionError):  # the refusal names another machine than this one
         smoke_lock.smoke_1(tmp_path)
     assert not (tmp_path / "frozen-here").exists()
+
+
+def test_a_lock_accepts_the_keys_of_several_machine_kinds_and_names_them_all(tmp_path: Path, monkeypatch):
+    """``also``: keys of the same spec frozen on machines of other kinds (benchmarks/freeze.py
+    --add-machine). A sequence with one of them is taken; one with none is refused naming
+    every machine; the lock is read back as written, and an older lock has none."""
+    path = copy_of_smoke(tmp_path)
+    old = load_benchmark(path)
+    assert all(s.also == () for s in old.sequences)
+    other = ("1" * 32, "Xeon (avx512); llvmpipe (LLVM 15.0.6, 256 bits), Mesa 22.3.6; opencv 5.1.0.95")
+    marked = [s.__class__(**{**s.__dict__, "also": (other,)}) for s in old.sequences]
+    write_lock(path, old.spec, marked)
+    again = load_benchmark(path)
+    assert again.sequences == tuple(marked)
+    assert json.loads(lock_path(path).read_text())["sequences"][0]["also"] == [
+        {"files_key": other[0], "frozen_on": other[1]}
+    ]
+    monkeypatch.setattr(bench_sequences, "_generate", lambda *args, **kwargs: None)
+    monkeypatch.setattr("depotbench.sim.sequence.Sequence.open", staticmethod(lambda folder: folder))
+    monkeypatch.setattr("depotbench.eval.run.detections.sequence_fingerprint", lambda sequence: "1" * 32)
+    taken = bench_sequences.prepare(again, tmp_path / "sequences", workers=1, progress=False)
+    assert [p.files_key for p in taken] == ["1" * 32] * 3
+    monkeypatch.setattr("depotbench.eval.run.detections.sequence_fingerprint", lambda sequence: "2" * 32)
+    with pytest.raises(InputError) as refused:
+        bench_sequences.prepare(again, tmp_path / "sequences", workers=1, progress=False)
+    text = str(refused.value)
+    assert f"the lock's {old.sequences[0].files_key} or {'1' * 32}" in text
+    assert f"frozen on {old.sequences[0].frozen_on}; or on {other[1]}; this is {machine_summary()}" in text
+    assert len(text.splitlines()) == 1
+
+
+def test_a_lock_whose_sequence_has_other_machines_keys_but_none_of_its_own_is_refused(tmp_path: Path):
+    path = copy_of_smoke(tmp_path)
+    data = json.loads(lock_path(path).read_text())
+    data["sequences"][0]["files_key"] = None
+    data["sequences"][0]["also"] = [{"files_key": "1" * 32, "frozen_on": "Xeon"}]
+    lock_path(path).write_text(json.dumps(data))
+    with pytest.raises(InputError, match="has none of its own"):
+        load_benchmark(path)

@@ -84,14 +84,15 @@ def prepare(
     for sequence in benchmark.sequences:
         path = root / sequence.folder
         key = sequence_fingerprint(Sequence.open(path))
-        if sequence.files_key is not None and key != sequence.files_key:
+        accepted = sequence.frozen_keys()
+        if accepted and key not in accepted:
             from depotbench.sim.machine import machine_summary
 
-            frozen = sequence.frozen_on or "a machine the lock does not name"
+            frozen = "; or on ".join(on or "a machine the lock does not name" for on in accepted.values())
             raise InputError(
                 f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
-                f"{sequence.files_key}): changed after generation, or made by another renderer, OpenCV or "
-                f"CPU (frozen on {frozen}; this is {machine_summary()}; docs/determinism.md)"
+                f"{' or '.join(accepted)}): changed after generation, or made by another renderer, OpenCV "
+                f"or CPU (frozen on {frozen}; this is {machine_summary()}; docs/determinism.md)"
             )
         prepared.append(Prepared(sequence, path, key))
     unfrozen = [s.folder for s in benchmark.sequences if s.files_key is None]

@@ -95,10 +95,20 @@ class BenchSequence:
     frozen_on: str | None = None
     """The machine and libraries that froze it (``sim.machine.machine_summary``); None in
     locks written before 0.8.0's last lock change."""
+    also: tuple[tuple[str, str], ...] = ()
+    """(files key, machine) of the same spec frozen on machines of other kinds (another CPU
+    or renderer draws other pixels: docs/determinism.md), added by ``benchmarks/freeze.py
+    --add-machine`` so that users of those machines can score it too."""
 
     @property
     def folder(self) -> str:
         return f"{self.scenario}/{self.name}"
+
+    def frozen_keys(self) -> dict[str, str | None]:
+        """Every files key the lock accepts for this sequence, with the machine that froze it."""
+        if self.files_key is None:
+            return {}
+        return {self.files_key: self.frozen_on, **dict(self.also)}
 
 
 @dataclass(frozen=True)
@@ -149,9 +159,12 @@ def load_benchmark(text: str | Path) -> Benchmark:
                 str(s["spec_key"]),
                 None if s["files_key"] is None else str(s["files_key"]),
                 None if s.get("frozen_on") is None else str(s["frozen_on"]),
+                tuple((str(a["files_key"]), str(a["frozen_on"])) for a in s.get("also", [])),
             )
             for s in data["sequences"]
         )
+        if any(s.also and s.files_key is None for s in sequences):
+            raise ValueError("a sequence with other machines' keys has none of its own")
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{lock}: not the lock of {path.name}: {exc}") from None
     return Benchmark(spec, path, sequences)
@@ -171,6 +184,7 @@ def lock_data(benchmark: BenchmarkFile, sequences: list[BenchSequence]) -> dict[
                 "spec_key": s.spec_key,
                 "files_key": s.files_key,
                 **({} if s.frozen_on is None else {"frozen_on": s.frozen_on}),
+                **({"also": [{"files_key": k, "frozen_on": on} for k, on in s.also]} if s.also else {}),
             }
             for s in sequences
         ],
