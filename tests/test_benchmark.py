@@ -96,6 +96,19 @@ def smoke(made: tuple[Path, str]) -> Path:
 
 
 @pytest.fixture(scope="module")
+def here_keys(smoke: Path) -> list[str]:
+    """The files keys of smoke-1's sequences as this machine makes them (a lock may hold other
+    machines' keys beside them)."""
+    from depotbench.eval.run.detections import sequence_fingerprint
+    from depotbench.sim.sequence import Sequence
+
+    return [
+        sequence_fingerprint(Sequence.open(smoke / "sequences" / s.folder))
+        for s in load_benchmark("smoke-1").sequences
+    ]
+
+
+@pytest.fixture(scope="module")
 def bench(made: tuple[Path, str]) -> str:
     """smoke-1 as this machine names it: the shipped name, or a copy frozen here."""
     return made[1]
@@ -104,12 +117,13 @@ def bench(made: tuple[Path, str]) -> str:
 @pytest.mark.slow  # 10 s; the smoke fixture checks each file against the lock, and
 # test_sim.py's two-process test holds same spec and seed, same bytes, in the default run
 def test_smoke_1_is_generated_twice_byte_for_byte_as_its_lock_says(
-    smoke: Path, bench: str, tmp_path: Path, monkeypatch
+    smoke: Path, bench: str, here_keys: list[str], tmp_path: Path, monkeypatch
 ):
     monkeypatch.setenv("DEPOTBENCH_CACHE", "off")
     benchmark = load_benchmark(bench)
     again = prepare(benchmark, tmp_path / "sequences", workers=1, progress=False)
-    assert [p.files_key for p in again] == [s.files_key for s in benchmark.sequences]
+    assert [p.files_key for p in again] == here_keys
+    assert all(p.files_key in s.frozen_keys() for p, s in zip(again, benchmark.sequences, strict=True))
     for p in again:
         first = smoke / "sequences" / p.sequence.folder
         files = sorted(f.relative_to(p.path) for f in p.path.rglob("*") if f.is_file())
@@ -127,7 +141,7 @@ def test_a_tampered_sequence_is_refused_naming_it(smoke: Path, bench: str, tmp_p
 
 
 def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
-    smoke: Path, bench: str, tmp_path: Path
+    smoke: Path, here_keys: list[str], tmp_path: Path
 ):
     """A lock frozen elsewhere (other keys, another machine named): a plain freeze stops
     naming both and writes nothing; ``--replace`` takes this machine's keys for the sequences
@@ -139,6 +153,7 @@ def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
     lock = json.loads(lock_path(source).read_text())
     for entry in lock["sequences"]:
         entry["files_key"], entry["frozen_on"] = "0" * 32, "Xeon (avx2, no avx512); llvmpipe"
+        entry.pop("also", None)
     written = json.dumps(lock, indent=1)
     lock_path(tmp_path / source.name).write_text(written)
     folder = tmp_path / "sequences"
@@ -154,13 +169,12 @@ def test_a_freeze_elsewhere_stops_and_with_replace_keeps_one_machines_keys(
     assert replaced.returncode == 0, replaced.stderr
     assert "2 frozen, 1 waiting, 2 keys replaced and 1 dropped" in replaced.stdout
     after = load_benchmark(tmp_path / source.name).sequences
-    shipped = load_benchmark(bench).sequences  # this machine's keys
-    assert [s.files_key for s in after] == [shipped[0].files_key, shipped[1].files_key, None]
+    assert [s.files_key for s in after] == [here_keys[0], here_keys[1], None]
     assert [s.frozen_on for s in after] == [machine_summary(), machine_summary(), None]
 
 
 def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
-    smoke: Path, bench: str, tmp_path: Path
+    smoke: Path, bench: str, here_keys: list[str], tmp_path: Path
 ):
     """A lock frozen on another kind of machine (other keys, another CPU named): ``--add-machine``
     keeps every key and adds this machine's for the sequences the folder holds, once; the
@@ -172,6 +186,7 @@ def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
     lock = json.loads(lock_path(source).read_text())
     for entry in lock["sequences"]:
         entry["files_key"], entry["frozen_on"] = "0" * 32, "Xeon (avx2, no avx512); llvmpipe"
+        entry.pop("also", None)
     lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
     folder = tmp_path / "sequences"
     shutil.copytree(smoke / "sequences", folder)
@@ -183,11 +198,10 @@ def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
     assert added.returncode == 0, added.stderr
     assert "2 keys of this machine added beside another's" in added.stdout
     after = load_benchmark(tmp_path / source.name).sequences
-    mine = load_benchmark(bench).sequences
     assert [s.files_key for s in after] == ["0" * 32] * 3
     assert [s.also for s in after] == [
-        ((mine[0].files_key, machine_summary()),),
-        ((mine[1].files_key, machine_summary()),),
+        ((here_keys[0], machine_summary()),),
+        ((here_keys[1], machine_summary()),),
         (),
     ]
     assert list(after[0].frozen_keys().values()) == ["Xeon (avx2, no avx512); llvmpipe", machine_summary()]
@@ -201,7 +215,7 @@ def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
     (tmp_path / source.name).write_text(spec)
     lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
     held = prepare(load_benchmark(tmp_path / source.name), folder, workers=1, progress=False)
-    assert [p.files_key for p in held] == [mine[0].files_key]
+    assert [p.files_key for p in held] == [here_keys[0]]
 
 
 def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_them(
@@ -219,6 +233,7 @@ def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_t
     lock = json.loads(lock_path(source).read_text())
     same_kind = "; ".join(machine_summary().split("; ")[:2]) + "; opencv 5.1.0.95, mujoco 0.0.1, numpy 2.4.6"
     lock["sequences"][0]["files_key"], lock["sequences"][0]["frozen_on"] = "0" * 32, same_kind
+    lock["sequences"][0].pop("also", None)
     written = json.dumps(lock, indent=1)
     lock_path(tmp_path / source.name).write_text(written)
     folder = tmp_path / "sequences"
@@ -404,7 +419,7 @@ def test_a_baseline_of_other_sequences_is_refused():
 
 
 def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
-    smoke: Path, bench: str, tmp_path: Path, capsys
+    smoke: Path, bench: str, here_keys: list[str], tmp_path: Path, capsys
 ):
     """``--sequences DIR``: the sequences are kept there, not under each output (tum-dyn-short-1
     copied 5.9 GB into every tracker's); a second tracker's run finds them made and checks
@@ -428,7 +443,7 @@ def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
         outs[strategy] = results
     assert first.stat().st_mtime_ns == made  # made once, read by both
     keys = [[s["files_key"] for s in r["sequences"]] for r in outs.values()]
-    assert keys[0] == keys[1] == [s.files_key for s in load_benchmark(bench).sequences]
+    assert keys[0] == keys[1] == here_keys
     rgb = sorted((shared / "smoke" / "smoke-0001" / "rgb").iterdir())[0]
     rgb.write_bytes(rgb.read_bytes()[:-1] + b"\0")
     capsys.readouterr()
@@ -554,12 +569,15 @@ def test_the_python_api_scores_a_benchmark_and_gives_a_typed_table(smoke: Path, 
         depotbench.benchmark(bench, tmp_path / "orb", tracker="orbslam3", deterministic=True)
 
 
-def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, bench: str, tmp_path: Path, caplog):
+def test_sequences_not_frozen_yet_are_one_warning_line(
+    smoke: Path, bench: str, here_keys: list[str], tmp_path: Path, caplog
+):
     source = load_benchmark("smoke-1").path
     (tmp_path / "smoke-1.yaml").write_text(source.read_text())
     lock = json.loads(source.with_name("smoke-1.lock.json").read_text())
     for entry in lock["sequences"]:
         entry["files_key"] = None
+        entry.pop("also", None)
     (tmp_path / "smoke-1.lock.json").write_text(json.dumps(lock))
     shutil.copytree(smoke / "sequences", tmp_path / "sequences")
     with caplog.at_level("WARNING", logger="depotbench"):
@@ -568,4 +586,4 @@ def test_sequences_not_frozen_yet_are_one_warning_line(smoke: Path, bench: str, 
         )
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(warned) == 1 and warned[0].startswith("smoke-1: 3 of 3 sequences are not frozen yet")
-    assert [p.files_key for p in prepared] == [s.files_key for s in load_benchmark(bench).sequences]
+    assert [p.files_key for p in prepared] == here_keys
