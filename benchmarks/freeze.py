@@ -110,7 +110,7 @@ def main() -> None:
             if accepted and hashed not in accepted:
                 mine = [
                     (k, m)
-                    for k, m in accepted.items()
+                    for k, m in ((key, on), *also)
                     if m is not None and machine_kind(m) == machine_kind(here)
                 ]
                 if mine:
@@ -132,6 +132,11 @@ def main() -> None:
                         "generator is not deterministic across these machines (docs/determinism.md); "
                         "--add-machine adds this machine's keys beside them; nothing written"
                     )
+            elif accepted and args.add_machine:
+                kind = machine_kind(here)
+                named = [m for k, m in ((key, on), *also) if k == hashed and m is not None]
+                if not any(machine_kind(m) == kind for m in named):  # the same bytes as another kind's
+                    also, added = (*also, (hashed, here)), added + 1
             if key is None or key == hashed:
                 key, on = hashed, on or here  # frozen now, or made again here byte for byte
         frozen.append(

@@ -184,38 +184,29 @@ def test_add_machine_keeps_each_key_and_adds_this_machines_beside_another_kinds(
     source = load_benchmark(bench).path
     shutil.copy(source, tmp_path / source.name)
     lock = json.loads(lock_path(source).read_text())
-    for entry in lock["sequences"]:
-        entry["files_key"], entry["frozen_on"] = "0" * 32, "Xeon (avx2, no avx512); llvmpipe"
-        entry.pop("also", None)
+    for entry, key in zip(lock["sequences"], ["0" * 32, "0" * 32, here_keys[2]], strict=True):
+        entry["files_key"], entry["frozen_on"] = key, "Xeon (avx2, no avx512); llvmpipe"
+        entry.pop("also", None)  # smoke-0002: these bytes, frozen on another kind
     lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
     folder = tmp_path / "sequences"
     shutil.copytree(smoke / "sequences", folder)
-    shutil.rmtree(folder / "smoke" / "smoke-0002")
 
     both = freeze(tmp_path / source.name, folder, "--replace", "--add-machine")
     assert both.returncode == 2 and "not allowed with argument" in both.stderr
     added = freeze(tmp_path / source.name, folder, "--add-machine")
     assert added.returncode == 0, added.stderr
-    assert "2 keys of this machine added beside another's" in added.stdout
+    assert "3 keys of this machine added beside another's" in added.stdout
     after = load_benchmark(tmp_path / source.name).sequences
-    assert [s.files_key for s in after] == ["0" * 32] * 3
-    assert [s.also for s in after] == [
-        ((here_keys[0], machine_summary()),),
-        ((here_keys[1], machine_summary()),),
-        (),
-    ]
+    assert [s.files_key for s in after] == ["0" * 32, "0" * 32, here_keys[2]]
+    assert [s.also for s in after] == [((key, machine_summary()),) for key in here_keys]
     assert list(after[0].frozen_keys().values()) == ["Xeon (avx2, no avx512); llvmpipe", machine_summary()]
+    assert after[2].frozen_keys() == {here_keys[2]: "Xeon (avx2, no avx512); llvmpipe"}  # the same bytes
+    assert [on for _, on in after[2].machines()] == ["Xeon (avx2, no avx512); llvmpipe", machine_summary()]
     again = freeze(tmp_path / source.name, folder, "--add-machine")
     assert again.returncode == 0 and "0 keys of this machine added" in again.stdout
     assert load_benchmark(tmp_path / source.name).sequences == after
-    shutil.rmtree(folder / "smoke" / "smoke-0001")  # the sequence the lock does not accept here
-    lock = json.loads(lock_path(tmp_path / source.name).read_text())
-    lock["sequences"] = lock["sequences"][:1]
-    spec = (tmp_path / source.name).read_text().replace("seeds: [1, 2, 3]", "seeds: [1]")
-    (tmp_path / source.name).write_text(spec)
-    lock_path(tmp_path / source.name).write_text(json.dumps(lock, indent=1))
     held = prepare(load_benchmark(tmp_path / source.name), folder, workers=1, progress=False)
-    assert [p.files_key for p in held] == [here_keys[0]]
+    assert [p.files_key for p in held] == here_keys  # each sequence by a key of this machine
 
 
 def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_them(

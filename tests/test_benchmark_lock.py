@@ -135,3 +135,29 @@ def test_a_lock_whose_sequence_has_other_machines_keys_but_none_of_its_own_is_re
     lock_path(path).write_text(json.dumps(data))
     with pytest.raises(InputError, match="has none of its own"):
         load_benchmark(path)
+
+
+def test_benchmark_list_says_which_machine_kinds_each_benchmark_holds_and_this_ones_count(capsys):
+    """Before generating anything a user sees whether this kind of machine can score a
+    benchmark: per kind, how many sequences hold its bytes (read here from the lock files)."""
+    from depotbench.eval.cli.main import main
+
+    assert main(["benchmark", "list", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    here = machine_kind(machine_summary())
+    assert listed["machine"] == here
+    for entry in listed["benchmarks"]:
+        lock = json.loads(lock_path(load_benchmark(entry["name"]).path).read_text())
+        kinds: dict[str, set[str]] = {}
+        for s in lock["sequences"]:
+            named = [s.get("frozen_on")] + [a["frozen_on"] for a in s.get("also", [])]
+            for on in named:
+                if on is not None and s["files_key"] is not None:
+                    kinds.setdefault(machine_kind(on), set()).add(s["name"])
+        assert entry["machines"] == {k: len(v) for k, v in kinds.items()}, entry["name"]
+        assert entry["here"] == len(kinds.get(here, ()))
+    assert main(["benchmark", "list"]) == 0
+    text = capsys.readouterr().out
+    smoke = next(e for e in listed["benchmarks"] if e["name"] == "smoke-1")
+    assert f"; {smoke['here']} frozen on this kind of machine" in text
+    assert ("(this kind)" in text) == any(e["here"] for e in listed["benchmarks"])

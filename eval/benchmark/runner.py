@@ -223,7 +223,7 @@ def _score(
                 "frames": p.sequence.frames,
                 "files_key": p.files_key,
                 "frozen": p.sequence.files_key is not None,
-                "frozen_on": p.sequence.frozen_keys().get(p.files_key),
+                "frozen_on": [on for key, on in p.sequence.machines() if key == p.files_key],
                 "runs": entries,
             }
         )

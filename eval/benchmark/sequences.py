@@ -88,7 +88,8 @@ def prepare(
         if accepted and key not in accepted:
             from depotbench.sim.machine import machine_summary
 
-            frozen = "; or on ".join(on or "a machine the lock does not name" for on in accepted.values())
+            machines = [on or "a machine the lock does not name" for _, on in sequence.machines()]
+            frozen = "; or on ".join(machines)
             raise InputError(
                 f"{path}: its files are not {benchmark.name}'s {sequence.folder} (key {key}, the lock's "
                 f"{' or '.join(accepted)}): changed after generation, or made by another renderer, OpenCV "

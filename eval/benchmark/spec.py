@@ -97,18 +97,26 @@ class BenchSequence:
     locks written before 0.8.0's last lock change."""
     also: tuple[tuple[str, str], ...] = ()
     """(files key, machine) of the same spec frozen on machines of other kinds (another CPU
-    or renderer draws other pixels: docs/determinism.md), added by ``benchmarks/freeze.py
-    --add-machine`` so that users of those machines can score it too."""
+    or renderer may draw other pixels: docs/determinism.md), added by ``benchmarks/freeze.py
+    --add-machine`` so that users of those machines can score it too; a key may repeat one
+    frozen on another kind where both made the same bytes."""
 
     @property
     def folder(self) -> str:
         return f"{self.scenario}/{self.name}"
 
+    def machines(self) -> tuple[tuple[str, str | None], ...]:
+        """(files key, machine) of every machine that froze this sequence: two kinds of
+        machine may make the same bytes (smoke-1's third sequence is the same on an AVX2 and
+        an AVX-512 EPYC), and each is named."""
+        return () if self.files_key is None else ((self.files_key, self.frozen_on), *self.also)
+
     def frozen_keys(self) -> dict[str, str | None]:
-        """Every files key the lock accepts for this sequence, with the machine that froze it."""
-        if self.files_key is None:
-            return {}
-        return {self.files_key: self.frozen_on, **dict(self.also)}
+        """Every files key the lock accepts for this sequence, with the first machine that froze it."""
+        keys: dict[str, str | None] = {}
+        for key, on in self.machines():
+            keys.setdefault(key, on)
+        return keys
 
 
 @dataclass(frozen=True)

@@ -127,7 +127,9 @@ def add_benchmark(sub: argparse._SubParsersAction) -> None:
 def _cmd_list(args: argparse.Namespace) -> int:
     from depotbench.core.examples import Kind, examples
     from depotbench.eval.benchmark.spec import load_benchmark
+    from depotbench.sim.machine import machine_kind, machine_summary
 
+    here = machine_kind(machine_summary())
     found, lines = [], []
     for example in examples().values():
         if example.kind is not Kind.BENCHMARK:
@@ -135,6 +137,10 @@ def _cmd_list(args: argparse.Namespace) -> int:
         b = load_benchmark(example.path)
         frozen = sum(s.files_key is not None for s in b.sequences)
         state = "frozen" if b.frozen else f"{frozen} of {len(b.sequences)} sequences frozen"
+        kinds: dict[str, int] = {}  # machine kind: how many sequences hold its bytes
+        for sequence in b.sequences:
+            for kind in {machine_kind(on) for _, on in sequence.machines() if on}:
+                kinds[kind] = kinds.get(kind, 0) + 1
         found.append(
             {
                 "name": b.name,
@@ -145,18 +151,22 @@ def _cmd_list(args: argparse.Namespace) -> int:
                 "frozen": frozen,
                 "frames": sum(s.frames for s in b.sequences),
                 "scenarios": [e.model_dump() for e in b.spec.scenarios],
+                "machines": kinds,
+                "here": kinds.get(here, 0),
             }
         )
         lines.append(
             f"{b.name}: {len(b.sequences)} sequences, {sum(s.frames for s in b.sequences)} frames; "
-            f"generator {b.spec.generator}; {state}"
+            f"generator {b.spec.generator}; {state}; {kinds.get(here, 0)} frozen on this kind of machine"
         )
+        for kind, count in kinds.items():
+            lines.append(f"  frozen on {kind}{' (this kind)' if kind == here else ''}: {count}")
         for entry in b.spec.scenarios:
             length = "its own length" if entry.frames is None else f"{entry.frames} frames"
             seeds = entry.seeds
             shown = f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else seeds
             lines.append(f"  {entry.scenario}: seeds {shown}, {length}")
-    print_result(args, {"benchmarks": found}, "\n".join(lines))
+    print_result(args, {"machine": here, "benchmarks": found}, "\n".join(lines))
     return 0
 
 
