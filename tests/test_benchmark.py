@@ -435,6 +435,10 @@ def test_two_trackers_share_one_sequences_folder_made_once_and_each_verifies(
     assert first.stat().st_mtime_ns == made  # made once, read by both
     keys = [[s["files_key"] for s in r["sequences"]] for r in outs.values()]
     assert keys[0] == keys[1] == here_keys
+    locked = {s.folder: s for s in load_benchmark(bench).sequences}
+    for scored in outs["none"]["sequences"]:  # whose bytes each score is on, as the lock names them
+        machines = [on for key, on in locked[scored["name"]].machines() if key == scored["files_key"]]
+        assert scored["frozen_on"] == machines and machines
     rgb = sorted((shared / "smoke" / "smoke-0001" / "rgb").iterdir())[0]
     rgb.write_bytes(rgb.read_bytes()[:-1] + b"\0")
     capsys.readouterr()
