@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +26,8 @@ from depotbench.sim.simulation import Simulation, Snapshot
 from depotbench.sim.spec import ScenarioSpec, content_key
 from depotbench.sim.world import World, build_world, intrinsics_of, scenario_streams
 from scipy.spatial.transform import Rotation
+
+LOG = logging.getLogger(__name__)
 
 MOVING_SPEED_MPS = 0.01
 """An instance is 'moving' when any of its parts moves faster than this."""
@@ -121,6 +125,24 @@ class DifficultyAccumulator:
         }
 
 
+@functools.cache
+def _say_if_off_reference() -> None:
+    """Once a process: a warning where numpy or OpenBLAS run code that rounds otherwise than
+    on the reference machines (loaded before ``core.numerics`` could set them: a program
+    that imports numpy and then the bench). Its sequences are then this machine's bytes,
+    not the frozen benchmarks'."""
+    from depotbench.core.numerics import off_reference, reference_environment
+
+    off = off_reference()
+    if off:
+        settings = " ".join(f"{k}={v!r}" for k, v in reference_environment().items())
+        LOG.warning(
+            f"{' and '.join(off)} compute otherwise than on the reference machines, so the sequences "
+            f"generated here are not the frozen benchmarks' bytes: set {settings} before numpy is "
+            "imported, as the depotbench command does (docs/determinism.md)"
+        )
+
+
 def generate(
     scenario: ScenarioSpec,
     out: Path | str,
@@ -138,6 +160,7 @@ def generate(
     (zlib level 0-9) trades size for speed: the pixels are the same at every level.
     """
     out = Path(out)
+    _say_if_off_reference()
     writer = SequenceWriter(
         out,
         intrinsics_of(scenario),

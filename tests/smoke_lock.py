@@ -2,9 +2,9 @@
 hold: on a machine of a kind that froze it.
 
 A lock's keys are some machine kinds' bytes (docs/benchmarks.md, "Where the keys hold"): a
-machine with another CPU or renderer draws other pixels from the same spec (an AVX-512 EPYC
-gave smoke-1's first sequence the key fe4db6a5... where the AVX2 EPYC that froze it gave
-9c44a437..., docs/determinism.md; smoke-1's lock now holds both). On a machine of a kind
+machine with another CPU, renderer or OpenCV may draw other pixels from the same spec (an
+AVX-512 EPYC did until its numpy and OpenBLAS were set to their AVX2 code,
+docs/determinism.md). On a machine of a kind
 the lock does not name the shipped lock must refuse the sequences naming the machines,
 which is checked, and the tests that need a frozen smoke-1 use a copy frozen on this
 machine by ``benchmarks/freeze.py --replace``, with a warning that says so. On a kind the

@@ -1,0 +1,82 @@
+"""numpy's and OpenBLAS's code for the CPU, set as on the reference machine kind.
+
+Both pick their vector code when they load, by the CPU, and on an AVX-512 machine round
+otherwise than their AVX2 code does: numpy's X86_V4 loops (SVML's sin, cos, exp, power, ...)
+and OpenBLAS's SkylakeX kernels. That, and not the renderer, is what made an AVX-512 EPYC
+generate other bytes than CI's AVX2 EPYC (smoke-1's first sequence fe4db6a5... against the
+lock's 9c44a437...): with numpy's AVX-512 targets disabled (``NPY_DISABLE_CPU_FEATURES``)
+and OpenBLAS on its Haswell kernels (``OPENBLAS_CORETYPE``) it generated the lock's bytes,
+for smoke-1 and for the tum-dyn-short-1 and depot-1 sequences tried (docs/determinism.md).
+
+They read those variables when they load, so the ``depotbench`` command and the pytest
+plugin set them first thing, before numpy is imported; a variable the user set is left as
+it is. This module imports nothing heavy: it runs before numpy does.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+NUMPY_AVX512 = (
+    "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR X86_V4"
+)
+"""numpy's AVX-512 dispatch targets under both their names (numpy 1.x: AVX512_SKX...; 2.4:
+X86_V4, AVX512_ICL, AVX512_SPR); numpy passes over a name it does not know."""
+OPENBLAS_CORE = "Haswell"
+"""OpenBLAS's AVX2 kernels, which its Zen targets (CI's EPYC) use too."""
+OPENBLAS_AVX512 = {"skylakex", "cooperlake", "sapphirerapids"}
+"""OpenBLAS's cores that run AVX-512 kernels (threadpoolctl's ``architecture``)."""
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return set()
+    for line in text.splitlines():
+        if line.startswith("flags"):
+            return set(line.split(":", 1)[1].split())
+    return set()
+
+
+@functools.cache
+def reference_environment() -> dict[str, str]:
+    """The variables that make this machine's numpy and OpenBLAS compute as an AVX2 one's:
+    none where the CPU has no AVX-512."""
+    if "avx512f" not in _cpu_flags():
+        return {}
+    return {"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512, "OPENBLAS_CORETYPE": OPENBLAS_CORE}
+
+
+def apply_reference_environment() -> None:
+    """Set each reference variable the user has not set (before numpy loads: the command's
+    first module, the pytest plugin)."""
+    for name, value in reference_environment().items():
+        os.environ.setdefault(name, value)
+
+
+def off_reference() -> list[str]:
+    """What in this process computes otherwise than the reference (empty where all is as
+    there): numpy's AVX-512 loops, OpenBLAS's AVX-512 kernels."""
+    if not reference_environment():
+        return []
+    import numpy as np
+
+    try:
+        from numpy._core import _multiarray_umath as umath
+    except ImportError:  # numpy 1.x
+        from numpy.core import _multiarray_umath as umath  # type: ignore[no-redef]
+    from threadpoolctl import threadpool_info
+
+    off = []
+    targets = set(NUMPY_AVX512.split()) & set(getattr(umath, "__cpu_dispatch__", ()))
+    features = getattr(umath, "__cpu_features__", {})
+    if any(features.get(name) for name in targets):
+        off.append(f"numpy {np.__version__}'s AVX-512 loops")
+    for library in threadpool_info():
+        core = str(library.get("architecture"))
+        if library.get("internal_api") == "openblas" and core.lower() in OPENBLAS_AVX512:
+            off.append(f"OpenBLAS's {core} kernels")
+    return off
