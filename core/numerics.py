@@ -77,6 +77,7 @@ def off_reference() -> list[str]:
         off.append(f"numpy {np.__version__}'s AVX-512 loops")
     for library in threadpool_info():
         core = str(library.get("architecture"))
-        if library.get("internal_api") == "openblas" and core.lower() in OPENBLAS_AVX512:
-            off.append(f"OpenBLAS's {core} kernels")
+        said = f"OpenBLAS's {core} kernels"  # numpy's and SciPy's OpenBLAS: said once
+        if library.get("internal_api") == "openblas" and core.lower() in OPENBLAS_AVX512 and said not in off:
+            off.append(said)
     return off
