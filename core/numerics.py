@@ -8,9 +8,12 @@ lock's 9c44a437...): with numpy's AVX-512 targets disabled (``NPY_DISABLE_CPU_FE
 and OpenBLAS on its Haswell kernels (``OPENBLAS_CORETYPE``) it generated the lock's bytes,
 for smoke-1 and for the tum-dyn-short-1 and depot-1 sequences tried (docs/determinism.md).
 
-They read those variables when they load, so the ``depotbench`` command and the pytest
-plugin set them first thing, before numpy is imported; a variable the user set is left as
-it is. This module imports nothing heavy: it runs before numpy does.
+They read those variables when they load, so importing ``depotbench`` sets them where numpy
+is not loaded yet (the command, the pytest plugin, the benchmarks' scripts, a program that
+imports the bench first), and spawned workers inherit them; a variable the user set is left
+as it is. Where numpy was loaded before, nothing is set (the workers would then compute
+otherwise than their parent) and ``generate`` warns. This module imports nothing heavy: it
+runs before numpy does.
 """
 
 from __future__ import annotations

@@ -19,6 +19,12 @@ rendering, the sequence format), ``depotbench.scenes`` (scenario specs and suite
 from __future__ import annotations
 
 import importlib
+import sys
+
+if "numpy" not in sys.modules:  # numpy and OpenBLAS read their CPU switches as they load
+    from depotbench.core.numerics import apply_reference_environment
+
+    apply_reference_environment()  # on an AVX-512 CPU, their AVX2 code: the bytes CI froze
 
 TYPE_CHECKING = False  # typing itself costs 5 ms of the time before Ctrl-C is handled
 if TYPE_CHECKING:

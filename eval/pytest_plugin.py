@@ -32,13 +32,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from depotbench.core.numerics import apply_reference_environment
-
-apply_reference_environment()  # before numpy loads, as the depotbench command does (core/numerics.py)
-
-import pytest  # noqa: E402
-from depotbench.core.errors import InputError  # noqa: E402
-from depotbench.core.output import OutputLock  # noqa: E402
+import pytest
+from depotbench.core.errors import InputError
+from depotbench.core.output import OutputLock
 
 if TYPE_CHECKING:
     from depotbench.eval.metrics.figures import ScoredRun

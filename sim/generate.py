@@ -138,8 +138,8 @@ def _say_if_off_reference() -> None:
         settings = " ".join(f"{k}={v!r}" for k, v in reference_environment().items())
         LOG.warning(
             f"{' and '.join(off)} compute otherwise than on the reference machines, so the sequences "
-            f"generated here are not the frozen benchmarks' bytes: set {settings} before numpy is "
-            "imported, as the depotbench command does (docs/determinism.md)"
+            f"generated here are not the frozen benchmarks' bytes: import depotbench before numpy, "
+            f"or set {settings} (docs/determinism.md)"
         )
 
 

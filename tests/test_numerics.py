@@ -42,11 +42,12 @@ def test_the_reference_variables_are_set_only_where_the_cpu_has_avx512():
     assert numerics.reference_environment() == (expected if _avx512() else {})
 
 
-def test_the_command_and_the_pytest_plugin_set_them_before_numpy_loads():
-    """Imported first, the command's module and the plugin leave numpy and OpenBLAS on their
-    AVX2 code; a program that loads numpy without them keeps its AVX-512 code, which
-    ``off_reference`` names (empty on a machine without AVX-512, where there is nothing to set)."""
-    for first in (", depotbench.eval.cli.console", ", depotbench.eval.pytest_plugin"):
+def test_importing_the_bench_before_numpy_sets_them_and_after_it_does_not():
+    """Imported first, the bench (the command's module, the pytest plugin, the package) leaves
+    numpy and OpenBLAS on their AVX2 code; a program that loads numpy first keeps its AVX-512
+    code, which ``off_reference`` names (empty on a machine without AVX-512, where there is
+    nothing to set), and nothing is set, so its workers compute as it does."""
+    for first in (", depotbench.eval.cli.console", ", depotbench.eval.pytest_plugin", ", depotbench"):
         *variables, off = _probe(first)
         assert variables == [numerics.reference_environment().get(v) for v in VARIABLES]
         assert off == []

@@ -22,10 +22,7 @@ if _ours:
 import os  # noqa: E402
 import sys  # noqa: E402
 
-from depotbench.core.numerics import apply_reference_environment  # noqa: E402
 from depotbench.core.processes import OutsideImports  # noqa: E402
-
-apply_reference_environment()  # before numpy loads: it reads its CPU switches then
 
 EXIT_INTERRUPTED = 128 + signal.SIGINT
 
