@@ -28,6 +28,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+# depotbench first: numpy then runs the bench's code for the CPU (core/numerics.py)
+import depotbench  # isort: skip  # noqa: F401
 import cv2
 import numpy as np
 from depotbench.core.errors import InputError

@@ -20,6 +20,8 @@ import tracemalloc
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+# depotbench first: numpy then runs the bench's code for the CPU (core/numerics.py)
+import depotbench  # isort: skip  # noqa: E402, F401
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from depotbench.core.camera import Intrinsics  # noqa: E402

@@ -36,6 +36,8 @@ import tempfile
 from collections import Counter, defaultdict
 from pathlib import Path
 
+# depotbench first: numpy then runs the bench's code for the CPU (core/numerics.py)
+import depotbench  # isort: skip  # noqa: F401
 import cv2
 import numpy as np
 from depotbench.detectors.config import parse_detector

@@ -16,6 +16,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+# depotbench first: numpy then runs the bench's code for the CPU (core/numerics.py)
+import depotbench  # isort: skip  # noqa: F401
 import cv2
 
 BROWSERS = ("chromium", "chromium-browser")

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# depotbench first: numpy then runs the bench's code for the CPU (core/numerics.py)
+import depotbench  # isort: skip  # noqa: F401
 import cv2
 import numpy as np
 from depotbench.core.output import write_bytes_atomic
