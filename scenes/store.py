@@ -8,7 +8,7 @@ the pytest plugin render a sequence once per machine instead of once per job.
 - **Where.** The ``sequences`` folder of the cache root (``depotbench.core.cache_home``:
   ``~/.cache/depotbench/sequences``), beside the stage cache; ``DEPOTBENCH_CACHE`` moves
   or switches off every cache, ``DEPOTBENCH_CACHE_SEQUENCES`` this one.
-- **What.** One folder per key and PNG compression level, ``HEX-L`` (the key's SHA-256
+- **What.** One folder per key and PNG compression level, ``HEX-L-r2`` (the key's SHA-256
   digest; the level shapes the bytes, not the pixels, and the key leaves it out): a
   complete sequence with its marker, written through ``depotbench.core.output.StagedOutput``
   (staged, locked, swapped into place), and beside it ``HEX-L.json`` with the key, the
@@ -69,7 +69,11 @@ NAME = "sequences"
 VARIABLE = CACHES[NAME].variable
 DEFAULT_MAX_BYTES = CACHES[NAME].default_bound
 _KEY = re.compile(r"sha256:([0-9a-f]{64})")
-_ENTRY = re.compile(r"[0-9a-f]{64}-[0-9]")
+ENTRY_SUFFIX = "-r2"
+"""Entries written since the bench set numpy's and OpenBLAS's code for the CPU
+(``core/numerics.py``, 2026-12-04): an AVX-512 machine's older entries hold its own bytes
+under the key, so they are never read again, only evicted (``HEX-L`` without the suffix)."""
+_ENTRY = re.compile(r"[0-9a-f]{64}-[0-9](-r2)?")
 _EVICTED = ".evicted-"
 MANIFEST_MAX_BYTES = 64 * 1024
 """``HEX-L.json`` holds the key, two counts and a digest: about 200 bytes."""
@@ -112,10 +116,15 @@ class SequenceStore:
 
     @classmethod
     def from_env(cls) -> SequenceStore | None:
-        """The store where the cache variables put it, or None when they switch it off. A
-        bad ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` is refused."""
+        """The store where the cache variables put it, or None when they switch it off or
+        when this process's numpy or OpenBLAS compute otherwise than the bench sets them
+        (numpy imported before the bench: its sequences are this machine's own bytes, and
+        ``generate`` says so; they are neither taken from the store nor put in it). A bad
+        ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` is refused."""
+        from depotbench.core.numerics import off_reference
+
         root = cache_folder(NAME)
-        return None if root is None else cls(root)
+        return None if root is None or off_reference() else cls(root)
 
     # -- reading -----------------------------------------------------------------------
 
@@ -125,7 +134,7 @@ class SequenceStore:
         match = _KEY.fullmatch(key or "")
         if match is None or png_compression not in range(10):
             return None
-        return self.root / f"{match.group(1)}-{int(png_compression)}"
+        return self.root / f"{match.group(1)}-{int(png_compression)}{ENTRY_SUFFIX}"
 
     def _manifest(self, entry: Path) -> dict | None:
         """``HEX-L.json``, or None when it is missing, damaged or not a regular file (a FIFO

@@ -336,3 +336,43 @@ def test_concurrent_writers_of_one_key_leave_one_whole_entry(tmp_path: Path, sto
     assert sorted(p.name for p in store.iterdir()) == [entry.name, f"{entry.name}.json"]
     assert SequenceStore(store).fetch(_key(7), tmp_path / "copy")
     assert tree_differences(source, tmp_path / "copy") == []
+
+
+def test_an_entry_written_before_the_bench_set_numpys_cpu_code_is_never_read_only_evicted(
+    tmp_path: Path, store: Path
+):
+    """Until 2026-12-04 an AVX-512 machine stored its own bytes under a key (numpy's and
+    OpenBLAS's AVX-512 code, docs/determinism.md); entries since carry ``-r2``. An older entry
+    (``HEX-L``) is not taken for its key, and the bound evicts it as any other."""
+    from depotbench.scenes.store import ENTRY_SUFFIX
+
+    cache = SequenceStore(store, max_bytes=150_000)
+    assert cache.put(_fake_sequence(tmp_path / "s0", _key(0), 100_000), _key(0))
+    entry = cache.entry(_key(0))
+    assert entry.name.endswith(ENTRY_SUFFIX)
+    old = entry.with_name(entry.name.removesuffix(ENTRY_SUFFIX))
+    entry.rename(old)
+    entry.with_name(entry.name + ".json").rename(old.with_name(old.name + ".json"))
+    os.utime(old, (1000, 1000))
+    assert not cache.has(_key(0)) and not cache.fetch(_key(0), tmp_path / "copy")
+    assert [e.path for e in cache.entries()] == [old]
+    assert cache.put(_fake_sequence(tmp_path / "s1", _key(1), 100_000), _key(1))  # evicts the old one
+    assert not old.exists() and cache.has(_key(1))
+
+
+def test_a_process_whose_numpy_loaded_before_the_bench_neither_reads_nor_writes_the_store(tmp_path: Path):
+    """Its sequences are its machine's own bytes where the CPU has AVX-512 (core/numerics.py)."""
+    import subprocess
+    import sys
+
+    from depotbench.core.numerics import reference_environment
+
+    code = (
+        "import numpy\nfrom depotbench.scenes.store import SequenceStore\n"
+        "print(SequenceStore.from_env() is None)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in reference_environment()}
+    env["DEPOTBENCH_CACHE"] = str(tmp_path / "cache")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == str(bool(reference_environment()))
