@@ -161,3 +161,15 @@ def test_benchmark_list_says_which_machine_kinds_each_benchmark_holds_and_this_o
     smoke = next(e for e in listed["benchmarks"] if e["name"] == "smoke-1")
     assert f"; {smoke['here']} frozen on this kind of machine" in text
     assert ("(this kind)" in text) == any(e["here"] for e in listed["benchmarks"])
+
+
+def test_an_avx512_cpu_is_of_the_kind_of_the_same_model_with_avx2():
+    """The bench runs numpy's and OpenBLAS's AVX2 code on an AVX-512 CPU (core/numerics.py):
+    an AVX-512 EPYC then generated the AVX2 EPYC's bytes, so a lock frozen on one holds for
+    the other, and other bytes there are the generator's."""
+    renderer = "llvmpipe (LLVM 15.0.6, 256 bits), Mesa 22.3.6"
+    avx512 = f"AMD EPYC (avx512); {renderer}; opencv 5.1.0.95, mujoco 4.0.1, numpy 2.4.6"
+    avx2 = f"AMD EPYC (avx2, no avx512); {renderer}; opencv 5.1.0.95, mujoco 4.0.0, numpy 2.4.6"
+    assert machine_kind(avx512) == machine_kind(avx2) == f"AMD EPYC (avx2); {renderer}"
+    assert machine_kind(f"AMD EPYC (no avx2); {renderer}") != machine_kind(avx2)
+    assert machine_kind(avx2.replace("llvmpipe", "softpipe")) != machine_kind(avx2)
