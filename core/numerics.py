@@ -54,8 +54,8 @@ def reference_environment() -> dict[str, str]:
 
 
 def apply_reference_environment() -> None:
-    """Set each reference variable the user has not set (before numpy loads: the command's
-    first module, the pytest plugin)."""
+    """Set each reference variable the user has not set (``depotbench/__init__.py`` calls it
+    while numpy is not loaded yet)."""
     for name, value in reference_environment().items():
         os.environ.setdefault(name, value)
 

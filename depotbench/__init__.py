@@ -25,6 +25,7 @@ if "numpy" not in sys.modules:  # numpy and OpenBLAS read their CPU switches as 
     from depotbench.core.numerics import apply_reference_environment
 
     apply_reference_environment()  # on an AVX-512 CPU, their AVX2 code: the bytes CI froze
+    del apply_reference_environment
 
 TYPE_CHECKING = False  # typing itself costs 5 ms of the time before Ctrl-C is handled
 if TYPE_CHECKING:
