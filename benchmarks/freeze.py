@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -96,23 +97,20 @@ def main() -> None:
         for entry in spec.scenarios:
             run_suite(entry.suite(), path, root / entry.scenario, args.workers)
     here = machine_summary()
+    kind = machine_kind(here)
     frozen, replaced, dropped, added = [], 0, 0, 0
     for sequence in asked:
         folder = root / sequence.folder
-        before = kept.get(sequence.folder)
-        key, on, also = (before.files_key, before.frozen_on, before.also) if before else (None, None, ())
+        entry = kept.get(sequence.folder, sequence)
+        cleared = replace(entry, files_key=None, frozen_on=None, also=())
         complete = is_complete(folder, sequence.spec_key)
-        if args.replace and key is not None and on != here and not complete:
-            key, on, also, dropped = None, None, (), dropped + 1
+        if args.replace and entry.files_key is not None and entry.frozen_on != here and not complete:
+            entry, dropped = cleared, dropped + 1
         if complete:
             hashed = sequence_fingerprint(Sequence.open(folder))
-            accepted = {} if key is None else {key: on, **dict(also)}
-            if accepted and hashed not in accepted:
-                mine = [
-                    (k, m)
-                    for k, m in ((key, on), *also)
-                    if m is not None and machine_kind(m) == machine_kind(here)
-                ]
+            machines = entry.machines()
+            mine = [(k, m) for k, m in machines if m is not None and machine_kind(m) == kind]
+            if machines and hashed not in entry.frozen_keys():
                 if mine:
                     sys.exit(
                         f"{folder}: its bytes (key {hashed}) are not the ones frozen for the same spec on "
@@ -122,35 +120,23 @@ def main() -> None:
                         "nothing written"
                     )
                 if args.replace:
-                    key, on, also, replaced = None, None, (), replaced + 1
+                    entry, replaced = cleared, replaced + 1
                 elif args.add_machine:
-                    also, added = (*also, (hashed, here)), added + 1
+                    entry, added = replace(entry, also=(*entry.also, (hashed, here))), added + 1
                 else:
+                    on = entry.frozen_on or "a machine the lock does not name"
                     sys.exit(
-                        f"{folder}: its bytes (key {hashed}) are not the ones frozen before ({key}) for the "
-                        f"same spec, on {on or 'a machine the lock does not name'}; this is {here}: the "
-                        "generator is not deterministic across these machines (docs/determinism.md); "
-                        "--add-machine adds this machine's keys beside them; nothing written"
+                        f"{folder}: its bytes (key {hashed}) are not the ones frozen before "
+                        f"({entry.files_key}) for the same spec, on {on}; this is {here}: the generator is "
+                        "not deterministic across these machines (docs/determinism.md); --add-machine adds "
+                        "this machine's keys beside them; nothing written"
                     )
-            elif accepted and args.add_machine:
-                kind = machine_kind(here)
-                named = [m for k, m in ((key, on), *also) if k == hashed and m is not None]
-                if not any(machine_kind(m) == kind for m in named):  # the same bytes as another kind's
-                    also, added = (*also, (hashed, here)), added + 1
-            if key is None or key == hashed:
-                key, on = hashed, on or here  # frozen now, or made again here byte for byte
-        frozen.append(
-            BenchSequence(
-                sequence.name,
-                sequence.scenario,
-                sequence.seed,
-                sequence.frames,
-                sequence.spec_key,
-                key,
-                on,
-                also,
-            )
-        )
+            elif machines and args.add_machine and not any(k == hashed for k, _ in mine):
+                # the same bytes as another kind's: this kind is named beside it
+                entry, added = replace(entry, also=(*entry.also, (hashed, here))), added + 1
+            if entry.files_key in (None, hashed):  # frozen now, or made again here byte for byte
+                entry = replace(entry, files_key=hashed, frozen_on=entry.frozen_on or here)
+        frozen.append(entry)
     write_lock(path, spec, frozen)
     done = sum(s.files_key is not None for s in frozen)
     changed = f", {replaced} keys replaced and {dropped} dropped (another machine's)" if args.replace else ""

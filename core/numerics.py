@@ -33,22 +33,28 @@ OPENBLAS_AVX512 = {"skylakex", "cooperlake", "sapphirerapids"}
 """OpenBLAS's cores that run AVX-512 kernels (threadpoolctl's ``architecture``)."""
 
 
-def _cpu_flags() -> set[str]:
+def cpuinfo() -> tuple[str | None, set[str]] | None:
+    """The first CPU's model name (None where none is given) and flags from ``/proc/cpuinfo``;
+    None where it cannot be read (not Linux). ``sim.machine`` names the machine from it too."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:
-        return set()
+        return None
+    fields: dict[str, str] = {}
     for line in text.splitlines():
-        if line.startswith("flags"):
-            return set(line.split(":", 1)[1].split())
-    return set()
+        if not line.strip():  # the first processor's block ends: every CPU is the same model
+            break
+        name, _, value = line.partition(":")
+        fields.setdefault(name.strip(), value.strip())
+    return fields.get("model name"), set(fields.get("flags", "").split())
 
 
 @functools.cache
 def reference_environment() -> dict[str, str]:
     """The variables that make this machine's numpy and OpenBLAS compute as an AVX2 one's:
     none where the CPU has no AVX-512."""
-    if "avx512f" not in _cpu_flags():
+    found = cpuinfo()
+    if found is None or "avx512f" not in found[1]:
         return {}
     return {"NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512, "OPENBLAS_CORETYPE": OPENBLAS_CORE}
 

@@ -10,20 +10,19 @@ from __future__ import annotations
 import functools
 import platform
 from importlib import metadata
-from pathlib import Path
+
+from depotbench.core.numerics import cpuinfo
 
 LIBRARIES = (("opencv", "opencv-python-headless"), ("mujoco", "mujoco"), ("numpy", "numpy"))
 
 
 def _cpuinfo() -> tuple[str, set[str]]:
     """The CPU's model name and flags (Linux); the platform's word elsewhere."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
+    found = cpuinfo()
+    if found is None:
         return platform.processor() or platform.machine(), set()
-    fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
-    fields = {k.strip(): v.strip() for k, v in fields.items()}
-    return fields.get("model name", platform.machine()), set(fields.get("flags", "").split())
+    model, flags = found
+    return model or platform.machine(), flags
 
 
 def _version(distribution: str) -> str:

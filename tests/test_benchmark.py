@@ -217,12 +217,12 @@ def test_replace_never_takes_other_bytes_from_a_machine_of_the_kind_that_froze_t
     generator changed, which needs a new generator version, so the freeze stops and writes
     nothing (it replaced the key before)."""
     from depotbench.core.version import GENERATOR_VERSION
-    from depotbench.sim.machine import machine_summary
+    from depotbench.sim.machine import machine_kind, machine_summary
 
     source = load_benchmark(bench).path
     shutil.copy(source, tmp_path / source.name)
     lock = json.loads(lock_path(source).read_text())
-    same_kind = "; ".join(machine_summary().split("; ")[:2]) + "; opencv 5.1.0.95, mujoco 0.0.1, numpy 2.4.6"
+    same_kind = machine_kind(machine_summary()) + "; opencv 5.1.0.95, mujoco 0.0.1, numpy 2.4.6"
     lock["sequences"][0]["files_key"], lock["sequences"][0]["frozen_on"] = "0" * 32, same_kind
     lock["sequences"][0].pop("also", None)
     written = json.dumps(lock, indent=1)
