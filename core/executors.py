@@ -19,6 +19,7 @@ from typing import Any
 from depotbench.core.errors import EnvironmentProblem, InputError
 from depotbench.core.logs import DETAIL, follow_in_worker
 from depotbench.core.main_guard import require_main_guard
+from depotbench.core.numerics import apply_reference_environment
 from depotbench.core.processes import children_block_sigint, exit_with_parent, release_sigint
 
 LOG = logging.getLogger(__name__)
@@ -91,6 +92,9 @@ class LocalPool:
     def _executor(self) -> ProcessPoolExecutor:
         if self.pool is None:
             require_main_guard("workers", self.workers)  # each spawned worker re-imports the script
+            # Workers load numpy afresh: on the reference's code even where this process
+            # loaded numpy before the bench (core/numerics.py), so their bytes are the locks'.
+            apply_reference_environment()
             with children_block_sigint():  # a Ctrl-C now is raised once self.pool holds it
                 self.pool = ProcessPoolExecutor(
                     self.workers,

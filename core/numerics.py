@@ -11,9 +11,11 @@ for smoke-1 and for the tum-dyn-short-1 and depot-1 sequences tried (docs/determ
 They read those variables when they load, so importing ``depotbench`` sets them where numpy
 is not loaded yet (the command, the pytest plugin, the benchmarks' scripts, a program that
 imports the bench first), and spawned workers inherit them; a variable the user set is left
-as it is. Where numpy was loaded before, nothing is set (the workers would then compute
-otherwise than their parent) and ``generate`` warns. This module imports nothing heavy: it
-runs before numpy does.
+as it is. Where numpy was loaded before, the process keeps its own code and ``generate``
+warns in it, but the bench's worker pools set them before they spawn (``core.executors``):
+workers load numpy afresh, so a suite or benchmark rendered in them has the reference bytes
+whatever the program imported first. This module imports nothing heavy: it runs before
+numpy does.
 """
 
 from __future__ import annotations
@@ -64,6 +66,13 @@ def apply_reference_environment() -> None:
     while numpy is not loaded yet)."""
     for name, value in reference_environment().items():
         os.environ.setdefault(name, value)
+
+
+def workers_on_reference() -> bool:
+    """Whether the workers the bench's pools spawn compute as the reference: they load numpy
+    afresh with this environment, each reference variable set where the user has not
+    (``apply_reference_environment``), so False only where the user set one otherwise."""
+    return all(os.environ.get(name, value) == value for name, value in reference_environment().items())
 
 
 def off_reference() -> list[str]:

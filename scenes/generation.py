@@ -124,8 +124,8 @@ def run_suite(
     instead of rendering them, and to add rendered ones to; True (the default) takes the
     one the environment names, None or False none. ``overwrite`` renders every sequence.
     """
-    if store is True:
-        store = SequenceStore.from_env()
+    if store is True:  # locally, spawned workers render: they load numpy as the bench sets it
+        store = SequenceStore.from_env(workers=backend == "local")
     store = store or None
 
     def has(key: str) -> bool:

@@ -115,16 +115,20 @@ class SequenceStore:
         """False after a write failed: the run goes on without storing (warned once)."""
 
     @classmethod
-    def from_env(cls) -> SequenceStore | None:
+    def from_env(cls, workers: bool = False) -> SequenceStore | None:
         """The store where the cache variables put it, or None when they switch it off or
-        when this process's numpy or OpenBLAS compute otherwise than the bench sets them
-        (numpy imported before the bench: its sequences are this machine's own bytes, and
-        ``generate`` says so; they are neither taken from the store nor put in it). A bad
+        when the process that renders computes otherwise than the bench sets numpy and
+        OpenBLAS: this one (numpy imported before the bench: its sequences are this
+        machine's own bytes, and ``generate`` says so), or with ``workers`` the workers a
+        local pool spawns (a suite's), where the user set the variables otherwise. Such
+        bytes are neither taken from the store nor put in it. A bad
         ``DEPOTBENCH_CACHE_SEQUENCES_MAX_BYTES`` is refused."""
-        from depotbench.core.numerics import off_reference
+        from depotbench.core.numerics import off_reference, workers_on_reference
 
         root = cache_folder(NAME)
-        return None if root is None or off_reference() else cls(root)
+        if root is None:
+            return None
+        return cls(root) if (workers_on_reference() if workers else not off_reference()) else None
 
     # -- reading -----------------------------------------------------------------------
 

@@ -86,3 +86,46 @@ def test_generating_where_numpy_loaded_otherwise_says_the_bytes_are_not_the_benc
     assert len(said) == (1 if _avx512() else 0), done.stderr
     if said:
         assert "OPENBLAS_CORETYPE='Haswell'" in said[0] and "NPY_DISABLE_CPU_FEATURES=" in said[0]
+
+
+SUITE_PROGRAM = """
+import json, sys{first}
+import depotbench
+from depotbench.eval.run.detections import sequence_fingerprint
+
+if __name__ == "__main__":
+    sequences = depotbench.generate_suite(sys.argv[1], sys.argv[2], workers=1)
+    print(json.dumps([sequence_fingerprint(s) for s in sequences]))
+"""
+
+
+def _suite_fingerprints(tmp_path: Path, first: str, name: str) -> list[str]:
+    import json
+
+    suite = tmp_path / "tiny_suite.yaml"
+    suite.write_text(
+        "suite: tiny\nbase: walking_xyz\n"
+        "overrides: {frames: 3, image: {width: 64, height: 48}, intrinsics: {fx: 52.5}}\nseeds: [301, 302]\n"
+    )
+    program = tmp_path / f"{name}.py"
+    program.write_text(SUITE_PROGRAM.format(first=first))
+    env = {k: v for k, v in os.environ.items() if k not in VARIABLES}
+    env["DEPOTBENCH_CACHE"] = "off"
+    done = subprocess.run(
+        [sys.executable, str(program), str(suite), str(tmp_path / name)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def test_a_suite_generated_where_numpy_loaded_first_has_the_reference_bytes(tmp_path: Path):
+    """Suites render in spawned workers, which load numpy afresh: they are given the reference
+    variables, so a program that imported numpy before the bench (on an AVX-512 CPU: its own
+    numpy on AVX-512 code) still generates the bytes the frozen benchmarks hold."""
+    reference = _suite_fingerprints(tmp_path, "", "bench_first")
+    assert _suite_fingerprints(tmp_path, ", numpy", "numpy_first") == reference

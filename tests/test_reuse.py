@@ -376,3 +376,26 @@ def test_a_process_whose_numpy_loaded_before_the_bench_neither_reads_nor_writes_
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == str(bool(reference_environment()))
+
+
+def test_a_suites_workers_use_the_store_unless_the_user_set_other_numerics(tmp_path: Path):
+    """Suites render in spawned workers, which the pool gives the reference variables: the
+    store serves them even where this process loaded numpy first, but not where the user set
+    a variable otherwise (their bytes are then the machine's own, on an AVX-512 CPU)."""
+    import subprocess
+    import sys
+
+    from depotbench.core.numerics import reference_environment
+
+    code = (
+        "import numpy\nfrom depotbench.scenes.store import SequenceStore\n"
+        "print(SequenceStore.from_env(workers=True) is None)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in reference_environment()}
+    env["DEPOTBENCH_CACHE"] = str(tmp_path / "cache")
+    for forced, refused in (({}, False), ({"NPY_DISABLE_CPU_FEATURES": ""}, bool(reference_environment()))):
+        done = subprocess.run(
+            [sys.executable, "-c", code], env={**env, **forced}, capture_output=True, text=True, timeout=120
+        )
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.strip() == str(refused), forced
