@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from depotbench.core import numerics
 
 VARIABLES = ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE")
@@ -129,3 +130,44 @@ def test_a_suite_generated_where_numpy_loaded_first_has_the_reference_bytes(tmp_
     numpy on AVX-512 code) still generates the bytes the frozen benchmarks hold."""
     reference = _suite_fingerprints(tmp_path, "", "bench_first")
     assert _suite_fingerprints(tmp_path, ", numpy", "numpy_first") == reference
+
+
+RAY_PROGRAM = """
+import json
+import numpy  # the driver's own numpy: off the reference on an AVX-512 CPU
+from depotbench.core.executors import RayPool
+
+
+def probe():
+    from depotbench.core.numerics import off_reference
+    return off_reference()
+
+
+if __name__ == "__main__":
+    from depotbench.core.numerics import off_reference
+    pool = RayPool(1, None)
+    try:
+        [(_, worker)] = list(pool.map_unordered(probe, [()]))
+    finally:
+        pool.close(False)
+    print(json.dumps([off_reference(), worker]))
+"""
+
+
+@pytest.mark.slow
+def test_a_ray_worker_computes_as_the_reference_whatever_its_driver_loaded_first(tmp_path: Path):
+    """A Ray worker imports the bench (the task's wrapper lives in it) before numpy, so it
+    sets the variables from its own node's CPU: on reference even where the driver is not."""
+    import json
+
+    pytest.importorskip("ray")
+    program = tmp_path / "driver.py"
+    program.write_text(RAY_PROGRAM)
+    env = {k: v for k, v in os.environ.items() if k not in VARIABLES}
+    done = subprocess.run(
+        [sys.executable, str(program)], env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path
+    )
+    assert done.returncode == 0, done.stderr
+    driver, worker = json.loads(done.stdout.splitlines()[-1])
+    assert bool(driver) == _avx512()
+    assert worker == []
