@@ -26,6 +26,8 @@ pytestmark = pytest.mark.render
 def walking(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("dense") / "walking"
     # The perfect sensor: a program's own map is checked point for point against the bench's.
+    # Seed 2: a walker stands in the first frame's view, so a map of that frame holds ghosts
+    # (seed 1 has none since --seed draws the walkers' speeds from the seed given).
     args = [
         "generate",
         "walking_static",
@@ -34,7 +36,7 @@ def walking(tmp_path_factory) -> Path:
         "--frames",
         "30",
         "--seed",
-        "1",
+        "2",
         "--sensor",
         "perfect",
     ]
