@@ -128,7 +128,8 @@ class SequenceStore:
         root = cache_folder(NAME)
         if root is None:
             return None
-        return cls(root) if (workers_on_reference() if workers else not off_reference()) else None
+        on_reference = workers_on_reference() if workers else not off_reference()
+        return cls(root) if on_reference else None
 
     # -- reading -----------------------------------------------------------------------
 
