@@ -30,7 +30,7 @@ from depotbench.core.camera import Intrinsics
 from depotbench.slam import kernels
 from depotbench.slam.geometry import exp_se3
 from depotbench.slam.optimize import is_inlier
-from scipy import sparse
+from scipy import linalg, sparse
 
 HUBER_K = float(np.sqrt(7.815))
 """Huber threshold on an observation's whitened error (ORB-SLAM's RGB-D chi-square at 95 %)."""
@@ -60,6 +60,22 @@ class BundleWindow:
     weight: np.ndarray
     camera: Intrinsics
     bf: float
+
+
+def solve_reduced(reduced: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+    """The reduced camera system's solution by Cholesky on its upper triangle (LAPACK's
+    potrf, as GTSAM and g2o's Cholesky solvers factor it): the damped system is symmetric
+    positive definite, and a factorisation that finds it is not (a near-singular window)
+    refuses the step, so the damping grows. Half the work of LU: 4.5 against 13 ms at 200
+    free keyframes (one core). None where it is not positive definite (a step that is not
+    finite is the caller's to refuse)."""
+    if not len(rhs):
+        return np.zeros(0)
+    try:
+        factor = linalg.cho_factor(reduced, lower=False, overwrite_a=True, check_finite=False)
+    except linalg.LinAlgError:
+        return None
+    return linalg.cho_solve(factor, rhs, check_finite=False)
 
 
 class _Problem:
@@ -155,9 +171,10 @@ class _Problem:
         v_inverse = np.linalg.inv(v_blocks + damping * np.eye(3))
         if not np.isfinite(v_inverse).all():
             return None
-        # W as a dense (points, 6 x free poses, 3) array: a window has few free poses.
+        # W as a dense (points, 6 x free poses, 3) array: a window has few free poses. A
+        # keyframe's second sighting of a point adds to its first (never in a map).
         w = np.zeros((self.n_points, self.n_free, 6, 3))
-        w[self.obs_point[self.on_free], self.obs_slot[self.on_free]] = w_blocks
+        np.add.at(w, (self.obs_point[self.on_free], self.obs_slot[self.on_free]), w_blocks)
         w = w.reshape(self.n_points, 6 * self.n_free, 3)
         wv = np.matmul(w, v_inverse)
         reduced = np.zeros((6 * self.n_free, 6 * self.n_free))
@@ -169,9 +186,8 @@ class _Problem:
             @ np.swapaxes(w, 0, 1).reshape(6 * self.n_free, -1).T
         )
         rhs = -g_pose.ravel() + np.matmul(wv, g_point[:, :, None]).sum(axis=0)[:, 0]
-        try:
-            pose_step = np.linalg.solve(reduced, rhs) if self.n_free else np.zeros(0)
-        except np.linalg.LinAlgError:
+        pose_step = solve_reduced(reduced, rhs)
+        if pose_step is None:
             return None
         point_rhs = -g_point - np.matmul(np.swapaxes(w, 1, 2), pose_step[:, None])[:, :, 0]
         point_step = np.matmul(v_inverse, point_rhs[:, :, None])[:, :, 0]
@@ -202,8 +218,9 @@ class _CompiledProblem:
         self.n_free = int(window.free.sum())
         self.obs_slot = slot[self.obs_pose]
         on_free = np.flatnonzero(self.obs_slot >= 0)
-        # Rows of W (observations on free poses) grouped by point, in observation order.
-        by_point = np.argsort(self.obs_point[on_free], kind="stable")
+        # Rows of W (observations on free poses) grouped by point, each point's in the order
+        # of their slots (``kernels.optimize.reduce`` writes S's upper triangle from it).
+        by_point = np.lexsort((self.obs_slot[on_free], self.obs_point[on_free]))
         self.point_obs = by_point.astype(np.int64)
         self.point_start = np.searchsorted(
             self.obs_point[on_free][by_point], np.arange(len(window.points) + 1)
@@ -253,9 +270,8 @@ class _CompiledProblem:
         invertible, reduced, rhs, v_inverse = self.kernels.reduce(*linear, float(damping), *grouping)
         if not invertible:
             return None
-        try:
-            pose_step = np.linalg.solve(reduced, rhs) if self.n_free else np.zeros(0)
-        except np.linalg.LinAlgError:
+        pose_step = solve_reduced(reduced, rhs)
+        if pose_step is None:
             return None
         pose_step = pose_step.reshape(-1, 6)
         _, _, _, g_point, w_blocks = linear

@@ -287,6 +287,80 @@ def test_bundle_cost_linearisation_and_step_equal_numpy():
                 assert _relative(part_new, part_ref) < 1e-9
 
 
+def _shuffled_with_a_repeat(window: bundle.BundleWindow, seed: int) -> bundle.BundleWindow:
+    """The window's observations in a random order, plus a second observation of one point
+    by a free keyframe that sees it already (a map never holds one; a caller's window may)."""
+    rng = np.random.default_rng(seed)
+    free_rows = np.flatnonzero(window.free[window.obs_pose])
+    repeat = int(free_rows[0])
+    rows = rng.permutation(np.r_[np.arange(len(window.obs_pose)), repeat])
+    uv = window.uv[rows].copy()
+    uv[rows == repeat] += 0.7  # the second sighting a little apart from the first
+    return bundle.BundleWindow(
+        window.poses,
+        window.free,
+        window.points,
+        window.obs_pose[rows],
+        window.obs_point[rows],
+        uv,
+        window.ur[rows],
+        window.weight[rows],
+        window.camera,
+        window.bf,
+    )
+
+
+def _full_system_step(problem: bundle._CompiledProblem, linear: tuple, damping: float) -> tuple:
+    """The damped Gauss-Newton step solved on the whole normal equations, poses and points
+    together (no Schur complement): [[U, W], [W^T, V]] + damping I against -gradient."""
+    u_blocks, g_pose, v_blocks, g_point, w_blocks = linear
+    n_free, n_points = len(u_blocks), len(v_blocks)
+    size = 6 * n_free + 3 * n_points
+    h = np.zeros((size, size))
+    for slot, block in enumerate(u_blocks):
+        h[6 * slot : 6 * slot + 6, 6 * slot : 6 * slot + 6] = block
+    for point, block in enumerate(v_blocks):
+        at = 6 * n_free + 3 * point
+        h[at : at + 3, at : at + 3] = block
+    on_free = np.flatnonzero(problem.obs_slot >= 0)
+    for row, observation in enumerate(on_free):
+        slot, at = problem.obs_slot[observation], 6 * n_free + 3 * problem.obs_point[observation]
+        h[6 * slot : 6 * slot + 6, at : at + 3] += w_blocks[row]
+        h[at : at + 3, 6 * slot : 6 * slot + 6] += w_blocks[row].T
+    step = np.linalg.solve(h + damping * np.eye(size), -np.r_[g_pose.ravel(), g_point.ravel()])
+    return step[: 6 * n_free].reshape(-1, 6), step[6 * n_free :].reshape(-1, 3)
+
+
+def test_the_reduced_system_needs_no_order_and_counts_a_keyframes_second_sighting():
+    """The compiled reduced system is written in its upper triangle from each point's
+    observations in slot order: whatever the observations' order, and with one point seen
+    twice by one keyframe (both cross products on its diagonal block), its step is the one
+    solved on the whole normal equations without the Schur complement; so is the NumPy
+    reference's (whose dense W kept only one of the two sightings)."""
+    for seed, window in enumerate(_windows()):
+        window = _shuffled_with_a_repeat(window, seed)
+        compiled, reference = bundle._CompiledProblem(window), bundle._Problem(window)
+        linear = compiled.linearise(window.poses, window.points)
+        linear_ref = reference.linearise(window.poses, window.points)
+        for damping in (1e-5, 1.0):
+            expected = _full_system_step(compiled, linear, damping)
+            for step in (compiled.step(linear, damping), reference.step(linear_ref, damping)):
+                for part, part_expected in zip(step, expected, strict=True):
+                    assert _relative(part, part_expected) < 1e-8
+
+
+def test_the_reduced_solve_reads_the_upper_triangle_and_refuses_an_indefinite_system():
+    rng = np.random.default_rng(5)
+    a = rng.standard_normal((18, 18))
+    full = a @ a.T + 0.1 * np.eye(18)
+    b = rng.standard_normal(18)
+    upper = np.triu(full)  # the lower triangle left at zero, as the compiled reduce leaves it
+    np.testing.assert_allclose(bundle.solve_reduced(upper, b), np.linalg.solve(full, b), rtol=1e-10)
+    indefinite = np.diag(np.r_[np.ones(17), -1.0])
+    assert bundle.solve_reduced(indefinite, b) is None
+    assert bundle.solve_reduced(np.zeros((0, 0)), np.zeros(0)).shape == (0,)
+
+
 def test_bundle_adjustment_equals_numpy(path):
     for window in _windows():
         path("numpy")

@@ -15,7 +15,8 @@ closed form (the reference calls LAPACK per point).
 Pose refinement's 6x6 solve is Gaussian elimination with partial pivoting in LAPACK's
 unblocked order (the largest pivot in the column, the first of equals): ``numpy.linalg.solve``
 compiled by Numba cost ~5 s of compile time in each kernel calling it. Local BA's reduced
-system (6 x up to ~40 free keyframes) is solved by NumPy's LAPACK between two kernels.
+system (6 x up to ~200 free keyframes at TUM's length) is solved by LAPACK's Cholesky
+between two kernels (``depotbench.slam.bundle``).
 Every kernel that calls another lives in this file: Numba's cache checks only the file of the
 kernel it loads, so a callee edited in another file would go on running from its callers'
 caches.
@@ -437,11 +438,12 @@ def reduce(
     obs_slot: np.ndarray,
 ) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:
     """The damped reduced camera system of ``_Problem.step``: (the points' blocks invertible,
-    S (6F, 6F), its right-hand side, the damped V^-1 (P, 3, 3)).
+    S (6F, 6F) in its upper triangle (the lower one is left at zero: the Cholesky solve in
+    ``depotbench.slam.bundle`` reads only the upper), its right-hand side, the damped V^-1
+    (P, 3, 3)).
 
     The free observations of point p are ``point_obs[point_start[p]:point_start[p + 1]]``
-    (rows of ``w_blocks``), each on free slot ``obs_slot`` of that row. S is solved in LAPACK
-    (``numpy.linalg.solve``, as the reference does: 6 x 40 free poses take ~1 ms there)."""
+    (rows of ``w_blocks``) in the order of their free slots ``obs_slot``."""
     n_free = len(u_blocks)
     n_points = len(v_blocks)
     size = 6 * n_free
@@ -456,79 +458,66 @@ def reduce(
         _inverse3(damped, v_inverse[p])
         if not np.isfinite(v_inverse[p]).all():
             return False, reduced, rhs, v_inverse
-    schur = np.zeros((size, size))
     rhs_sum = np.zeros(size)
     # One point's observations at a time, gathered into small contiguous buffers (its W rows,
     # W V^-1 and slots), which its pair loop then reads k times each: reduce 1.5x sooner on
-    # walking_xyz's local BAs (5.5 against 8.3 ms a call), bit-identical.
+    # walking_xyz's local BAs (5.5 against 8.3 ms a call).
     most = 0
     for p in range(n_points):
         most = max(most, point_start[p + 1] - point_start[p])
     wv = np.empty((most, 6, 3))
-    w_point = np.empty((most, 6, 3))
+    w_point = np.empty((most, 3, 6))
     slots = np.empty(most, np.int64)
-    block = np.empty((6, 6))
     for p in range(n_points):
         first, k = point_start[p], point_start[p + 1] - point_start[p]
         vi, g = v_inverse[p], g_point[p]
         for i in range(k):
             row = point_obs[first + i]
             slots[i] = obs_slot[row]
-            w_point[i] = w_blocks[row]
             base = 6 * slots[i]
             for a in range(6):
                 w0, w1, w2 = w_blocks[row, a, 0], w_blocks[row, a, 1], w_blocks[row, a, 2]
+                w_point[i, 0, a], w_point[i, 1, a], w_point[i, 2, a] = w0, w1, w2
                 t0 = w0 * vi[0, 0] + w1 * vi[1, 0] + w2 * vi[2, 0]
                 t1 = w0 * vi[0, 1] + w1 * vi[1, 1] + w2 * vi[2, 1]
                 t2 = w0 * vi[0, 2] + w1 * vi[1, 2] + w2 * vi[2, 2]
                 wv[i, a, 0], wv[i, a, 1], wv[i, a, 2] = t0, t1, t2
                 rhs_sum[base + a] += t0 * g[0] + t1 * g[1] + t2 * g[2]
-        # W V^-1 W^T over the pairs of free keyframes seeing the point. A pair of two slots adds
-        # its block above the diagonal only (transposed where the slots come the other way),
-        # mirrored once at the end: the same additions in the same order as adding it on both
-        # sides, with half the scattered writes. A pair within one slot adds its block and, for
-        # two observations, the mirror, in that order (each entry's two additions keep it).
+        # -W V^-1 W^T over the pairs of free keyframes seeing the point. The observations
+        # come in slot order (``point_obs``) and a keyframe sees a point once, so pair
+        # (i, j > i) is block (slot i, slot j) above the diagonal and (i, i) the diagonal
+        # block's upper triangle: half the scattered writes of the full matrix, no mirror, no copy. W is
+        # read transposed (3 x 6), so each block row is six adjacent lanes.
         for i in range(k):
-            slot_a, x = slots[i], wv[i]
-            for j in range(i, k):
-                slot_b, y = slots[j], w_point[j]
-                if slot_a < slot_b:
-                    row0, col0 = 6 * slot_a, 6 * slot_b
-                    for a in range(6):
-                        x0, x1, x2 = x[a, 0], x[a, 1], x[a, 2]
-                        for b in range(6):
-                            schur[row0 + a, col0 + b] += x0 * y[b, 0] + x1 * y[b, 1] + x2 * y[b, 2]
-                elif slot_a > slot_b:
-                    row0, col0 = 6 * slot_b, 6 * slot_a
-                    for b in range(6):
-                        y0, y1, y2 = y[b, 0], y[b, 1], y[b, 2]
-                        for a in range(6):
-                            schur[row0 + b, col0 + a] += x[a, 0] * y0 + x[a, 1] * y1 + x[a, 2] * y2
-                else:
-                    low = 6 * slot_a
-                    for a in range(6):
-                        for b in range(6):
-                            block[a, b] = x[a, 0] * y[b, 0] + x[a, 1] * y[b, 1] + x[a, 2] * y[b, 2]
-                    for a in range(6):
-                        for b in range(6):
-                            schur[low + a, low + b] += block[a, b]
-                    if j != i:
-                        for a in range(6):
-                            for b in range(6):
-                                schur[low + b, low + a] += block[a, b]
-    for k in range(n_free):  # the mirror of every block between two slots
-        for m in range(k + 1, n_free):
+            x = wv[i]
+            row0 = 6 * slots[i]
             for a in range(6):
-                for b in range(6):
-                    schur[6 * m + b, 6 * k + a] = schur[6 * k + a, 6 * m + b]
+                for b in range(a, 6):
+                    reduced[row0 + a, row0 + b] -= (
+                        x[a, 0] * w_point[i, 0, b] + x[a, 1] * w_point[i, 1, b] + x[a, 2] * w_point[i, 2, b]
+                    )
+            for j in range(i + 1, k):
+                col0 = 6 * slots[j]
+                y = w_point[j]
+                if col0 == row0:  # seen twice by one keyframe (never in a map): both products
+                    z, w = wv[j], w_point[i]
+                    for a in range(6):
+                        for b in range(a, 6):
+                            reduced[row0 + a, row0 + b] -= (
+                                x[a, 0] * y[0, b] + x[a, 1] * y[1, b] + x[a, 2] * y[2, b]
+                            ) + (z[a, 0] * w[0, b] + z[a, 1] * w[1, b] + z[a, 2] * w[2, b])
+                    continue
+                for a in range(6):
+                    x0, x1, x2 = x[a, 0], x[a, 1], x[a, 2]
+                    for b in range(6):
+                        reduced[row0 + a, col0 + b] -= x0 * y[0, b] + x1 * y[1, b] + x2 * y[2, b]
     for k in range(n_free):
         for a in range(6):
-            for b in range(6):
-                reduced[6 * k + a, 6 * k + b] = u_blocks[k, a, b]
+            for b in range(a, 6):
+                reduced[6 * k + a, 6 * k + b] += u_blocks[k, a, b]
     for a in range(size):
         reduced[a, a] += damping
         rhs[a] = -g_pose[a // 6, a % 6] + rhs_sum[a]
-    reduced -= schur
     return True, reduced, rhs, v_inverse
 
 
