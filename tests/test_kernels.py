@@ -820,21 +820,26 @@ def test_keypoint_moments_equal_numpy():
 
 
 def test_distinctive_descriptors_equal_numpy():
-    """ComputeDistinctiveDescriptors on points seen 0 to 40 times: random descriptors, near
-    copies of one (medians tie, the first wins) and a point whose descriptors are all equal."""
+    """ComputeDistinctiveDescriptors on points seen 0 to 200 times (up to 24 the kernel sorts
+    each row, above it counts; at TUM's length a point is seen by up to ~200 keyframes):
+    random descriptors, near copies of one (medians tie, the first wins) and points whose
+    descriptors are all equal."""
     from depotbench.slam.map import distinctive
 
     rng = np.random.default_rng(3)
-    counts = np.r_[0, 1, 2, 2, 3, 4, 5, 7, 8, 12, 20, 40, rng.integers(0, 15, 200)]
+    counts = np.r_[0, 1, 2, 2, 3, 4, 5, 7, 8, 12, 20, 40, 24, 25, 60, 200, 200, rng.integers(0, 15, 200)]
     starts = np.r_[0, np.cumsum(counts)[:-1]]
     values = rng.integers(0, 256, (int(counts.sum()), 32), dtype=np.uint8)
-    base = values[starts[12]].copy()
-    for k in range(counts[12]):  # near copies: few distinct distances, many ties
-        values[starts[12] + k] = base ^ (rng.random(32) < 0.02).astype(np.uint8)
-    values[starts[10] : starts[10] + counts[10]] = values[starts[10]]  # all equal
+    for point in (17, 15):  # near copies: few distinct distances, many ties
+        base = values[starts[point]].copy()
+        for k in range(counts[point]):
+            values[starts[point] + k] = base ^ (rng.random(32) < 0.02).astype(np.uint8)
+    for point in (10, 16):  # all equal
+        values[starts[point] : starts[point] + counts[point]] = values[starts[point]]
     reference = distinctive(values, starts, counts)
     assert (reference[counts < 2] == -1).all() and (reference[counts >= 2] >= 0).all()
     np.testing.assert_array_equal(matching.distinctive(values, starts, counts), reference)
+    assert reference[16] == 0  # all equal: the first
     assert reference[10] == 0  # all equal: the first
 
 

@@ -269,6 +269,41 @@ def test_covisibility_bundle_adjustment_holds_weakly_connected_keyframes_fixed()
         assert np.allclose(map_.keyframe(k).world_from_camera, poses[k], atol=1e-9), k
 
 
+def test_keypoint_values_are_each_keyframes_own_as_keyframes_come_and_after_a_copy():
+    """``Map.keypoint_values`` gathers from one table that grows with the keyframes: asked
+    between keyframes of different sizes, and on a copy that then goes its own way, it gives
+    each keyframe's own octaves and descriptors."""
+    rng = np.random.default_rng(4)
+    map_ = Map()
+
+    def add(target: Map, n: int) -> None:
+        frame = features(np.full(n, 2.0), int(rng.integers(1 << 30)))
+        frame.octaves[:] = rng.integers(0, 8, n)
+        target.add_keyframe(
+            KeyFrame(len(target.all_keyframes), 0, np.eye(4), frame, np.ones(n, bool), np.full(n, -1))
+        )
+
+    def check(target: Map) -> None:
+        kfs = rng.integers(0, len(target.all_keyframes), 500)
+        kps = np.array([rng.integers(0, len(target.keyframe(k).features)) for k in kfs])
+        for name in ("octaves", "descriptors"):
+            expected = np.array(
+                [getattr(target.keyframe(k).features, name)[i] for k, i in zip(kfs, kps, strict=True)]
+            )
+            np.testing.assert_array_equal(target.keypoint_values(name, kfs, kps), expected)
+
+    for n in (5, 300, 1, 40):
+        add(map_, n)
+        check(map_)
+    fork = map_.copy()
+    for n in (700, 2, 1000):  # the table's room doubles past what it held
+        add(map_, n)
+        check(map_)
+    add(fork, 9)
+    check(fork)
+    assert len(fork.all_keyframes) == 5 and len(map_.all_keyframes) == 7
+
+
 # -- triangulation (CreateNewMapPoints) ------------------------------------------------------
 
 
