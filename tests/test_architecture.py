@@ -218,6 +218,38 @@ def test_sequence_reader_imports_no_mujoco_or_opengl():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+MUJOCO_FOLDERS = (*PACKAGES, "depotbench", "tests", "benchmarks", "examples")
+"""Where Python that may import MuJoCo lives (the package, its tests, benchmarks and examples)."""
+
+
+def direct_mujoco_imports(root: Path) -> list[str]:
+    """Modules that import MuJoCo before ``depotbench.sim.mujoco_env`` has (or without it):
+    MuJoCo picks its GL backend from ``MUJOCO_GL`` when first imported, and only mujoco_env
+    sets it (to egl) first. One test module importing ``mujoco`` at its top made every test
+    of its pytest worker render through GLFW when the shell had not set the variable."""
+    problems = []
+    for folder in MUJOCO_FOLDERS:
+        for path in sorted((root / folder).rglob("*.py")) if (root / folder).is_dir() else []:
+            if path.relative_to(root).as_posix() == "sim/mujoco_env.py":
+                continue
+            found = imported_modules(path)
+            direct = [line for line, module, _ in found if module.split(".")[0] == "mujoco"]
+            chosen = [line for line, module, _ in found if module == "depotbench.sim.mujoco_env"]
+            if direct and (not chosen or min(chosen) > min(direct)):
+                problems.append(f"{path.relative_to(root).as_posix()}:{min(direct)}: imports mujoco directly")
+    return problems
+
+
+def test_mujoco_is_imported_only_after_its_gl_backend_is_chosen(tmp_path: Path):
+    assert direct_mujoco_imports(REPO) == []
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_bad.py").write_text("import numpy\nimport mujoco\n")
+    (tmp_path / "tests" / "test_good.py").write_text(
+        "from depotbench.sim.mujoco_env import mujoco\nfrom mujoco import gl_context\n"
+    )
+    assert direct_mujoco_imports(tmp_path) == ["tests/test_bad.py:2: imports mujoco directly"]
+
+
 def _slam_floor(module: str) -> int | None:
     parts = module.split(".")
     if parts[:2] != ["depotbench", "slam"] or len(parts) < 3:

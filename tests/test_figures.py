@@ -5,12 +5,12 @@ from __future__ import annotations
 import dataclasses
 
 import cv2
-import mujoco
 import numpy as np
 import pytest
 from depotbench.sim.figures import AnimalLook, Look, person_bind, person_surfaces
 from depotbench.sim.ground_truth import boxes_and_counts
 from depotbench.sim.memo import MEMOS
+from depotbench.sim.mujoco_env import mujoco
 from depotbench.sim.render import HIDDEN_GROUP, FrameRenderer
 from depotbench.sim.simulation import Simulation
 from depotbench.sim.spec import ActorSpec, CameraSpec, ChairSpec, LayoutSpec, ScenarioSpec
