@@ -15,10 +15,12 @@ the orientations and the descriptors are OpenCV ORB's own (tests hold them equal
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from depotbench.core.assets import asset
 from depotbench.core.camera import Intrinsics
 from depotbench.slam import kernels
 from depotbench.slam.config import TrackingConfig
@@ -72,7 +74,7 @@ class FeatureExtractor:
             nlevels=config.n_levels,
             edgeThreshold=EDGE_PX,
             patchSize=PATCH_PX,
-        )  # describes the kept keypoints, on its own blurred pyramid
+        )  # the reference's describer (``_describe_opencv``), on its own blurred pyramid
         n_levels, factor = config.n_levels, config.scale_factor
         self._per_level = features_per_level(config.n_features, factor, n_levels)
         self._candidates = features_per_level(CANDIDATE_FACTOR * config.n_features, factor, n_levels)
@@ -83,20 +85,13 @@ class FeatureExtractor:
 
     def extract(self, rgb: np.ndarray, depth_m: np.ndarray, camera: Intrinsics) -> FrameFeatures:
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else np.ascontiguousarray(rgb)
-        kept = self._keypoints(grey)
+        levels = self.pyramid(grey)
+        kept = self._keypoints(levels)
         octaves = np.concatenate([np.full(len(xs), level) for level, (xs, *_) in enumerate(kept)])
         scale = self._scales[octaves]  # level-0 pixels as OpenCV's ORB has them
         xs, ys, scores, angles = (np.concatenate(part) for part in zip(*kept, strict=True))
         pts = np.c_[xs.astype(np.float32) * scale, ys.astype(np.float32) * scale]
-        columns = (
-            *pts.T.tolist(),
-            (PATCH_PX * scale).tolist(),
-            angles.tolist(),
-            scores.tolist(),
-            octaves.tolist(),
-        )
-        keypoints = [cv2.KeyPoint(*keypoint) for keypoint in zip(*columns, strict=True)]
-        if not keypoints:
+        if not len(pts):
             return FrameFeatures(
                 grey,
                 np.zeros((0, 2), np.float32),
@@ -106,11 +101,10 @@ class FeatureExtractor:
                 np.zeros(0),
                 np.zeros(0),
             )
-        # keypoints sorted by level come back in their order, none dropped (all lie EDGE_PX inside
-        # their level): the arrays above stay theirs
-        described, descriptors = self._orb.compute(grey, keypoints)
-        if descriptors is None or len(described) != len(keypoints):
-            raise RuntimeError(f"ORB described {len(described)} of {len(keypoints)} keypoints")
+        if kernels.compiled():
+            descriptors = describe(levels, xs, ys, octaves, angles)
+        else:
+            descriptors = self._describe_opencv(grey, pts, scale, angles, scores, octaves)
         angles = angles.astype(np.float64)
         h, w = depth_m.shape
         cols = np.clip(np.rint(pts[:, 0]).astype(int), 0, w - 1)
@@ -118,6 +112,32 @@ class FeatureExtractor:
         depth = depth_m[rows, cols].astype(np.float64)
         depth[(depth < self.config.min_depth_m) | (depth > self.config.max_depth_m)] = 0.0
         return FrameFeatures(grey, pts, camera.undistort(pts), octaves, descriptors, depth, angles)
+
+    def _describe_opencv(
+        self,
+        grey: np.ndarray,
+        pts: np.ndarray,
+        scale: np.ndarray,
+        angles: np.ndarray,
+        scores: np.ndarray,
+        octaves: np.ndarray,
+    ) -> np.ndarray:
+        """``describe`` by OpenCV's ORB (the reference): the keypoints as its objects, at the
+        level-0 positions it scales back onto the pixels they were found at."""
+        columns = (
+            *pts.T.tolist(),
+            (PATCH_PX * scale).tolist(),
+            angles.tolist(),
+            scores.tolist(),
+            octaves.tolist(),
+        )
+        keypoints = [cv2.KeyPoint(*keypoint) for keypoint in zip(*columns, strict=True)]
+        # keypoints sorted by level come back in their order, none dropped (all lie EDGE_PX inside
+        # their level): the arrays of ``extract`` stay theirs
+        described, descriptors = self._orb.compute(grey, keypoints)
+        if descriptors is None or len(described) != len(keypoints):
+            raise RuntimeError(f"ORB described {len(described)} of {len(keypoints)} keypoints")
+        return descriptors
 
     def pyramid(self, grey: np.ndarray) -> list[np.ndarray]:
         """OpenCV ORB's pyramid: each level resized from the one above it, its size the image's
@@ -139,12 +159,13 @@ class FeatureExtractor:
         best = retain_best(scores, int(self._candidates[level]))
         return xs[best], ys[best], scores[best]
 
-    def _keypoints(self, grey: np.ndarray) -> list[tuple[np.ndarray, ...]]:
-        """Per level: the columns, rows (in the level's image), scores and orientations of the
-        keypoints kept, in the order ORB-SLAM would spread them (ComputeKeyPointsOctTree)."""
+    def _keypoints(self, levels: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+        """Per level of the pyramid: the columns, rows (in the level's image), scores and
+        orientations of the keypoints kept, in the order ORB-SLAM would spread them
+        (ComputeKeyPointsOctTree)."""
         c = self.config
         found = []
-        for level, level_image in enumerate(self.pyramid(grey)):
+        for level, level_image in enumerate(levels):
             xs, ys, scores = self.candidates(level_image, level)
             per_row = level_image.shape[1] // c.grid_cell_px + 1
             strong = strong_per_cell(
@@ -254,6 +275,50 @@ def orientations(image: np.ndarray, xs: np.ndarray, ys: np.ndarray, half_widths:
     else:
         m10, m01 = moments_numpy(image, xs, ys, half_widths)
     return cv2.phase(m10.astype(np.float32), m01.astype(np.float32), angleInDegrees=True).ravel()
+
+
+BLUR_KERNEL = cv2.getGaussianKernel(7, 2, cv2.CV_32F)
+"""The blur ORB describes on: a 7 x 7 Gaussian of sigma 2, reflected at the edges (OpenCV's ORB
+and ORB-SLAM's extractor), applied as two float passes rounded to bytes as OpenCV's ORB
+applies it. ``cv2.GaussianBlur`` on bytes takes a fixed-point path instead: one level apart
+on 1 % of a ``tum`` frame's pixels (a fifth of a noise image's), one descriptor bit in 190."""
+
+
+@functools.cache
+def orb_pattern() -> np.ndarray:
+    """(256, 4) int64: ORB's point pairs (x0, y0, x1, y1), bit 0 first (assets/orb/PROVENANCE.md)."""
+    pattern = np.loadtxt(asset("orb", "bit_pattern_31.txt"), dtype=np.int64, ndmin=2)
+    if pattern.shape != (256, 4) or np.abs(pattern).max() > PATCH_PX // 2:
+        raise RuntimeError(f"{asset('orb', 'bit_pattern_31.txt')}: not 256 pairs on a {PATCH_PX} px patch")
+    return pattern
+
+
+def describe(
+    levels: list[np.ndarray], xs: np.ndarray, ys: np.ndarray, octaves: np.ndarray, angles: np.ndarray
+) -> np.ndarray:
+    """(N, 32) uint8: ORB's descriptor of each keypoint at (xs, ys) of pyramid level ``octaves``
+    with orientation ``angles`` (degrees), compiled: the levels used, each blurred once, laid
+    end to end. Equal to OpenCV's ``ORB.compute`` on the same keypoints bit for bit
+    (``FeatureExtractor._describe_opencv``, the reference; ``tests/test_orb_descriptors.py``).
+    Every keypoint lies ``EDGE_PX`` inside its level, beyond the rotated pattern's reach."""
+    from depotbench.slam.kernels import features as compiled
+
+    used = levels[: int(octaves.max()) + 1]
+    blurred = [
+        cv2.sepFilter2D(level, cv2.CV_8U, BLUR_KERNEL, BLUR_KERNEL, borderType=cv2.BORDER_REFLECT_101)
+        for level in used
+    ]
+    sizes = np.array([level.size for level in blurred], np.int64)
+    return compiled.describe(
+        np.concatenate([level.ravel() for level in blurred]),
+        np.cumsum(sizes) - sizes,
+        np.array([level.shape[1] for level in blurred], np.int64),
+        xs.astype(np.int64),
+        ys.astype(np.int64),
+        octaves.astype(np.int64),
+        angles.astype(np.float32),
+        orb_pattern(),
+    )
 
 
 def moments_numpy(

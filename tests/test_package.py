@@ -82,6 +82,7 @@ def test_the_metadata_names_its_licences_and_pypis_classifiers():
     assert project["license"] == "MIT"
     assert "MIT License" in (REPO / "LICENSE").read_text()
     assert "Apache License" in (REPO / "assets/models/yolox_nano/LICENSE").read_text()
+    assert "Willow Garage" in (REPO / "assets/orb/LICENSE").read_text()
     assert all((REPO / name).is_file() for name in project["license-files"])
     assert set(project["classifiers"]) <= known
     assert not [c for c in project["classifiers"] if c.startswith("License ::")]
@@ -157,19 +158,25 @@ def test_the_build_prints_no_warning(built: Built):
     assert warnings == []
 
 
-def test_the_wheel_and_sdist_carry_both_licences(built: Built):
+def test_the_wheel_and_sdist_carry_every_licence(built: Built):
     with zipfile.ZipFile(built.wheel) as wheel:
         names = wheel.namelist()
         metadata = wheel.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
     licences = [n.split(".dist-info/licenses/", 1)[1] for n in names if ".dist-info/licenses/" in n]
-    assert sorted(licences) == ["LICENSE", "assets/models/yolox_nano/LICENSE"]
+    assert sorted(licences) == ["LICENSE", "assets/models/yolox_nano/LICENSE", "assets/orb/LICENSE"]
     assert "depotbench/assets/models/yolox_nano/LICENSE" in names  # and beside the model
+    assert {"depotbench/assets/orb/LICENSE", "depotbench/assets/orb/bit_pattern_31.txt"} <= set(names)
     assert "License-Expression: MIT" in metadata
     assert "Classifier: Topic :: Scientific/Engineering" in metadata
     with tarfile.open(built.sdist) as sdist:
         top = sdist.getnames()[0].split("/")[0]
         held = {name.removeprefix(top + "/") for name in sdist.getnames()}
-    assert {"LICENSE", "assets/models/yolox_nano/LICENSE", "assets/models/yolox_nano/PROVENANCE.md"} <= held
+    shipped = {
+        "assets/models/yolox_nano/LICENSE",
+        "assets/models/yolox_nano/PROVENANCE.md",
+        "assets/orb/LICENSE",
+    }
+    assert {"LICENSE", *shipped} <= held
 
 
 def test_the_sdist_holds_what_its_tests_read(built: Built):

@@ -102,6 +102,11 @@ def _warm_features() -> None:
     image = np.zeros((40, 40), np.uint8)
     features.fast_corners(image, 7, 19)
     features.moments(image, index + 18, index + 18, np.ones(2, np.int64))
+    starts, widths = np.zeros(1, np.int64), np.full(1, 40, np.int64)
+    pattern = np.zeros((256, 4), np.int64)
+    features.describe(
+        image.ravel(), starts, widths, index + 18, index + 18, index * 0, ones.astype(np.float32), pattern
+    )
 
 
 WARM_UPS = {

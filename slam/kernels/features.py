@@ -11,6 +11,9 @@
   until it has as many leaves as the level wants keypoints, and each leaf keeps its strongest
   corner. The reference walks Python lists of nodes; here each node is a run of one index
   array, split in place, stable.
+- ``describe``: ORB's descriptor of the kept keypoints on the bench's own pyramid, blurred once
+  (OpenCV's ``ORB.compute``, the reference, builds and blurs a pyramid of its own each frame
+  and takes the keypoints as Python objects: 2.8 ms a frame against 0.8 here, blur included).
 """
 
 from __future__ import annotations
@@ -313,3 +316,40 @@ def moments(image, xs, ys, half_widths):
                 b += v * (p - q)
         m10[i], m01[i] = a, b
     return m10, m01
+
+
+@jit
+def describe(pixels, starts, widths, xs, ys, levels, angles, pattern):
+    """ORB's 256-bit descriptor of each keypoint (OpenCV's ``ORB.compute``, bit for bit): the
+    ``pattern``'s point pairs (x0, y0, x1, y1 per bit) rotated by the keypoint's angle, each
+    point rounded to a pixel of its level's blurred image, and bit k set where the first is
+    darker. ``pixels`` holds every level's blurred image, row by row, level L from
+    ``starts[L]`` with ``widths[L]`` columns; (xs, ys) are positions in the keypoint's level.
+    The rotation is OpenCV's float arithmetic: the angle in radians as a float32 product, its
+    cosine and sine in double precision rounded to float32 (a float32 cosine rounds one of
+    two million angles apart and moves a sample), each coordinate two float32 products and a
+    sum, rounded half to even."""
+    n = len(xs)
+    out = np.zeros((n, 32), np.uint8)
+    to_radians = np.float32(math.pi / 180.0)
+    for k in range(n):
+        angle = np.float32(angles[k]) * to_radians
+        a, b = np.float32(math.cos(np.float64(angle))), np.float32(math.sin(np.float64(angle)))
+        width = widths[levels[k]]
+        centre = starts[levels[k]] + ys[k] * width + xs[k]
+        for byte in range(32):
+            value = 0
+            for bit in range(8):
+                pair = 8 * byte + bit
+                u, v = np.float32(pattern[pair, 0]), np.float32(pattern[pair, 1])
+                first = pixels[
+                    centre + np.int64(np.rint(u * b + v * a)) * width + np.int64(np.rint(u * a - v * b))
+                ]
+                u, v = np.float32(pattern[pair, 2]), np.float32(pattern[pair, 3])
+                second = pixels[
+                    centre + np.int64(np.rint(u * b + v * a)) * width + np.int64(np.rint(u * a - v * b))
+                ]
+                if first < second:
+                    value |= 1 << bit
+            out[k, byte] = value
+    return out
