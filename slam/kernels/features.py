@@ -13,7 +13,8 @@
   array, split in place, stable.
 - ``describe``: ORB's descriptor of the kept keypoints on the bench's own pyramid, blurred once
   (OpenCV's ``ORB.compute``, the reference, builds and blurs a pyramid of its own each frame
-  and takes the keypoints as Python objects: 2.8 ms a frame against 0.8 here, blur included).
+  and takes the keypoints as Python objects: 2.8 ms for the ~1,000 keypoints of a `tum` frame
+  against 1.5 here, 0.6 of it the blur; one core, 2026-12-05).
 """
 
 from __future__ import annotations
