@@ -86,19 +86,21 @@ class MappingCosts:
     keyframes of seven 150-frame walking clips of tum-dyn-short-1 (walking_static seeds
     301, 302, 304, walking_xyz 302, 304, walking_rpy 301, 303; `none` and
     box_epipolar_flow), one pinned core of the 2-core AMD EPYC development machine,
-    2026-12-03. The adjustment's line fits its calls with R^2 0.92 (median error 21 %),
-    SearchInNeighbors' 0.74 (27 %), KeyFrameCulling's 0.60 and the new points' 0.12; those
-    two are a fifth of the mapping time. A second fit of the same runs gave the adjustment a
-    set-up of 7.9 ms against 10.3 and 0.44 us an observation against 0.31: the timings'
+    2026-12-05, after the mapping's hot spots were made cheaper (the fit of 2026-12-03 gave
+    the adjustment a 10.3 ms set-up, 2.5x what it now takes). The adjustment's line fits its
+    calls with R^2 0.96 (median error 9 %), SearchInNeighbors' 0.89 (13 %),
+    KeyFrameCulling's 0.53 and the new points' 0.14; those two are a tenth of the mapping
+    time. Two more fits of the same runs that day gave the adjustment a set-up of 4.0 and
+    3.3 ms against 4.7 and 0.17 and 0.22 us an observation against 0.16: the timings'
     noise, which ``mapper_time_scale`` dwarfs."""
 
-    new_points_ms: tuple[float, ...] = (0.0, 1.01)
-    fusion_ms: tuple[float, ...] = (1.06, 0.204, 3.8e-3)
-    adjustment_ms: float = 10.3
+    new_points_ms: tuple[float, ...] = (0.0, 0.483)
+    fusion_ms: tuple[float, ...] = (1.14, 0.0836, 1.68e-3)
+    adjustment_ms: float = 4.72
     """The local bundle adjustment's set-up: its window, the problem, the outlier test and
     writing the result back."""
-    iteration_ms: tuple[float, ...] = (3.1e-4, 1.36e-5, 9.27e-5)
-    culling_ms: tuple[float, ...] = (1.03e-3,)
+    iteration_ms: tuple[float, ...] = (1.62e-4, 1.43e-5, 2.2e-5)
+    culling_ms: tuple[float, ...] = (2.55e-4,)
 
     def new_points(self, map_: Map, keyframe_id: int) -> float:
         return float(np.dot(self.new_points_ms, new_points_terms(map_, keyframe_id)))
