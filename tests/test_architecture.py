@@ -1,7 +1,8 @@
 """The import graph points one way, at every level.
 
 Between root folders: ``eval -> slam, detectors, scenes, sim -> core`` (slam takes only the
-plain detection type, the camera, errors, logs and the kernels' switch ``core.jit``). Inside
+plain detection type, the camera, errors, logs, the kernels' switch ``core.jit`` and the
+shipped files' paths ``core.assets``, for ORB's point pairs). Inside
 ``eval``: its subpackages in the order of the pipeline, each importing only those before
 it; inside ``slam``: ORB-SLAM's parts in floors, tracking above local mapping and
 relocalisation above the matcher and the optimiser.
@@ -30,12 +31,12 @@ ALLOWED: dict[str, set[str]] = {
     "sim": {"core"},
     "scenes": {"core", "sim"},
     "detectors": {"core", "sim"},
-    "slam": {"detectors.detection", "core.camera", "core.errors", "core.logs", "core.jit"},
+    "slam": {"detectors.detection", "core.camera", "core.errors", "core.logs", "core.jit", "core.assets"},
     "eval": {"core", "sim", "scenes", "detectors", "slam"},
 }
 """For each root folder, the other project modules it may import (a package allows its submodules)."""
 
-STANDALONE = {"detectors/detection.py", "core/camera.py", "core/errors.py", "core/logs.py"}
+STANDALONE = {"detectors/detection.py", "core/camera.py", "core/errors.py", "core/logs.py", "core/assets.py"}
 """Modules that import nothing from the project (slam depends on them)."""
 
 EVAL_FLOORS = (
