@@ -17,7 +17,8 @@ its own ``rgbd_tum`` example feeds a sequence and times ``TrackRGBD``: fed back 
 paces run one after the other on the same sequence. ORB-SLAM3 is not deterministic (its
 keyframes and its mapping's cost vary from run to run), so ``--orbslam3-runs N`` runs it N
 times at each pace and sets the median of its runs (per-frame times pooled; CPU, wall and
-keyframes the median run's figure each) beside the built-in. Mean and median milliseconds per frame;
+keyframes the median run's figure each, the runs' range of CPU and keyframes printed beside it)
+beside the built-in. Mean and median milliseconds per frame;
 per seed and over the seeds, each strategy's median over ORB-SLAM3's (issue 40's speed
 criterion), for each pace.
 
@@ -350,7 +351,8 @@ def main() -> None:
                 runs = [_orbslam3(args, seq, pace, startup) for _ in range(args.orbslam3_runs)]
                 if runs[0] is None:
                     break
-                orbslam3 = _median_cost([run for run in runs if run is not None])
+                measured = [run for run in runs if run is not None]
+                orbslam3 = _median_cost(measured)
                 accuracy.setdefault(f"orbslam3 pace {pace:g}", []).append(orbslam3.ate_mm)
                 if len(runs) > 1:
                     print(
@@ -358,6 +360,7 @@ def main() -> None:
                         + " ".join(f"{'':>24s}" for _ in ("extract", "reject", "track"))
                         + f" {_cell(orbslam3.tracking_ms):>24s} {'':>24s} {_cell(orbslam3.tracking_ms):>24s}"
                         + _seconds(orbslam3.cpu_s, orbslam3.wall_s, orbslam3.keyframes, orbslam3.ate_mm)
+                        + _spread_of_runs(measured)
                     )
                 for strategy, cost in builtin.items():
                     ratio = _ratios(cost, orbslam3)
@@ -411,6 +414,15 @@ def _median_cost(runs: list[Cost]) -> Cost:
         int(middle(keyframes)) if keyframes else None,
         middle(ates) if ates else None,
     )
+
+
+def _spread_of_runs(runs: list[Cost]) -> str:
+    """The runs' range of CPU and keyframes, beside their median: ORB-SLAM3's keyframes on one
+    walking_static sequence ranged 35-275 over seven runs, so a median of two says little."""
+    cpu = [run.cpu_s for run in runs]
+    text = f"   {len(runs)} runs: cpu {min(cpu):.3f}-{max(cpu):.3f} s"
+    keyframes = [run.keyframes for run in runs if run.keyframes is not None]
+    return text + (f", keyframes {min(keyframes)}-{max(keyframes)}" if keyframes else "")
 
 
 def _ratios(builtin: Cost, orbslam3: Cost) -> dict[str, float]:

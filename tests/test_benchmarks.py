@@ -188,6 +188,12 @@ def test_the_tracking_benchmark_times_orbslam3_at_each_pace_and_refuses_a_bad_on
         assert median, out
         # the lower middle of two runs: the smaller, a figure one run measured
         assert float(median[1]) == min(float(cpu) for cpu, _ in runs)
+        # beside it, the runs' spread: from the smaller CPU to the larger
+        spread = re.search(
+            rf"^orbslam3 none pace {pace}, median\s.*   2 runs: cpu ([\d.]+)-([\d.]+) s", out, re.M
+        )
+        assert spread, out
+        assert [float(x) for x in spread.groups()] == sorted(float(cpu) for cpu, _ in runs)
         sequence_cpu = float(median[1])
         ratios = re.search(
             rf"^  built-in / orbslam3 pace {pace}\s+none: tracking ([\d.]+)x, track\+map ([\d.]+)x, "
