@@ -284,6 +284,11 @@ applies it. ``cv2.GaussianBlur`` on bytes takes a fixed-point path instead: one 
 on 1 % of a ``tum`` frame's pixels (a fifth of a noise image's), one descriptor bit in 190."""
 
 
+def orb_blur(level: np.ndarray) -> np.ndarray:
+    """A pyramid level blurred as ORB describes on it (``BLUR_KERNEL``)."""
+    return cv2.sepFilter2D(level, cv2.CV_8U, BLUR_KERNEL, BLUR_KERNEL, borderType=cv2.BORDER_REFLECT_101)
+
+
 @functools.cache
 def orb_pattern() -> np.ndarray:
     """(256, 4) int64: ORB's point pairs (x0, y0, x1, y1), bit 0 first (assets/orb/PROVENANCE.md)."""
@@ -304,10 +309,7 @@ def describe(
     from depotbench.slam.kernels import features as compiled
 
     used = levels[: int(octaves.max()) + 1]
-    blurred = [
-        cv2.sepFilter2D(level, cv2.CV_8U, BLUR_KERNEL, BLUR_KERNEL, borderType=cv2.BORDER_REFLECT_101)
-        for level in used
-    ]
+    blurred = [orb_blur(level) for level in used]
     sizes = np.array([level.size for level in blurred], np.int64)
     return compiled.describe(
         np.concatenate([level.ravel() for level in blurred]),

@@ -13,11 +13,11 @@ from depotbench.core.jit import Kernels
 from depotbench.slam import kernels
 from depotbench.slam.config import TrackingConfig
 from depotbench.slam.features import (
-    BLUR_KERNEL,
     EDGE_PX,
     PATCH_PX,
     FeatureExtractor,
     describe,
+    orb_blur,
     orb_pattern,
 )
 
@@ -32,10 +32,6 @@ enough to move one of the pattern's samples to the next pixel (one of two millio
 def _orb() -> cv2.ORB:
     return cv2.ORB_create(CONFIG.n_features, CONFIG.scale_factor, CONFIG.n_levels, EDGE_PX, 0, 2,
                           cv2.ORB_HARRIS_SCORE, PATCH_PX)  # fmt: skip
-
-
-def _blur(image: np.ndarray) -> np.ndarray:
-    return cv2.sepFilter2D(image, cv2.CV_8U, BLUR_KERNEL, BLUR_KERNEL, borderType=cv2.BORDER_REFLECT_101)
 
 
 def _opencv(image: np.ndarray, xs, ys, angles, octave: int = 0) -> np.ndarray:
@@ -62,7 +58,7 @@ def _read_pattern_off_opencv(rng: np.random.Generator) -> np.ndarray:
         image = rng.integers(0, 256, (480, 640), dtype=np.uint8)
         centres = np.array([(x, y) for y in range(40, 440, 9) for x in range(40, 600, 9)])
         descriptors = _opencv(image, centres[:, 0], centres[:, 1], np.zeros(len(centres)))
-        blurred = _blur(image)
+        blurred = orb_blur(image)
         rows, cols = centres[:, 1, None] + offsets[None, :, 1], centres[:, 0, None] + offsets[None, :, 0]
         values.append(blurred[rows, cols].astype(np.int16))
         bits.append(np.unpackbits(descriptors, axis=1, bitorder="little").astype(bool))
@@ -150,7 +146,7 @@ def test_the_fixed_point_blur_would_change_descriptors():
     ours = describe([image], centres[:, 0], centres[:, 1], np.zeros(len(centres), int), angles)
     np.testing.assert_array_equal(ours, reference)
     fixed = cv2.GaussianBlur(image, (7, 7), sigmaX=2, sigmaY=2, borderType=cv2.BORDER_REFLECT_101)
-    assert (fixed != _blur(image)).mean() > 0.01
+    assert (fixed != orb_blur(image)).mean() > 0.01
     from depotbench.slam.kernels import features as compiled
 
     level = (np.zeros(1, np.int64), np.array([640]))
