@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
-from importlib import metadata
+import hashlib
+from importlib import metadata, util
+from pathlib import Path
 
 FORMAT_VERSION = 1
 SUPPORTED_FORMAT_VERSIONS = (1,)
@@ -32,3 +34,59 @@ def package_version() -> str:
         return metadata.version("depotbench")
     except metadata.PackageNotFoundError:
         return "unknown"
+
+
+SOURCE_PACKAGES = ("depotbench", "core", "sim", "scenes", "detectors", "slam", "eval", "assets")
+"""The installed packages (``depotbench`` and ``depotbench.<name>``) whose files a source
+checkout's results depend on: the package-dir map of pyproject.toml."""
+
+
+def code_version() -> str:
+    """What cache and run keys hash for the code that makes a result: the package's version
+    for a release, and for a source checkout (an editable install, or none) that version and a
+    digest of every file of the package (``source_digest``), so that a row or stage cached by
+    yesterday's code under the same version number is not served to today's. A released
+    version's files are fixed by its number; a checkout's change with every edit (a run on the
+    virtual-clock mapper, cached before its cost model was fitted again under 0.8.0, kept the
+    old model's result until the version moved)."""
+    digest = source_digest()
+    version = package_version()
+    return version if digest is None else f"{version}+src.{digest}"
+
+
+def _editable() -> bool:
+    """Whether depotbench is imported from a source checkout (an editable install, or a
+    folder on the path) rather than an installed copy: its package folder sits beside the
+    checkout's pyproject.toml, which no installed wheel or sdist puts into site-packages.
+    (PEP 610's ``direct_url.json`` is not enough: run from a checkout, ``importlib.metadata``
+    finds the checkout's own ``depotbench.egg-info`` first, which has none.)"""
+    spec = util.find_spec("depotbench")
+    if spec is None or spec.origin is None:
+        return False
+    return (Path(spec.origin).parent.parent / "pyproject.toml").is_file()
+
+
+def source_roots() -> list[Path]:
+    """The folders the source packages are imported from."""
+    roots = []
+    for name in SOURCE_PACKAGES:
+        spec = util.find_spec(name if name == "depotbench" else f"depotbench.{name}")
+        if spec is not None and spec.submodule_search_locations:
+            roots.extend(Path(folder) for folder in spec.submodule_search_locations)
+    return roots
+
+
+@functools.cache
+def source_digest() -> str | None:
+    """A source checkout's files, hashed once per process (names and bytes; ``__pycache__``
+    left out: about 250 files and 8 MB, 20 ms); None for an installed release."""
+    if not _editable():
+        return None
+    digest = hashlib.sha256()
+    for root in source_roots():
+        for path in sorted(root.rglob("*")):
+            if "__pycache__" in path.parts or not path.is_file():
+                continue
+            digest.update(path.relative_to(root.parent).as_posix().encode() + b"\0")
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()[:12]

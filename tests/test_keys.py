@@ -174,6 +174,87 @@ def test_another_version_computes_a_real_folders_stages_again(generated: Path, t
     ]
 
 
+def test_an_edited_checkout_is_another_program_under_the_same_version(
+    generated: Path, tmp_path: Path, monkeypatch
+):
+    """A source checkout's code changes under one version number, so its stage and run keys
+    and the built-in's fingerprint follow its files (``code_version``): a stage or row cached
+    before an edit is not served after it. Before, they hashed the version alone, and a run on
+    the virtual-clock mapper cached before its cost model was fitted again under 0.8.0 kept
+    the old model's result."""
+    from depotbench.core import version
+    from depotbench.eval.run import detections, stages
+    from depotbench.eval.run.harness import job_key, tracker_fingerprint, tracker_identity
+
+    cache = StageCache(tmp_path / "cache")
+    job = RunJob(generated, "box_rule")
+    folders = [tmp_path / "cache" / name for name in (stages.FEATURES_STAGE, detections.CACHE_STAGE)]
+
+    def identity() -> tuple[str, str]:
+        tracker = tracker_identity(job.tracker)
+        key = job_key(sequence_fingerprint(Sequence.open(generated)), tracker, job.detector, "box_rule", [])
+        return key, tracker_fingerprint(tracker)
+
+    assert version.code_version().startswith(version.package_version() + "+src.")  # tests run from a checkout
+    track(job, cache)
+    entries = [set(folder.iterdir()) for folder in folders]
+    first = identity()
+    monkeypatch.setattr(version, "source_digest", lambda: "0123456789ab")  # an edit, the same version
+    track(job, cache)
+    added = [len(set(folder.iterdir()) - before) for folder, before in zip(folders, entries, strict=True)]
+    assert added == [1, 1]  # features and detections computed again
+    second = identity()
+    assert first[0] != second[0] and first[1] != second[1]
+
+
+def test_a_checkouts_digest_follows_its_files_not_their_bytecode(tmp_path: Path, monkeypatch):
+    """``source_digest`` hashes every file's name and bytes under the package folders,
+    ``__pycache__`` aside; an installed release (no checkout) keys by its version alone."""
+    from depotbench.core import version
+
+    root = tmp_path / "slam"
+    root.mkdir()
+    (root / "tracking.py").write_text("KEYFRAMES = 1\n")
+    monkeypatch.setattr(version, "source_roots", lambda: [root])
+    monkeypatch.setattr(version, "_editable", lambda: True)
+
+    def digest() -> str | None:
+        version.source_digest.cache_clear()  # as a new process
+        return version.source_digest()
+
+    try:
+        first = digest()
+        (root / "__pycache__").mkdir()
+        (root / "__pycache__" / "tracking.cpython-311.pyc").write_bytes(b"\0")
+        assert digest() == first
+        (root / "tracking.py").write_text("KEYFRAMES = 2\n")
+        second = digest()
+        (root / "settings.yaml").write_text("a: 1\n")
+        third = digest()
+        (root / "settings.yaml").rename(root / "other.yaml")
+        assert len({first, second, third, digest()}) == 4
+        monkeypatch.setattr(version, "_editable", lambda: False)
+        assert digest() is None and version.code_version() == version.package_version()
+    finally:
+        version.source_digest.cache_clear()
+
+
+def test_only_a_package_beside_its_pyproject_is_a_checkout(tmp_path: Path, monkeypatch):
+    from importlib.machinery import ModuleSpec
+
+    from depotbench.core import version
+
+    assert version._editable()  # this checkout
+    site = tmp_path / "site-packages" / "depotbench"
+    site.mkdir(parents=True)
+    (site / "__init__.py").write_text("")
+    installed = ModuleSpec("depotbench", None, origin=str(site / "__init__.py"))
+    monkeypatch.setattr(version.util, "find_spec", lambda name: installed)
+    assert not version._editable()
+    (tmp_path / "site-packages" / "pyproject.toml").write_text("")
+    assert version._editable()
+
+
 def test_the_folder_is_no_part_of_the_key_but_the_camera_it_is_read_with_is(generated: Path, tmp_path: Path):
     """A copy, a move or a new name is the same sequence (issue 50: its rows are resumed and
     paired with a baseline made elsewhere); a real folder's camera, guessed from its name
@@ -302,7 +383,9 @@ def test_a_run_of_an_external_program_is_keyed_by_the_program_and_vocabulary_byt
     second = tracker_identity(tracker)
     vocabulary.write_text("10 6 0 1\n")
     assert len({first, second, tracker_identity(tracker)}) == 3
-    assert tracker_identity(TrackerConfig()) == (("kind", "builtin"),)
+    from depotbench.core.version import code_version
+
+    assert tracker_identity(TrackerConfig()) == (("kind", "builtin"), ("version", code_version()))
 
 
 def test_a_detector_is_keyed_by_the_bytes_of_its_class_names_file(tmp_path: Path):

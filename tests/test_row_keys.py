@@ -193,7 +193,7 @@ def test_a_change_to_nothing_a_row_depends_on_keeps_every_key(change: str, seed:
 def test_the_bench_version_changes_every_key(tmp_path: Path):
     world = World(tmp_path)
     before = world.keys()
-    with mock.patch.object(harness, "package_version", lambda: "99.0.0"):
+    with mock.patch.object(harness, "code_version", lambda: "99.0.0"):
         assert not set(world.keys()) & set(before)
 
 

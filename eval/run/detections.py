@@ -22,7 +22,7 @@ from depotbench.core.errors import InputError
 from depotbench.core.files import file_digest
 from depotbench.core.path_text import path_text
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import package_version
+from depotbench.core.version import code_version
 from depotbench.detectors.base import DetectorFrame
 from depotbench.detectors.config import DetectorConfig, DetectorKind, check_model_file
 from depotbench.detectors.detection import Detection, Prior
@@ -113,9 +113,10 @@ def detect_sequence(
     # The ground-truth detector is cheap and refuses a sequence it cannot serve, so it is
     # built first; a network is loaded only when the cache does not have its boxes.
     detector = build_detector(base, sequence) if config.kind is DetectorKind.GROUNDTRUTH else None
-    # this version's detections: a real folder's files, unlike a generated one's meta.json, name none
+    # this code's detections (``code_version``): a real folder's files, unlike a generated
+    # one's meta.json, name no version
     key = content_hash(
-        CACHE_FORMAT, package_version(), sequence_fingerprint(sequence), base.key(), base.priors.overrides
+        CACHE_FORMAT, code_version(), sequence_fingerprint(sequence), base.key(), base.priors.overrides
     )
     raw = _load(cache.get(CACHE_STAGE, key)) if cache is not None else None
     from_cache = raw is not None

@@ -31,7 +31,7 @@ from depotbench.core.files import dumps_json, file_digest
 from depotbench.core.logs import timed
 from depotbench.core.output import OutputKind, StagedOutput
 from depotbench.core.path_text import path_text
-from depotbench.core.version import package_version
+from depotbench.core.version import code_version
 from depotbench.detectors.config import DetectorConfig, DetectorKind
 from depotbench.eval.metrics.evaluate import Comparison, ComparisonOptions, compare
 from depotbench.eval.metrics.record import RECORD_VERSION, RunIdentity, RunRecord
@@ -285,10 +285,13 @@ def tracker_identity(tracker: TrackerConfig) -> tuple[tuple[str, Any], ...]:
     the program it starts, of every other file its command names (``command_files``: an
     interpreter's script, a config file) and of the vocabulary it is given (a rebuilt
     program, an edited script or another vocabulary is a new run, not a row to resume). A
-    sweep computes it once per tracker: ORB-SLAM's own vocabulary is 145 MB."""
+    sweep computes it once per tracker: ORB-SLAM's own vocabulary is 145 MB. The built-in's
+    program is depotbench itself: its ``code_version``, so that a folder swept by two
+    releases (or two states of a checkout) holds two versions of it, kept apart as any
+    program's, not one set whose rows a baseline would mix."""
     identity: dict[str, Any] = {"kind": tracker.kind}
     if not tracker.type.external:
-        return tuple(identity.items())
+        return tuple((identity | {"version": code_version()}).items())
     identity |= {
         "name": tracker.label,
         "timeout_s": tracker.timeout_s,
@@ -386,11 +389,11 @@ def job_key(
 ) -> str:
     """A run's identity: its inputs' content (the sequence fingerprint), the tracker (with
     its program and vocabulary), detector with faults, strategy, settings, the bench's
-    version, and the camera where one was given for a real folder (the same folder with
+    code (``code_version``), and the camera where one was given for a real folder (the same folder with
     another calibration is another run; without one the key is what it was)."""
     return content_hash(
         RECORD_VERSION,
-        package_version(),
+        code_version(),
         fingerprint,
         tracker,
         detector.key(),
@@ -446,7 +449,7 @@ def identity_of(
 
 def record_of(job: RunJob, sequence: Sequence, metrics: dict[str, Any]) -> RunRecord:
     """The typed row of a single run (what a sweep stores for it)."""
-    return RunRecord.of_run(run_identity(job, sequence), metrics, package_version())
+    return RunRecord.of_run(run_identity(job, sequence), metrics, code_version())
 
 
 def run_identity(job: RunJob, sequence: Sequence) -> RunIdentity:
@@ -561,7 +564,7 @@ def _keep_failure(
     (``evidence.write_evidence``), swapped into place as a finished run's is."""
     write_evidence(output.path, str(exc), exc.log, exc.evidence)
     identity = run_identity(job, sequence)
-    record = RunRecord.failed(identity, str(exc), len(sequence), wall_s, package_version())
+    record = RunRecord.failed(identity, str(exc), len(sequence), wall_s, code_version())
     (output.path / "record.json").write_text(dumps_json(record.to_row()) + "\n", encoding="utf-8")
     output.commit()
 

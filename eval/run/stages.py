@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import package_version
+from depotbench.core.version import code_version
 from depotbench.eval.run.cache import StageCache, content_hash
 from depotbench.eval.run.detections import sequence_fingerprint
 from depotbench.eval.trackers.builtin import camera_of, true_moving_labels
@@ -57,12 +57,13 @@ class FrameStages:
 
 
 def features_key(sequence: Sequence, tracking: TrackingConfig) -> str:
-    """The features of a sequence, its tracking settings and camera, as this version extracts
-    them: a version may find other keypoints (0.5.3 did on 2-3 % of a frame), and a real
-    folder's files, unlike a generated one's meta.json, name no version."""
+    """The features of a sequence, its tracking settings and camera, as this code
+    (``code_version``) extracts them: a version may find other keypoints (0.5.3 did on 2-3 %
+    of a frame), and a real folder's files, unlike a generated one's meta.json, name no
+    version."""
     camera = camera_of(sequence)
     return content_hash(
-        STAGE_FORMAT, package_version(), sequence_fingerprint(sequence), asdict(tracking), repr(camera)
+        STAGE_FORMAT, code_version(), sequence_fingerprint(sequence), asdict(tracking), repr(camera)
     )
 
 

@@ -20,7 +20,7 @@ from depotbench.core.errors import InputError
 from depotbench.core.executors import make_pool
 from depotbench.core.logs import DETAIL
 from depotbench.core.progress import progress_bar
-from depotbench.core.version import package_version
+from depotbench.core.version import code_version
 from depotbench.detectors.config import DetectorConfig
 from depotbench.eval.metrics.record import RunIdentity, RunRecord
 from depotbench.eval.run.cache import StageCache
@@ -582,7 +582,7 @@ def run_jobs(
     done = store.keys() - (store.failed_keys() if retry_failed else set())
     pending = [j for j in jobs if j.key not in done]
     by_key = {j.key: j for j in pending}
-    version = package_version()
+    version = code_version()
     pool = make_pool(backend, workers, address)
     failed = True
     try:
@@ -677,5 +677,5 @@ def open_store(out: Path, spec: SweepSpec, spec_path: Path | None = None) -> Res
     store.set_meta("spec", spec.model_dump_json())
     if spec_path is not None:  # where the spec's relative paths start, for a report's re-runs
         store.set_meta("spec_path", str(spec_path.resolve()))
-    store.set_meta("bench_version", package_version())
+    store.set_meta("bench_version", code_version())
     return store

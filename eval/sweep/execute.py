@@ -155,13 +155,13 @@ PLOTS_INDEX = ".index.json"
 def _plots(configs: list[dict], folder: Path, records: list, rule: SuccessRule, summary: dict) -> list[Path]:
     """The sweep's plots, drawn again only when what they show changed: a resumed sweep with
     nothing new kept its plots (drawing them is 6 s of the demo's 13 s second run). Their key
-    is the summary, every row and the package version; a plot file changed or missing since
+    is the summary, every row and the code (``code_version``); a plot file changed or missing since
     is drawn again."""
     from depotbench.core.files import file_digest
-    from depotbench.core.version import package_version
+    from depotbench.core.version import code_version
     from depotbench.eval.run.cache import content_hash
 
-    key = content_hash(package_version(), dumps_json(summary), [r.to_row() for r in records])
+    key = content_hash(code_version(), dumps_json(summary), [r.to_row() for r in records])
     index = folder / PLOTS_INDEX
     try:
         kept = json.loads(index.read_text(encoding="utf-8")) if index.is_file() else None
