@@ -70,6 +70,8 @@ class _KeypointTable:
     at TUM's length, where grouping by keyframe cost 0.4 ms a call. Features never change once
     a keyframe is made, so the table only grows (its room doubling)."""
 
+    name: str
+    """The ``FrameFeatures`` array it holds (``octaves``, ``descriptors``, ...)."""
     values: np.ndarray
     """(room, ...) the keyframes' values; the first ``rows`` are filled."""
     rows: int
@@ -77,12 +79,14 @@ class _KeypointTable:
     """Each keyframe's first row, for the keyframes taken so far."""
 
     @classmethod
-    def empty_like(cls, values: np.ndarray) -> _KeypointTable:
-        return cls(np.empty((0, *values.shape[1:]), values.dtype), 0, np.zeros(0, int))
+    def of(cls, name: str, first: KeyFrame) -> _KeypointTable:
+        """An empty table of ``first``'s array ``name`` (its dtype and trailing shape)."""
+        values = getattr(first.features, name)
+        return cls(name, np.empty((0, *values.shape[1:]), values.dtype), 0, np.zeros(0, int))
 
-    def extend(self, name: str, keyframes: list[KeyFrame]) -> None:
+    def extend(self, keyframes: list[KeyFrame]) -> None:
         """Take the keyframes not in the table yet (ids are indices)."""
-        arrays = [getattr(kf.features, name) for kf in keyframes[len(self.starts) :]]
+        arrays = [getattr(kf.features, self.name) for kf in keyframes[len(self.starts) :]]
         if not arrays:
             return
         lengths = np.array([len(a) for a in arrays])
@@ -328,10 +332,8 @@ class Map:
             return np.zeros(0)
         table = self._keypoint_tables.get(name)
         if table is None:
-            table = self._keypoint_tables[name] = _KeypointTable.empty_like(
-                getattr(self.all_keyframes[0].features, name)
-            )
-        table.extend(name, self.all_keyframes)
+            table = self._keypoint_tables[name] = _KeypointTable.of(name, self.all_keyframes[0])
+        table.extend(self.all_keyframes)
         return table.values[table.starts[kfs] + kps]
 
     def update_points(
