@@ -5,8 +5,8 @@ A featured run (a family's best and its ``none`` run) is tracked again for its p
 trajectory, states, per-frame decisions and map are not in the database. The demo's page
 tracks about 1,000 frames that way (37 s of a 50 s second demo). The run's key
 (``SweepJob.key``: sequence bytes, tracker and program, detector, strategy, settings,
-package version) names everything its view depends on, so a view stored under it is the
-view tracking gives, and another package version looks under other keys.
+the package's code, ``code_version``) names everything its view depends on, so a view
+stored under it is the view tracking gives, and other code looks under other keys.
 
 An entry is one uncompressed numpy archive read with ``allow_pickle=False``: the arrays,
 and the JSON metadata (metrics, the map's title and figures) as bytes. A cache holds no code
