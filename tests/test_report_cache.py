@@ -1,6 +1,7 @@
-"""A finished sweep's page is written again from the runs its first page tracked again
-(``eval/report/view_cache.py``): nothing is tracked the second time, and the page is the
-same, byte for byte (a page tracked again differs in its timings only)."""
+"""A finished sweep's page is written again from the runs its first page tracked again, kept
+in the sweep folder (``eval/report/view_cache.py``): nothing is tracked the second time,
+whatever the stage cache holds and wherever the folder was copied, and the page is the same,
+byte for byte (a page tracked again differs in its timings only)."""
 
 from __future__ import annotations
 
@@ -36,15 +37,31 @@ def test_a_second_page_of_a_finished_sweep_tracks_nothing_and_is_the_same(
     assert b"trajectory" in first.lower()
 
 
-def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monkeypatch):
-    from depotbench.eval.report.view_cache import STAGE
-    from depotbench.eval.run.cache import StageCache
+def test_a_copied_sweep_with_the_stage_cache_off_tracks_nothing_again(
+    sweep: Path, tmp_path: Path, monkeypatch
+):
+    """The views travel with the sweep. Kept in the stage cache until 2026-12-05, they were
+    lost with it: the demo's second page with the cache off tracked its six runs again."""
+    import shutil
 
-    cache = StageCache.from_env()
-    for entry in (cache.root / STAGE).glob("*"):  # the session's own cache: other pages' views out
+    assert main(["report", str(sweep), "-o", str(tmp_path / "first")]) == 0  # views kept, if not yet
+    copy = tmp_path / "elsewhere" / sweep.name  # the page names the folder
+    shutil.copytree(sweep, copy)
+    monkeypatch.setenv("DEPOTBENCH_CACHE_STAGES", "off")
+    monkeypatch.setattr(html, "_track_again", lambda *a: pytest.fail("tracked again for the copy's page"))
+    assert main(["report", str(copy), "-o", str(tmp_path / "second")]) == 0
+    first = (tmp_path / "first" / "index.html").read_bytes()
+    assert first == (tmp_path / "second" / "index.html").read_bytes()
+
+
+def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monkeypatch):
+    from depotbench.eval.report import view_cache
+
+    cache = view_cache.of_sweep(sweep)
+    for entry in (cache.root / view_cache.STAGE).glob("*"):  # other tests' pages' views out
         entry.unlink()
     assert main(["report", str(sweep), "-o", str(tmp_path / "first")]) == 0
-    entries = sorted((cache.root / STAGE).iterdir())
+    entries = sorted((cache.root / view_cache.STAGE).iterdir())
     assert len(entries) == 2
     for entry in entries:
         data = bytearray(entry.read_bytes())
@@ -55,7 +72,7 @@ def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monk
     monkeypatch.setattr(html, "_track_again", lambda *a: calls.append(a) or track_again(*a))
     assert main(["report", str(sweep), "-o", str(tmp_path / "second")]) == 0
     assert len(calls) == 2  # each damaged entry is a miss: tracked again, and stored again whole
-    assert all(cache.get(STAGE, entry.name) is not None for entry in entries)
+    assert all(cache.get(view_cache.STAGE, entry.name) is not None for entry in entries)
 
 
 def test_a_resumed_sweep_with_nothing_new_keeps_its_plots_and_redraws_a_changed_one(sweep: Path):

@@ -1104,7 +1104,6 @@ def _featured_runs(
     a time (the views come in the families' order whatever order the runs finish in)."""
     from depotbench.core.executors import make_pool
     from depotbench.eval.report import view_cache
-    from depotbench.eval.run.cache import StageCache
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
 
     if not featured:
@@ -1142,9 +1141,9 @@ def _featured_runs(
         if sequence is None:
             continue  # noted by ``sequences``
         wanted += _family_runs(family, config, chosen, rows, sequence, grid, notes, role)
-    # A run tracked again for an earlier page is read back (``view_cache``): a finished
-    # sweep's page is written again without tracking anything.
-    cache = StageCache.from_env()
+    # A run tracked again for an earlier page is read back from the sweep folder
+    # (``view_cache``): a finished sweep's page is written again without tracking anything.
+    cache = view_cache.of_sweep(folder)
     kept: dict[int, RunView | None] = {}
     for i, w in enumerate(wanted):
         fields = view_cache.load(cache, w.job.key)

@@ -1,5 +1,7 @@
-"""What a sweep's page shows of a run it tracked again, kept in the stage cache by the run's
-key, so that the page of a finished sweep is written again without tracking anything.
+"""What a sweep's page shows of a run it tracked again, kept in the sweep folder
+(``views/``) by the run's key, so that the page of a finished sweep is written again without
+tracking anything: wherever the folder is copied, and whatever the stage cache holds (with it
+off, the demo's second page tracked its six featured runs again, 12 s against 4 s).
 
 A featured run (a family's best and its ``none`` run) is tracked again for its page: its
 trajectory, states, per-frame decisions and map are not in the database. The demo's page
@@ -18,6 +20,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,6 +30,21 @@ from depotbench.eval.run.cache import StageCache, content_hash
 LOG = logging.getLogger(__name__)
 STAGE = "report_views"
 FORMAT = 1
+FOLDER = "views"
+"""The sweep folder's subfolder of views (a stage cache of its own: ``views/report_views/``)."""
+MAX_BYTES = 1 << 30
+"""The views a sweep folder keeps, least recently used out first: the demo's six are 4.7 MB;
+twelve families' two runs of TUM-length sequences about 300 MB."""
+
+
+def of_sweep(folder: Path) -> StageCache:
+    """The views kept beside the sweep in ``folder``: one that cannot be written (another
+    user's folder) is warned about once and the page is written all the same."""
+    return StageCache(
+        folder / FOLDER,
+        MAX_BYTES,
+        unwritable="the page is written without keeping its tracked runs' views: the sweep's folder",
+    )
 
 
 def view_key(job_key: str) -> str:

@@ -78,9 +78,12 @@ def _verified(stored: bytes) -> bytes | None:
 
 
 class StageCache:
-    def __init__(self, root: Path, max_bytes: int | None = None) -> None:
-        """``max_bytes``: the bound, ``DEPOTBENCH_CACHE_STAGES_MAX_BYTES``'s when None."""
+    def __init__(self, root: Path, max_bytes: int | None = None, unwritable: str | None = None) -> None:
+        """``max_bytes``: the bound, ``DEPOTBENCH_CACHE_STAGES_MAX_BYTES``'s when None;
+        ``unwritable``: what the warning says of a folder that cannot be written, where it is
+        not the stage cache (a sweep folder's views)."""
         self.root = Path(root)
+        self.unwritable = unwritable
         self.max_bytes = cache_bound(NAME) if max_bytes is None else max_bytes
         self.hits = 0
         self.misses = 0
@@ -107,7 +110,10 @@ class StageCache:
         return True
 
     def _unusable(self, doing: str, reason: str) -> None:
-        if self.writable and str(self.root) not in _warned:
+        if self.writable and str(self.root) not in _warned and self.unwritable is not None:
+            _warned.add(str(self.root))
+            log.log(warning_level(), "%s %s cannot %s (%s)", self.unwritable, self.root, doing, reason)
+        elif self.writable and str(self.root) not in _warned:
             _warned.add(str(self.root))
             log.log(
                 warning_level(),
