@@ -264,6 +264,10 @@ def test_the_builtin_tracker_runs_once_and_repeating_it_changes_nothing(
     from depotbench.sim.machine import machine_summary
 
     assert first["scored_on"] == machine_summary()  # the machine it was scored on, by name
+    from depotbench.core.version import code_version, package_version
+
+    # the code that scored it: these tests run from a checkout, whose files change under one version
+    assert first["depotbench"] == code_version() != package_version()
     for one, two in zip(first["sequences"], again["sequences"], strict=True):
         assert [r["trajectory_sha256"] for r in one["runs"]] == [r["trajectory_sha256"] for r in two["runs"]]
         a = (tmp_path / "a" / one["runs"][0]["folder"] / "trajectory.txt").read_bytes()

@@ -257,7 +257,7 @@ def run_benchmark(
     share no folder with this machine (``docs/cluster.md``); the results are the same."""
     import numpy as np
     from depotbench.core.output import write_text_atomic
-    from depotbench.core.version import package_version
+    from depotbench.core.version import code_version
     from depotbench.eval.run.harness import tracker_fingerprint, tracker_identity
 
     started = time.perf_counter()
@@ -283,7 +283,9 @@ def run_benchmark(
         "format_version": FORMAT_VERSION,
         "benchmark": benchmark.name,
         "benchmark_generator": benchmark.spec.generator,
-        "depotbench": package_version(),
+        # the code that scored it: a checkout's version carries a digest of its files, which
+        # change under one version number
+        "depotbench": code_version(),
         # where it was scored: a tracker's outcome on a hard sequence moves with its pixels
         # and BLAS (crowd's last poses by 0.47 m between two CPUs, docs/determinism.md)
         "scored_on": machine_summary(),
