@@ -141,6 +141,36 @@ def test_a_node_whose_program_differs_from_the_drivers_fails_its_jobs_in_one_lin
     assert "tracker mine's program or the files its command names differ from the driver's" in message
 
 
+def test_a_node_with_another_depotbench_fails_its_built_in_jobs_in_one_line(tmp_path: Path, monkeypatch):
+    """The built-in's program is the node's depotbench: another release (or a checkout's
+    driver beside nodes that installed a release) would write its rows under the driver's
+    keys. Before the built-in's fingerprint carried ``code_version``, nodes were not asked."""
+    from depotbench.core import version
+    from depotbench.eval.sweep.engine import _dispatch, _on_node, expand, run_branches
+    from depotbench.eval.sweep.spec import load_sweep
+
+    write_sequence(tmp_path / "seq", n=4)
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(f"sweep: s\nsequences: [{tmp_path / 'seq'}]\nstrategies: [none, box_rule]\n")
+    jobs = expand(load_sweep(spec), spec, [(tmp_path / "seq", "f")])
+    assert len(jobs) == 2 and all(not j.job.tracker.type.external for j in jobs)
+    nodes._PROGRAMS.clear()
+    assert nodes.program_differs(jobs[0].job.tracker, jobs[0].run.tracker_fingerprint) is None
+    monkeypatch.setattr(version, "source_digest", lambda: "0123456789ab")  # this node's other code
+    nodes._PROGRAMS.clear()
+    message = nodes.program_differs(jobs[0].job.tracker, jobs[0].run.tracker_fingerprint)
+    assert message is not None and message.startswith("node ") and "\n" not in message
+    assert "its depotbench (" in message and "is not the driver's" in message
+    # a branching task of the sweep's phase 2 gives a failed row per job, tracking nothing
+    task = (run_branches, (jobs, [(), ()], ["a", "b"], "0.8.0"))
+    monkeypatch.setattr(  # the sequence is on this machine: nothing shipped to make locally
+        "depotbench.eval.sweep.engine._localized", lambda value, sources: value
+    )
+    failures = _on_node(_dispatch, {}, task)
+    assert [f.record.failure for f in failures] == [message, message]
+    nodes._PROGRAMS.clear()
+
+
 def test_the_driver_puts_a_sequence_when_its_first_job_is_taken_and_lets_it_go_after_its_last(
     tmp_path: Path,
 ):

@@ -152,16 +152,19 @@ def _check(source: SequenceSource, path: Path) -> None:
 
 
 _PROGRAMS: dict[tuple, str] = {}
-"""This node's fingerprint of each external tracker it was asked to run."""
+"""This node's fingerprint of each tracker it was asked to run."""
 
 
 def program_differs(tracker: Any, expected: str | None) -> str | None:
     """One line when this node's program (or a file its command names, its settings template
     or vocabulary) is not the bytes the driver keyed the job with (``expected``: the driver's
-    ``tracker_fingerprint``): its rows would be another program's under this one's key."""
+    ``tracker_fingerprint``): its rows would be another program's under this one's key. The
+    built-in's program is this node's depotbench (its ``code_version``): a node with another
+    release, or a checkout's driver beside nodes that installed a release, is refused."""
+    from depotbench.core.version import code_version
     from depotbench.eval.run.harness import tracker_fingerprint, tracker_identity
 
-    if not tracker.type.external or expected is None:
+    if expected is None:
         return None
     memo = (tracker.label, tracker.command, str(tracker.vocabulary), tracker.settings_template, expected)
     if memo not in _PROGRAMS:
@@ -172,6 +175,12 @@ def program_differs(tracker: Any, expected: str | None) -> str | None:
     found = _PROGRAMS[memo]
     if found == expected:
         return None
+    if not tracker.type.external:
+        return (
+            f"node {node_name()}: its depotbench ({code_version()}) is not the driver's "
+            f"(built-in fingerprint {found}, the driver's {expected}): install the driver's "
+            "depotbench on every node (a driver run from a source checkout needs that checkout there)"
+        )
     return (
         f"node {node_name()}: tracker {tracker.label}'s program or the files its command names "
         f"differ from the driver's (fingerprint {found}, the driver's {expected}): install the "

@@ -538,11 +538,10 @@ def _on_node(fn, sources: dict[str, SequenceSource], args: tuple):
     if fn is _dispatch:  # phase 2: (run_job | run_branches, their arguments)
         inner, inner_args = args
         inner_args = _localized(inner_args, sources)
-        if inner is run_job:
-            job = inner_args[0]
-            differs = program_differs(job.job.tracker, job.run.tracker_fingerprint)
-            if differs is not None:  # a failed row, as for a program that fails
-                return [Failure(_failed(job, differs, 0.0, inner_args[1]), "", None)]
+        jobs = [inner_args[0]] if inner is run_job else inner_args[0]  # run_branches: one tracker
+        differs = program_differs(jobs[0].job.tracker, jobs[0].run.tracker_fingerprint)
+        if differs is not None:  # a failed row each, as for a program that fails
+            return [Failure(_failed(job, differs, 0.0, inner_args[-1]), "", None) for job in jobs]
         return inner(*inner_args)
     return fn(*_localized(args, sources))
 
