@@ -1,7 +1,6 @@
 """What a sweep's page shows of a run it tracked again, kept in the sweep folder
 (``views/``) by the run's key, so that the page of a finished sweep is written again without
-tracking anything: wherever the folder is copied, and whatever the stage cache holds (with it
-off, the demo's second page tracked its six featured runs again, 12 s against 4 s).
+tracking anything: wherever the folder is copied, and whatever the stage cache holds.
 
 A featured run (a family's best and its ``none`` run) is tracked again for its page: its
 trajectory, states, per-frame decisions and map are not in the database. The demo's page

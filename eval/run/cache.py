@@ -110,21 +110,21 @@ class StageCache:
         return True
 
     def _unusable(self, doing: str, reason: str) -> None:
-        if self.writable and str(self.root) not in _warned and self.unwritable is not None:
+        if self.writable and str(self.root) not in _warned:
             _warned.add(str(self.root))
-            log.log(warning_level(), "%s %s cannot %s (%s)", self.unwritable, self.root, doing, reason)
-        elif self.writable and str(self.root) not in _warned:
-            _warned.add(str(self.root))
-            log.log(
-                warning_level(),
-                "the stage cache %s cannot %s (%s); going on without storing stages, which costs "
-                "time, not results (set %s to a writable folder, or %s=off)",
-                self.root,
-                doing,
-                reason,
-                CACHES[NAME].variable,
-                CACHES[NAME].variable,
-            )
+            if self.unwritable is not None:
+                log.log(warning_level(), "%s %s cannot %s (%s)", self.unwritable, self.root, doing, reason)
+            else:
+                log.log(
+                    warning_level(),
+                    "the stage cache %s cannot %s (%s); going on without storing stages, which costs "
+                    "time, not results (set %s to a writable folder, or %s=off)",
+                    self.root,
+                    doing,
+                    reason,
+                    CACHES[NAME].variable,
+                    CACHES[NAME].variable,
+                )
         self.writable = False
 
     def _path(self, stage: str, key: str) -> Path:
