@@ -75,6 +75,37 @@ def test_a_damaged_view_entry_is_tracked_again(sweep: Path, tmp_path: Path, monk
     assert all(cache.get(view_cache.STAGE, entry.name) is not None for entry in entries)
 
 
+def test_the_views_of_rows_that_prune_stale_removed_go_with_the_next_page(
+    sweep: Path, tmp_path: Path, monkeypatch
+):
+    """Swept again by other code with ``--prune-stale``, a folder's rows of the older code go
+    and, at the next page, so do their views; the views of the rows it holds stay. Before,
+    they stayed until the folder's 1 GB bound evicted them."""
+    import shutil
+
+    from depotbench.eval.report import view_cache
+    from depotbench.eval.run import detections, harness, stages
+    from depotbench.eval.sweep import engine
+
+    copy = tmp_path / sweep.name
+    shutil.copytree(sweep, copy)
+    assert main(["report", str(copy), "-o", str(tmp_path / "first")]) == 0
+    folder = view_cache.of_sweep(copy).root / view_cache.STAGE
+    older = {p.name for p in folder.iterdir()}
+    assert len(older) >= 2
+    spec = sweep.parent / "sweep.yaml"
+    for module in (harness, stages, detections, engine):  # the next release's code, in every key
+        monkeypatch.setattr(module, "code_version", lambda: "99.0.0")
+    assert main(["sweep", str(spec), "-o", str(copy), "--workers", "1"]) == 0
+    assert main(["report", str(copy), "-o", str(tmp_path / "second")]) == 0
+    assert older <= {p.name for p in folder.iterdir()}  # kept apart, not pruned: views kept
+    assert main(["sweep", str(spec), "-o", str(copy), "--workers", "1", "--prune-stale"]) == 0
+    monkeypatch.setattr(html, "_track_again", lambda *a: pytest.fail("the current rows' views were lost"))
+    assert main(["report", str(copy), "-o", str(tmp_path / "third")]) == 0
+    left = {p.name for p in folder.iterdir()}
+    assert len(left) == 2 and not left & older
+
+
 def test_a_resumed_sweep_with_nothing_new_keeps_its_plots_and_redraws_a_changed_one(sweep: Path):
     spec = sweep.parent / "sweep.yaml"
     plots = sorted((sweep / "plots").glob("*.png"))

@@ -36,7 +36,8 @@ def add_sweep(sub: argparse._SubParsersAction) -> None:
         "--prune-stale",
         action="store_true",
         help="remove the folder's rows of older versions of the spec's trackers (another tracker "
-        "fingerprint), one line per version removed; without it they are kept apart",
+        "fingerprint), one line per version removed (the next report drops their kept views); "
+        "without it they are kept apart",
     )
     p.add_argument(
         "--json",

@@ -1105,6 +1105,7 @@ def _featured_runs(
     from depotbench.core.executors import make_pool
     from depotbench.eval.report import view_cache
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
+    from depotbench.eval.sweep.store import ResultStore
 
     if not featured:
         return {}
@@ -1181,6 +1182,12 @@ def _featured_runs(
         view = view_of(run.title, result, run.sequence)
         view_cache.store(cache, run.job.key, view)
         views.setdefault(run.family, []).append(view)
+    with ResultStore(folder / "results.sqlite", readonly=True) as store:
+        held = store.keys()
+    removed = view_cache.retain(cache, held)
+    if removed:
+        runs = f"{removed} run{'s' if removed != 1 else ''}"
+        LOG.info(f"removed the kept views of {runs} that results.sqlite no longer holds")
     return views
 
 

@@ -46,6 +46,13 @@ def of_sweep(folder: Path) -> StageCache:
     )
 
 
+def retain(cache: StageCache, job_keys: set[str]) -> int:
+    """Keep the views of the runs ``job_keys`` names (the rows the sweep's database holds)
+    and remove the others: the views of rows that ``depotbench sweep --prune-stale`` removed,
+    which no page reads again. Returns how many went."""
+    return cache.retain(STAGE, {view_key(key) for key in job_keys})
+
+
 def view_key(job_key: str) -> str:
     return content_hash(STAGE, FORMAT, job_key)
 

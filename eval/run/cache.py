@@ -216,6 +216,23 @@ class StageCache:
             removed += 1
         return removed
 
+    def retain(self, stage: str, names: set[str]) -> int:
+        """Remove the entries of ``stage`` not named in ``names`` (the ones still wanted);
+        returns how many went. A folder that cannot be written keeps them, warned once."""
+        removed = 0
+        for _, _, path in self.entries():
+            if path.parent.name != stage or path.name in names:
+                continue
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                continue  # evicted by another process
+            except OSError as exc:
+                self._unusable("remove an entry", exc.strerror or str(exc))
+                break
+            removed += 1
+        return removed
+
     def clear(self) -> Contents:
         """Remove every entry (and what killed writers left an hour ago or more); what
         another process reads meanwhile stays whole for it (an unlinked file's bytes live
