@@ -349,6 +349,29 @@ def test_the_reduced_system_needs_no_order_and_counts_a_keyframes_second_sightin
                     assert _relative(part, part_expected) < 1e-8
 
 
+def test_the_two_orders_of_the_reduced_systems_pair_sums_give_the_same_bytes():
+    """``reduce`` sums a window's pairs of observations where they land (small windows) or as
+    36 lanes a block (large ones, ``LANES_FROM_PAIRS``): the same sums in the same order, so
+    the same bytes either way, a keyframe's second sighting of a point included."""
+    windows = list(_windows())
+    windows += [_shuffled_with_a_repeat(w, seed) for seed, w in enumerate(_windows())]
+    for window in windows:
+        problem = bundle._CompiledProblem(window)
+        _, _, v_blocks, g_point, w_blocks = problem.linearise(window.poses, window.points)
+        v_inverse = np.linalg.inv(v_blocks + np.eye(3))
+        grouping = (problem.point_start, problem.point_obs, problem.free_slot)
+        size = 6 * problem.n_free
+        found = []
+        for pairs in (optimize_kernels._pairs_in_place, optimize_kernels._pairs_in_lanes):
+            reduced, rhs_sum = np.zeros((size, size)), np.zeros(size)
+            pairs(reduced, rhs_sum, v_inverse, g_point, w_blocks, *grouping)
+            found.append((reduced, rhs_sum))
+        (in_place, rhs_in_place), (in_lanes, rhs_in_lanes) = found
+        assert np.abs(in_place).max() > 0
+        assert np.array_equal(in_place, in_lanes) and np.array_equal(rhs_in_place, rhs_in_lanes)
+        assert not np.tril(in_lanes, -1).any()  # the upper triangle alone, as the solve reads it
+
+
 def test_the_reduced_solve_reads_the_upper_triangle_and_refuses_an_indefinite_system():
     rng = np.random.default_rng(5)
     a = rng.standard_normal((18, 18))

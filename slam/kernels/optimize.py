@@ -425,49 +425,101 @@ def _inverse3(m: np.ndarray, out: np.ndarray) -> None:
     out[2, 2] = (m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]) * inv
 
 
+LANES_FROM_PAIRS = 4
+"""``reduce`` sums a window's pairs in 36 lanes where its points' observations are in more
+than this many pairs each on average (measured crossover: 3.8-4.3)."""
+
+
 @jit
-def reduce(
-    u_blocks: np.ndarray,
-    g_pose: np.ndarray,
-    v_blocks: np.ndarray,
+def _pairs_in_place(
+    reduced: np.ndarray,
+    rhs_sum: np.ndarray,
+    v_inverse: np.ndarray,
     g_point: np.ndarray,
     w_blocks: np.ndarray,
-    damping: float,
     point_start: np.ndarray,
     point_obs: np.ndarray,
     obs_slot: np.ndarray,
-) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:
-    """The damped reduced camera system of ``_Problem.step``: (the points' blocks invertible,
-    S (6F, 6F) in its upper triangle (the lower one is left at zero: the Cholesky solve in
-    ``depotbench.slam.bundle`` reads only the upper), its right-hand side, the damped V^-1
-    (P, 3, 3)).
-
-    The free observations of point p are ``point_obs[point_start[p]:point_start[p + 1]]``
-    (rows of ``w_blocks``) in the order of their free slots ``obs_slot``."""
-    n_free = len(u_blocks)
-    n_points = len(v_blocks)
-    size = 6 * n_free
-    reduced = np.zeros((size, size))
-    rhs = np.empty(size)
-    v_inverse = np.empty((n_points, 3, 3))
-    damped = np.empty((3, 3))
+) -> None:
+    """-W V^-1 W^T into ``reduced``'s upper triangle and W V^-1 g into ``rhs_sum``, each pair
+    of a point's observations written where it lands (small windows)."""
+    n_points = len(v_inverse)
+    # One point's observations at a time, gathered into small contiguous buffers (its W rows,
+    # W V^-1 and slots), which its pair loop then reads k times each: reduce 1.5x sooner on
+    # walking_xyz's local BAs (5.5 against 8.3 ms a call).
+    most = 0
     for p in range(n_points):
-        for a in range(3):
-            for b in range(3):
-                damped[a, b] = v_blocks[p, a, b] + (damping if a == b else 0.0)
-        _inverse3(damped, v_inverse[p])
-        if not np.isfinite(v_inverse[p]).all():
-            return False, reduced, rhs, v_inverse
+        most = max(most, point_start[p + 1] - point_start[p])
+    wv = np.empty((most, 6, 3))
+    w_point = np.empty((most, 3, 6))
+    slots = np.empty(most, np.int64)
+    for p in range(n_points):
+        first, k = point_start[p], point_start[p + 1] - point_start[p]
+        vi, g = v_inverse[p], g_point[p]
+        for i in range(k):
+            row = point_obs[first + i]
+            slots[i] = obs_slot[row]
+            base = 6 * slots[i]
+            for a in range(6):
+                w0, w1, w2 = w_blocks[row, a, 0], w_blocks[row, a, 1], w_blocks[row, a, 2]
+                w_point[i, 0, a], w_point[i, 1, a], w_point[i, 2, a] = w0, w1, w2
+                t0 = w0 * vi[0, 0] + w1 * vi[1, 0] + w2 * vi[2, 0]
+                t1 = w0 * vi[0, 1] + w1 * vi[1, 1] + w2 * vi[2, 1]
+                t2 = w0 * vi[0, 2] + w1 * vi[1, 2] + w2 * vi[2, 2]
+                wv[i, a, 0], wv[i, a, 1], wv[i, a, 2] = t0, t1, t2
+                rhs_sum[base + a] += t0 * g[0] + t1 * g[1] + t2 * g[2]
+        # -W V^-1 W^T over the pairs of free keyframes seeing the point. The observations
+        # come in slot order (``point_obs``) and a keyframe sees a point once, so pair
+        # (i, j > i) is block (slot i, slot j) above the diagonal and (i, i) the diagonal
+        # block's upper triangle: half the scattered writes of the full matrix, no mirror, no copy. W is
+        # read transposed (3 x 6), so each block row is six adjacent lanes.
+        for i in range(k):
+            x = wv[i]
+            row0 = 6 * slots[i]
+            for a in range(6):
+                for b in range(a, 6):
+                    reduced[row0 + a, row0 + b] -= (
+                        x[a, 0] * w_point[i, 0, b] + x[a, 1] * w_point[i, 1, b] + x[a, 2] * w_point[i, 2, b]
+                    )
+            for j in range(i + 1, k):
+                col0 = 6 * slots[j]
+                y = w_point[j]
+                if col0 == row0:  # seen twice by one keyframe (never in a map): both products
+                    z, w = wv[j], w_point[i]
+                    for a in range(6):
+                        for b in range(a, 6):
+                            reduced[row0 + a, row0 + b] -= (
+                                x[a, 0] * y[0, b] + x[a, 1] * y[1, b] + x[a, 2] * y[2, b]
+                            ) + (z[a, 0] * w[0, b] + z[a, 1] * w[1, b] + z[a, 2] * w[2, b])
+                    continue
+                for a in range(6):
+                    x0, x1, x2 = x[a, 0], x[a, 1], x[a, 2]
+                    for b in range(6):
+                        reduced[row0 + a, col0 + b] -= x0 * y[0, b] + x1 * y[1, b] + x2 * y[2, b]
+
+
+@jit
+def _pairs_in_lanes(
+    reduced: np.ndarray,
+    rhs_sum: np.ndarray,
+    v_inverse: np.ndarray,
+    g_point: np.ndarray,
+    w_blocks: np.ndarray,
+    point_start: np.ndarray,
+    point_obs: np.ndarray,
+    obs_slot: np.ndarray,
+) -> None:
+    """What ``_pairs_in_place`` adds, each 6x6 block summed as 36 lanes (large windows)."""
+    n_points = len(v_inverse)
+    n_free = len(reduced) // 6
     # -W V^-1 W^T, summed point by point into S's 6x6 blocks. Each block is kept as 36
     # adjacent numbers (``blocks``, copied into S at the end) and each observation's factors
     # are spread over those 36 lanes once (``xs``: row a of W V^-1 at lanes 6a..6a+5, ``ys``:
     # column b of W^T at lanes b, b+6, ...), so a pair of observations is one loop of 36
     # independent lanes that the compiler vectorises: element (a, b) gets exactly the scalar
-    # loop's sum in the same order, the same bytes, and reduce takes 1.34x less time (9.9
-    # against 13.2 ms a call over 39 local BAs of a TUM-length walking_xyz, 5-152 free
-    # keyframes).
+    # loop's sum in the same order, the same bytes (9.4 against 13.0 ms a ``reduce`` over 39
+    # local BAs of a TUM-length walking_xyz, 5-152 free keyframes).
     blocks = np.zeros((n_free * n_free, 36))
-    rhs_sum = np.zeros(size)
     most = 0
     for p in range(n_points):
         most = max(most, point_start[p + 1] - point_start[p])
@@ -513,12 +565,65 @@ def reduce(
         block = blocks[s * n_free + s]
         for a in range(6):
             for b in range(a, 6):
-                reduced[6 * s + a, 6 * s + b] = block[6 * a + b] + u_blocks[s, a, b]
+                reduced[6 * s + a, 6 * s + b] = block[6 * a + b]
         for t in range(s + 1, n_free):
             block = blocks[s * n_free + t]
             for a in range(6):
                 for b in range(6):
                     reduced[6 * s + a, 6 * t + b] = block[6 * a + b]
+
+
+@jit
+def reduce(
+    u_blocks: np.ndarray,
+    g_pose: np.ndarray,
+    v_blocks: np.ndarray,
+    g_point: np.ndarray,
+    w_blocks: np.ndarray,
+    damping: float,
+    point_start: np.ndarray,
+    point_obs: np.ndarray,
+    obs_slot: np.ndarray,
+) -> tuple[bool, np.ndarray, np.ndarray, np.ndarray]:
+    """The damped reduced camera system of ``_Problem.step``: (the points' blocks invertible,
+    S (6F, 6F) in its upper triangle (the lower one is left at zero: the Cholesky solve in
+    ``depotbench.slam.bundle`` reads only the upper), its right-hand side, the damped V^-1
+    (P, 3, 3)).
+
+    The free observations of point p are ``point_obs[point_start[p]:point_start[p + 1]]``
+    (rows of ``w_blocks``) in the order of their free slots ``obs_slot``."""
+    n_free = len(u_blocks)
+    n_points = len(v_blocks)
+    size = 6 * n_free
+    reduced = np.zeros((size, size))
+    rhs = np.empty(size)
+    v_inverse = np.empty((n_points, 3, 3))
+    damped = np.empty((3, 3))
+    for p in range(n_points):
+        for a in range(3):
+            for b in range(3):
+                damped[a, b] = v_blocks[p, a, b] + (damping if a == b else 0.0)
+        _inverse3(damped, v_inverse[p])
+        if not np.isfinite(v_inverse[p]).all():
+            return False, reduced, rhs, v_inverse
+    rhs_sum = np.zeros(size)
+    # Both orders of work give the same sums in the same order, so the same bytes; which is
+    # sooner depends on how many pairs each observation is in: the 36 lanes pay for their
+    # layout (216 numbers an observation) from about 4 pairs an observation on (walking_xyz
+    # at TUM's length: 5-15, 0.74-0.93x the time; 150-frame clips and a sweep's 40-frame
+    # ones: 1.3-4.7, 0.96-1.5x).
+    pairs = 0
+    for p in range(n_points):
+        k = point_start[p + 1] - point_start[p]
+        pairs += k * (k + 1) // 2
+    if pairs > LANES_FROM_PAIRS * point_start[n_points]:
+        _pairs_in_lanes(reduced, rhs_sum, v_inverse, g_point, w_blocks, point_start, point_obs, obs_slot)
+    else:
+        _pairs_in_place(reduced, rhs_sum, v_inverse, g_point, w_blocks, point_start, point_obs, obs_slot)
+    for k in range(n_free):
+        for a in range(6):
+            for b in range(a, 6):
+                reduced[6 * k + a, 6 * k + b] += u_blocks[k, a, b]
     for a in range(size):
         reduced[a, a] += damping
         rhs[a] = -g_pose[a // 6, a % 6] + rhs_sum[a]
