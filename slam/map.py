@@ -228,8 +228,19 @@ class Map:
         return np.where(self.all_keyframes[keyframe_id].features.depth_m[keypoints] > 0, 2, 1)
 
     def observe(self, point_id: int, keyframe_id: int, keypoint: int) -> None:
-        """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id)."""
-        self.observe_many(np.array([point_id]), keyframe_id, np.array([keypoint]))
+        """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id):
+        ``observe_many`` of one pair, without its arrays (Fuse records matches one at a time)."""
+        seen = self.observations.setdefault(point_id, {})
+        if keyframe_id in seen:
+            return
+        others = list(seen)
+        seen[keyframe_id] = keypoint
+        if others:
+            self.covisibility[keyframe_id, others] += 1
+            self.covisibility[others, keyframe_id] += 1
+        self.n_observations[point_id] += 1
+        self.observation_weight[point_id] += self._weight(keyframe_id, keypoint)
+        self.all_keyframes[keyframe_id].point_ids[keypoint] = point_id
 
     def observe_many(self, point_ids: np.ndarray, keyframe_id: int, keypoints: np.ndarray) -> None:
         """Record each (point, keypoint) pair of a keyframe in order, the counts and covisibility
@@ -314,6 +325,18 @@ class Map:
                 return out
             out[moved] = nxt[moved]
         return out
+
+    def resolve_one(self, point_id: int) -> int:
+        """``resolve`` of one point id, in Python ints: ``_fuse`` asks once a match."""
+        replaced = self.replaced
+        for _ in range(len(replaced)):
+            if point_id < 0:
+                return point_id
+            following = int(replaced[point_id])
+            if following < 0:
+                return point_id
+            point_id = following
+        return point_id
 
     def observation_table(self, point_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every observation of ``point_ids``: (index into point_ids, keyframe id, keypoint)."""

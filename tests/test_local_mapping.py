@@ -506,6 +506,18 @@ def test_observing_many_at_once_equals_observing_one_by_one():
     assert one.covisibility[3, :3].tolist() == [30, 50, 40]  # points 30-59, 30-79, 50-89 shared
 
 
+def test_resolving_one_point_follows_its_merges_as_resolving_many_does():
+    """``Map.resolve_one`` (Fuse's one match at a time) against ``Map.resolve``: chains of
+    merged points followed to their end, live points and -1 left as they are."""
+    map_ = synthetic_map([0.0, 0.2], [np.arange(0, 40), np.arange(10, 50)])[0]
+    map_.replace_point(3, 7)
+    map_.replace_point(7, 12)  # 3 -> 7 -> 12
+    map_.replace_point(20, 21)
+    ids = np.r_[-1, np.arange(0, 50)]
+    assert [map_.resolve_one(int(i)) for i in ids] == map_.resolve(ids).tolist()
+    assert map_.resolve_one(3) == 12 and map_.resolve_one(-1) == -1
+
+
 def test_sightings_and_local_points_follow_the_observations():
     """Map.sightings (how many of a frame's points each keyframe sees) and Map.points_of (the
     points of a set of keyframes) against the observation dictionaries, counted by hand, after
