@@ -520,6 +520,8 @@ def _pairs_in_lanes(
     # loop's sum in the same order, the same bytes (9.4 against 13.0 ms a ``reduce`` over 39
     # local BAs of a TUM-length walking_xyz, 5-152 free keyframes).
     blocks = np.zeros((n_free * n_free, 36))
+    # The gathering below repeats ``_pairs_in_place``'s arithmetic, writing the lanes' layout
+    # in the same pass: a helper shared by both cost 8-13 % of ``reduce`` (measured).
     most = 0
     for p in range(n_points):
         most = max(most, point_start[p + 1] - point_start[p])
