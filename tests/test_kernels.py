@@ -878,6 +878,27 @@ def test_hamming_and_rotation_checks_equal_numpy():
     assert hamming(a, b).tolist() == [int(np.unpackbits(x ^ y).sum()) for x, y in zip(a, b, strict=True)]
 
 
+def test_all_pairs_hamming_distances_equal_numpy_and_count_bits():
+    """Relocalisation's and the reference keyframe search's distances, compiled (four 64-bit
+    words a descriptor), against NumPy's lookup table and against counting the bits of each
+    pair's XOR; empty sides included. Descriptors sliced out of larger arrays (not contiguous)
+    and every bit pattern's extremes (all zeros, all ones)."""
+    from depotbench.slam.geometry import hamming_matrix
+
+    rng = np.random.default_rng(8)
+    for n, m in ((0, 5), (5, 0), (1, 1), (37, 300), (300, 37)):
+        a = rng.integers(0, 256, (n, 64), dtype=np.uint8)[:, ::2]  # strided: copied to words
+        b = rng.integers(0, 256, (m, 32), dtype=np.uint8)
+        if n and m:
+            a[0], b[0] = 0, 255
+        found = matching.hamming_matrix(a, b)
+        assert found.dtype == np.int32 and found.shape == (n, m)
+        np.testing.assert_array_equal(found, hamming_matrix(a, b))
+        if n and m:
+            assert found[0, 0] == 256  # all zeros against all ones
+            assert found[5 % n, 7 % m] == int(np.unpackbits(a[5 % n] ^ b[7 % m]).sum())
+
+
 # -- rejection tests ------------------------------------------------------------------------
 
 

@@ -82,6 +82,7 @@ def _warm_matching() -> None:
     epipolar = (np.eye(3), uv, uv, ones, bools, bools, bools, descriptors, descriptors)
     matching.pair_triangulation(*epipolar, 3.84, 50)
     matching.distinctive(descriptors, index, np.ones(N, np.int64))
+    matching.hamming_matrix(descriptors, descriptors)
 
 
 def _warm_rejection() -> None:
