@@ -134,5 +134,5 @@ def _ready(path: Kernels) -> float:
     if path is not Kernels.NUMBA:
         LOG.log(DETAIL, "kernels: the NumPy path (%s=numpy, or no numba), nothing to compile", VARIABLE)
         return 0.0
-    # 24 and 33 s in two fresh clones on an AVX-512 EPYC (2026-12-04), 40-50 s on an AVX2 one
-    return warmed("kernels", warm_up, compile_s=(25, 50))
+    # 20.7 and 21.5 s from an empty cache on an AVX-512 EPYC (2026-12-05), 40-50 s on an AVX2 one
+    return warmed("kernels", warm_up, compile_s=(20, 50))
