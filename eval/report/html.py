@@ -1094,6 +1094,7 @@ def _track_again(index: int, job) -> tuple[int, Any, tuple[str, int | None, str]
 def _featured_runs(
     folder: Path,
     rows: list[ScoredRun],
+    held: set[str],
     featured: dict[str, tuple[dict, str]],
     sequences: SweepSequences,
     notes: Notes,
@@ -1101,11 +1102,11 @@ def _featured_runs(
 ) -> dict[str, list[RunView]]:
     """Per family, the run of its featured configuration (``featured``: the configuration and
     what it is, ``best``), and its none run, tracked again from the cache, ``workers`` runs at
-    a time (the views come in the families' order whatever order the runs finish in)."""
+    a time (the views come in the families' order whatever order the runs finish in). ``held``:
+    the keys of every row results.sqlite holds, whose views are kept (the others go)."""
     from depotbench.core.executors import make_pool
     from depotbench.eval.report import view_cache
     from depotbench.eval.sweep.spec import detector_configs, tracker_configs, tracker_variants, variants
-    from depotbench.eval.sweep.store import ResultStore
 
     if not featured:
         return {}
@@ -1182,8 +1183,6 @@ def _featured_runs(
         view = view_of(run.title, result, run.sequence)
         view_cache.store(cache, run.job.key, view)
         views.setdefault(run.family, []).append(view)
-    with ResultStore(folder / "results.sqlite", readonly=True) as store:
-        held = store.keys()
     removed = view_cache.retain(cache, held)
     if removed:
         runs = f"{removed} run{'s' if removed != 1 else ''}"
@@ -1347,6 +1346,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
     with ResultStore(folder / "results.sqlite", readonly=True) as store:
         # an older program's rows stay apart; rho against the sweep's chosen baseline, if any
         rows = with_rho(store.current_records(), Baseline.from_dict(summary.get("baseline")))
+        held = store.keys()
     sequences = SweepSequences(folder, notes)
     configs = summary["configurations"]
     best = summary["best"]
@@ -1392,7 +1392,7 @@ def sweep_page(folder: Path, notes: Notes, featured: int = MAX_FAMILY_SECTIONS, 
         )
     chosen = {family: _featured_configuration(family, configs, best) for family in shown}
     trackable = {f: c for f, c in chosen.items() if c is not None}
-    views = _featured_runs(folder, rows, trackable, sequences, notes, workers)
+    views = _featured_runs(folder, rows, held, trackable, sequences, notes, workers)
     strips = {
         family: figure_png(fig) for family, _, fig in strip_figures(configs, rows, rule, only=set(shown))
     }
