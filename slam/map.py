@@ -228,19 +228,8 @@ class Map:
         return np.where(self.all_keyframes[keyframe_id].features.depth_m[keypoints] > 0, 2, 1)
 
     def observe(self, point_id: int, keyframe_id: int, keypoint: int) -> None:
-        """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id):
-        ``observe_many`` of one pair, without its arrays (Fuse records matches one at a time)."""
-        seen = self.observations.setdefault(point_id, {})
-        if keyframe_id in seen:
-            return
-        others = list(seen)
-        seen[keyframe_id] = keypoint
-        if others:
-            self.covisibility[keyframe_id, others] += 1
-            self.covisibility[others, keyframe_id] += 1
-        self.n_observations[point_id] += 1
-        self.observation_weight[point_id] += self._weight(keyframe_id, keypoint)
-        self.all_keyframes[keyframe_id].point_ids[keypoint] = point_id
+        """Record that ``keyframe_id``'s ``keypoint`` sees ``point_id`` (and set its point id)."""
+        self.observe_many(np.array([point_id]), keyframe_id, np.array([keypoint]))
 
     def observe_many(self, point_ids: np.ndarray, keyframe_id: int, keypoints: np.ndarray) -> None:
         """Record each (point, keypoint) pair of a keyframe in order, the counts and covisibility
