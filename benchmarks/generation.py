@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/generation.py [--frames N] [--width W --height H] [--png-compression 0 1]
                                        [--repeat R] [--peer] [--profiles P ...] [--scene NAME]
-                                       [--stages [--seed S]]
+                                       [--stages [--seed S] [--peer]]
 
 For the default scenario (or a library scene: ``--scene dog_and_cat_roaming``), prints
 the rate of one process (Mesa's default threads) and of two processes with one thread
@@ -33,7 +33,11 @@ renders the worlds, which no sensor changes): the clean and the TUM profile in o
 workers run it): the colour pass, the instance pass, the unoccluded areas,
 poses and physics, boxes, object states, the sensor model, handing the frame to the
 writer, and the deflate in the writer's threads (their CPU time), with the rest of the
-loop as "other" and the world's build apart.
+loop as "other" and the world's build apart; ``--profiles`` gives one breakdown per sensor
+profile. With ``--peer`` it then measures MuJoCo alone on the same world in two processes
+and prints the highest share of its rate that generation could reach were every stage but
+the format's own work free (the colour, instance and unoccluded passes and the deflate; and
+with the sensor model): a bound, since the stages are timed in one process alone.
 """
 
 from __future__ import annotations
@@ -203,8 +207,17 @@ whose time they are taken from; deflate runs in the writer's threads, so its thr
 CPU time is counted, which the frame loop does not wait for."""
 
 
-def _stages(frames: int, width: int, height: int, seed: int, png_compression: int, scene: str | None) -> None:
-    """Time each stage of one process's frames (one thread, as suites run their workers)."""
+FORMAT_WORK = ("colour pass (RGB and depth)", "instance pass", "unoccluded areas", "deflate (writer threads)")
+"""The stages no generator of this format can leave out: the RGB and depth images, the
+instance masks and each object's unoccluded area (docs/format.md), and deflating the PNGs,
+whose bytes the benchmarks' locks freeze. MuJoCo alone (``--peer``) does none of the last three."""
+
+
+def _stages(job: tuple) -> dict[str, float]:
+    """Milliseconds a frame of each stage of one process's frames (one thread, as suites run
+    their workers), with the loop, the deflate's thread CPU time, the world's build and the
+    whole call; run in a fresh process each (the stages are timed by wrapping functions)."""
+    frames, width, height, seed, png_compression, scene, sensor = job
     import importlib
 
     from depotbench.core.executors import single_threaded
@@ -226,7 +239,7 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
     depotbench.sim.generate._write_frames = _timed(
         depotbench.sim.generate._write_frames, "loop", loop, time.perf_counter
     )
-    spec = scenario_at(frames, width, height, seed, scene)
+    spec = scenario_at(frames, width, height, seed, scene, sensor)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         generate(spec, Path(tmp) / "s", progress=False, png_compression=png_compression)
@@ -236,18 +249,43 @@ def _stages(frames: int, width: int, height: int, seed: int, png_compression: in
     build_world(spec)  # once more, alone: generate's took as long
     build = time.perf_counter() - start
     spent["rest of render"] -= sum(spent[label] for label, _, _ in STAGES[:3])
-    threads = spent.pop("deflate (writer threads)")
-    print(f"{scene or 'default scenario'}, seed {seed}, {frames} frames, one process, one thread")
+    stages = {label: seconds / frames * 1e3 for label, seconds in spent.items()}
+    stages["other"] = (
+        (total - sum(s for label, s in spent.items() if label != "deflate (writer threads)")) / frames * 1e3
+    )
+    stages["frame loop"] = total / frames * 1e3
+    stages["building the world"] = build * 1e3
+    stages["the whole generate call"] = whole * 1e3
+    return stages
+
+
+def _print_stages(
+    stages: dict[str, float], frames: int, seed: int, scene: str | None, sensor: str | None
+) -> None:
+    profile = "" if sensor is None else f", sensor {sensor}"
+    print(f"{scene or 'default scenario'}{profile}, seed {seed}, {frames} frames, one process, one thread")
     print(f"  {'stage':28s} ms/frame  share of the loop")
-    for label in dict.fromkeys(label for label, _, _ in STAGES if label in spent):
-        seconds = spent[label]
-        print(f"  {label:28s} {seconds / frames * 1e3:7.2f}  {seconds / total:5.1%}")
-    other = total - sum(spent.values())
-    print(f"  {'other':28s} {other / frames * 1e3:7.2f}  {other / total:5.1%}")
-    print(f"  {'frame loop':28s} {total / frames * 1e3:7.2f}  ({frames / total:.1f} frames/s)")
-    print(f"  {'deflate (writer threads)':28s} {threads / frames * 1e3:7.2f}  CPU time beside the loop")
-    print(f"  {'building the world':28s} {build * 1e3:7.0f}  ms, once")
-    print(f"  {'the whole generate call':28s} {whole * 1e3:7.0f}  ms (with set-up and the last writes)")
+    loop = stages["frame loop"]
+    for label in dict.fromkeys(label for label, _, _ in STAGES if label in stages):
+        if label != "deflate (writer threads)":
+            print(f"  {label:28s} {stages[label]:7.2f}  {stages[label] / loop:5.1%}")
+    print(f"  {'other':28s} {stages['other']:7.2f}  {stages['other'] / loop:5.1%}")
+    print(f"  {'frame loop':28s} {loop:7.2f}  ({1e3 / loop:.1f} frames/s)")
+    deflate = stages.get("deflate (writer threads)", 0.0)
+    print(f"  {'deflate (writer threads)':28s} {deflate:7.2f}  CPU time beside the loop")
+    print(f"  {'building the world':28s} {stages['building the world']:7.0f}  ms, once")
+    whole = stages["the whole generate call"]
+    print(f"  {'the whole generate call':28s} {whole:7.0f}  ms (with set-up and the last writes)")
+
+
+def ceiling(peer_fps: float, stages: dict[str, float], extra: tuple[str, ...] = ()) -> tuple[float, float]:
+    """(ms of one core a frame that ``FORMAT_WORK`` and ``extra`` take, the highest share of
+    MuJoCo alone's rate two processes could reach were every other stage free). MuJoCo alone
+    at ``peer_fps`` in two one-thread processes spends 2000 / ``peer_fps`` ms of a core a
+    frame; generation spends at least the work's. Stages timed in one process alone run no
+    slower than beside a second, so the share is an upper bound."""
+    work = sum(stages.get(label, 0.0) for label in (*FORMAT_WORK, *extra))
+    return work, 2e3 / peer_fps / work
 
 
 def _timed(function, label: str, spent: dict[str, float], clock):
@@ -271,13 +309,17 @@ def main() -> None:
     parser.add_argument("--scene", help="a library scene instead of the default scenario")
     parser.add_argument("--stages", action="store_true", help="time each stage of one process's frames")
     parser.add_argument(
-        "--peer", action="store_true", help="also measure MuJoCo alone rendering the same worlds, for ratios"
+        "--peer",
+        action="store_true",
+        help="also measure MuJoCo alone rendering the same worlds, for ratios; with --stages, the share "
+        "of its rate that the format's own work leaves room for",
     )
     parser.add_argument(
         "--profiles",
         nargs="+",
         choices=["perfect", "kinect", "tum"],
-        help="the two-process line once per sensor profile, each beside one peer (default: the scene's own)",
+        help="the two-process line once per sensor profile, each beside one peer (default: the scene's own); "
+        "with --stages, a breakdown per profile",
     )
     parser.add_argument("--seed", type=int, default=0, help="--stages: the seed")
     parser.add_argument(
@@ -291,15 +333,13 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeat < 1:
         parser.error("--repeat must be at least 1")
-    if args.stages and args.peer:
-        parser.error("--peer goes with whole runs, not --stages (which times one process's stages)")
     ctx = mp.get_context("spawn")
     check_scene(parser, args.scene)
     if args.sensors:
         _compare_sensors(ctx, args)
         return
     if args.stages:  # at the first PNG level asked
-        _stages(args.frames, args.width, args.height, args.seed, args.png_compression[0], args.scene)
+        _stages_and_ceiling(ctx, args)
         return
     name = args.scene or "default scenario"
     print(f"{name}, {args.width}x{args.height}, {args.frames} frames per process, PNG writes included")
@@ -353,6 +393,32 @@ def main() -> None:
                     pairs = zip(doubles[profile], peers, strict=True)
                     shares = _summary([(d[0] / p,) for d, p in pairs], digits=2)
                     print(f"  2 processes{label} / MuJoCo alone: {shares}  (each run's own)")
+
+
+def _stages_and_ceiling(ctx, args: argparse.Namespace) -> None:
+    """``--stages``: each profile's breakdown (one fresh process each); with ``--peer``, MuJoCo
+    alone on the same world in two processes, and the share of its rate that the format's own
+    work leaves room for (``ceiling``)."""
+    profiles = args.profiles or [None]
+    level = args.png_compression[0]
+    breakdowns = {}
+    for sensor in profiles:
+        job = (args.frames, args.width, args.height, args.seed, level, args.scene, sensor)
+        breakdowns[sensor] = _side_by_side(ctx, _stages, [job])[0]
+        _print_stages(breakdowns[sensor], args.frames, args.seed, args.scene, sensor)
+    if not args.peer:
+        return
+    peer_jobs = [(args.frames, args.width, args.height, args.seed, args.scene)] * 2
+    peer = _measure_peer(ctx, peer_jobs)
+    print(f"MuJoCo alone, 2 processes: {peer:.1f} frames/s, {2e3 / peer:.2f} ms of a core a frame")
+    print("the highest share of it two processes could reach with every other stage free (an upper bound):")
+    for sensor, stages in breakdowns.items():
+        name = sensor or "its sensor"
+        work, share = ceiling(peer, stages)
+        print(f"  {name:10s} the passes and deflate        {work:6.2f} ms a frame: at most {share:.2f}")
+        if "sensor model" in stages:
+            work, share = ceiling(peer, stages, ("sensor model",))
+            print(f"  {name:10s} and the sensor model          {work:6.2f} ms a frame: at most {share:.2f}")
 
 
 def _compare_sensors(ctx, args: argparse.Namespace) -> None:

@@ -78,12 +78,55 @@ def test_generation_peer_prints_mujoco_alone_and_the_ratio_of_the_same_run():
     assert float(share[1]) == pytest.approx(rate / alone, abs=0.006 + 0.06 / alone)
 
 
-def test_generation_refuses_peer_with_stages_in_one_line():
-    """--peer would be ignored by --stages, which returns before any whole run."""
-    result = _run(str(BENCHMARKS / "generation.py"), "--stages", "--peer")
-    assert result.returncode == 2 and result.stderr.strip().splitlines()[-1].endswith(
-        "--peer goes with whole runs, not --stages (which times one process's stages)"
-    ), result.stderr
+def test_generation_ceiling_is_mujoco_alones_core_time_over_the_formats_own_work():
+    """Closed form: MuJoCo alone at 100 frames/s in two processes spends 20 ms of a core a
+    frame; colour 10 + instance 5 + unoccluded 3 + deflate 7 = 25 ms leave room for at most
+    0.8 of its rate, and with a 5 ms sensor model 20 / 30. Other stages do not count."""
+    stages = {
+        "colour pass (RGB and depth)": 10.0,
+        "instance pass": 5.0,
+        "unoccluded areas": 3.0,
+        "deflate (writer threads)": 7.0,
+        "sensor model": 5.0,
+        "poses and physics": 4.0,
+        "frame loop": 40.0,
+    }
+    ceiling = _generation_module().ceiling
+    assert ceiling(100.0, stages) == pytest.approx((25.0, 0.8))
+    assert ceiling(100.0, stages, ("sensor model",)) == pytest.approx((30.0, 20.0 / 30.0))
+
+
+@pytest.mark.slow  # 15 s of rendering; the ceiling's arithmetic is checked in the default run
+@pytest.mark.render
+def test_generation_stages_with_peer_print_the_ceiling_of_their_own_figures():
+    """``--stages --peer``: a breakdown per profile, then MuJoCo alone on the same world, and
+    per profile the bound its printed stages and the printed peer give (to their rounding)."""
+    small = ("--frames", "3", "--width", "80", "--height", "60", "--png-compression", "1")
+    args = ("--stages", "--peer", "--scene", "walking_xyz", "--profiles", "perfect", "tum", *small)
+    result = _run(str(BENCHMARKS / "generation.py"), *args)
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    peer = re.search(r"^MuJoCo alone, 2 processes: (\d+\.\d) frames/s, (\d+\.\d\d) ms of a core", out, re.M)
+    assert peer, out
+    core_ms = float(peer[2])
+    assert core_ms == pytest.approx(2e3 / float(peer[1]), abs=0.01 + 2e3 / float(peer[1]) ** 2 * 0.05)
+    blocks = out.split("walking_xyz, sensor ")[1:]
+    assert [b.split(",")[0] for b in blocks] == ["perfect", "tum"], out
+    for block, profile in zip(blocks, ("perfect", "tum"), strict=True):
+        figures = {
+            m[1].strip(): float(m[2]) for m in re.finditer(r"^  (\S[^\d\n]*?)\s+(\d+\.\d\d)", block, re.M)
+        }
+        work = sum(figures[label] for label in _generation_module().FORMAT_WORK)
+        line = re.search(
+            rf"^  {profile}\s+the passes and deflate\s+(\d+\.\d\d) ms a frame: at most (\d\.\d\d)", out, re.M
+        )
+        assert line, out
+        assert float(line[1]) == pytest.approx(work, abs=0.021)
+        assert float(line[2]) == pytest.approx(core_ms / work, abs=0.006 + core_ms / work**2 * 0.02)
+    assert re.search(r"^  tum\s+and the sensor model\s+\d+\.\d\d ms a frame: at most \d\.\d\d", out, re.M), (
+        out
+    )
+    assert not re.search(r"^  perfect\s+and the sensor model", out, re.M), out
 
 
 @pytest.mark.slow  # 9 s; the script's arguments are parsed in the default run, as every script's
