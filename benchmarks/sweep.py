@@ -10,7 +10,9 @@ three times through the engine, each time on a fresh cache folder:
 - cache + dedupe: and jobs that keep the same keypoints in every frame tracked once.
 The jobs: ``none`` plus ``--configs`` box_epipolar_flow configurations (a grid over
 epsilon_px x l_thr1_px x l_thr2_px, first N). Prints runs per minute of each and the
-speed-up, and checks that both gave the same rows (timings aside).
+speed-up, and checks that both gave the same rows (timings aside). Below each mode, the
+seconds of each phase of the engine that ran (``depotbench -v`` shows the same lines): the
+shared stages, the decision paths, tracking.
 
 ``--baseline [REV]`` (REV defaults to ``BEFORE_ISSUE_40``) also runs the cache + dedupe sweep
 on the code of revision REV, in this run, on this machine and on the same sequences: the
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import io
 import itertools
+import logging
 import os
 import re
 import subprocess
@@ -49,6 +52,23 @@ BEFORE_ISSUE_40 = "1010605"
 which asked for a sweep at least 2x faster than this code's."""
 BASELINE_LINE = re.compile(r"^cache \+ dedupe\s+([0-9.]+) s", re.M)
 """The child's line that gives the revision's cache + dedupe time."""
+PHASE_LINE = re.compile(r"^phase (\d), (.*), took ([0-9.]+) s$")
+"""The engine's ``-v`` line that times one of its phases (``engine.PHASES``)."""
+
+
+class _Phases(logging.Handler):
+    """Seconds of each phase of ``run_jobs`` that ran, by its name, from the engine's ``-v``
+    lines (none from a revision whose engine does not time them)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seconds: dict[str, float] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        found = PHASE_LINE.match(record.getMessage())
+        if found:
+            self.seconds[found[2]] = float(found[3])
+
 
 GRID = {
     "epsilon_px": [0.25, 0.5, 1.0, 2.0, 4.0],
@@ -88,16 +108,32 @@ def _use_cache(folder: Path | None) -> None:
         os.environ["DEPOTBENCH_CACHE"] = "off" if folder is None else str(folder.absolute())
 
 
-def _timed(jobs, out: Path, workers: int, cache: bool, dedupe: bool) -> tuple[float, int, list[dict]]:
+def _timed(
+    jobs, out: Path, workers: int, cache: bool, dedupe: bool
+) -> tuple[float, int, list[dict], dict[str, float]]:
+    """(seconds, runs tracked, the rows' deterministic fields, seconds of each phase)."""
+    from depotbench.eval.sweep import engine
+
     _use_cache(out / "cache" if cache else None)
     fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
     out.mkdir(parents=True)
-    with ResultStore(out / "results.sqlite") as store:
-        started = time.perf_counter()
-        tracked, _ = run_jobs(jobs, store, workers, progress=True, dedupe=dedupe)
-        elapsed = time.perf_counter() - started
-        rows = [{k: r[k] for k in fields} for r in store.rows()]
-    return elapsed, tracked, rows
+    log, phases = logging.getLogger(engine.__name__), _Phases()
+    level = log.level
+    log.addHandler(phases)
+    if hasattr(engine, "PHASES"):  # a baseline revision's engine may time none (nor have core.logs)
+        from depotbench.core.logs import DETAIL
+
+        log.setLevel(DETAIL)  # this logger's alone: the workers keep the package's level
+    try:
+        with ResultStore(out / "results.sqlite") as store:
+            started = time.perf_counter()
+            tracked, _ = run_jobs(jobs, store, workers, progress=True, dedupe=dedupe)
+            elapsed = time.perf_counter() - started
+            rows = [{k: r[k] for k in fields} for r in store.rows()]
+    finally:
+        log.removeHandler(phases)
+        log.setLevel(level)
+    return elapsed, tracked, rows, phases.seconds
 
 
 def _work(root: Path, sequences: list[tuple[Path, str]], configs: int, detector: str) -> list[SweepJob]:
@@ -182,7 +218,7 @@ def _child(args: argparse.Namespace) -> None:
     print(f"depotbench from {Path(depotbench.__file__).parent.parent}")
     with tempfile.TemporaryDirectory() as tmp:
         work = _work(Path(tmp), sequences, args.configs, args.detector)
-        elapsed, tracked, _ = _timed(work, Path(tmp) / "run", args.workers, True, True)
+        elapsed, tracked, *_ = _timed(work, Path(tmp) / "run", args.workers, True, True)
     print(f"cache + dedupe  {elapsed:8.1f} s ({tracked} tracked, {len(work) - tracked} shared)")
 
 
@@ -233,12 +269,14 @@ def main() -> None:
             modes.append(("naive", False, False))
         for label, cache, dedupe in modes:
             folder = root / label.replace(" ", "").replace("+", "_")
-            elapsed, tracked, rows = _timed(work, folder, args.workers, cache, dedupe)
+            elapsed, tracked, rows, phases = _timed(work, folder, args.workers, cache, dedupe)
             results[label] = (elapsed, rows)
             print(
                 f"{label:16s}{elapsed:8.1f} s {len(work) / elapsed * 60:9.1f} runs/min "
                 f"({tracked} tracked, {len(work) - tracked} shared)"
             )
+            if phases:
+                print("  of which " + ", ".join(f"{name} {s:.1f} s" for name, s in phases.items()))
         if baseline_s is not None:
             elapsed = results["cache + dedupe"][0]
             print(

@@ -306,7 +306,8 @@ def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
     """sweep.py on a toy sweep (1 sequence of 3 frames, 2 configurations): its modes run (the
     settings went in as text until they were typed, and it crashed), and ``--baseline`` runs
     the same sweep with depotbench imported from the revision's files (settings as that code
-    took them, its cache switch), then prints the speed-up over it."""
+    took them, its cache switch), then prints the speed-up over it; below each of this code's
+    modes, the seconds of each phase that ran."""
     module = benchmark_module("sweep")
     if not _has_commit(module.BEFORE_ISSUE_40):
         pytest.skip(f"this clone lacks commit {module.BEFORE_ISSUE_40}")
@@ -318,6 +319,14 @@ def test_sweep_benchmark_times_this_code_and_the_code_before_issue_40():
     assert re.search(r"^  \| cache \+ dedupe\s+\d+\.\d s \(2 tracked, 1 shared\)$", out, re.M), out
     assert re.search(r"^cache \+ dedupe\s+\d+\.\d s .*\(2 tracked, 1 shared\)$", out, re.M), out
     assert re.search(r"^cache\s+\d+\.\d s .*\(3 tracked, 0 shared\)$", out, re.M), out
+    # each mode's phases, the decision paths where jobs are deduplicated (the child's older engine times none)
+    phases = re.findall(r"^  of which (.*)$", out, re.M)
+    number = r"\d+\.\d s"
+    assert len(phases) == 2, out
+    assert re.fullmatch(
+        rf"the shared stages {number}, the decision paths {number}, tracking {number}", phases[0]
+    )
+    assert re.fullmatch(rf"the shared stages {number}, tracking {number}", phases[1])
     assert re.search(
         rf"^speed-up of cache \+ dedupe over revision {module.BEFORE_ISSUE_40}: \d+\.\d\dx", out, re.M
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -76,12 +77,14 @@ def test_one_flow_stage_serves_every_flow_strategy_and_threshold(walking: Path, 
     assert len([p for p in (tmp_path / "cache" / "features").iterdir()]) == 2
 
 
-def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_path: Path):
+def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_path: Path, caplog):
     """Jobs that keep the same keypoints in every frame are tracked once; their rows equal
     those of tracking each job (here l_thr2_px 50/60/70 decide alike: the flow's std is
-    always below them)."""
+    always below them). ``-v`` times each phase that ran: the decision paths only where
+    jobs are deduplicated."""
+    from depotbench.core.logs import DETAIL
     from depotbench.eval.metrics.record import DETERMINISTIC_FIELDS
-    from depotbench.eval.sweep.engine import expand, run_jobs
+    from depotbench.eval.sweep.engine import PHASES, expand, run_jobs
     from depotbench.eval.sweep.spec import load_sweep
     from depotbench.eval.sweep.store import ResultStore
 
@@ -95,8 +98,10 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
     fields = [f for f in DETERMINISTIC_FIELDS if f not in ("signature", "computed_by")]
     tables = {}
     for dedupe in (True, False):
+        caplog.clear()
         with ResultStore(tmp_path / f"{dedupe}.sqlite") as store:
-            tracked, written = run_jobs(jobs, store, workers=1, progress=False, dedupe=dedupe)
+            with caplog.at_level(DETAIL, "depotbench"):
+                tracked, written = run_jobs(jobs, store, workers=1, progress=False, dedupe=dedupe)
             tables[dedupe] = [{k: r[k] for k in fields} for r in store.rows()]
             if dedupe:
                 assert written == 6 and tracked <= 4  # the three l_thr2_px values are one run
@@ -106,6 +111,11 @@ def test_deduplicated_sweep_rows_equal_tracking_every_job(walking: Path, tmp_pat
                 assert len({r["signature"] for r in rows}) == tracked
             else:
                 assert tracked == written == 6
+        phases = [r.getMessage() for r in caplog.records if r.getMessage().startswith("phase ")]
+        assert [p.rsplit(" took ", 1)[0] for p in phases] == (
+            list(PHASES) if dedupe else [PHASES[0], PHASES[2]]
+        )
+        assert all(re.fullmatch(r".* took \d+\.\d\d s", p) for p in phases), phases
     assert tables[True] == tables[False]
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from depotbench.core.errors import InputError
 from depotbench.core.executors import make_pool
-from depotbench.core.logs import DETAIL
+from depotbench.core.logs import DETAIL, timed
 from depotbench.core.progress import progress_bar
 from depotbench.core.version import code_version
 from depotbench.detectors.config import DetectorConfig
@@ -557,6 +557,11 @@ def _localized(value, sources: dict[str, SequenceSource]):
     return value
 
 
+PHASES = ("phase 0, the shared stages,", "phase 1, the decision paths,", "phase 2, tracking,")
+"""How ``run_jobs`` names its phases in the ``-v`` lines that time them ("... took 2.61 s"):
+``benchmarks/sweep.py`` reads them to say where a sweep's time went."""
+
+
 def run_jobs(
     jobs: list[SweepJob],
     store: ResultStore,
@@ -592,13 +597,13 @@ def run_jobs(
         if StageCache.from_env() is not None:
             groups = stage_groups(pending)
             bar = progress_bar(total=len(groups), desc="stages", unit="seq", disable=not progress)
-            with bar:
+            with bar, timed(LOG, PHASES[0]):
                 for _ in pool.map_unordered(*_tasks(compute_stages, [(j,) for j in groups], shipments)):
                     bar.update(1)
         if dedupe and pending:
             bar = progress_bar(total=len(pending), desc="decisions", unit="run", disable=not progress)
             decisions = []
-            with bar:
+            with bar, timed(LOG, PHASES[1]):
                 chunks = [(c,) for c in _chunks(pending, 4 * workers)]
                 for _, answer in pool.map_unordered(*_tasks(decide, chunks, shipments)):
                     decisions.extend(answer)
@@ -644,7 +649,7 @@ def run_jobs(
         )
         tracked = 0
         failures = []
-        with bar:
+        with bar, timed(LOG, PHASES[2]):
             for _, records in pool.map_unordered(*_tasks(_dispatch, tasks, shipments)):
                 for record in records:
                     if isinstance(record, Failure):
